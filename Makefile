@@ -1,0 +1,25 @@
+# Set-up and the two jobs of the Quick start. Every target installs what it needs first.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: install demo test clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	# torch first, pinned: this CPU build is what the export extra is developed against
+	$(BIN)/pip install torch==2.13.0
+	$(BIN)/pip install -e '.[export,serve,dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/fisheye-infer demo --out artifacts/demo
+
+test: $(STAMP)
+	$(BIN)/pytest -q
+
+clean:
+	rm -rf $(VENV) artifacts build *.egg-info

@@ -1,0 +1,50 @@
+"""fisheye-infer: run surround-view fisheye 3D object detectors with ONNX Runtime.
+
+The core (this package) needs numpy, onnxruntime, OpenCV and pydantic only: camera models,
+rigs and the geometry tables the detectors are built on. ``fisheye_infer.models`` and
+``fisheye_infer.export`` need the ``[export]`` extra (torch, onnx); ``fisheye_infer.service``
+needs ``[serve]``.
+"""
+
+from fisheye_infer._version import __version__
+from fisheye_infer.camera import CameraModel, Equidistant, KannalaBrandt, OCamModel, Pinhole
+from fisheye_infer.camera_fit import OCamFit, fit_ocam_from_kb
+from fisheye_infer.errors import (
+    ArtifactError,
+    CameraModelError,
+    CheckpointError,
+    ConfigError,
+    ExportError,
+    FisheyeInferError,
+    FrameError,
+    InferenceError,
+    ParityError,
+    RigError,
+)
+from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig, RigCamera, default_rig, resolve_rig
+
+__all__ = [
+    "__version__",
+    "ArtifactError",
+    "CameraModel",
+    "CameraModelError",
+    "CheckpointError",
+    "ConfigError",
+    "Equidistant",
+    "ExportError",
+    "FISHEYE3DOD_CAMERAS",
+    "FisheyeInferError",
+    "FrameError",
+    "InferenceError",
+    "KannalaBrandt",
+    "OCamFit",
+    "OCamModel",
+    "ParityError",
+    "Pinhole",
+    "Rig",
+    "RigCamera",
+    "RigError",
+    "default_rig",
+    "fit_ocam_from_kb",
+    "resolve_rig",
+]

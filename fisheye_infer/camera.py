@@ -1,0 +1,370 @@
+"""Camera models behind one interface: ray <-> pixel, with validity.
+
+Every model works in the OpenCV camera frame (x right, y down, z forward) and in pixel
+coordinates whose integer values are pixel centres (the ``cv2.remap`` convention):
+
+    uv, valid = camera.project(points)    # (N, 3) -> (N, 2) float64, (N,) bool
+    rays = camera.unproject(uv)           # (N, 2) -> (N, 3) unit vectors
+
+``OCamModel`` is the Scaramuzza/OCamCalib model the Fisheye3DOD checkpoints were trained with;
+it also keeps the exact semantics of the ``ocamcamera`` package the official code calls
+(``world2cam`` with its (-1, -1) sentinel and ``valid_area``), because the detectors' sampling
+grids are defined by those semantics. ``KannalaBrandt`` is OpenCV's fisheye model (and the
+paper's 5-term r(theta)); ``Equidistant`` and ``Pinhole`` complete the set.
+
+The models are frozen pydantic objects so that a rig file can carry them as plain JSON.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal, Protocol, Union
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from fisheye_infer.errors import CameraModelError
+
+__all__ = [
+    "CameraModel",
+    "OCamModel",
+    "KannalaBrandt",
+    "Equidistant",
+    "Pinhole",
+    "AnyCameraModel",
+    "incidence_angle",
+]
+
+
+class CameraModel(Protocol):
+    """What every camera model offers."""
+
+    width: int
+    height: int
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray: ...
+
+
+def _points(points: np.ndarray, name: str = "points") -> np.ndarray:
+    arr = np.asarray(points, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise CameraModelError(f"{name}: expected an (N, 3) array, got shape {arr.shape}")
+    return arr
+
+
+def _pixels(uv: np.ndarray) -> np.ndarray:
+    arr = np.asarray(uv, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise CameraModelError(f"uv: expected an (N, 2) array, got shape {arr.shape}")
+    return arr
+
+
+def incidence_angle(points: np.ndarray) -> np.ndarray:
+    """Angle between each ray and the optical axis (+z), in [0, pi]."""
+    p = _points(points)
+    return np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2])
+
+
+def _inside_image(uv: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Pixel centres run from 0 to size - 1; anything within half a pixel of them is in the image."""
+    return (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    width: int = Field(gt=0, description="image width in pixels")
+    height: int = Field(gt=0, description="image height in pixels")
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _finite(cls, value: object) -> object:
+        values = value if isinstance(value, (list, tuple)) else [value]
+        for v in values:
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError("must be finite")
+        return value
+
+
+class OCamModel(_Frozen):
+    """Scaramuzza's omnidirectional model, in ``ocamcamera``'s OpenCV-axis convention.
+
+    ``center_row``/``center_col`` are the file's xc (row) and yc (column); ``pol`` maps an image
+    radius to the ray's z (cam2world), ``invpol`` maps theta = incidence - pi/2 to an image
+    radius (world2cam); ``c, d, e`` is the affine stretch. ``fov`` (degrees) is not in the file:
+    Fisheye3DOD uses 220 everywhere, so that is the default when reading a file.
+    """
+
+    type: Literal["ocam"] = "ocam"
+    pol: tuple[float, ...] = Field(min_length=1)
+    invpol: tuple[float, ...] = Field(min_length=1)
+    center_row: float
+    center_col: float
+    c: float = 1.0
+    d: float = 0.0
+    e: float = 0.0
+    fov: float = Field(default=220.0, gt=0.0, le=360.0, description="full field of view, degrees")
+
+    @model_validator(mode="after")
+    def _affine_invertible(self) -> "OCamModel":
+        if abs(self.c - self.d * self.e) < 1e-9:
+            raise ValueError(f"affine c - d*e must be non-zero, got c={self.c}, d={self.d}, e={self.e}")
+        return self
+
+    # -- file format -------------------------------------------------------------------
+
+    @classmethod
+    def from_file(cls, path: str | Path, fov: float = 220.0) -> "OCamModel":
+        """Read an OCamCalib ``calib_results.txt``."""
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise CameraModelError(f"OCam file {path}: cannot be read ({exc.strerror})") from exc
+        return cls.parse(text, fov=fov, source=str(path))
+
+    @classmethod
+    def parse(cls, text: str, fov: float = 220.0, source: str = "<text>") -> "OCamModel":
+        """Parse the text of a ``calib_results.txt``.
+
+        Blank lines (including CRLF and whitespace-only ones) and ``#`` comments are skipped, so the
+        five data rows cannot shift the way they do in ``ocamcamera``'s reader.
+        """
+        rows: list[list[float]] = []
+        for lineno, line in enumerate(text.splitlines(), start=1):
+            stripped = line.strip()
+            if not stripped or stripped.startswith("#"):
+                continue
+            try:
+                rows.append([float(tok) for tok in stripped.split()])
+            except ValueError as exc:
+                raise CameraModelError(f"OCam file {source}, line {lineno}: not a row of numbers: {stripped!r}") from exc
+            if len(rows) == 5:
+                break
+        fields = ["direct polynomial", "inverse polynomial", "centre (row, column)", "affine (c, d, e)", "image size (height, width)"]
+        if len(rows) < 5:
+            raise CameraModelError(f"OCam file {source}: expected 5 data rows ({', '.join(fields)}), found {len(rows)}")
+        for row, field, count in ((rows[0], fields[0], None), (rows[1], fields[1], None), (rows[2], fields[2], 2), (rows[3], fields[3], 3), (rows[4], fields[4], 2)):
+            if count is None:
+                if len(row) < 2 or int(row[0]) != len(row) - 1:
+                    raise CameraModelError(
+                        f"OCam file {source}: {field}: the leading count {row[0]:g} does not match the {len(row) - 1} coefficients that follow"
+                    )
+            elif len(row) != count:
+                raise CameraModelError(f"OCam file {source}: {field}: expected {count} numbers, got {len(row)}")
+        height, width = rows[4]
+        if height != int(height) or width != int(width) or height <= 0 or width <= 0:
+            raise CameraModelError(f"OCam file {source}: image size must be two positive integers, got {rows[4]}")
+        try:
+            return cls(
+                pol=tuple(rows[0][1:]),
+                invpol=tuple(rows[1][1:]),
+                center_row=rows[2][0],
+                center_col=rows[2][1],
+                c=rows[3][0],
+                d=rows[3][1],
+                e=rows[3][2],
+                height=int(height),
+                width=int(width),
+                fov=fov,
+            )
+        except ValueError as exc:
+            raise CameraModelError(f"OCam file {source}: {exc}") from exc
+
+    def to_text(self) -> str:
+        """Write the model back in the ``calib_results.txt`` layout."""
+
+        def row(values: tuple[float, ...]) -> str:
+            return " ".join(repr(float(v)) for v in values)
+
+        return (
+            "#polynomial coefficients for the DIRECT mapping function (ocam_model.ss in MATLAB). These are used by cam2world\n\n"
+            f"{len(self.pol)} {row(self.pol)}\n\n"
+            "#polynomial coefficients for the inverse mapping function (ocam_model.invpol in MATLAB). These are used by world2cam\n\n"
+            f"{len(self.invpol)} {row(self.invpol)}\n\n"
+            '#center: "row" and "column", starting from 0 (C convention)\n\n'
+            f"{self.center_row!r} {self.center_col!r}\n\n"
+            '#affine parameters "c", "d", "e"\n\n'
+            f"{self.c!r} {self.d!r} {self.e!r}\n\n"
+            '#image size: "height" and "width"\n\n'
+            f"{self.height} {self.width}\n"
+        )
+
+    # -- ocamcamera semantics ---------------------------------------------------------
+
+    @property
+    def theta_max(self) -> float:
+        """Largest theta (= incidence - pi/2) that projects; rays beyond it are outside the fov."""
+        return math.radians(self.fov / 2.0) - math.pi / 2.0
+
+    def _invpol(self, theta: np.ndarray) -> np.ndarray:
+        return np.polynomial.polynomial.polyval(theta, np.asarray(self.invpol))
+
+    def _affine(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        u = a + self.e * b + self.center_col
+        v = self.d * a + self.c * b + self.center_row
+        return np.stack([u, v], axis=-1)
+
+    def world2cam(self, points: np.ndarray) -> np.ndarray:
+        """Pixels exactly as ``ocamcamera.world2cam`` defines them, float64.
+
+        Rays beyond the fov and the origin map to the sentinel (-1, -1); a ray on the optical
+        axis, in front or behind, maps to the centre without a fov test.
+        """
+        p = _points(points)
+        rho_xy = np.hypot(p[:, 0], p[:, 1])
+        on_axis = rho_xy == 0
+        safe = np.where(on_axis, 1.0, rho_xy)
+        theta = np.arctan2(-p[:, 2], safe)  # = -atan(Z / rho_xy)
+        rho = self._invpol(theta)
+        uv = self._affine(p[:, 0] / safe * rho, p[:, 1] / safe * rho)
+        if self.fov < 360:
+            uv[(theta > self.theta_max) & ~on_axis] = -1.0
+        uv[on_axis] = (self.center_col, self.center_row)
+        uv[~p.any(axis=1)] = -1.0
+        return uv
+
+    def cam2world(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays exactly as ``ocamcamera.cam2world`` defines them (no fov mask)."""
+        q = _pixels(uv)
+        det = self.c - self.d * self.e
+        du = q[:, 0] - self.center_col
+        dv = q[:, 1] - self.center_row
+        b = (dv - self.d * du) / det
+        a = (self.c * du - self.e * dv) / det
+        r = np.hypot(a, b)
+        z = -np.polynomial.polynomial.polyval(r, np.asarray(self.pol))
+        rays = np.stack([a, b, z], axis=-1)
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+    def valid_area(self) -> np.ndarray:
+        """The uint8 fov mask of ``ocamcamera``: a filled axis-aligned ellipse, 255 inside.
+
+        Semi-axes are rho_max horizontally and c * rho_max vertically; the skew d, e is ignored,
+        as in the reference implementation.
+        """
+        rho_max = float(self._invpol(np.array([self.theta_max]))[0])
+        mask = np.zeros((self.height, self.width), dtype=np.uint8)
+        box = ((self.center_col, self.center_row), (2.0 * rho_max, 2.0 * self.c * rho_max), 0.0)
+        cv2.ellipse(mask, box, 255, -1)
+        return mask
+
+    # -- common interface ----------------------------------------------------------------
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels for rays within the fov; ``valid`` also requires the pixel to lie in the image."""
+        p = _points(points)
+        rho_xy = np.hypot(p[:, 0], p[:, 1])
+        safe = np.where(rho_xy == 0, 1.0, rho_xy)
+        theta = np.arctan2(-p[:, 2], safe)
+        rho = self._invpol(theta)
+        uv = self._affine(p[:, 0] / safe * rho, p[:, 1] / safe * rho)
+        in_fov = (theta <= self.theta_max) | (rho_xy == 0) & (p[:, 2] > 0)
+        valid = in_fov & p.any(axis=1) & _inside_image(uv, self.width, self.height)
+        return uv, valid
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        return self.cam2world(uv)
+
+
+class KannalaBrandt(_Frozen):
+    """OpenCV's fisheye model: theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8).
+
+    Unlike ``cv2.fisheye`` this uses the incidence angle atan2(|xy|, z), so rays beyond 90 degrees
+    (a 220-degree lens) project too; in front of the camera both agree. ``fov`` (degrees) bounds
+    the rays that are valid.
+    """
+
+    type: Literal["kannala_brandt"] = "kannala_brandt"
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    k: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    fov: float = Field(default=220.0, gt=0.0, le=360.0)
+
+    @classmethod
+    def from_polynomial(cls, coeffs: tuple[float, float, float, float, float], cx: float, cy: float, width: int, height: int, fov: float = 220.0) -> "KannalaBrandt":
+        """Build from the paper's radius form r(theta) = k0 theta + k1 theta^3 + ... + k4 theta^9 (pixels)."""
+        k0, *rest = coeffs
+        if k0 <= 0:
+            raise CameraModelError(f"Kannala-Brandt: k0 (the focal length) must be positive, got {k0}")
+        return cls(fx=k0, fy=k0, cx=cx, cy=cy, k=tuple(v / k0 for v in rest), width=width, height=height, fov=fov)
+
+    def distort(self, theta: np.ndarray) -> np.ndarray:
+        """theta_d(theta), the normalised image radius."""
+        t2 = theta * theta
+        k1, k2, k3, k4 = self.k
+        return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+    def undistort(self, theta_d: np.ndarray, iterations: int = 20) -> np.ndarray:
+        """Invert ``distort`` by Newton's method, as ``cv2.fisheye.undistortPoints`` does."""
+        theta = np.array(theta_d, dtype=np.float64)
+        k1, k2, k3, k4 = self.k
+        for _ in range(iterations):
+            t2 = theta * theta
+            f = self.distort(theta) - theta_d
+            df = 1.0 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+            theta = theta - f / np.where(df == 0, 1.0, df)
+        return theta
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = _points(points)
+        rho_xy = np.hypot(p[:, 0], p[:, 1])
+        theta = np.arctan2(rho_xy, p[:, 2])
+        safe = np.where(rho_xy == 0, 1.0, rho_xy)
+        r = self.distort(theta)
+        uv = np.stack([self.fx * r * p[:, 0] / safe + self.cx, self.fy * r * p[:, 1] / safe + self.cy], axis=-1)
+        valid = (theta <= math.radians(self.fov / 2)) & p.any(axis=1) & _inside_image(uv, self.width, self.height)
+        return uv, valid
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        q = _pixels(uv)
+        a = (q[:, 0] - self.cx) / self.fx
+        b = (q[:, 1] - self.cy) / self.fy
+        theta_d = np.hypot(a, b)
+        theta = self.undistort(theta_d)
+        safe = np.where(theta_d == 0, 1.0, theta_d)
+        s = np.sin(theta)
+        return np.stack([s * a / safe, s * b / safe, np.cos(theta)], axis=-1)
+
+
+class Equidistant(KannalaBrandt):
+    """The ideal fisheye r = f * theta: Kannala-Brandt with every k zero."""
+
+    type: Literal["equidistant"] = "equidistant"  # type: ignore[assignment]
+
+    @model_validator(mode="after")
+    def _no_distortion(self) -> "Equidistant":
+        if any(self.k):
+            raise ValueError("an equidistant model has no distortion coefficients; use kannala_brandt")
+        return self
+
+
+class Pinhole(_Frozen):
+    """A distortion-free perspective camera; only rays in front of it (z > 0) project."""
+
+    type: Literal["pinhole"] = "pinhole"
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = _points(points)
+        z = p[:, 2]
+        safe = np.where(z > 0, z, 1.0)
+        uv = np.stack([self.fx * p[:, 0] / safe + self.cx, self.fy * p[:, 1] / safe + self.cy], axis=-1)
+        return uv, (z > 0) & _inside_image(uv, self.width, self.height)
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        q = _pixels(uv)
+        rays = np.stack([(q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy, np.ones(len(q))], axis=-1)
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+AnyCameraModel = Annotated[Union[OCamModel, KannalaBrandt, Equidistant, Pinhole], Field(discriminator="type")]

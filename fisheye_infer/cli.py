@@ -1,0 +1,153 @@
+"""``fisheye-infer``: one subcommand per job, each a plain function that imports its extras lazily."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Callable
+
+from fisheye_infer._version import __version__
+from fisheye_infer.errors import FisheyeInferError
+
+__all__ = ["main", "build_parser"]
+
+
+def _rig_show(args: argparse.Namespace) -> int:
+    from fisheye_infer.rig import resolve_rig
+
+    print(resolve_rig(args.rig).describe())
+    return 0
+
+
+def _rig_plot(args: argparse.Namespace) -> int:
+    from fisheye_infer.rig import resolve_rig
+    from fisheye_infer.viz import draw_rig, save_png
+
+    print(f"wrote {save_png(args.out, draw_rig(resolve_rig(args.rig)))}")
+    return 0
+
+
+def _rig_grid(args: argparse.Namespace) -> int:
+    from fisheye_infer.geometry.grids import spherical_grid
+    from fisheye_infer.rig import resolve_rig
+    from fisheye_infer.viz import draw_sampling_grid, save_png
+
+    rig = resolve_rig(args.rig)
+    camera = rig.camera(args.camera) if args.camera else rig.cameras[0]
+    grid = spherical_grid(camera.model, (args.rows, args.cols))
+    print(f"wrote {save_png(args.out, draw_sampling_grid(camera.model, grid))}")
+    return 0
+
+
+def _rig_convert(args: argparse.Namespace) -> int:
+    from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig
+
+    if args.extrinsics:
+        rig = Rig.from_ocam_extrinsics(args.calib, args.extrinsics, fov=args.fov)
+    else:
+        cameras = args.cameras.split(",") if args.cameras else FISHEYE3DOD_CAMERAS
+        rig = Rig.from_sensor_metadata(args.sensor_metadata, args.calib, cameras=cameras, frame_id=args.frame, convention=args.convention, fov=args.fov)
+    rig.save(args.out)
+    print(rig.describe())
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    """The main job on embedded defaults: the shipped rig, its geometry tables and their pictures."""
+    from fisheye_infer.geometry import BevGrid, build_pooling_plan, depth_bins, frustum_to_lidar, spherical_frustum, spherical_grid
+    from fisheye_infer.rig import default_rig
+    from fisheye_infer.viz import draw_rig, draw_sampling_grid, save_png
+
+    out = Path(args.out)
+    rig = default_rig()
+    print(rig.describe())
+    model = rig.shared_model()
+    grid = spherical_grid(model)
+    plan = build_pooling_plan(frustum_to_lidar(spherical_frustum(depth_bins()), rig.cam2lidar()), BevGrid())
+    print(
+        f"geometry: sampling grid {grid.shape[0]}x{grid.shape[1]}, "
+        f"{plan.num_kept:,} of {plan.num_points:,} frustum points pooled into {int((plan.counts > 0).sum()):,} BEV cells "
+        f"({len(plan.bucket_sizes)} buckets, {sum(b.size for b in plan.bucket_points) / max(plan.num_kept, 1):.2f}x padding)"
+    )
+    print(f"wrote {save_png(out / 'rig.png', draw_rig(rig))}")
+    print(f"wrote {save_png(out / 'sampling_grid.png', draw_sampling_grid(model, grid))}")
+    return 0
+
+
+def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
+    def run(args: argparse.Namespace) -> int:
+        print(f"fisheye-infer {name}: not available in version {__version__} yet.", file=sys.stderr)
+        return 2
+
+    return run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fisheye-infer", description="Export, run and serve surround-view fisheye 3D object detectors.")
+    parser.add_argument("--version", action="version", version=f"fisheye-infer {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    demo = sub.add_parser("demo", help="run the main job on the shipped defaults")
+    demo.add_argument("--out", default="artifacts/demo", help="folder for the outputs (default: artifacts/demo)")
+    demo.set_defaults(run=_demo)
+
+    rig = sub.add_parser("rig", help="show, plot or convert a camera rig")
+    rig_sub = rig.add_subparsers(dest="rig_command", metavar="ACTION", required=True)
+    rig_help = "rig file (.json/.yaml), folder with calib_results.txt + lidar2cam.json, or 'default'"
+    show = rig_sub.add_parser("show", help="print the rig's cameras, poses and hash")
+    show.add_argument("rig", nargs="?", default="default", help=rig_help)
+    show.set_defaults(run=_rig_show)
+    plot = rig_sub.add_parser("plot", help="draw the cameras and their fields of view from above")
+    plot.add_argument("rig", nargs="?", default="default", help=rig_help)
+    plot.add_argument("--out", required=True, help="PNG to write")
+    plot.set_defaults(run=_rig_plot)
+    grid = rig_sub.add_parser("grid", help="draw where the equirectangular sampling grid reads a fisheye image")
+    grid.add_argument("rig", nargs="?", default="default", help=rig_help)
+    grid.add_argument("--camera", help="camera name (default: the first)")
+    grid.add_argument("--rows", type=int, default=25)
+    grid.add_argument("--cols", type=int, default=100)
+    grid.add_argument("--out", required=True, help="PNG to write")
+    grid.set_defaults(run=_rig_grid)
+    convert = rig_sub.add_parser("convert", help="write a rig file from an OCam file and extrinsics")
+    convert.add_argument("--calib", required=True, help="OCam calib_results.txt shared by the cameras")
+    source = convert.add_mutually_exclusive_group(required=True)
+    source.add_argument("--extrinsics", help='lidar2cam.json: {"cameras": {name: 4x4}}')
+    source.add_argument("--sensor-metadata", help="Fisheye3DOD <scene>/<vehicle> folder with <camera>/sensor_metadata.txt")
+    convert.add_argument("--cameras", help="comma-separated camera order (sensor metadata only)")
+    convert.add_argument("--frame", help="frame id (sensor metadata only; default: first common frame)")
+    convert.add_argument("--convention", choices=("compat", "exact"), default="compat", help="CARLA pose conversion (default: compat, as the checkpoints were trained)")
+    convert.add_argument("--fov", type=float, default=220.0, help="lens field of view in degrees (default 220)")
+    convert.add_argument("--out", required=True, help="rig file to write (.json or .yaml)")
+    convert.set_defaults(run=_rig_convert)
+
+    for name, text in (
+        ("export", "export a checkpoint to one self-contained ONNX file"),
+        ("rebake", "recompute an ONNX file's geometry for a new rig"),
+        ("detect", "run a model on frames and write results and pictures"),
+        ("serve", "serve a model over HTTP"),
+        ("eval", "measure FDS/mAP on Fisheye3DOD-layout data"),
+        ("synth", "render synthetic fisheye frames"),
+        ("bench", "benchmark a model on this machine"),
+    ):
+        cmd = sub.add_parser(name, help=f"{text} (not available yet)", description=f"{text}. Not available in this version yet.")
+        cmd.set_defaults(run=_not_yet(name))
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "run", None):
+        parser.print_help()
+        return 1
+    try:
+        return args.run(args)
+    except FisheyeInferError as exc:
+        print(f"fisheye-infer {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""One exception tree for everything fisheye-infer raises on purpose.
+
+    FisheyeInferError
+     ├── CameraModelError   a calibration file or camera parameter is malformed
+     ├── RigError           a rig is incomplete or inconsistent (camera, field named)
+     ├── ConfigError        a model configuration cannot be read or is refused
+     ├── CheckpointError    a checkpoint does not fit the model (keys named)
+     ├── ExportError        an export cannot be carried out
+     │    └── ParityError   the exported graph disagrees with PyTorch beyond tolerance
+     ├── ArtifactError      an ONNX file lacks or has wrong fisheye-infer metadata
+     ├── FrameError         an input frame is unusable (camera and field named)
+     └── InferenceError     ONNX Runtime failed while running a valid frame
+
+Messages name the camera or field and say what was expected and what was received,
+so a user can act on them without reading a traceback.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "FisheyeInferError",
+    "CameraModelError",
+    "RigError",
+    "ConfigError",
+    "CheckpointError",
+    "ExportError",
+    "ParityError",
+    "ArtifactError",
+    "FrameError",
+    "InferenceError",
+]
+
+
+class FisheyeInferError(Exception):
+    """Base of every error raised by fisheye-infer on purpose."""
+
+
+class CameraModelError(FisheyeInferError, ValueError):
+    """A calibration file or camera parameter is malformed or out of range."""
+
+
+class RigError(FisheyeInferError, ValueError):
+    """A rig is incomplete or inconsistent: missing camera, NaN, non-rigid matrix, wrong size."""
+
+
+class ConfigError(FisheyeInferError, ValueError):
+    """A model configuration cannot be read, or uses a construct that is refused."""
+
+
+class CheckpointError(FisheyeInferError):
+    """A checkpoint does not fit the model: missing, unexpected or mis-shaped keys."""
+
+
+class ExportError(FisheyeInferError):
+    """An export cannot be carried out with the given inputs."""
+
+
+class ParityError(ExportError):
+    """The exported graph disagrees with the PyTorch model beyond the stated tolerance."""
+
+
+class ArtifactError(FisheyeInferError):
+    """An ONNX file lacks fisheye-infer metadata, or its metadata is invalid or unsupported."""
+
+
+class FrameError(FisheyeInferError, ValueError):
+    """An input frame is unusable: wrong camera names, size, dtype, or undecodable bytes."""
+
+
+class InferenceError(FisheyeInferError):
+    """ONNX Runtime failed while running a frame that passed validation."""

@@ -1,0 +1,142 @@
+"""Sampling grids that warp a fisheye image (or its feature map) onto an angular grid.
+
+Both detectors resample their stride-16 fisheye features onto an equirectangular
+(azimuth x elevation) grid before lifting them to 3D. The grid stores, for every output cell,
+the fisheye pixel its ray hits, normalised the way the official code does it:
+``g = 2 * u / W - 1`` (divisor W, not W - 1) and then sampled with ``align_corners=True``.
+That small inconsistency is baked into the trained weights, so it is reproduced here.
+
+Angles are computed in float64 and the tables are cast to float32 once, at the end.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fisheye_infer.camera import OCamModel
+
+__all__ = [
+    "DEFAULT_AZIMUTH_RANGE",
+    "DEFAULT_ELEVATION_RANGE",
+    "angular_axes",
+    "spherical_directions",
+    "cylindrical_directions",
+    "normalise_pixels",
+    "spherical_grid",
+    "cylindrical_grid",
+    "cylindrical_remap",
+    "sample_bilinear",
+    "invalid_mask",
+]
+
+#: +-110 degrees: the half field of view of the Fisheye3DOD lenses.
+DEFAULT_AZIMUTH_RANGE = (-math.radians(110.0), math.radians(110.0))
+#: +-45 degrees of elevation (positive is down, as the camera's y axis).
+DEFAULT_ELEVATION_RANGE = (-math.pi / 4, math.pi / 4)
+
+
+def angular_axes(out_hw: tuple[int, int], azimuth_range: tuple[float, float], elevation_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Elevation per row (H,) and azimuth per column (W,), linspace with both ends included."""
+    h, w = out_hw
+    return np.linspace(*elevation_range, h), np.linspace(*azimuth_range, w)
+
+
+def spherical_directions(out_hw: tuple[int, int], azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE, elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
+    """Unit rays (H, W, 3) in the camera frame: (cos el sin az, sin el, cos el cos az).
+
+    Row 0 looks up (the camera's y axis points down), column 0 looks left.
+    """
+    el, az = angular_axes(out_hw, azimuth_range, elevation_range)
+    el, az = np.meshgrid(el, az, indexing="ij")
+    return np.stack([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)], axis=-1)
+
+
+def cylindrical_directions(out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> np.ndarray:
+    """Rays (H, W, 3) on a unit-radius cylinder: (sin az, y, cos az), y linear in [y0, y1].
+
+    ``height_range`` is in tan(elevation) units; the official baselines pass tan of their
+    elevation bounds. Rays are not unit length: their horizontal radius is 1.
+    """
+    h, w = out_hw
+    y, az = np.meshgrid(np.linspace(*height_range, h), np.linspace(*azimuth_range, w), indexing="ij")
+    return np.stack([np.sin(az), y, np.cos(az)], axis=-1)
+
+
+def normalise_pixels(uv: np.ndarray, camera: OCamModel) -> np.ndarray:
+    """Pixel coordinates -> grid_sample coordinates with the official divisor (W, not W - 1)."""
+    size = np.array([camera.width, camera.height], dtype=np.float64)
+    return uv * 2.0 / size - 1.0
+
+
+def _grid_from_rays(camera: OCamModel, rays: np.ndarray) -> np.ndarray:
+    shape = rays.shape[:-1]
+    uv = camera.world2cam(rays.reshape(-1, 3))
+    return normalise_pixels(uv, camera).reshape(*shape, 2).astype(np.float32)
+
+
+def spherical_grid(camera: OCamModel, out_hw: tuple[int, int] = (25, 100), azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE, elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
+    """Equirectangular grid (H, W, 2) float32 for ``grid_sample(align_corners=True)``.
+
+    Rays outside the lens's fov take the OCam sentinel pixel (-1, -1), i.e. g = -1 - 2/W, as the
+    official tables do; they are partially sampled, not zeroed.
+    """
+    return _grid_from_rays(camera, spherical_directions(out_hw, azimuth_range, elevation_range))
+
+
+def cylindrical_grid(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> np.ndarray:
+    """Cylindrical grid (H, W, 2) float32 for ``grid_sample(align_corners=True)``."""
+    return _grid_from_rays(camera, cylindrical_directions(out_hw, azimuth_range, height_range))
+
+
+def cylindrical_remap(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel maps (map_x, map_y), each (H, W) float32, for ``cv2.remap`` of a whole fisheye image.
+
+    This is the image-level cylindrical rectification of the cylindrical baselines.
+    """
+    rays = cylindrical_directions(out_hw, azimuth_range, height_range)
+    uv = camera.world2cam(rays.reshape(-1, 3)).reshape(*out_hw, 2).astype(np.float32)
+    return uv[..., 0].copy(), uv[..., 1].copy()
+
+
+def sample_bilinear(image: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """``grid_sample(image, grid, 'bilinear', 'zeros', align_corners=True)`` in float32.
+
+    ``image`` is (C, H, W) or (H, W); ``grid`` is (h, w, 2). The arithmetic follows PyTorch's
+    CPU kernel step by step, in float32, so that the masks sampled at construction time in the
+    official code (and their rounding artefacts) come out the same.
+    """
+    img = np.asarray(image, dtype=np.float32)
+    squeeze = img.ndim == 2
+    if squeeze:
+        img = img[None]
+    _, height, width = img.shape
+    g = np.asarray(grid, dtype=np.float32)
+    one = np.float32(1.0)
+    x = (g[..., 0] + one) * np.float32((width - 1) / 2)
+    y = (g[..., 1] + one) * np.float32((height - 1) / 2)
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = x - x0
+    fy = y - y0
+    wx0, wy0 = one - fx, one - fy
+    weights = (wy0 * wx0, wy0 * fx, fy * wx0, fy * fx)  # nw, ne, sw, se
+    x0i, y0i = x0.astype(np.int64), y0.astype(np.int64)
+    out = np.zeros((img.shape[0], *g.shape[:2]), dtype=np.float32)
+    for (dy, dx), weight in zip(((0, 0), (0, 1), (1, 0), (1, 1)), weights):
+        xi, yi = x0i + dx, y0i + dy
+        inside = (xi >= 0) & (xi < width) & (yi >= 0) & (yi < height)
+        tap = img[:, np.clip(yi, 0, height - 1), np.clip(xi, 0, width - 1)] * inside
+        out = out + weight * tap
+    return out[0] if squeeze else out
+
+
+def invalid_mask(camera: OCamModel, grid: np.ndarray) -> np.ndarray:
+    """1 - (the lens's valid area sampled at ``grid``), (h, w) float32.
+
+    FisheyePETR masks every key where this is not exactly 0, which includes a few interior
+    cells whose bilinear weights do not sum to exactly 1.0 in float32.
+    """
+    valid = camera.valid_area().astype(np.float32) / np.float32(255.0)
+    return np.float32(1.0) - sample_bilinear(valid, grid)

@@ -1,0 +1,1 @@
+"""fisheye_infer.service"""

@@ -1,0 +1,88 @@
+"""The package as a user installs it: one namespace, a torch-free core, a working CLI."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+import fisheye_infer
+from fisheye_infer.cli import build_parser
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("wheel")
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out), str(ROOT)],
+        check=True,
+        capture_output=True,
+    )
+    (path,) = out.glob("fisheye_infer-*.whl")
+    return path
+
+
+def test_wheel_installs_one_namespace(wheel: Path) -> None:
+    names = zipfile.ZipFile(wheel).namelist()
+    top = {n.split("/")[0] for n in names}
+    assert {t for t in top if not t.endswith(".dist-info")} == {"fisheye_infer"}
+    for sub in ("models", "export", "service", "geometry"):
+        assert f"fisheye_infer/{sub}/__init__.py" in names
+    assert "fisheye_infer/data/rig-fisheye3dod/calib_results.txt" in names
+    assert "fisheye_infer/models/manifests/fisheye_bevdet_keys.json" in names
+
+
+BLOCK_HEAVY = """
+import importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in {'torch', 'fastapi', 'uvicorn', 'starlette', 'onnx', 'matplotlib'}:
+            raise ImportError(f'{name} is not installed')
+sys.meta_path.insert(0, Block())
+"""
+
+
+def test_core_imports_without_torch_or_web_stack() -> None:
+    code = BLOCK_HEAVY + (
+        "import fisheye_infer, fisheye_infer.geometry, fisheye_infer.rig, fisheye_infer.camera_fit, fisheye_infer.viz, fisheye_infer.cli\n"
+        "r = fisheye_infer.default_rig(); print(len(r))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "4"
+
+
+def test_import_loads_neither_torch_nor_fastapi() -> None:
+    code = "import sys, fisheye_infer; print(sorted(m for m in ('torch', 'fastapi', 'uvicorn', 'onnx') if m in sys.modules))"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]"
+
+
+def test_public_names() -> None:
+    for name in fisheye_infer.__all__:
+        assert hasattr(fisheye_infer, name), name
+    assert {"OCamModel", "KannalaBrandt", "Rig", "default_rig", "FisheyeInferError", "__version__"} <= set(fisheye_infer.__all__)
+
+
+def _subcommands() -> list[str]:
+    parser = build_parser()
+    action = next(a for a in parser._actions if a.dest == "command")
+    return sorted(action.choices)
+
+
+def test_version() -> None:
+    result = subprocess.run([sys.executable, "-m", "fisheye_infer", "--version"], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == f"fisheye-infer {fisheye_infer.__version__}"
+
+
+@pytest.mark.parametrize("command", _subcommands())
+def test_every_subcommand_has_help(command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        build_parser().parse_args([command, "--help"])
+    assert exit_info.value.code == 0
+    assert "usage: fisheye-infer " + command in capsys.readouterr().out
