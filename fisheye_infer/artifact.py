@@ -1,0 +1,146 @@
+"""The metadata an exported ONNX file carries: one JSON document, validated, versioned.
+
+Everything a runtime must know to feed the graph and read its outputs travels inside the
+``.onnx`` file under the ``metadata_props`` key ``fisheye_infer``: architecture, classes,
+camera names and order, image size, colour order and normalisation, box layout and frame,
+score semantics, the full rig with its hash, the tools that exported it, and the parity
+report of the export. ``Detector`` reads it through ONNX Runtime (no ``onnx`` import needed)
+and refuses files without it, with a schema version it does not know, or with a rig whose
+content does not match its recorded hash.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from fisheye_infer.errors import ArtifactError
+from fisheye_infer.rig import Rig
+
+__all__ = [
+    "ARTIFACT_SCHEMA_VERSION",
+    "METADATA_KEY",
+    "INPUT_IMAGES",
+    "INPUT_CAMERA_VALID",
+    "OUTPUTS",
+    "ArtifactMeta",
+    "Normalisation",
+    "ParityReport",
+    "Quantization",
+    "parse_meta",
+    "read_meta",
+]
+
+ARTIFACT_SCHEMA_VERSION = 1
+METADATA_KEY = "fisheye_infer"
+INPUT_IMAGES = "images"  # uint8 (B, N, H, W, 3) in the colour order below
+INPUT_CAMERA_VALID = "camera_valid"  # bool (B, N): False zeroes that camera's features
+OUTPUTS = ("boxes", "scores", "labels", "valid")  # (B, K, 7) f32, (B, K) f32, (B, K) i64, (B, K) bool
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class Normalisation(_Model):
+    """``(x - mean[c]) / std[c]`` per input channel c, in the input's colour order.
+
+    The official Fisheye3DOD models apply the RGB-ordered ImageNet statistics to BGR data;
+    the numbers here are listed in input channel order, so that is explicit.
+    """
+
+    mean: tuple[float, float, float]
+    std: tuple[float, float, float]
+
+
+class ParityReport(_Model):
+    """ONNX Runtime against PyTorch on the same frames, measured at export time."""
+
+    frames: int
+    threads: tuple[int, ...]
+    max_box_abs_diff_m: float
+    max_score_abs_diff: float
+    labels_equal: bool
+    order_equal: bool
+    valid_equal: bool
+    tolerance_box_m: float
+    tolerance_score: float
+    passed: bool
+    reference: str = "pytorch"  # or "fp32-onnx" for an int8 file: what the numbers compare against
+    top_matched_fraction: float | None = None  # int8: fraction of top boxes matched within 0.5 m and same label
+
+
+class Quantization(_Model):
+    mode: Literal["int8-qdq"]
+    scope: str
+    calibration_frames: int
+
+
+class ArtifactMeta(_Model):
+    schema_version: Literal[1] = ARTIFACT_SCHEMA_VERSION
+    architecture: str
+    model_id: str = Field(description="architecture + rig hash + checkpoint digest: names this exact file's behaviour")
+    classes: tuple[str, ...]
+    cameras: tuple[str, ...]
+    image_size: tuple[int, int] = Field(description="(width, height) of every input image")
+    colour_order: Literal["BGR", "RGB"] = "BGR"
+    normalisation: Normalisation
+    num_boxes: int
+    box_layout: tuple[str, ...] = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
+    box_frame: str = "lidar: x forward, y left, z up (m); yaw about +z, 0 along +x, counter-clockwise"
+    score_semantics: str
+    valid_semantics: str = "box centre inside the official post_center_range; the official output set is exactly the valid boxes"
+    rig: Rig
+    rig_hash: str
+    geometry_source: Literal["rig", "checkpoint"] = "rig"
+    geometry_initializers: tuple[str, ...] = ()
+    checkpoint_sha256: str | None = None
+    tools: dict[str, str] = Field(default_factory=dict)
+    parity: ParityReport | None = None
+    quantization: Quantization | None = None
+
+    def check(self) -> "ArtifactMeta":
+        """Consistency a reader can verify: the rig matches its hash, cameras and image size."""
+        if self.rig.hash != self.rig_hash:
+            raise ArtifactError(f"rig_hash: metadata says {self.rig_hash}, the embedded rig hashes to {self.rig.hash}; the file was altered")
+        if tuple(self.rig.names) != self.cameras:
+            raise ArtifactError(f"cameras: metadata lists {', '.join(self.cameras)}, the embedded rig has {', '.join(self.rig.names)}")
+        return self
+
+
+def parse_meta(document: str | None, source: str = "model") -> ArtifactMeta:
+    """Validate the JSON document stored under ``METADATA_KEY``."""
+    if document is None:
+        raise ArtifactError(f"{source}: no '{METADATA_KEY}' metadata; export the model with 'fisheye-infer export'")
+    try:
+        import json
+
+        raw = json.loads(document)
+    except ValueError as exc:
+        raise ArtifactError(f"{source}: '{METADATA_KEY}' metadata is not JSON ({exc})") from exc
+    version = raw.get("schema_version") if isinstance(raw, dict) else None
+    if version != ARTIFACT_SCHEMA_VERSION:
+        raise ArtifactError(f"{source}: metadata schema_version {version!r} is not supported by this fisheye-infer (expected {ARTIFACT_SCHEMA_VERSION})")
+    try:
+        return ArtifactMeta.model_validate(raw).check()
+    except ValidationError as exc:
+        fields = "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
+        raise ArtifactError(f"{source}: invalid metadata: {fields}") from None
+
+
+def read_meta(path: str | Path) -> ArtifactMeta:
+    """Read the metadata of an ONNX file with ONNX Runtime (the core has no ``onnx`` dependency)."""
+    import onnxruntime as ort
+
+    path = Path(path)
+    if not path.is_file():
+        raise ArtifactError(f"model {path}: no such file")
+    options = ort.SessionOptions()
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    try:
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # ORT raises its own untyped errors for unreadable files
+        raise ArtifactError(f"model {path}: ONNX Runtime cannot load it ({exc})") from exc
+    return parse_meta(session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {path}")

@@ -1,0 +1,123 @@
+"""``Detections``: one frame's boxes as equal-length numpy arrays, with filters and exports.
+
+    dets = detector.detect(frame)
+    cars = dets.filter(classes=["Car"], min_score=0.3, max_range=30.0)
+    cars.to_nuscenes()            # records for the evaluator / a results file
+    dets.with_nms(NmsConfig())    # opt-in; the official output has none
+
+Boxes are (K, 7) ``x, y, z_bottom, l, w, h, yaw`` in the lidar frame.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from fisheye_infer.boxes import check_boxes
+from fisheye_infer.boxes import corners as box_corners
+from fisheye_infer.nms import NmsConfig, apply_nms
+
+__all__ = ["Detections"]
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Detections of one frame, highest proposals first (the model's order, not sorted by score)."""
+
+    boxes: np.ndarray  # (K, 7) float32
+    scores: np.ndarray  # (K,) float32
+    labels: np.ndarray  # (K,) int64
+    class_names: tuple[str, ...]
+    cameras_used: tuple[str, ...] = ()
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    model_id: str = ""
+
+    def __post_init__(self) -> None:
+        check_boxes(self.boxes)
+        k = len(self.boxes)
+        for name in ("scores", "labels"):
+            value = getattr(self, name)
+            if np.shape(value) != (k,):
+                raise ValueError(f"{name}: expected shape ({k},) to match boxes, got {np.shape(value)}")
+        if k and (self.labels.min() < 0 or self.labels.max() >= len(self.class_names)):
+            raise ValueError(f"labels: expected values in [0, {len(self.class_names)}), got {self.labels.min()}..{self.labels.max()}")
+
+    @classmethod
+    def empty(cls, class_names: Sequence[str]) -> "Detections":
+        return cls(np.zeros((0, 7), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64), tuple(class_names))
+
+    def __len__(self) -> int:
+        return len(self.boxes)
+
+    def __getitem__(self, index: Any) -> "Detections":
+        """Select by integer array, slice or boolean mask; returns a new ``Detections``."""
+        if isinstance(index, (int, np.integer)):
+            index = [index]
+        return Detections(self.boxes[index], self.scores[index], self.labels[index], self.class_names, self.cameras_used, dict(self.timings_ms), self.model_id)
+
+    @property
+    def names(self) -> list[str]:
+        """Class name of each box."""
+        return [self.class_names[i] for i in self.labels]
+
+    # -- filters ------------------------------------------------------------------------
+
+    def filter(self, min_score: float | None = None, classes: Iterable[str] | None = None, max_range: float | None = None) -> "Detections":
+        """Boxes with score >= ``min_score``, of the given classes, centre within ``max_range`` m (BEV)."""
+        keep = np.ones(len(self), dtype=bool)
+        if min_score is not None:
+            keep &= self.scores >= min_score
+        if classes is not None:
+            wanted = list(classes)
+            unknown = set(wanted) - set(self.class_names)
+            if unknown:
+                raise ValueError(f"classes: unknown {sorted(unknown)}; the model's classes are {', '.join(self.class_names)}")
+            keep &= np.isin(self.labels, [self.class_names.index(c) for c in wanted])
+        if max_range is not None:
+            keep &= np.hypot(self.boxes[:, 0], self.boxes[:, 1]) <= max_range
+        return self[keep]
+
+    def with_nms(self, config: NmsConfig) -> "Detections":
+        return self[apply_nms(self.boxes, self.scores, self.labels, config, self.class_names)]
+
+    # -- geometry and exports -----------------------------------------------------------
+
+    def corners(self) -> np.ndarray:
+        """(K, 8, 3) box corners in the lidar frame."""
+        return box_corners(self.boxes)
+
+    def to_dicts(self) -> list[dict[str, Any]]:
+        """One plain dict per box, in this object's layout (bottom-centred, lidar frame)."""
+        keys = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
+        return [
+            {**{k: float(v) for k, v in zip(keys, box)}, "score": float(score), "label": int(label), "class_name": self.class_names[label]}
+            for box, score, label in zip(self.boxes, self.scores, self.labels)
+        ]
+
+    def to_nuscenes(self) -> list[dict[str, Any]]:
+        """nuScenes-style result records (centre z, size w-l-h, quaternion), as the evaluator reads them."""
+        from fisheye_infer.records import boxes_to_records
+
+        return boxes_to_records(self.boxes, self.scores, self.labels, self.class_names)
+
+    def to_json(self, **kwargs: Any) -> str:
+        doc = {
+            "model_id": self.model_id,
+            "cameras_used": list(self.cameras_used),
+            "timings_ms": self.timings_ms,
+            "detections": self.to_dicts(),
+        }
+        return json.dumps(doc, **kwargs)
+
+    @classmethod
+    def from_json(cls, text: str, class_names: Sequence[str]) -> "Detections":
+        """Read back what ``to_json`` wrote (e.g. to draw a saved result)."""
+        doc = json.loads(text)
+        rows = doc.get("detections", [])
+        boxes = np.array([[r[k] for k in ("x", "y", "z_bottom", "l", "w", "h", "yaw")] for r in rows], np.float32).reshape(-1, 7)
+        scores = np.array([r["score"] for r in rows], np.float32)
+        labels = np.array([class_names.index(r["class_name"]) for r in rows], np.int64)
+        return cls(boxes, scores, labels, tuple(class_names), tuple(doc.get("cameras_used", ())), doc.get("timings_ms", {}), doc.get("model_id", ""))

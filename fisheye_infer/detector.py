@@ -1,0 +1,148 @@
+"""``Detector``: an exported model file -> ONNX Runtime -> boxes, with nothing heavier than OpenCV.
+
+    detector = Detector("fisheye_bevdet.onnx")
+    dets = detector.detect({"fisheye_camera_front": "front.png", ...})   # or arrays, bytes, a list
+    dets.to_nuscenes()
+
+The default result is exactly the official test-time output set: every box whose centre lies
+in the model's post_center_range, no score threshold, no NMS. Thresholds, class filters and
+NMS are opt-in, per Detector or per call. One Detector may be shared by threads: ONNX Runtime
+sessions are safe to run concurrently and the Detector keeps no per-call state.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, METADATA_KEY, OUTPUTS, ArtifactMeta, parse_meta
+from fisheye_infer.detections import Detections
+from fisheye_infer.errors import ArtifactError, FrameError
+from fisheye_infer.nms import NmsConfig
+from fisheye_infer.preprocess import Frame, load_frame, stack_frames
+from fisheye_infer.rig import Rig
+from fisheye_infer.session import create_session, map_ort_errors
+
+__all__ = ["Detector", "DetectorInfo"]
+
+
+@dataclass(frozen=True)
+class DetectorInfo:
+    """What a caller needs to feed the model and read its output."""
+
+    architecture: str
+    model_id: str
+    classes: tuple[str, ...]
+    cameras: tuple[str, ...]
+    image_size: tuple[int, int]  # (width, height)
+    colour_order: str
+    num_boxes: int
+    rig: Rig
+    providers: tuple[str, ...]
+    meta: ArtifactMeta
+
+
+class Detector:
+    """Runs an exported fisheye detector. See the module docstring."""
+
+    def __init__(
+        self,
+        model_path: str | Path,
+        *,
+        threads: int | None = None,
+        providers: str | Sequence[str] | None = None,
+        score_threshold: float | None = None,
+        nms: NmsConfig | None = None,
+        warmup: bool = True,
+    ) -> None:
+        self.path = Path(model_path)
+        if not self.path.is_file():
+            raise ArtifactError(f"model {self.path}: no such file")
+        self._session = create_session(self.path, threads=threads, providers=providers)
+        meta = parse_meta(self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}")
+        self._check_graph(meta)
+        self.info = DetectorInfo(
+            architecture=meta.architecture,
+            model_id=meta.model_id,
+            classes=meta.classes,
+            cameras=meta.cameras,
+            image_size=meta.image_size,
+            colour_order=meta.colour_order,
+            num_boxes=meta.num_boxes,
+            rig=meta.rig,
+            providers=tuple(self._session.get_providers()),
+            meta=meta,
+        )
+        self.score_threshold = score_threshold
+        self.nms = nms
+        self.ready = False
+        if warmup:
+            self.warmup()
+
+    def _check_graph(self, meta: ArtifactMeta) -> None:
+        inputs = {i.name: i for i in self._session.get_inputs()}
+        outputs = [o.name for o in self._session.get_outputs()]
+        if set(inputs) != {INPUT_IMAGES, INPUT_CAMERA_VALID} or outputs != list(OUTPUTS):
+            raise ArtifactError(f"model {self.path}: graph inputs {sorted(inputs)} / outputs {outputs} are not the fisheye-infer interface")
+        shape = inputs[INPUT_IMAGES].shape
+        width, height = meta.image_size
+        if list(shape[1:]) != [len(meta.cameras), height, width, 3]:
+            raise ArtifactError(f"model {self.path}: images input is {shape}, metadata says (B, {len(meta.cameras)}, {height}, {width}, 3)")
+
+    def warmup(self) -> None:
+        """One run on a black frame, so the first real call does not pay for allocation."""
+        width, height = self.info.image_size
+        images = np.zeros((1, len(self.info.cameras), height, width, 3), np.uint8)
+        self._run(images, np.ones((1, len(self.info.cameras)), bool))
+        self.ready = True
+
+    # -- running ---------------------------------------------------------------------------
+
+    def _run(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
+        with map_ort_errors(f"model {self.path.name}"):
+            return self._session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})
+
+    def run_arrays(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
+        """The raw graph outputs (boxes, scores, labels, valid) for a prepared batch."""
+        return self._run(np.ascontiguousarray(images, np.uint8), np.ascontiguousarray(valid, bool))
+
+    def detect(self, frame: Frame, *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | None = None) -> Detections:
+        """Detections for one frame (mapping camera -> image, or a sequence in camera order)."""
+        return self.detect_batch([frame], score_threshold=score_threshold, classes=classes, nms=nms)[0]
+
+    def detect_batch(self, frames: Sequence[Frame], *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | None = None) -> list[Detections]:
+        """Detections for several frames, run as one batch through the session."""
+        if isinstance(frames, dict) or len(frames) == 0:
+            raise FrameError("frames: expected a non-empty sequence of frames")
+        t0 = time.perf_counter()
+        loaded = []
+        for b, frame in enumerate(frames):
+            try:
+                loaded.append(load_frame(frame, self.info.cameras, self.info.image_size))
+            except FrameError as exc:
+                raise FrameError(f"frame {b}: {exc}" if len(frames) > 1 else str(exc)) from None
+        t1 = time.perf_counter()
+        images, valid = stack_frames(loaded, self.info.image_size)
+        t2 = time.perf_counter()
+        outputs = self._run(images, valid)
+        t3 = time.perf_counter()
+        results = [self._postprocess(outputs, b, valid[b], score_threshold, classes, nms) for b in range(len(frames))]
+        t4 = time.perf_counter()
+        timings = {"decode": (t1 - t0) * 1e3, "preprocess": (t2 - t1) * 1e3, "inference": (t3 - t2) * 1e3, "postprocess": (t4 - t3) * 1e3}
+        for r in results:
+            r.timings_ms.update(timings)
+        return results
+
+    def _postprocess(self, outputs: list[np.ndarray], b: int, valid_cameras: np.ndarray, score_threshold: float | None, classes: Iterable[str] | None, nms: NmsConfig | None) -> Detections:
+        boxes, scores, labels, keep = (o[b] for o in outputs)
+        used = tuple(c for c, ok in zip(self.info.cameras, valid_cameras) if ok)
+        dets = Detections(boxes[keep], scores[keep], labels[keep].astype(np.int64), self.info.classes, used, {}, self.info.model_id)
+        threshold = self.score_threshold if score_threshold is None else score_threshold
+        if threshold is not None or classes is not None:
+            dets = dets.filter(min_score=threshold, classes=classes)
+        config = nms if nms is not None else self.nms
+        return dets.with_nms(config) if config is not None else dets

@@ -1,0 +1,147 @@
+"""Frames in, the graph's inputs out: decode, validate, stack. No resizing, ever.
+
+A frame is either a mapping camera name -> image, or a sequence in the model's camera order.
+An image is an ndarray (H, W, 3) uint8 in the model's colour order (BGR for the Fisheye3DOD
+models), encoded JPEG/PNG bytes, or a path. A camera that is missing or ``None`` is marked
+invalid (degraded mode) and its slot is zeros. Every refusal is a ``FrameError`` that names
+the camera and says what was expected.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from fisheye_infer.errors import FrameError
+
+__all__ = ["ImageInput", "Frame", "encoded_image_size", "decode_image", "load_frame", "stack_frames", "prepare_batch"]
+
+ImageInput = np.ndarray | bytes | bytearray | memoryview | str | os.PathLike | None
+Frame = Mapping[str, ImageInput] | Sequence[ImageInput]
+
+
+def encoded_image_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) read from a PNG or JPEG header without decoding; None if not recognised.
+
+    Lets a caller refuse an image of the wrong size (or a decompression bomb) before paying
+    for the decode.
+    """
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24 and data[12:16] == b"IHDR":
+        width, height = struct.unpack(">II", data[16:24])
+        return int(width), int(height)
+    if data[:2] == b"\xff\xd8":
+        i = 2
+        while i + 9 < len(data):
+            if data[i] != 0xFF:
+                return None
+            marker = data[i + 1]
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+                i += 2
+                continue
+            length = struct.unpack(">H", data[i + 2 : i + 4])[0]
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+                height, width = struct.unpack(">HH", data[i + 5 : i + 9])
+                return int(width), int(height)
+            i += 2 + length
+    return None
+
+
+def decode_image(data: bytes, camera: str, expected_wh: tuple[int, int] | None = None) -> np.ndarray:
+    """Decode JPEG/PNG bytes to (H, W, 3) uint8 BGR, checking the size from the header first."""
+    buf = bytes(data)
+    if expected_wh is not None:
+        size = encoded_image_size(buf)
+        if size is not None and size != tuple(expected_wh):
+            raise FrameError(f"camera '{camera}': image is {size[0]}x{size[1]}, model expects {expected_wh[0]}x{expected_wh[1]}")
+    image = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise FrameError(f"camera '{camera}': the bytes are not a decodable JPEG or PNG image ({len(buf)} bytes)")
+    return image
+
+
+def _to_array(image: ImageInput, camera: str, expected_wh: tuple[int, int]) -> np.ndarray:
+    if isinstance(image, (bytes, bytearray, memoryview)):
+        return decode_image(bytes(image), camera, expected_wh)
+    if isinstance(image, (str, os.PathLike)):
+        path = Path(image)
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise FrameError(f"camera '{camera}': cannot read {path} ({exc.strerror})") from exc
+        return decode_image(data, camera, expected_wh)
+    if isinstance(image, np.ndarray):
+        return image
+    raise FrameError(f"camera '{camera}': expected an ndarray, encoded bytes or a path, got {type(image).__name__}")
+
+
+def _check_array(image: np.ndarray, camera: str, expected_wh: tuple[int, int]) -> np.ndarray:
+    width, height = expected_wh
+    if image.dtype != np.uint8:
+        raise FrameError(f"camera '{camera}': image dtype is {image.dtype}, expected uint8")
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise FrameError(f"camera '{camera}': image shape is {image.shape}, expected (H, W, 3) with 3 colour channels")
+    if image.shape[:2] != (height, width):
+        raise FrameError(f"camera '{camera}': image is {image.shape[1]}x{image.shape[0]}, model expects {width}x{height}")
+    return image
+
+
+def _as_mapping(frame: Frame, cameras: Sequence[str]) -> Mapping[str, ImageInput]:
+    if isinstance(frame, Mapping):
+        unknown = [name for name in frame if name not in cameras]
+        if unknown:
+            raise FrameError(f"camera '{unknown[0]}': not a camera of this model (cameras: {', '.join(cameras)})")
+        return frame
+    if isinstance(frame, (str, bytes, np.ndarray)) or not isinstance(frame, Sequence):
+        raise FrameError(f"frame: expected a mapping camera name -> image or a sequence of {len(cameras)} images, got {type(frame).__name__}")
+    if len(frame) != len(cameras):
+        raise FrameError(f"frame: got {len(frame)} images, expected {len(cameras)} in the order {', '.join(cameras)}")
+    return dict(zip(cameras, frame))
+
+
+def load_frame(frame: Frame, cameras: Sequence[str], image_wh: tuple[int, int]) -> list[np.ndarray | None]:
+    """Decode and validate one frame: one (H, W, 3) uint8 array per camera, ``None`` where missing."""
+    images = _as_mapping(frame, cameras)
+    loaded: list[np.ndarray | None] = []
+    for camera in cameras:
+        image = images.get(camera)
+        loaded.append(None if image is None else _check_array(_to_array(image, camera, image_wh), camera, image_wh))
+    if all(image is None for image in loaded):
+        raise FrameError(f"frame: no camera image given (cameras: {', '.join(cameras)})")
+    return loaded
+
+
+def stack_frames(frames: Sequence[list[np.ndarray | None]], image_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Loaded frames -> ``(B, N, H, W, 3)`` uint8 (zeros for missing cameras) and ``(B, N)`` bool validity.
+
+    Each image is copied exactly once, into its slot of the batch buffer.
+    """
+    width, height = image_wh
+    n = len(frames[0])
+    images = np.empty((len(frames), n, height, width, 3), np.uint8)
+    valid = np.zeros((len(frames), n), dtype=bool)
+    for b, frame in enumerate(frames):
+        for i, image in enumerate(frame):
+            if image is None:
+                images[b, i] = 0
+            else:
+                images[b, i] = image
+                valid[b, i] = True
+    return images, valid
+
+
+def prepare_batch(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Frames -> ``(B, N, H, W, 3)`` uint8 and ``(B, N)`` bool; errors name the frame index too."""
+    if isinstance(frames, Mapping) or len(frames) == 0:
+        raise FrameError("frames: expected a non-empty sequence of frames")
+    loaded = []
+    for b, frame in enumerate(frames):
+        try:
+            loaded.append(load_frame(frame, cameras, image_wh))
+        except FrameError as exc:
+            raise FrameError(f"frame {b}: {exc}") from None
+    return stack_frames(loaded, image_wh)

@@ -1,0 +1,125 @@
+"""Box utilities, NMS and the Detections value type, on hand-built boxes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fisheye_infer.boxes import bev_corners, corners, project_boxes
+from fisheye_infer.detections import Detections
+from fisheye_infer.nms import NmsConfig, apply_nms, bev_iou, circle_nms, rotated_bev_nms
+from fisheye_infer.rig import Rig
+
+CLASSES = ("Car", "Van", "Truck", "Bus", "Pedestrian", "Cyclist")
+
+
+def box(x: float, y: float, l: float = 4.0, w: float = 2.0, yaw: float = 0.0, z: float = -1.5, h: float = 1.5) -> list[float]:
+    return [x, y, z, l, w, h, yaw]
+
+
+class TestCorners:
+    def test_axis_aligned(self) -> None:
+        c = corners(np.array([box(10.0, 2.0)]))[0]
+        np.testing.assert_allclose(c[:4, :2], [[12, 3], [12, 1], [8, 1], [8, 3]])
+        np.testing.assert_allclose(c[:4, 2], -1.5)
+        np.testing.assert_allclose(c[4:, 2], 0.0)
+
+    def test_yaw_turns_counter_clockwise(self) -> None:
+        """yaw = +90 degrees: the box's length runs along +y (left)."""
+        c = bev_corners(np.array([box(0.0, 0.0, yaw=math.pi / 2)]))[0]
+        np.testing.assert_allclose(c[0], [-1.0, 2.0], atol=1e-12)  # front-left corner: ahead along +y, left is -x
+
+    def test_shape_is_checked(self) -> None:
+        with pytest.raises(ValueError, match=r"expected shape \(K, 7\)"):
+            corners(np.zeros((3, 6)))
+
+
+class TestIou:
+    @pytest.mark.parametrize(
+        ("a", "b", "expected"),
+        [
+            (box(0, 0), box(0, 0), 1.0),
+            (box(0, 0), box(2, 0), 4.0 / 12.0),  # half overlap along x: 2x2 of two 4x2
+            (box(0, 0), box(10, 0), 0.0),
+            (box(0, 0, l=2, w=2), box(0, 0, l=2, w=2, yaw=math.pi / 4), (8 * (math.sqrt(2) - 1)) / (8 - 8 * (math.sqrt(2) - 1))),
+        ],
+        ids=["identical", "half-overlap", "apart", "rotated-square"],
+    )
+    def test_bev_iou(self, a, b, expected: float) -> None:
+        assert bev_iou(np.array(a), np.array(b)) == pytest.approx(expected, abs=1e-4)
+
+
+class TestNms:
+    boxes = np.array([box(0, 0), box(0.5, 0.1), box(0, 0, yaw=0.05), box(20, 0), box(0.2, 0)], np.float32)
+    scores = np.array([0.9, 0.8, 0.7, 0.6, 0.95], np.float32)
+    labels = np.array([0, 0, 1, 0, 4])
+
+    def test_rotated_class_aware(self) -> None:
+        keep = rotated_bev_nms(self.boxes, self.scores, self.labels, iou=0.2)
+        assert keep.tolist() == [4, 0, 2, 3]  # box 1 overlaps box 0 (same class); classes differ for 2 and 4
+
+    def test_rotated_class_agnostic(self) -> None:
+        keep = rotated_bev_nms(self.boxes, self.scores, self.labels, iou=0.2, class_aware=False)
+        assert keep.tolist() == [4, 3]
+
+    def test_per_class_threshold(self) -> None:
+        keep = rotated_bev_nms(self.boxes, self.scores, self.labels, iou=0.2, per_class={0: 0.9})
+        assert 1 in keep.tolist()
+
+    def test_circle(self) -> None:
+        keep = circle_nms(self.boxes, self.scores, self.labels, radius=1.0)
+        assert keep.tolist() == [4, 0, 2, 3]
+        assert circle_nms(self.boxes, self.scores, self.labels, radius=0.1).tolist() == [4, 0, 1, 2, 3]
+
+    def test_config_by_class_name(self) -> None:
+        keep = apply_nms(self.boxes, self.scores, self.labels, NmsConfig(kind="circle", radius=1.0, per_class={"Car": 0.1}), CLASSES)
+        assert sorted(keep.tolist()) == [0, 1, 2, 3, 4]
+        with pytest.raises(ValueError, match="unknown class"):
+            apply_nms(self.boxes, self.scores, self.labels, NmsConfig(per_class={"Tram": 0.1}), CLASSES)
+
+
+class TestDetections:
+    dets = Detections(
+        np.array([box(5, 0), box(40, 0), box(-3, 4)], np.float32),
+        np.array([0.9, 0.2, 0.5], np.float32),
+        np.array([0, 3, 4], np.int64),
+        CLASSES,
+        cameras_used=("front",),
+    )
+
+    def test_filters(self) -> None:
+        assert self.dets.filter(min_score=0.3).names == ["Car", "Pedestrian"]
+        assert self.dets.filter(classes=["Bus"]).names == ["Bus"]
+        assert self.dets.filter(max_range=10.0).names == ["Car", "Pedestrian"]
+        with pytest.raises(ValueError, match="unknown"):
+            self.dets.filter(classes=["Tram"])
+
+    def test_fields_are_validated(self) -> None:
+        with pytest.raises(ValueError, match=r"scores: expected shape \(3,\)"):
+            Detections(self.dets.boxes, np.zeros(2, np.float32), self.dets.labels, CLASSES)
+        with pytest.raises(ValueError, match="labels: expected values in"):
+            Detections(self.dets.boxes, self.dets.scores, np.array([0, 1, 6]), CLASSES)
+
+    def test_json_round_trip(self) -> None:
+        back = Detections.from_json(self.dets.to_json(), CLASSES)
+        np.testing.assert_allclose(back.boxes, self.dets.boxes)
+        assert back.names == self.dets.names and back.cameras_used == ("front",)
+
+    def test_corners_and_indexing(self) -> None:
+        assert self.dets.corners().shape == (3, 8, 3)
+        assert len(self.dets[np.array([True, False, True])]) == 2 and len(self.dets[1]) == 1
+        assert len(Detections.empty(CLASSES)) == 0
+
+
+def test_box_ahead_projects_into_the_front_camera_only_where_visible(rig: Rig) -> None:
+    lines = project_boxes(np.array([box(8.0, 0.0)]), rig)
+    front = lines["fisheye_camera_front"][0]
+    assert len(front) >= 12
+    pts = np.concatenate(front)
+    model = rig.shared_model()
+    assert np.all((pts >= 0) & (pts <= model.width - 1))
+    assert abs(pts[:, 0].mean() - model.center_col) < 40  # straight ahead: around the image centre
+    # the rear camera sees nothing of a box 8 m ahead, occluded by nothing but out of its 220-degree fov
+    assert lines["fisheye_camera_rear"][0] == []

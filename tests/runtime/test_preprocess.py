@@ -1,0 +1,90 @@
+"""Frame validation and decoding: every form of input, every refusal with its message."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from fisheye_infer.errors import FrameError
+from fisheye_infer.preprocess import encoded_image_size, load_frame, prepare_batch
+
+CAMERAS = ("front", "left", "right", "rear")
+WH = (64, 48)
+
+
+def image(seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 255, (WH[1], WH[0], 3), dtype=np.uint8)
+
+
+def png(a: np.ndarray) -> bytes:
+    return cv2.imencode(".png", a)[1].tobytes()
+
+
+@pytest.fixture
+def arrays() -> list[np.ndarray]:
+    return [image(i) for i in range(4)]
+
+
+def test_arrays_bytes_paths_mapping_and_sequence_agree(arrays: list[np.ndarray], tmp_path: Path) -> None:
+    paths = []
+    for name, a in zip(CAMERAS, arrays):
+        paths.append(tmp_path / f"{name}.png")
+        cv2.imwrite(str(paths[-1]), a)
+    forms = [
+        arrays,
+        dict(zip(CAMERAS, arrays)),
+        [png(a) for a in arrays],
+        dict(zip(CAMERAS, [str(p) for p in paths])),
+        paths,
+    ]
+    reference, valid = prepare_batch([arrays], CAMERAS, WH)
+    assert reference.shape == (1, 4, 48, 64, 3) and valid.all()
+    for form in forms:
+        images, _ = prepare_batch([form], CAMERAS, WH)
+        np.testing.assert_array_equal(images, reference)
+
+
+def test_missing_camera_is_degraded_mode(arrays: list[np.ndarray]) -> None:
+    images, valid = prepare_batch([{"front": arrays[0], "rear": arrays[3], "left": None}], CAMERAS, WH)
+    assert valid[0].tolist() == [True, False, False, True]
+    assert not images[0, 1].any() and not images[0, 2].any()
+
+
+@pytest.mark.parametrize(
+    ("frame", "message"),
+    [
+        ({"front": image(0), "roof": image(1)}, "camera 'roof': not a camera of this model"),
+        ([image(0)] * 3, "got 3 images, expected 4"),
+        ({"front": image(0).astype(np.float32)}, "camera 'front': image dtype is float32, expected uint8"),
+        ({"left": image(0)[..., 0]}, r"camera 'left': image shape is \(48, 64\), expected \(H, W, 3\)"),
+        ({"right": np.zeros((96, 128, 3), np.uint8)}, "camera 'right': image is 128x96, model expects 64x48"),
+        ({"rear": png(np.zeros((96, 128, 3), np.uint8))}, "camera 'rear': image is 128x96, model expects 64x48"),
+        ({"front": b"not an image"}, "camera 'front': the bytes are not a decodable JPEG or PNG"),
+        ({"front": png(image(0))[:40]}, "camera 'front': the bytes are not a decodable"),
+        ({"front": "/no/such/file.png"}, "camera 'front': cannot read /no/such/file.png"),
+        ({"front": 3.5}, "camera 'front': expected an ndarray, encoded bytes or a path, got float"),
+        ({}, "no camera image given"),
+        ("front.png", "expected a mapping camera name -> image or a sequence"),
+    ],
+    ids=["unknown-camera", "too-few", "dtype", "channels", "size", "size-from-header", "garbage", "truncated", "missing-path", "wrong-type", "empty", "string"],
+)
+def test_bad_input_names_the_problem(frame, message: str) -> None:
+    with pytest.raises(FrameError, match=message):
+        load_frame(frame, CAMERAS, WH)
+
+
+def test_batch_errors_name_the_frame(arrays: list[np.ndarray]) -> None:
+    with pytest.raises(FrameError, match="frame 1: camera 'roof'"):
+        prepare_batch([arrays, {"roof": arrays[0]}], CAMERAS, WH)
+    with pytest.raises(FrameError, match="non-empty sequence"):
+        prepare_batch([], CAMERAS, WH)
+
+
+@pytest.mark.parametrize("ext", [".png", ".jpg"])
+def test_header_size_without_decoding(ext: str) -> None:
+    data = cv2.imencode(ext, np.zeros((300, 500, 3), np.uint8))[1].tobytes()
+    assert encoded_image_size(data) == (500, 300)
+    assert encoded_image_size(b"GIF89a....") is None
