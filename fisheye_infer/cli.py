@@ -122,13 +122,16 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("--out", required=True, help="rig file to write (.json or .yaml)")
     convert.set_defaults(run=_rig_convert)
 
+    from fisheye_infer.eval.commands import configure_eval, configure_synth
+
+    configure_eval(sub.add_parser("eval", help="measure FDS/mAP on Fisheye3DOD-layout data or on two results files"))
+    configure_synth(sub.add_parser("synth", help="render synthetic fisheye frames in the Fisheye3DOD layout"))
+
     for name, text in (
         ("export", "export a checkpoint to one self-contained ONNX file"),
         ("rebake", "recompute an ONNX file's geometry for a new rig"),
         ("detect", "run a model on frames and write results and pictures"),
         ("serve", "serve a model over HTTP"),
-        ("eval", "measure FDS/mAP on Fisheye3DOD-layout data"),
-        ("synth", "render synthetic fisheye frames"),
         ("bench", "benchmark a model on this machine"),
     ):
         cmd = sub.add_parser(name, help=f"{text} (not available yet)", description=f"{text}. Not available in this version yet.")

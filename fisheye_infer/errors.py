@@ -9,6 +9,7 @@
      │    └── ParityError   the exported graph disagrees with PyTorch beyond tolerance
      ├── ArtifactError      an ONNX file lacks or has wrong fisheye-infer metadata
      ├── FrameError         an input frame is unusable (camera and field named)
+     ├── DatasetError       a Fisheye3DOD folder is missing or malformed (what is missing named)
      └── InferenceError     ONNX Runtime failed while running a valid frame
 
 Messages name the camera or field and say what was expected and what was received,
@@ -27,6 +28,7 @@ __all__ = [
     "ParityError",
     "ArtifactError",
     "FrameError",
+    "DatasetError",
     "InferenceError",
 ]
 
@@ -65,6 +67,10 @@ class ArtifactError(FisheyeInferError):
 
 class FrameError(FisheyeInferError, ValueError):
     """An input frame is unusable: wrong camera names, size, dtype, or undecodable bytes."""
+
+
+class DatasetError(FisheyeInferError, ValueError):
+    """A Fisheye3DOD folder is missing or malformed: the root, split, scene, camera or file is named."""
 
 
 class InferenceError(FisheyeInferError):

@@ -12,7 +12,7 @@ import numpy as np
 
 from fisheye_infer.geometry.grids import DEFAULT_AZIMUTH_RANGE, DEFAULT_ELEVATION_RANGE, spherical_directions
 
-__all__ = ["DEFAULT_POSITION_RANGE", "lid_depths", "inverse_sigmoid", "position_coords"]
+__all__ = ["DEFAULT_POSITION_RANGE", "lid_depths", "inverse_sigmoid", "position_coords", "sine_frequencies", "sine_position_encoding"]
 
 #: x_min, y_min, z_min, x_max, y_max, z_max in metres (lidar frame).
 DEFAULT_POSITION_RANGE = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0)
@@ -59,3 +59,34 @@ def position_coords(
     coords = inverse_sigmoid((lidar - lo) / (hi - lo))
     n, dd, h, w, _ = coords.shape
     return coords.transpose(0, 1, 4, 2, 3).reshape(n, dd * 3, h, w).astype(np.float32)
+
+
+def sine_frequencies(num_feats: int = 128, temperature: float = 10000.0) -> np.ndarray:
+    """(num_feats,) float32 divisors t_k = temperature ** (2 floor(k / 2) / num_feats)."""
+    k = np.arange(num_feats, dtype=np.float32)
+    return (np.float32(temperature) ** (2 * np.floor(k / 2) / np.float32(num_feats))).astype(np.float32)
+
+
+def _interleave_sin_cos(a: np.ndarray, dim_t: np.ndarray) -> np.ndarray:
+    p = a[..., None] / dim_t
+    return np.stack((np.sin(p[..., 0::2]), np.cos(p[..., 1::2])), axis=-1).reshape(*a.shape, -1)
+
+
+def sine_position_encoding(mask: np.ndarray, num_feats: int = 128, temperature: float = 10000.0, eps: float = 1e-6, scale: float = 2 * np.pi) -> np.ndarray:
+    """PETR's 3D sine encoding of a key mask (N, H, W), True = ignored -> (N, 3 * num_feats, H, W) float32.
+
+    Counts of valid cells accumulate (float32) along cameras, rows and columns, are normalised
+    by the last count (+ eps) times ``scale``, and each is encoded by interleaved sin/cos pairs;
+    channel blocks are in the order (camera, row, column).
+    """
+    valid = 1.0 - np.asarray(mask, dtype=np.float32)
+    n = np.cumsum(valid, axis=0, dtype=np.float32)
+    y = np.cumsum(valid, axis=1, dtype=np.float32)
+    x = np.cumsum(valid, axis=2, dtype=np.float32)
+    eps32, scale32 = np.float32(eps), np.float32(scale)
+    n = n / (n[-1:] + eps32) * scale32
+    y = y / (y[:, -1:] + eps32) * scale32
+    x = x / (x[:, :, -1:] + eps32) * scale32
+    dim_t = sine_frequencies(num_feats, temperature)
+    pe = np.concatenate([_interleave_sin_cos(v, dim_t) for v in (n, y, x)], axis=-1)  # N x H x W x 3F
+    return pe.transpose(0, 3, 1, 2).astype(np.float32)

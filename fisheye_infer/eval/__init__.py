@@ -1,0 +1,37 @@
+"""Measure accuracy: the Fisheye3DOD reader and the FDS/mAP metric, torch-free.
+
+    from fisheye_infer.eval import Fisheye3DOD, evaluate_results, load_results
+    report = evaluate_results(load_results("gt.json"), load_results("pred.json"))
+    print(report.to_markdown())
+    for frame in Fisheye3DOD("data/Fisheye3DODdataset", "val", limit=10):
+        dets = detector.detect(frame.image_paths)   # frame.rig, frame.gt_boxes, frame.gt_records()
+
+``algo`` holds the vectorised metric functions (nuScenes names), ``metrics`` the config and
+report types, ``evaluate`` the orchestration, ``dataset`` the reader and ``writer`` its inverse.
+"""
+
+from fisheye_infer.eval.algo import accumulate, calc_ap, calc_tp, center_distance, scale_iou, yaw_diff
+from fisheye_infer.eval.boxes import EvalBoxes
+from fisheye_infer.eval.dataset import DatasetError, Fisheye3DOD, Frame
+from fisheye_infer.eval.evaluate import evaluate, evaluate_results, load_results, save_results
+from fisheye_infer.eval.metrics import EvalConfig, MetricData, MetricsReport
+
+__all__ = [
+    "DatasetError",
+    "EvalBoxes",
+    "EvalConfig",
+    "Fisheye3DOD",
+    "Frame",
+    "MetricData",
+    "MetricsReport",
+    "accumulate",
+    "calc_ap",
+    "calc_tp",
+    "center_distance",
+    "evaluate",
+    "evaluate_results",
+    "load_results",
+    "save_results",
+    "scale_iou",
+    "yaw_diff",
+]

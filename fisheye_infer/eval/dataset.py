@@ -1,0 +1,296 @@
+"""Fisheye3DOD reader: split files -> lazy ``Frame`` objects with images, per-frame rig and ground truth.
+
+Layout (§3 of the dataset description)::
+
+    ROOT/calib_results.txt                          one OCam model for every fisheye camera
+    ROOT/ImageSets-2hz/{train,val}.json             [{scene_name, vehicle_name, weather, frame_id, prev_id, next_id}, ...]
+    ROOT/<scene>/<vehicle>/lidar/sensor_metadata.txt
+    ROOT/<scene>/<vehicle>/fisheye_camera_<name>/{frame_id}.png  + sensor_metadata.txt
+    ROOT/<scene>/<vehicle>/nu_rgb_camera_<name>/{frame_id}.png   + sensor_metadata.txt   (pinhole, optional)
+    ROOT/<scene>/<vehicle>/label_3d/{frame_id}.json
+
+    data = Fisheye3DOD("data/Fisheye3DODdataset", split="val", limit=100)
+    for frame in data:                     # Frame: token, image paths, rig, ground truth
+        dets = detector.detect(frame.image_paths)
+
+Extrinsics are rebuilt per frame from the CARLA poses of each camera and the lidar at that frame,
+in the "compat" convention the checkpoints were trained with; each ``sensor_metadata.txt`` is
+parsed once per sequence. Label boxes are stored gravity-centred; ``Frame.gt_boxes`` is in the
+runtime layout (z at the bottom face), the same as detector output.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from fisheye_infer.camera import OCamModel, Pinhole
+from fisheye_infer.carla import CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata
+from fisheye_infer.errors import CameraModelError, DatasetError, RigError
+from fisheye_infer.records import CLASSES, boxes_to_records, gravity_to_bottom
+from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig
+
+__all__ = ["DatasetError", "Fisheye3DOD", "Frame", "SplitEntry", "PINHOLE_CAMERAS", "read_split", "read_labels", "camera_name", "IMAGESETS"]
+
+IMAGESETS = "ImageSets-2hz"
+#: The nuScenes-like pinhole cameras in the pinhole baselines' input order.
+PINHOLE_CAMERAS = (
+    "nu_rgb_camera_front",
+    "nu_rgb_camera_front_left",
+    "nu_rgb_camera_front_right",
+    "nu_rgb_camera_rear",
+    "nu_rgb_camera_rear_right",
+    "nu_rgb_camera_rear_left",
+)
+_PINHOLE = Pinhole(fx=640.0, fy=640.0, cx=640.0, cy=360.0, width=1280, height=720)  # 90 degree hfov, centre at W/2, H/2
+_SPLIT_FIELDS = ("scene_name", "vehicle_name", "weather", "frame_id", "prev_id", "next_id")
+
+
+def camera_name(name: str) -> str:
+    """``front`` -> ``fisheye_camera_front``; full sensor folder names pass unchanged."""
+    return name if "camera" in name else f"fisheye_camera_{name}"
+
+
+@dataclass(frozen=True)
+class SplitEntry:
+    """One sample of a split file."""
+
+    scene: str
+    vehicle: str
+    weather: str
+    frame_id: str
+    prev_id: str = ""
+    next_id: str = ""
+
+    @property
+    def token(self) -> str:
+        return f"{self.scene}.{self.vehicle}.{self.frame_id}"
+
+
+def read_split(root: str | Path, split: str) -> list[SplitEntry]:
+    """Entries of ``ROOT/ImageSets-2hz/<split>.json`` in file order."""
+    path = Path(root) / IMAGESETS / f"{split}.json"
+    if not path.is_file():
+        have = sorted(p.stem for p in path.parent.glob("*.json")) if path.parent.is_dir() else []
+        raise DatasetError(f"split '{split}': {path} not found (splits here: {', '.join(have) or 'none'})")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"split '{split}': {path} cannot be read as JSON ({exc})") from exc
+    if not isinstance(doc, list):
+        raise DatasetError(f"split '{split}': {path} must hold a list of samples, got {type(doc).__name__}")
+    entries = []
+    for i, item in enumerate(doc):
+        if not isinstance(item, dict) or not all(isinstance(item.get(k), str) for k in _SPLIT_FIELDS[:4]):
+            raise DatasetError(f"split '{split}': entry {i} must be an object with string fields {', '.join(_SPLIT_FIELDS)}; got {item!r}")
+        frame_id = item["frame_id"]
+        if not frame_id.isdigit():
+            raise DatasetError(f"split '{split}': entry {i}: frame_id must be digits, got {frame_id!r}")
+        entries.append(SplitEntry(item["scene_name"], item["vehicle_name"], item["weather"], f"{int(frame_id):08d}", item.get("prev_id", ""), item.get("next_id", "")))
+    return entries
+
+
+def read_labels(path: str | Path, class_names: Sequence[str] = CLASSES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``label_3d/<frame>.json`` -> gravity-centred boxes (K, 7) float64, labels (K,) int64, actor ids (K,) int64."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"labels {path}: file not found")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"labels {path}: cannot be read as JSON ({exc})") from exc
+    if not isinstance(doc, list):
+        raise DatasetError(f"labels {path}: expected a list of objects, got {type(doc).__name__}")
+    boxes, labels, ids = np.zeros((len(doc), 7)), np.zeros(len(doc), np.int64), np.full(len(doc), -1, np.int64)
+    for i, obj in enumerate(doc):
+        where = f"labels {path}, object {i}"
+        if not isinstance(obj, dict):
+            raise DatasetError(f"{where}: expected an object, got {type(obj).__name__}")
+        box = obj.get("bounding_box")
+        ok = isinstance(box, list) and len(box) == 7 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in box)
+        if not ok:
+            raise DatasetError(f"{where}: 'bounding_box' must be 7 finite numbers [x, y, z, l, w, h, yaw], got {box!r}")
+        if min(box[3:6]) <= 0:
+            raise DatasetError(f"{where}: 'bounding_box' sizes l, w, h must be positive, got {box[3:6]}")
+        name = obj.get("class")
+        if name not in class_names:
+            raise DatasetError(f"{where}: 'class' {name!r} is not one of {', '.join(class_names)}")
+        boxes[i], labels[i] = box, class_names.index(name)
+        if isinstance(obj.get("id"), int):
+            ids[i] = obj["id"]
+    return boxes, labels, ids
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One sample: where its images are, the rig at that instant, and its ground truth."""
+
+    token: str
+    scene: str
+    vehicle: str
+    frame_id: str
+    weather: str
+    image_paths: dict[str, Path]  # camera -> PNG; fisheye cameras in model order, then pinhole ones
+    rig: Rig  # the fisheye cameras asked for, extrinsics of this frame
+    gt_boxes: np.ndarray  # (K, 7) x, y, z_bottom, l, w, h, yaw, lidar frame
+    gt_labels: np.ndarray  # (K,) int64 class ids
+    gt_ids: np.ndarray  # (K,) int64 CARLA actor ids, -1 when the label has none
+    class_names: tuple[str, ...] = CLASSES
+    pinhole_rig: Rig | None = field(default=None)
+
+    def image(self, camera: str) -> np.ndarray:
+        """(H, W, 3) uint8 BGR, decoded as training decoded it (colour, alpha dropped)."""
+        name = camera_name(camera)
+        if name not in self.image_paths:
+            raise DatasetError(f"frame {self.token}: camera '{name}' was not loaded (have: {', '.join(self.image_paths)})")
+        path = self.image_paths[name]
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise DatasetError(f"frame {self.token}: camera '{name}': {path} is not a readable image")
+        return image
+
+    def images(self) -> dict[str, np.ndarray]:
+        return {name: self.image(name) for name in self.image_paths}
+
+    def gt_records(self) -> list[dict[str, Any]]:
+        """Ground truth as evaluation records (score -1.0)."""
+        return boxes_to_records(self.gt_boxes, None, self.gt_labels, self.class_names)
+
+
+class _Sequence:
+    """One ``<scene>/<vehicle>`` folder: its sensor poses, parsed once."""
+
+    def __init__(self, folder: Path, token: str, cameras: Sequence[str]) -> None:
+        if not folder.is_dir():
+            raise DatasetError(f"scene {token}: folder {folder} not found")
+        self.poses: dict[str, dict[str, CarlaPose]] = {}
+        for sensor in ("lidar", *cameras):
+            path = folder / sensor / "sensor_metadata.txt"
+            if not (folder / sensor).is_dir():
+                what = "lidar" if sensor == "lidar" else f"camera '{sensor}'"
+                raise DatasetError(f"scene {token}: {what}: folder {folder / sensor} not found")
+            try:
+                self.poses[sensor] = parse_sensor_metadata(path.read_text())
+            except OSError as exc:
+                raise DatasetError(f"scene {token}: {path} cannot be read ({exc.strerror})") from exc
+
+    def cam2lidar(self, camera: str, frame_id: str, token: str, convention: Convention) -> np.ndarray:
+        lidar, cam = self.poses["lidar"].get(frame_id), self.poses[camera].get(frame_id)
+        if lidar is None:
+            raise DatasetError(f"frame {token}: no lidar pose for frame {frame_id} in lidar/sensor_metadata.txt")
+        if cam is None:
+            raise DatasetError(f"frame {token}: camera '{camera}': no pose for frame {frame_id} in its sensor_metadata.txt")
+        return cam2lidar_from_poses(cam, lidar, convention)
+
+
+class Fisheye3DOD:
+    """A split of a Fisheye3DOD-layout folder, read lazily; iterating yields ``Frame`` objects."""
+
+    def __init__(
+        self,
+        root: str | Path,
+        split: str = "val",
+        *,
+        cameras: Sequence[str] = FISHEYE3DOD_CAMERAS,
+        pinhole: bool = False,
+        scenes: Sequence[str] | None = None,
+        limit: int | None = None,
+        convention: Convention = "compat",
+        fov: float = 220.0,
+        class_names: Sequence[str] = CLASSES,
+    ) -> None:
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise DatasetError(f"dataset root {self.root}: folder not found")
+        self.split, self.convention = split, convention
+        self.class_names = tuple(class_names)
+        self.cameras = tuple(camera_name(c) for c in cameras)
+        unknown = [c for c in self.cameras if c not in FISHEYE3DOD_CAMERAS]
+        if unknown or not self.cameras:
+            raise DatasetError(f"cameras: expected a non-empty subset of {', '.join(FISHEYE3DOD_CAMERAS)}, got {list(cameras)}")
+        self.pinhole_cameras = PINHOLE_CAMERAS if pinhole else ()
+        calib = self.root / "calib_results.txt"
+        if not calib.is_file():
+            raise DatasetError(f"dataset root {self.root}: calib_results.txt not found (one OCam model for every fisheye camera)")
+        try:
+            self.model = OCamModel.from_file(calib, fov=fov)
+        except CameraModelError as exc:
+            raise DatasetError(str(exc)) from exc
+        entries = read_split(self.root, split)
+        if scenes is not None:
+            known = {e.scene for e in entries}
+            missing = [s for s in scenes if s not in known]
+            if missing:
+                raise DatasetError(f"scenes: not in split '{split}': {', '.join(missing)}")
+            entries = [e for e in entries if e.scene in set(scenes)]
+        if limit is not None:
+            if limit < 0:
+                raise DatasetError(f"limit: expected a non-negative count, got {limit}")
+            entries = entries[:limit]
+        self.entries = entries
+        self._sequences: dict[tuple[str, str], _Sequence] = {}
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    @property
+    def tokens(self) -> list[str]:
+        return [e.token for e in self.entries]
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self.entries)):
+            yield self[i]
+
+    def _sequence(self, entry: SplitEntry) -> _Sequence:
+        key = (entry.scene, entry.vehicle)
+        if key not in self._sequences:
+            sensors = (*self.cameras, *self.pinhole_cameras)
+            self._sequences[key] = _Sequence(self.root / entry.scene / entry.vehicle, f"{entry.scene}/{entry.vehicle}", sensors)
+        return self._sequences[key]
+
+    def _rig(self, seq: _Sequence, entry: SplitEntry, cameras: Sequence[str], model: Any) -> Rig:
+        matrices = {c: seq.cam2lidar(c, entry.frame_id, entry.token, self.convention) for c in cameras}
+        try:
+            return Rig.from_cameras({c: model for c in cameras}, matrices, cameras, name=f"{entry.scene}/{entry.vehicle}@{entry.frame_id}")
+        except RigError as exc:
+            raise DatasetError(f"frame {entry.token}: {exc}") from exc
+
+    def __getitem__(self, index: int) -> Frame:
+        entry = self.entries[index]
+        seq = self._sequence(entry)
+        folder = self.root / entry.scene / entry.vehicle
+        paths = {}
+        for cam in (*self.cameras, *self.pinhole_cameras):
+            path = folder / cam / f"{entry.frame_id}.png"
+            if not path.is_file():
+                raise DatasetError(f"frame {entry.token}: camera '{cam}': image {path} not found")
+            paths[cam] = path
+        boxes, labels, ids = read_labels(folder / "label_3d" / f"{entry.frame_id}.json", self.class_names)
+        return Frame(
+            token=entry.token,
+            scene=entry.scene,
+            vehicle=entry.vehicle,
+            frame_id=entry.frame_id,
+            weather=entry.weather,
+            image_paths=paths,
+            rig=self._rig(seq, entry, self.cameras, self.model),
+            gt_boxes=gravity_to_bottom(boxes),
+            gt_labels=labels,
+            gt_ids=ids,
+            class_names=self.class_names,
+            pinhole_rig=self._rig(seq, entry, self.pinhole_cameras, _PINHOLE) if self.pinhole_cameras else None,
+        )
+
+    def ground_truth(self) -> dict[str, list[dict[str, Any]]]:
+        """``{token: [record, ...]}`` for every sample, reading the label files only."""
+        out = {}
+        for e in self.entries:
+            boxes, labels, _ = read_labels(self.root / e.scene / e.vehicle / "label_3d" / f"{e.frame_id}.json", self.class_names)
+            out[e.token] = boxes_to_records(gravity_to_bottom(boxes), None, labels, self.class_names)
+        return out

@@ -1,0 +1,127 @@
+"""Orchestration only: results -> ``EvalBoxes`` -> range filter -> per class and threshold -> report.
+
+    gt = load_results("gt.json")                 # {"results": {sample_token: [record, ...]}}
+    pred = load_results("pred.json")
+    report = evaluate_results(gt, pred)          # MetricsReport
+    print(report.to_markdown())
+
+Sample order follows the predictions (as the official evaluator, which walks one results list
+for both), so score ties break the same way. Every prediction token must have ground truth;
+ground-truth samples without predictions are an error unless ``allow_missing`` counts them as
+frames where nothing was detected.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from fisheye_infer.errors import FrameError
+from fisheye_infer.eval.algo import accumulate_thresholds, calc_ap, calc_tp
+from fisheye_infer.eval.boxes import EvalBoxes
+from fisheye_infer.eval.metrics import TP_METRICS, ClassMetrics, EvalConfig, MetricsReport, Summary
+
+__all__ = ["evaluate", "evaluate_results", "summarise", "load_results", "save_results", "breakdown_label"]
+
+Results = Mapping[str, Sequence[Mapping[str, Any]]]
+
+
+def breakdown_label(ref_range: float) -> str:
+    return f"0-{ref_range:g} m"
+
+
+def summarise(gt: EvalBoxes, pred: EvalBoxes, config: EvalConfig, ref_range: float | None = None) -> Summary:
+    """The metric for one set of class ranges (``ref_range``: rescale them; default as configured)."""
+    names = config.class_names
+    if config.max_boxes_per_sample is not None:
+        pred = pred.top_per_sample(config.max_boxes_per_sample)
+    ranges = config.class_ranges(ref_range)
+    gt_by, pred_by = gt.by_class(len(names), ranges), pred.by_class(len(names), ranges)
+    classes = {}
+    for c, name in enumerate(names):
+        mds = accumulate_thresholds(gt_by[c], pred_by[c], config.dist_ths, period=config.period(name))
+        aps = {str(float(th)): calc_ap(md, config.min_recall, config.min_precision) for th, md in zip(config.dist_ths, mds)}
+        tp_md = mds[list(config.dist_ths).index(config.dist_th_tp)]
+        errs = {m: calc_tp(tp_md, config.min_recall, m) for m in TP_METRICS}
+        classes[name] = ClassMetrics(ap=float(np.mean(list(aps.values()))), ap_by_threshold=aps, **errs)
+    mean_ap = float(np.mean([c.ap for c in classes.values()]))
+    mtp = {m: float(np.nanmean([getattr(c, m) for c in classes.values()])) for m in TP_METRICS}
+    scores = [max(0.0, 1.0 - mtp[m]) for m in TP_METRICS]
+    fds = (config.mean_ap_weight * mean_ap + sum(scores)) / (config.mean_ap_weight + len(TP_METRICS))
+    return Summary(
+        ref_range=ref_range if ref_range is not None else config.ref_range,
+        FDS=fds,
+        mAP=mean_ap,
+        mATE=mtp["trans_err"],
+        mASE=mtp["scale_err"],
+        mAOE=mtp["orient_err"],
+        classes=classes,
+        num_gt=sum(len(b) for b in gt_by),
+        num_pred=sum(len(b) for b in pred_by),
+    )
+
+
+def evaluate(gt: EvalBoxes, pred: EvalBoxes, config: EvalConfig | None = None) -> MetricsReport:
+    """The full report: the configured metric, then the distance breakdown at each reference range."""
+    config = config or EvalConfig()
+    if gt.tokens != pred.tokens:
+        raise ValueError("gt/pred: the two box sets must share their sample tokens, in the same order (see evaluate_results)")
+    t0 = time.perf_counter()
+    main = summarise(gt, pred, config)
+    distance = {}
+    for r in config.distance_breakdown:
+        same = np.array_equal(config.class_ranges(r), config.class_ranges())
+        distance[breakdown_label(r)] = main.model_copy(update={"ref_range": r}) if same else summarise(gt, pred, config, r)
+    return MetricsReport(main=main, distance=distance, num_samples=len(gt.tokens), config=config, eval_seconds=time.perf_counter() - t0)
+
+
+def _sample_order(gt: Results, pred: Results, allow_missing: bool) -> list[str]:
+    unknown = [t for t in pred if t not in gt]
+    if unknown:
+        raise FrameError(f"predictions: {len(unknown)} sample token(s) have no ground truth, e.g. {', '.join(unknown[:3])}")
+    missing = [t for t in gt if t not in pred]
+    if missing and not allow_missing:
+        raise FrameError(
+            f"predictions: {len(missing)} of {len(gt)} ground-truth samples have no entry, e.g. {', '.join(missing[:3])} "
+            "(give an empty list for frames without detections, or allow missing samples)"
+        )
+    return list(pred) + missing
+
+
+def evaluate_results(gt: Results, pred: Results, config: EvalConfig | None = None, allow_missing: bool = False) -> MetricsReport:
+    """``{sample_token: [record, ...]}`` for ground truth and predictions -> report."""
+    config = config or EvalConfig()
+    for name, results in (("ground truth", gt), ("predictions", pred)):
+        if not isinstance(results, Mapping):
+            raise FrameError(f"{name}: expected an object mapping sample tokens to lists of records, got {type(results).__name__}")
+    tokens = _sample_order(gt, pred, allow_missing)
+    gt_boxes = EvalBoxes.from_records(gt, config.class_names, tokens)
+    pred_boxes = EvalBoxes.from_records(pred, config.class_names, tokens)
+    return evaluate(gt_boxes, pred_boxes, config)
+
+
+def load_results(path: str | Path) -> dict[str, list[dict[str, Any]]]:
+    """Read a results file ``{"results": {sample_token: [record, ...]}, "meta": {...}}``; returns the mapping."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as exc:
+        raise FrameError(f"results file {path}: cannot be read ({exc.strerror})") from exc
+    except json.JSONDecodeError as exc:
+        raise FrameError(f"results file {path}: not valid JSON: {exc}") from exc
+    results = doc.get("results") if isinstance(doc, dict) else None
+    if not isinstance(results, dict):
+        raise FrameError(f'results file {path}: expected {{"results": {{sample_token: [record, ...]}}}}')
+    return results
+
+
+def save_results(path: str | Path, results: Mapping[str, Sequence[Mapping[str, Any]]], meta: Mapping[str, Any] | None = None) -> Path:
+    """Write ``{"meta": ..., "results": ...}``; the format ``load_results`` and nuScenes tools read."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"meta": dict(meta or {}), "results": {k: list(v) for k, v in results.items()}}))
+    return path

@@ -1,0 +1,122 @@
+"""``fisheye-infer eval`` and ``synth`` as the lead wires them: argparse in, files and exit codes out."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from eval_cases import SynthSet, one_of_each
+
+from fisheye_infer.errors import FisheyeInferError
+from fisheye_infer.eval.commands import configure_eval, configure_synth
+from fisheye_infer.eval.dataset import Fisheye3DOD
+from fisheye_infer.eval.evaluate import evaluate_results, save_results
+from fisheye_infer.eval.metrics import MetricsReport
+
+
+def _run(configure, argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="fisheye-infer")
+    configure(parser)
+    args = parser.parse_args(argv)
+    return args.run(args)
+
+
+def test_eval_saved_results_writes_json_and_markdown(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    gt, pred = {"s": one_of_each()}, {"s": one_of_each(score=0.8, shift=0.7)}
+    save_results(tmp_path / "gt.json", gt)
+    save_results(tmp_path / "pred.json", pred)
+    out = tmp_path / "reports" / "report.json"
+    assert _run(configure_eval, ["--results", str(tmp_path / "pred.json"), "--ground-truth", str(tmp_path / "gt.json"), "--out", str(out)]) == 0
+    report = MetricsReport.from_json(out.read_text())
+    assert report.details() == evaluate_results(gt, pred).details()
+    assert out.with_suffix(".md").read_text() == report.to_markdown()
+    printed = capsys.readouterr().out
+    assert "| FDS | mAP | mATE | mASE | mAOE |" in printed and "0-30 m" in printed
+    doc = json.loads(out.read_text())
+    assert {"FDS", "mAP", "mATE", "mASE", "mAOE"} <= set(doc["main"]) and set(doc["main"]["classes"]["Car"]["ap_by_threshold"]) == {"0.5", "1.0", "2.0", "4.0"}
+
+
+def test_eval_with_config_and_ref_range(tmp_path: Path) -> None:
+    save_results(tmp_path / "gt.json", {"s": one_of_each()})
+    save_results(tmp_path / "pred.json", {"s": one_of_each(score=0.9)})
+    (tmp_path / "eval.json").write_text(json.dumps({"distance_breakdown": [20.0]}))
+    argv = ["--results", str(tmp_path / "pred.json"), "--ground-truth", str(tmp_path / "gt.json"), "--config", str(tmp_path / "eval.json"), "--ref-range", "36"]
+    assert _run(configure_eval, [*argv, "--out", str(tmp_path / "r.json")]) == 0
+    report = MetricsReport.from_json((tmp_path / "r.json").read_text())
+    assert report.config.ref_range == 36 and list(report.distance) == ["0-20 m"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--results", "p.json"], "give --results and --ground-truth"),
+        (["--results", "p.json", "--ground-truth", "g.json", "--data", "d"], "--data needs a MODEL"),
+        (["model.onnx"], "a MODEL needs --data"),
+        (["model.onnx", "--data", "d", "--results", "p.json"], "--results/--ground-truth are for saved results"),
+    ],
+)
+def test_eval_refuses_mixed_or_missing_arguments(argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert _run(configure_eval, [*argv, "--out", str(tmp_path / "r.json")]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_eval_model_without_the_runtime_detector_says_so(tmp_path: Path) -> None:
+    code = (
+        "import importlib.abc, sys\n"
+        "class Block(importlib.abc.MetaPathFinder):\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'fisheye_infer.detector':\n"
+        "            raise ImportError(name)\n"
+        "sys.meta_path.insert(0, Block())\n"
+        "import argparse\n"
+        "from fisheye_infer.eval.commands import configure_eval\n"
+        "p = argparse.ArgumentParser(); configure_eval(p)\n"
+        f"a = p.parse_args(['model.onnx', '--data', {str(tmp_path)!r}, '--out', {str(tmp_path / 'r.json')!r}])\n"
+        "sys.exit(a.run(a))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 2, result.stderr
+    assert "needs the runtime Detector" in result.stderr
+
+
+def test_eval_model_that_does_not_exist_is_a_clear_error(synth_set: SynthSet, tmp_path: Path) -> None:
+    with pytest.raises(FisheyeInferError, match="no such file"):
+        _run(configure_eval, [str(tmp_path / "missing.onnx"), "--data", str(synth_set.root), "--out", str(tmp_path / "r.json")])
+
+
+def test_synth_then_evaluate_its_ground_truth(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    root = tmp_path / "synth"
+    assert _run(configure_synth, ["--frames", "2", "--out", str(root), "--seed", "3", "--scale", "0.1", "--objects", "4,6"]) == 0
+    assert "next: fisheye-infer eval MODEL --data" in capsys.readouterr().out
+    data = Fisheye3DOD(root, "val")
+    assert len(data) == 2 and data[0].image("front").shape == (80, 80, 3)
+    gt = data.ground_truth()
+    pred = {token: [{**r, "detection_score": 0.5} for r in records] for token, records in gt.items()}
+    save_results(tmp_path / "gt.json", gt)
+    save_results(tmp_path / "pred.json", pred)
+    assert _run(configure_eval, ["--results", str(tmp_path / "pred.json"), "--ground-truth", str(tmp_path / "gt.json"), "--out", str(tmp_path / "r.json")]) == 0
+    report = MetricsReport.from_json((tmp_path / "r.json").read_text())
+    present = [c for c in report.main.classes.values() if c.trans_err == 0.0]
+    assert present and all(c.ap == pytest.approx(1.0) for c in present)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--frames", "0"], "--frames must be at least 1"),
+    ],
+)
+def test_synth_refuses_bad_counts(argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert _run(configure_synth, [*argv, "--out", str(tmp_path)]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_synth_objects_argument_is_checked() -> None:
+    parser = argparse.ArgumentParser()
+    configure_synth(parser)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--out", "x", "--objects", "9,3"])

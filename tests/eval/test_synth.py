@@ -1,0 +1,168 @@
+"""Synthetic scenes: the reader gets back exactly what was written, the pictures show the boxes, seeds repeat."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from eval_cases import SynthSet
+
+from fisheye_infer.carla import CarlaPose, cam2lidar_from_poses
+from fisheye_infer.eval.dataset import Fisheye3DOD
+from fisheye_infer.eval.writer import camera_poses
+from fisheye_infer.records import CLASSES
+from fisheye_infer.rig import Rig, default_rig
+from fisheye_infer.synth import CLASS_SIZES, Renderer, Scene, random_scene, resized_rig, synthesize
+
+
+def test_reader_reads_back_the_rig_and_boxes_written(synth_set: SynthSet) -> None:
+    frames = {f.token: f for f in Fisheye3DOD(synth_set.root)}
+    assert set(frames) == {s.token for s in synth_set.frames}
+    for written in synth_set.frames:
+        read = frames[written.token]
+        assert read.rig == written.rig  # bit for bit: the writer returns what the text encodes
+        np.testing.assert_allclose(read.rig.cam2lidar(), synth_set.rig.cam2lidar(), atol=1e-12)
+        assert read.rig.shared_model() == synth_set.rig.shared_model()
+        np.testing.assert_array_equal(read.gt_boxes, written.boxes)
+        np.testing.assert_array_equal(read.gt_labels, written.labels)
+        assert len(written.boxes) >= 6
+
+
+def test_sensor_metadata_matches_the_official_record_pattern(synth_set: SynthSet) -> None:
+    # The official parser accepts digits, '-' and '.' only (no exponent) and needs a space after each comma.
+    number = r"[-.\d]+"
+    pattern = re.compile(
+        rf"frame=(\d+), .*?Transform\(Location\(x={number},\s+y={number},\s+z={number}\),\s+Rotation\(pitch={number},\s+yaw={number},\s+roll={number}\)\)"
+    )
+    for path in synth_set.root.rglob("sensor_metadata.txt"):
+        lines = path.read_text().splitlines()
+        assert lines and all(pattern.search(line) for line in lines), path
+
+
+def test_split_file_links_neighbouring_frames(synth_set: SynthSet) -> None:
+    entries = Fisheye3DOD(synth_set.root).entries
+    first_scene = [e for e in entries if e.scene == entries[0].scene]
+    assert [e.prev_id for e in first_scene] == ["", first_scene[0].frame_id, first_scene[1].frame_id]
+    assert [e.next_id for e in first_scene] == [first_scene[1].frame_id, first_scene[2].frame_id, ""]
+
+
+def test_same_seed_writes_the_same_bytes(small_rig: Rig, tmp_path: Path) -> None:
+    a, b, c = (synthesize(small_rig, tmp_path / name, frames=1, seed=seed) for name, seed in (("a", 3), ("b", 3), ("c", 4)))
+    files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
+    assert files and all((tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes() for f in files)
+    assert not np.array_equal(a[0].boxes, c[0].boxes)
+
+
+@pytest.fixture(scope="module")
+def ring_scene() -> Scene:
+    """One box of every class, 9 m away, spread round the vehicle."""
+    boxes = []
+    for i, cls in enumerate(CLASSES):
+        angle = i * math.pi / 3 + 0.3
+        length, width, height = CLASS_SIZES[cls]
+        boxes.append([9 * math.cos(angle), 9 * math.sin(angle), -2.0, length, width, height, angle + 0.5])
+    return Scene(np.array(boxes), np.arange(len(CLASSES)), ground_z=-2.0)
+
+
+def test_boxes_are_visible_where_they_project(ring_scene: Scene) -> None:
+    rig = resized_rig(default_rig(), 0.25)
+    renderer = Renderer()
+    with_boxes = renderer.render(rig, ring_scene)
+    empty = renderer.render(rig, Scene(np.zeros((0, 7)), np.zeros(0, np.int64), ring_scene.ground_z))
+    seen = 0
+    for cam in rig.cameras:
+        centres = np.column_stack([ring_scene.boxes[:, :2], ring_scene.boxes[:, 2] + ring_scene.boxes[:, 5] / 2, np.ones(len(ring_scene.boxes))])
+        in_camera = (np.linalg.inv(cam.matrix) @ centres.T).T[:, :3]
+        uv, valid = cam.model.project(in_camera)
+        for (u, v), ok in zip(np.round(uv).astype(int), valid):
+            if ok:
+                seen += 1
+                assert np.abs(with_boxes[cam.name][v, u].astype(int) - empty[cam.name][v, u]).max() > 20, (cam.name, u, v)
+    assert seen >= len(CLASSES)  # every box is in at least one camera
+    for cam in rig.cameras:
+        image = empty[cam.name]
+        assert image.std() > 10 and (image[0, 0] == 0).all()  # textured, black outside the lens
+
+
+def test_box_pixels_carry_the_class_colour(ring_scene: Scene) -> None:
+    from fisheye_infer.synth import CLASS_COLOURS
+
+    rig = resized_rig(default_rig(), 0.25)
+    images = Renderer().render(rig, ring_scene)
+    cam = rig.camera("fisheye_camera_front")
+    centre = np.array([*ring_scene.boxes[0, :2], ring_scene.boxes[0, 2] + ring_scene.boxes[0, 5] / 2, 1.0])  # the Car, ahead-left
+    uv, valid = cam.model.project((np.linalg.inv(cam.matrix) @ centre)[None, :3])
+    assert valid[0]
+    pixel = images[cam.name][int(round(uv[0, 1])), int(round(uv[0, 0]))].astype(float)
+    colour = np.array(CLASS_COLOURS["Car"], float)
+    cosine = pixel @ colour / (np.linalg.norm(pixel) * np.linalg.norm(colour))
+    assert cosine > 0.99  # shaded, but the same hue
+
+
+def test_full_size_frame(tmp_path: Path) -> None:
+    (frame,) = synthesize(default_rig(), tmp_path, frames=1, seed=11)
+    read = Fisheye3DOD(tmp_path)[0]
+    for name in read.rig.names:
+        image = read.image(name)
+        assert image.shape == (800, 800, 3) and image.std() > 20
+    np.testing.assert_array_equal(read.gt_boxes, frame.boxes)
+
+
+def test_random_scene_objects_stand_apart_on_the_ground() -> None:
+    scene = random_scene(np.random.default_rng(0), (20, 20), ground_z=-1.5)
+    assert len(scene.boxes) == 20 and np.all(scene.boxes[:, 2] == -1.5)
+    xy, radius = scene.boxes[:, :2], np.hypot(scene.boxes[:, 3], scene.boxes[:, 4]) / 2
+    gaps = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1)) - radius[:, None] - radius[None]
+    assert gaps[~np.eye(20, dtype=bool)].min() > 0
+    assert np.all(np.hypot(*xy.T) >= 4.0)
+
+
+def test_resized_model_projects_to_the_scaled_pixels() -> None:
+    original = default_rig().shared_model()
+    small = resized_rig(default_rig(), 0.25).shared_model()
+    assert (small.width, small.height) == (200, 200)
+    rays = np.random.default_rng(0).normal(size=(200, 3))
+    rays[:, 2] = np.abs(rays[:, 2])
+    np.testing.assert_allclose(small.world2cam(rays), (original.world2cam(rays) + 0.5) * 0.25 - 0.5, atol=1e-9)
+    pixels = np.array([[10.0, 20.0], [100.0, 100.0], [150.5, 30.25]])
+    np.testing.assert_allclose(small.cam2world(pixels), original.cam2world((pixels + 0.5) / 0.25 - 0.5), atol=1e-12)
+
+
+@pytest.mark.parametrize("convention", ["compat", "exact"])
+@pytest.mark.parametrize(
+    "lidar",
+    [CarlaPose(0, 0, 2.4, 0, 0, 0), CarlaPose(150.0, -30.0, 2.0, 0.0, 123.0, 0.0), CarlaPose(10.0, 5.0, 2.0, 4.0, -60.0, -2.0)],
+    ids=["origin", "driving", "on a slope"],
+)
+def test_camera_poses_invert_the_conversion_for_tilted_cameras(convention: str, lidar: CarlaPose) -> None:
+    rig = default_rig()
+    tilt = np.eye(4)
+    a, b = math.radians(20), math.radians(5)  # pitched down 20 degrees, rolled 5 degrees
+    tilt[:3, :3] = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]]) @ np.array(
+        [[math.cos(b), -math.sin(b), 0], [math.sin(b), math.cos(b), 0], [0, 0, 1]]
+    )
+    tilted = Rig.from_cameras({c.name: c.model for c in rig.cameras}, {c.name: c.matrix @ tilt for c in rig.cameras}, rig.names)
+    poses = camera_poses(tilted, lidar, convention)  # type: ignore[arg-type]
+    for cam in tilted.cameras:
+        np.testing.assert_allclose(cam2lidar_from_poses(poses[cam.name], lidar, convention), cam.matrix, atol=1e-12)  # type: ignore[arg-type]
+
+
+def test_images_are_png_bgr_as_training_reads_them(synth_set: SynthSet) -> None:
+    frame = Fisheye3DOD(synth_set.root)[0]
+    path = frame.image_paths["fisheye_camera_front"]
+    assert path.suffix == ".png" and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    np.testing.assert_array_equal(frame.image("front"), cv2.imread(str(path), cv2.IMREAD_COLOR))
+
+
+def test_writing_a_frame_again_replaces_it(small_rig: Rig, tmp_path: Path) -> None:
+    synthesize(small_rig, tmp_path, frames=2, seed=5)
+    (again,) = synthesize(small_rig, tmp_path, frames=1, seed=6, scene_name="synth-Town00-ClearNoon-seed5")
+    metadata = (tmp_path / "synth-Town00-ClearNoon-seed5" / "ego0" / "lidar" / "sensor_metadata.txt").read_text().splitlines()
+    assert len(metadata) == 2
+    data = Fisheye3DOD(tmp_path)
+    assert len(data) == 2 and data[0].rig == again.rig
+    np.testing.assert_array_equal(data[0].gt_boxes, again.boxes)
