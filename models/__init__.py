@@ -1,1 +1,46 @@
-"""fisheye_infer.models"""
+"""fisheye_infer.models: the PyTorch detectors, official checkpoint loading and synthetic checkpoints."""
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import torch
+from torch import nn
+
+from .checkpoint import GeometryReport, check_keys, load_checkpoint, load_official_state_dict
+from .config import BEVDetConfig
+from .mmconfig import read_mmdet3d_config
+from .petr_config import PETRConfig
+from .registry import create_model, get_model_entry, list_models, register_model
+from .synthetic import make_checkpoint
+
+__all__ = [
+    "BEVDetConfig",
+    "GeometryReport",
+    "PETRConfig",
+    "check_keys",
+    "create_model",
+    "get_model_entry",
+    "list_models",
+    "load_checkpoint",
+    "load_model",
+    "load_official_state_dict",
+    "make_checkpoint",
+    "read_mmdet3d_config",
+    "register_model",
+]
+
+
+def load_model(name: str, checkpoint: str | Path | Mapping[str, Any], config: Any = None, rig: Any = None, *,
+               geometry: str = "verify", allow_pickle: bool = False) -> tuple[nn.Module, GeometryReport]:
+    """Build ``name`` and load an official checkpoint (path or state dict) strictly; returns (model, report).
+
+    ``geometry`` is the policy for the stored geometry tables: "verify" (default), "checkpoint" or "rig".
+    """
+    model = create_model(name, config, rig)
+    if isinstance(checkpoint, Mapping):
+        state_dict: Mapping[str, torch.Tensor] = checkpoint.get("state_dict", checkpoint)
+    else:
+        state_dict, _ = load_checkpoint(checkpoint, allow_pickle=allow_pickle)
+    report = load_official_state_dict(model, state_dict, geometry=geometry,
+                                      ignore=get_model_entry(name).ignored_keys, context=f"{name} checkpoint")
+    return model.eval(), report

@@ -1,0 +1,175 @@
+"""The PETR transformer decoder with mmcv's module names and written for a clean ONNX graph.
+
+Why not ``nn.MultiheadAttention``: with a boolean key padding mask it exports as Where/-inf
+chains, and its fast path differs between train/eval and torch versions. Here attention is
+explicit MatMul -> Add(bias) -> Softmax -> MatMul, with the key mask given as an additive bias
+(0 for kept keys, ``MASK_BIAS`` for ignored ones). The parameters keep the exact layout of
+``nn.MultiheadAttention`` (``in_proj_weight`` rows 0:C, C:2C, 2C:3C are Q, K, V; ``out_proj``),
+so official checkpoints load by key:
+
+    transformer.decoder.layers.{i}.attentions.{0,1}.attn.{in_proj_weight,in_proj_bias,out_proj.*}
+    transformer.decoder.layers.{i}.ffns.0.layers.{0.0,1}.*      transformer.decoder.layers.{i}.norms.{0,1,2}.*
+    transformer.decoder.post_norm.*
+
+Tensors are batch-first here (B x L x C); the official code is sequence-first, which changes no
+arithmetic.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = ["MASK_BIAS", "MultiheadAttention", "AttentionBlock", "FFN", "PETRDecoderLayer",
+           "PETRTransformerDecoder", "PETRTransformer", "key_padding_bias"]
+
+#: Additive logit for ignored keys. -1e30 gives exactly 0 after exp in float32 (like -inf), but a
+#: row whose keys are all ignored stays finite (uniform attention) instead of turning into NaN.
+MASK_BIAS = -1e30
+
+
+def key_padding_bias(mask: torch.Tensor) -> torch.Tensor:
+    """Bool key padding mask (True = ignore), any shape -> float bias of the same shape."""
+    return torch.where(mask, torch.full_like(mask, MASK_BIAS, dtype=torch.float32),
+                       torch.zeros_like(mask, dtype=torch.float32))
+
+
+class MultiheadAttention(nn.Module):
+    """Scaled dot-product attention with ``nn.MultiheadAttention``'s parameters and arithmetic.
+
+    As in torch >= 2.0 the queries are multiplied by sqrt(1/head_dim) before Q.K^T.
+    """
+
+    def __init__(self, embed_dims: int, num_heads: int) -> None:
+        super().__init__()
+        self.embed_dims = embed_dims
+        self.num_heads = num_heads
+        self.head_dims = embed_dims // num_heads
+        self.in_proj_weight = nn.Parameter(torch.empty(3 * embed_dims, embed_dims))
+        self.in_proj_bias = nn.Parameter(torch.zeros(3 * embed_dims))
+        self.out_proj = nn.Linear(embed_dims, embed_dims)
+        nn.init.xavier_uniform_(self.in_proj_weight)
+        nn.init.zeros_(self.out_proj.bias)
+
+    def _heads(self, x: torch.Tensor) -> torch.Tensor:
+        # B x L x C -> B x h x L x d
+        b, length, _ = x.shape
+        return x.reshape(b, length, self.num_heads, self.head_dims).transpose(1, 2)
+
+    def forward(self, query: torch.Tensor, key: torch.Tensor, value: torch.Tensor,
+                bias: torch.Tensor | None = None) -> torch.Tensor:
+        """query B x Q x C, key/value B x K x C, bias broadcastable to B x h x Q x K -> B x Q x C."""
+        c = self.embed_dims
+        w, b = self.in_proj_weight, self.in_proj_bias
+        q = self._heads(F.linear(query, w[:c], b[:c]))
+        k = self._heads(F.linear(key, w[c:2 * c], b[c:2 * c]))
+        v = self._heads(F.linear(value, w[2 * c:], b[2 * c:]))
+        q = q * math.sqrt(1.0 / self.head_dims)
+        logits = torch.matmul(q, k.transpose(-2, -1))  # B x h x Q x K
+        if bias is not None:
+            logits = logits + bias
+        out = torch.matmul(torch.softmax(logits, dim=-1), v)  # B x h x Q x d
+        bsz, _, n_q, _ = out.shape
+        out = out.transpose(1, 2).reshape(bsz, n_q, c)
+        return self.out_proj(out)
+
+
+class AttentionBlock(nn.Module):
+    """mmcv ``MultiheadAttention`` wrapper: positions are added to query and key, never to value,
+    and the residual is the input query (dropouts are inactive at inference)."""
+
+    def __init__(self, embed_dims: int, num_heads: int) -> None:
+        super().__init__()
+        self.attn = MultiheadAttention(embed_dims, num_heads)
+
+    def forward(self, query: torch.Tensor, key: torch.Tensor, value: torch.Tensor,
+                query_pos: torch.Tensor, key_pos: torch.Tensor,
+                bias: torch.Tensor | None = None) -> torch.Tensor:
+        return query + self.attn(query + query_pos, key + key_pos, value, bias)
+
+
+class FFN(nn.Module):
+    """mmcv FFN (2 fcs, ReLU, identity added): keys ``layers.0.0`` and ``layers.1``."""
+
+    def __init__(self, embed_dims: int, ffn_dims: int) -> None:
+        super().__init__()
+        self.layers = nn.Sequential(
+            nn.Sequential(nn.Linear(embed_dims, ffn_dims), nn.ReLU()),
+            nn.Linear(ffn_dims, embed_dims),
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.layers(x)
+
+
+class PETRDecoderLayer(nn.Module):
+    """Post-norm layer: self_attn, norm, cross_attn, norm, ffn, norm."""
+
+    def __init__(self, embed_dims: int = 256, num_heads: int = 8, ffn_dims: int = 2048) -> None:
+        super().__init__()
+        self.attentions = nn.ModuleList([AttentionBlock(embed_dims, num_heads),
+                                         AttentionBlock(embed_dims, num_heads)])
+        self.ffns = nn.ModuleList([FFN(embed_dims, ffn_dims)])
+        self.norms = nn.ModuleList([nn.LayerNorm(embed_dims) for _ in range(3)])
+
+    def forward(self, target: torch.Tensor, memory: torch.Tensor, query_pos: torch.Tensor,
+                key_pos: torch.Tensor, key_bias: torch.Tensor | None) -> torch.Tensor:
+        # target B x Q x C; memory B x K x C; query_pos 1|B x Q x C; key_pos 1|B x K x C
+        # self-attention: q = k = t + query_pos, v = t
+        t = self.attentions[0](target, target, target, query_pos, query_pos)
+        t = self.norms[0](t)
+        # cross-attention: q = t + query_pos, k = memory + key_pos, v = memory
+        t = self.attentions[1](t, memory, memory, query_pos, key_pos, key_bias)
+        t = self.norms[1](t)
+        return self.norms[2](self.ffns[0](t))
+
+
+class PETRTransformerDecoder(nn.Module):
+    """Six post-norm layers; ``post_norm`` is applied only to the outputs that are returned.
+
+    The un-normalised output of layer l is the input of layer l+1 (official
+    ``PETRTransformerDecoder``), so ``post_norm`` never enters the recurrence.
+    """
+
+    def __init__(self, num_layers: int = 6, embed_dims: int = 256, num_heads: int = 8,
+                 ffn_dims: int = 2048) -> None:
+        super().__init__()
+        self.layers = nn.ModuleList(PETRDecoderLayer(embed_dims, num_heads, ffn_dims)
+                                    for _ in range(num_layers))
+        self.post_norm = nn.LayerNorm(embed_dims)
+
+    def forward(self, target: torch.Tensor, memory: torch.Tensor, query_pos: torch.Tensor,
+                key_pos: torch.Tensor, key_bias: torch.Tensor | None,
+                return_intermediate: bool = False) -> torch.Tensor:
+        """-> B x Q x C (last layer, post-normed) or L x B x Q x C with ``return_intermediate``."""
+        outs = []
+        t = target
+        for layer in self.layers:
+            t = layer(t, memory, query_pos, key_pos, key_bias)
+            if return_intermediate:
+                outs.append(self.post_norm(t))
+        if return_intermediate:
+            return torch.stack(outs)
+        return self.post_norm(t)
+
+
+class PETRTransformer(nn.Module):
+    """Flattens the camera features into keys (order n, h, w) and runs the decoder from zero targets."""
+
+    def __init__(self, num_layers: int = 6, embed_dims: int = 256, num_heads: int = 8,
+                 ffn_dims: int = 2048) -> None:
+        super().__init__()
+        self.decoder = PETRTransformerDecoder(num_layers, embed_dims, num_heads, ffn_dims)
+
+    def forward(self, memory: torch.Tensor, query_pos: torch.Tensor, key_pos: torch.Tensor,
+                key_bias: torch.Tensor | None, return_intermediate: bool = False) -> torch.Tensor:
+        """memory B x K x C, query_pos Q x C, key_pos 1|B x K x C, key_bias B|1 x K (additive)."""
+        bsz = memory.shape[0]
+        query_pos = query_pos.unsqueeze(0)  # 1 x Q x C
+        target = torch.zeros(bsz, query_pos.shape[1], query_pos.shape[2],
+                             dtype=memory.dtype, device=memory.device)
+        bias = None if key_bias is None else key_bias[:, None, None, :]  # B x 1 x 1 x K
+        return self.decoder(target, memory, query_pos, key_pos, bias, return_intermediate)

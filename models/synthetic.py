@@ -1,0 +1,149 @@
+"""Seeded synthetic checkpoints in the official format, for tests and export work without real weights.
+
+``make_checkpoint(arch, seed)`` builds the registered model, gives it fan-in scaled weights and
+small biases, then calibrates every BatchNorm's running statistics by running the model with BN
+layers in statistics-collection mode on seeded synthetic frames (the architecture's
+``calibrate`` hook from the registry), so activations stay O(1) at inference. The result is an
+mmengine-style ``{'state_dict', 'meta'}`` dict with every official key (geometry tables included,
+computed from the rig, so they agree with a recomputation) in official order, shape and dtype.
+
+A model taking part implements ``official_state_dict()`` (official names, weights and geometry)
+and registers a ``calibrate(model, seed)`` hook; :func:`batchnorm_statistics` and
+:func:`synthetic_images` are the building blocks for such hooks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from pathlib import Path
+from typing import Any, Iterator
+
+import torch
+from torch import nn
+
+from fisheye_infer.errors import CheckpointError
+
+from .registry import create_model, get_model_entry, read_manifest
+
+__all__ = ["make_checkpoint", "init_weights", "batchnorm_statistics", "synthetic_images", "manifest_specs"]
+
+_BN = (nn.BatchNorm1d, nn.BatchNorm2d)
+_DTYPES = {"float32": torch.float32, "int64": torch.int64}
+
+
+def init_weights(model: nn.Module, seed: int) -> None:
+    """Kaiming-like weights (std sqrt(2 / fan_in)), small biases, BN/LN affine near identity.
+
+    Parameters that are not covered by a known module type (e.g. packed attention projections)
+    get std sqrt(1 / fan_in) over their last dimension.
+    """
+    gen = torch.Generator().manual_seed(int(seed))
+
+    def normal(t: torch.Tensor, std: float, mean: float = 0.0) -> None:
+        with torch.no_grad():
+            t.copy_(torch.randn(t.shape, generator=gen) * std + mean)
+
+    done: set[int] = set()
+    for module in model.modules():
+        if isinstance(module, (nn.Conv1d, nn.Conv2d)):
+            fan_in = module.in_channels // module.groups * math.prod(module.kernel_size)
+            normal(module.weight, math.sqrt(2.0 / fan_in))
+        elif isinstance(module, nn.ConvTranspose2d):
+            # each output pixel of a k = s transposed conv sees exactly in_channels inputs
+            taps = math.prod(module.kernel_size) / math.prod(module.stride)
+            normal(module.weight, math.sqrt(2.0 / (module.in_channels * max(taps, 1.0))))
+        elif isinstance(module, nn.Linear):
+            normal(module.weight, math.sqrt(1.0 / module.in_features))
+        elif isinstance(module, (*_BN, nn.LayerNorm)):
+            normal(module.weight, 0.1, 1.0)
+            normal(module.bias, 0.1)
+            if isinstance(module, _BN):
+                module.reset_running_stats()
+        else:
+            continue
+        done.update({id(module.weight)} | ({id(module.bias)} if getattr(module, "bias", None) is not None else set()))
+        if getattr(module, "bias", None) is not None and not isinstance(module, (*_BN, nn.LayerNorm)):
+            normal(module.bias, 0.02)
+    for _, param in model.named_parameters():
+        if id(param) in done:
+            continue
+        if param.dim() >= 2:
+            normal(param, math.sqrt(1.0 / param.shape[-1]))
+        else:
+            normal(param, 0.02)
+
+
+@contextlib.contextmanager
+def batchnorm_statistics(model: nn.Module) -> Iterator[None]:
+    """Inside the block BN layers normalise with batch statistics and accumulate a cumulative average
+    of them (momentum=None) into fresh running statistics; everything else stays in eval mode."""
+    bns = [m for m in model.modules() if isinstance(m, _BN)]
+    saved = [(m.momentum, m.training) for m in bns]
+    model.eval()
+    for m in bns:
+        m.reset_running_stats()
+        m.momentum = None
+        m.train()
+    try:
+        with torch.no_grad():
+            yield
+    finally:
+        for m, (momentum, _) in zip(bns, saved):
+            m.momentum = momentum
+            m.eval()
+        model.eval()
+
+
+def synthetic_images(seed: int, batch: int, cameras: int, height: int, width: int) -> torch.Tensor:
+    """uint8 B x N x H x W x 3 frames: smooth random blobs plus fine texture, deterministic in ``seed``."""
+    gen = torch.Generator().manual_seed(int(seed) + 7919)
+    coarse = torch.rand(batch * cameras, 3, max(height // 32, 2), max(width // 32, 2), generator=gen)
+    mid = torch.rand(batch * cameras, 3, max(height // 8, 2), max(width // 8, 2), generator=gen)
+    fine = torch.rand(batch * cameras, 3, height, width, generator=gen)
+    up = lambda t: nn.functional.interpolate(t, size=(height, width), mode="bilinear", align_corners=False)  # noqa: E731
+    img = 0.55 * up(coarse) + 0.3 * up(mid) + 0.15 * fine
+    img = (img * 255.0).round().clamp(0, 255).to(torch.uint8)
+    return img.permute(0, 2, 3, 1).reshape(batch, cameras, height, width, 3).contiguous()
+
+
+def manifest_specs(arch: str) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
+    """Certain keys of an architecture's manifest (uncertain ones excluded), with shape and dtype."""
+    return {e["key"]: (tuple(e["shape"]), _DTYPES[e["dtype"]]) for e in read_manifest(arch) if not e.get("uncertain")}
+
+
+def _verify_manifest(arch: str, state_dict: dict[str, torch.Tensor]) -> None:
+    specs = manifest_specs(arch)
+    problems = [f"missing {k}" for k in specs if k not in state_dict]
+    problems += [f"unexpected {k}" for k in state_dict if k not in specs]
+    problems += [f"{k}: {list(v.shape)}/{v.dtype} vs manifest {list(specs[k][0])}/{specs[k][1]}"
+                 for k, v in state_dict.items() if k in specs and (tuple(v.shape) != specs[k][0] or v.dtype != specs[k][1])]
+    if problems:
+        raise CheckpointError(f"synthetic {arch} checkpoint disagrees with its manifest: " + "; ".join(problems))
+
+
+def make_checkpoint(arch: str, seed: int = 0, path: str | Path | None = None, *, config: Any = None,
+                    rig: Any = None) -> dict[str, Any]:
+    """Seeded synthetic checkpoint ``{'state_dict', 'meta'}`` for a registered architecture.
+
+    With the default configuration the keys, shapes and dtypes are checked against the
+    architecture's manifest. If ``path`` is given the checkpoint is also saved there.
+    """
+    entry = get_model_entry(arch)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(int(seed))
+        model = create_model(arch, config, rig)
+        init_weights(model, seed)
+        if entry.calibrate is not None:
+            entry.calibrate(model, seed)
+        model.eval()
+        state_dict = {k: v.detach().clone().contiguous() for k, v in model.official_state_dict().items()}  # type: ignore[operator]
+    if config is None:
+        _verify_manifest(arch, state_dict)
+    cfg = getattr(model, "config", None)
+    meta: dict[str, Any] = {"arch": arch, "seed": int(seed), "synthetic": True,
+                            "config": cfg.to_dict() if hasattr(cfg, "to_dict") else None}
+    ckpt = {"state_dict": state_dict, "meta": meta}
+    if path is not None:
+        torch.save(ckpt, Path(path))
+    return ckpt

@@ -1,0 +1,230 @@
+"""Fisheye LSS view transform: warp to an angular grid, predict depth and context, pool into BEV.
+
+All geometry comes from :mod:`fisheye_infer.geometry` (numpy, one source of truth); this module
+only holds the tables as non-persistent buffers and does the tensor work:
+
+1. ``warp``: ``grid_sample`` of the stride-16 features with the constant equirectangular grid
+   (bilinear, zeros, ``align_corners=True`` although the grid is normalised with divisor W,
+   as the official model does);
+2. ``depth_context``: a 1x1 ``depthnet``; softmax over the first D channels, raw context after;
+3. ``pool``: mean pooling of depth x context into the BEV cells with the precomputed bucketed
+   plan (Gather + batched MatMul; no scatter, no sort, no boolean indexing).
+
+The official checkpoint's geometry keys (``frustum``, ``sphere_grid_3d``, ``sphere_grid_2d``,
+``valid_fov_mask``, ``dx``, ``bx``, ``nx``) are not parameters here; the checkpoint loader compares
+them with the recomputation and installs the chosen tables through :meth:`FisheyeLSS.set_geometry`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from fisheye_infer.errors import ConfigError
+from fisheye_infer.geometry.frustum import depth_bins, frustum_to_lidar, spherical_frustum
+from fisheye_infer.geometry.grids import invalid_mask, spherical_grid
+from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan, voxelise
+from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, lss_tables_from
+
+from .config import ViewTransformConfig
+
+__all__ = ["LSSGeometry", "FisheyeLSS", "pool_reference_torch"]
+
+
+@dataclass(frozen=True)
+class LSSGeometry:
+    """Geometry tables of the fisheye LSS transform for one rig and configuration."""
+
+    grid: np.ndarray  # H x W x 2 float32, grid_sample coordinates (shared by all cameras)
+    frustum: np.ndarray  # D x H x W x 3 float32, camera frame, radial depth
+    cam2lidar: np.ndarray  # N x 4 x 4 float64
+    bev_grid: BevGrid
+    plan: PoolingPlan
+    valid_fov_mask: np.ndarray  # 1 x 1 x H x W float32, sampled lens validity (unused by the forward)
+    source: str = "rig"  # where grid/frustum came from: "rig" or "checkpoint"
+
+    @classmethod
+    def from_rig(cls, rig: Any, cfg: ViewTransformConfig, *, grid: np.ndarray | None = None,
+                 frustum: np.ndarray | None = None, source: str = "rig") -> "LSSGeometry":
+        """Compute the tables from ``rig`` (shared camera model + extrinsics); ``grid``/``frustum`` override."""
+        camera = rig.shared_model()
+        if grid is None:
+            grid = spherical_grid(camera, tuple(cfg.feature_size), tuple(cfg.azimuth_range), tuple(cfg.elevation_range))
+        if frustum is None:
+            frustum = spherical_frustum(depth_bins(tuple(cfg.dbound)), tuple(cfg.feature_size),
+                                        tuple(cfg.azimuth_range), tuple(cfg.elevation_range))
+        grid = np.ascontiguousarray(grid, dtype=np.float32)
+        frustum = np.ascontiguousarray(frustum, dtype=np.float32)
+        bev_grid = BevGrid(tuple(cfg.xbound), tuple(cfg.ybound), tuple(cfg.zbound))
+        cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
+        plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), bev_grid, DEFAULT_BUCKET_SIZES)
+        valid = (np.float32(1.0) - invalid_mask(camera, grid))[None, None].astype(np.float32)
+        return cls(grid=grid, frustum=frustum, cam2lidar=cam2lidar, bev_grid=bev_grid, plan=plan,
+                   valid_fov_mask=valid, source=source)
+
+    def with_tables(self, *, grid: np.ndarray | None = None, frustum: np.ndarray | None = None,
+                    source: str = "checkpoint") -> "LSSGeometry":
+        """Same rig with replaced grid and/or frustum; the pooling plan is rebuilt only if the frustum changed."""
+        new_grid = self.grid if grid is None else np.ascontiguousarray(grid, dtype=np.float32)
+        new_frustum = self.frustum if frustum is None else np.ascontiguousarray(frustum, dtype=np.float32)
+        plan = self.plan
+        if not np.array_equal(new_frustum, self.frustum):
+            plan = build_pooling_plan(frustum_to_lidar(new_frustum, self.cam2lidar), self.bev_grid, self.plan.bucket_sizes)
+        return replace(self, grid=new_grid, frustum=new_frustum, plan=plan, source=source)
+
+    def tables(self) -> dict[str, np.ndarray]:
+        """The named ``geom.*`` tables an exported graph holds (layout: fisheye_infer.geometry.tables)."""
+        return lss_tables_from(self.grid, self.plan)
+
+
+def _buffer_name(table: str) -> str:
+    return table.replace(".", "_")
+
+
+def pool_reference_torch(depth: torch.Tensor, ctx: torch.Tensor, points_lidar: np.ndarray,
+                         bev_grid: BevGrid) -> torch.Tensor:
+    """Plain definition of mean pooling for one sample with ``index_add_`` (tests, dynamic rigs).
+
+    depth: N x D x H x W, ctx: N x H x W x C, points_lidar: N x D x H x W x 3 -> C x X x Y.
+    """
+    cells, kept = voxelise(points_lidar, bev_grid)
+    nx, ny, _ = bev_grid.nx
+    channels = ctx.shape[-1]
+    lifted = (depth.unsqueeze(-1) * ctx.unsqueeze(1)).reshape(-1, channels)  # P x C
+    idx = torch.from_numpy(np.flatnonzero(kept)).to(depth.device)
+    cell = torch.from_numpy(cells[kept]).to(depth.device)
+    total = torch.zeros(nx * ny, channels, dtype=lifted.dtype, device=lifted.device)
+    total.index_add_(0, cell, lifted.index_select(0, idx))
+    counts = torch.zeros(nx * ny, dtype=lifted.dtype, device=lifted.device)
+    counts.index_add_(0, cell, torch.ones_like(cell, dtype=lifted.dtype))
+    bev = total / counts.clamp(min=1.0).unsqueeze(1)
+    return bev.reshape(nx, ny, channels).permute(2, 0, 1)
+
+
+class FisheyeLSS(nn.Module):
+    """Lift-splat with a constant equirectangular grid and a constant pooling plan."""
+
+    def __init__(self, cfg: ViewTransformConfig, geometry: LSSGeometry) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.in_channels, self.out_channels = cfg.in_channels, cfg.out_channels
+        self.num_depth = cfg.num_depth_bins
+        self.depthnet = nn.Conv2d(cfg.in_channels, self.num_depth + cfg.out_channels, 1)
+        self._table_names: tuple[str, ...] = ()
+        self._num_buckets = 0
+        self.set_geometry(geometry)
+
+    # -- geometry -----------------------------------------------------------------------
+
+    def set_geometry(self, geometry: LSSGeometry) -> None:
+        """Install geometry tables as non-persistent buffers (they are not checkpoint keys of this model)."""
+        h, w = self.cfg.feature_size
+        d = self.num_depth
+        if geometry.grid.shape != (h, w, 2):
+            raise ConfigError(f"view transform grid is {geometry.grid.shape}, configuration needs ({h}, {w}, 2)")
+        if geometry.frustum.shape != (d, h, w, 3):
+            raise ConfigError(f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)")
+        if tuple(geometry.plan.grid_xy) != self.cfg.bev_shape:
+            raise ConfigError(f"pooling plan grid {geometry.plan.grid_xy} differs from the configuration's {self.cfg.bev_shape}")
+        for name in self._table_names:
+            delattr(self, _buffer_name(name))
+        tables = geometry.tables()
+        for name, value in tables.items():
+            self.register_buffer(_buffer_name(name), torch.from_numpy(np.ascontiguousarray(value)), persistent=False)
+        self._table_names = tuple(tables)
+        self._num_buckets = len(geometry.plan.bucket_points)
+        self.geometry = geometry
+
+    def tables(self) -> dict[str, torch.Tensor]:
+        """The installed ``geom.*`` tables as tensors (the buffers), by their graph names."""
+        return {name: getattr(self, _buffer_name(name)) for name in self._table_names}
+
+    @property
+    def num_cameras(self) -> int:
+        return self.geometry.plan.lift_shape[0]
+
+    # -- stages -------------------------------------------------------------------------
+
+    def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """M x C x Hf x Wf -> M x C x H x W, bilinear, zero padding, align_corners=True."""
+        grid = (tables or self.tables())["geom.grid"].expand(feat.shape[0], -1, -1, -1)
+        return F.grid_sample(feat, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+
+    def depth_context(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """M x Cin x H x W -> depth probabilities M x D x H x W and context M x C x H x W."""
+        y = self.depthnet(x)
+        depth = torch.softmax(y[:, : self.num_depth], dim=1)
+        ctx = y[:, self.num_depth: self.num_depth + self.out_channels]
+        return depth, ctx
+
+    def pool(self, depth: torch.Tensor, ctx: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Mean-pool depth (B x N x D x H x W) times ctx (B x N x H x W x C) into B x C x X x Y.
+
+        Only Gather, MatMul and Concat; bucket sizes K_b come from the tables' shapes, so the same
+        graph serves any rig (the exporter traces it with K_b symbolic).
+        """
+        tables = tables or self.tables()
+        b, c = depth.shape[0], ctx.shape[-1]
+        x_cells, y_cells = self.geometry.plan.grid_xy
+        depth_flat = torch.cat([depth.reshape(b, -1), depth.new_zeros(b, 1)], dim=1)  # B x (P + 1)
+        ctx_flat = ctx.reshape(b, -1, c)  # B x NHW x C
+        rows = []
+        for i in range(self._num_buckets):
+            pts = tables[f"geom.pool.points.{i}"]
+            pix = tables[f"geom.pool.pixels.{i}"]
+            w = depth_flat[:, pts]  # B x K x L
+            f = ctx_flat[:, pix]  # B x K x L x C
+            rows.append(torch.matmul(w.unsqueeze(2), f).squeeze(2))  # B x K x C
+        rows.append(ctx_flat.new_zeros(b, 1, c))  # row for empty cells
+        table = torch.cat(rows, dim=1)  # B x (sum K + 1) x C
+        bev = table[:, tables["geom.pool.cell_rows"]] / tables["geom.pool.counts"]  # B x XY x C, counts >= 1
+        return bev.reshape(b, x_cells, y_cells, c).permute(0, 3, 1, 2)
+
+    def lift(self, feat: torch.Tensor, camera_valid: torch.Tensor | None,
+             tables: dict[str, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """B x N x Cin x Hf x Wf -> depth B x N x D x H x W and ctx B x N x H x W x C (masked cameras zeroed)."""
+        b, n = feat.shape[0], feat.shape[1]
+        x = self.warp(feat.flatten(0, 1), tables)
+        depth, ctx = self.depth_context(x)
+        h, w = depth.shape[-2:]
+        depth = depth.reshape(b, n, self.num_depth, h, w)
+        ctx = ctx.reshape(b, n, self.out_channels, h, w).permute(0, 1, 3, 4, 2)
+        if camera_valid is not None:
+            # A missing camera contributes zero features; cell counts stay those of the full rig,
+            # so cells it shared with other cameras are diluted exactly as if it had seen nothing.
+            ctx = ctx * camera_valid.to(ctx.dtype).reshape(b, n, 1, 1, 1)
+        return depth, ctx
+
+    def forward(self, feat: torch.Tensor, camera_valid: torch.Tensor | None = None,
+                tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """B x N x Cin x Hf x Wf image features -> B x C x X x Y BEV (rows x forward, columns y left).
+
+        ``tables`` replaces the installed geometry tables (the exporter passes them as graph inputs).
+        """
+        if feat.shape[1] != self.num_cameras:
+            raise ConfigError(f"view transform built for {self.num_cameras} cameras, got {feat.shape[1]}")
+        tables = tables or self.tables()
+        depth, ctx = self.lift(feat, camera_valid, tables)
+        return self.pool(depth, ctx, tables)
+
+    def forward_dynamic(self, feat: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray,
+                        camera_valid: torch.Tensor | None = None) -> torch.Tensor:
+        """Same as ``forward`` with per-sample extrinsics cam2lidar (B x N x 4 x 4); reference speed.
+
+        The points are transformed by :func:`fisheye_infer.geometry.frustum.frustum_to_lidar` and
+        pooled with ``index_add_`` per sample; grid and frustum stay those of this module.
+        """
+        mats = cam2lidar.detach().cpu().numpy() if isinstance(cam2lidar, torch.Tensor) else np.asarray(cam2lidar)
+        if mats.shape != (feat.shape[0], feat.shape[1], 4, 4):
+            raise ConfigError(f"cam2lidar must be ({feat.shape[0]}, {feat.shape[1]}, 4, 4), got {mats.shape}")
+        depth, ctx = self.lift(feat, camera_valid)
+        out = []
+        for i in range(feat.shape[0]):
+            points = frustum_to_lidar(self.geometry.frustum, mats[i].astype(np.float64))
+            out.append(pool_reference_torch(depth[i], ctx[i], points, self.geometry.bev_grid))
+        return torch.stack(out)
