@@ -12,11 +12,12 @@ content does not match its recorded hash.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from fisheye_infer.errors import ArtifactError
+from fisheye_infer.geometry.tables import GeometryParams
 from fisheye_infer.rig import Rig
 
 __all__ = [
@@ -65,6 +66,8 @@ class ParityReport(_Model):
     labels_equal: bool
     order_equal: bool
     valid_equal: bool
+    tie_swaps: int = 0  # boxes found at another position among scores equal within tolerance
+    unmatched: int = 0  # boxes without a counterpart (ties at the last kept score excepted)
     tolerance_box_m: float
     tolerance_score: float
     passed: bool
@@ -94,6 +97,7 @@ class ArtifactMeta(_Model):
     valid_semantics: str = "box centre inside the official post_center_range; the official output set is exactly the valid boxes"
     rig: Rig
     rig_hash: str
+    geometry: Annotated[GeometryParams, Field(discriminator="kind")]
     geometry_source: Literal["rig", "checkpoint"] = "rig"
     geometry_initializers: tuple[str, ...] = ()
     checkpoint_sha256: str | None = None

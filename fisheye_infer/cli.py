@@ -55,7 +55,11 @@ def _rig_convert(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    """The main job on embedded defaults: the shipped rig, its geometry tables and their pictures."""
+    """The main job on embedded defaults: the shipped rig and its geometry, a seeded random-weight
+    FisheyeBEVDet exported to a verified ONNX file, and detection on the bundled sample frame."""
+    import json
+    from importlib import resources
+
     from fisheye_infer.geometry import BevGrid, build_pooling_plan, depth_bins, frustum_to_lidar, spherical_frustum, spherical_grid
     from fisheye_infer.rig import default_rig
     from fisheye_infer.viz import draw_rig, draw_sampling_grid, save_png
@@ -73,6 +77,27 @@ def _demo(args: argparse.Namespace) -> int:
     )
     print(f"wrote {save_png(out / 'rig.png', draw_rig(rig))}")
     print(f"wrote {save_png(out / 'sampling_grid.png', draw_sampling_grid(model, grid))}")
+
+    try:
+        from fisheye_infer.export.exporter import export
+        from fisheye_infer.models import make_checkpoint
+    except ImportError as exc:
+        print(f"skipping export and detection: the [export] extra is not installed ({exc})")
+        return 0
+    ckpt, onnx_path = out / "fisheye_bevdet_random.pth", out / "fisheye_bevdet_random.onnx"
+    print("\nexport: FisheyeBEVDet with SEEDED RANDOM WEIGHTS (its boxes mean nothing; pass a trained checkpoint to `fisheye-infer export --ckpt` for real detections)")
+    make_checkpoint("fisheye-bevdet", seed=0, path=ckpt)
+    print(export(ckpt, onnx_path).summary())
+
+    from fisheye_infer.detect_command import run_detect
+
+    sample = resources.files("fisheye_infer") / "data" / "sample_frame"
+    with resources.as_file(sample) as folder:
+        detect_args = argparse.Namespace(model=str(onnx_path), images=[str(folder)], result=None, out=str(out / "result.json"),
+                                         viz=str(out / "result.png"), score_threshold=None, classes=None, nms=None, threads=None)
+        run_detect(detect_args)
+    frames = json.loads((out / "result.json").read_text())["frames"]
+    print(f"\ndemo done: {len(frames[0]['detections'])} boxes on the bundled synthetic frame; see {out}/result.png")
     return 0
 
 
@@ -127,11 +152,21 @@ def build_parser() -> argparse.ArgumentParser:
     configure_eval(sub.add_parser("eval", help="measure FDS/mAP on Fisheye3DOD-layout data or on two results files"))
     configure_synth(sub.add_parser("synth", help="render synthetic fisheye frames in the Fisheye3DOD layout"))
 
+    from fisheye_infer.export.commands import configure_export, configure_make_checkpoint, configure_rebake
+
+    configure_export(sub.add_parser("export", help="export a checkpoint to one self-contained, verified ONNX file"))
+    configure_rebake(sub.add_parser("rebake", help="recompute an ONNX file's geometry tables for a new rig (no torch)"))
+    configure_make_checkpoint(sub.add_parser("make-checkpoint", help="write a seeded random-weight checkpoint (demos and tests)"))
+
+    from fisheye_infer.detect_command import configure_detect
+
+    configure_detect(sub.add_parser("detect", help="run a model on frames; write results JSON and pictures"))
+
+    from fisheye_infer.service.commands import configure_serve
+
+    configure_serve(sub.add_parser("serve", help="serve a model over HTTP and WebSocket", description="Serve a model over HTTP and WebSocket (needs the [serve] extra)."))
+
     for name, text in (
-        ("export", "export a checkpoint to one self-contained ONNX file"),
-        ("rebake", "recompute an ONNX file's geometry for a new rig"),
-        ("detect", "run a model on frames and write results and pictures"),
-        ("serve", "serve a model over HTTP"),
         ("bench", "benchmark a model on this machine"),
     ):
         cmd = sub.add_parser(name, help=f"{text} (not available yet)", description=f"{text}. Not available in this version yet.")

@@ -19,7 +19,7 @@ import numpy as np
 
 from fisheye_infer.errors import FrameError
 
-__all__ = ["ImageInput", "Frame", "encoded_image_size", "decode_image", "load_frame", "stack_frames", "prepare_batch"]
+__all__ = ["ImageInput", "Frame", "encoded_image_size", "decode_image", "load_frame", "stack_frames", "prepare_batch", "frames_from_paths"]
 
 ImageInput = np.ndarray | bytes | bytearray | memoryview | str | os.PathLike | None
 Frame = Mapping[str, ImageInput] | Sequence[ImageInput]
@@ -145,3 +145,43 @@ def prepare_batch(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tup
         except FrameError as exc:
             raise FrameError(f"frame {b}: {exc}") from None
     return stack_frames(loaded, image_wh)
+
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def _short(name: str) -> str:
+    return name.rsplit("_", 1)[-1]
+
+
+def frames_from_paths(paths: Sequence[str | os.PathLike], cameras: Sequence[str]) -> list[tuple[str, dict[str, Path]]]:
+    """Frames named by their files: ``(frame name, {camera: image path})``.
+
+    Accepted: one folder with an image per camera (named by the camera, e.g.
+    ``fisheye_camera_front.png``, or its last word, ``front.png``); one folder with a sub-folder
+    per camera holding equally named images (several frames); or one file per camera, in the
+    model's camera order.
+    """
+    items = [Path(p) for p in paths]
+    if len(items) == 1 and items[0].is_dir():
+        folder = items[0]
+        subdirs = {c: folder / c for c in cameras if (folder / c).is_dir()}
+        if len(subdirs) == len(cameras):
+            stems = sorted(p.name for p in subdirs[cameras[0]].iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not stems:
+                raise FrameError(f"{subdirs[cameras[0]]}: no PNG or JPEG images")
+            return [(Path(stem).stem, {c: subdirs[c] / stem for c in cameras}) for stem in stems]
+        files = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+        frame = {}
+        for camera in cameras:
+            found = [p for p in files if p.stem in (camera, _short(camera))]
+            if not found:
+                raise FrameError(f"camera '{camera}': no image in {folder} (expected {camera}.png, {_short(camera)}.png or a folder {camera}/)")
+            frame[camera] = found[0]
+        return [(folder.name, frame)]
+    if len(items) != len(cameras):
+        raise FrameError(f"images: got {len(items)} paths; give one folder, or {len(cameras)} files in the order {', '.join(cameras)}")
+    for path in items:
+        if not path.is_file():
+            raise FrameError(f"images: {path} is not a file")
+    return [(items[0].parent.name, dict(zip(cameras, items)))]

@@ -1,4 +1,5 @@
-"""Pictures drawn with OpenCV: the rig seen from above, and where a sampling grid reads a fisheye image.
+"""Pictures drawn with OpenCV: the rig from above, a sampling grid on a fisheye image, and detections
+(boxes projected into each fisheye image through the camera model, and a bird's-eye view).
 
 Everything returns a BGR uint8 image; ``save_png`` writes one. No plotting library is needed,
 so the pictures work on a robot with the core install.
@@ -8,14 +9,19 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING, Mapping
 
 import cv2
 import numpy as np
 
 from fisheye_infer.camera import OCamModel
 from fisheye_infer.rig import Rig
+from fisheye_infer.synth import CLASS_COLOURS
 
-__all__ = ["camera_colours", "draw_rig", "draw_sampling_grid", "save_png"]
+if TYPE_CHECKING:
+    from fisheye_infer.detections import Detections
+
+__all__ = ["camera_colours", "draw_bev", "draw_detections", "draw_rig", "draw_sampling_grid", "save_png"]
 
 _PALETTE = [(66, 133, 244), (52, 168, 83), (251, 188, 5), (234, 67, 53), (171, 71, 188), (0, 172, 193)]
 
@@ -100,3 +106,69 @@ def save_png(path: str | Path, image: np.ndarray) -> Path:
     if not cv2.imwrite(str(path), image):
         raise OSError(f"cannot write {path}")
     return path
+
+
+def _class_colour(name: str) -> tuple[int, int, int]:
+    """The colour the synthetic scenes paint the class with; grey for other classes."""
+    return CLASS_COLOURS.get(name, (160, 160, 160))
+
+
+def draw_bev(detections: "Detections", size: int = 800, extent_m: float = 50.0, rig: Rig | None = None) -> np.ndarray:
+    """Bird's-eye view: x up, y left, range rings every 10 m, the ego footprint, boxes with class and score."""
+    from fisheye_infer.boxes import bev_corners
+
+    img = np.full((size, size, 3), 250, np.uint8)
+    scale = size / (2 * extent_m)
+
+    def px(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.stack([size / 2 - y * scale, size / 2 - x * scale], axis=-1)
+
+    for r in range(10, int(extent_m) + 1, 10):
+        cv2.circle(img, (size // 2, size // 2), int(r * scale), (215, 215, 215), 1, cv2.LINE_AA)
+        _text(img, f"{r} m", (size // 2 + 3, int(size / 2 - r * scale) + 14), (150, 150, 150), 0.4)
+    if rig is not None:
+        pos = np.array([c.position for c in rig.cameras])
+        corners = px(np.array([pos[:, 0].max(), pos[:, 0].max(), pos[:, 0].min(), pos[:, 0].min()]), np.array([pos[:, 1].max(), pos[:, 1].min(), pos[:, 1].min(), pos[:, 1].max()]))
+        cv2.fillPoly(img, [np.round(corners).astype(np.int32)], (90, 90, 90))
+    cv2.arrowedLine(img, (size // 2, size // 2), (size // 2, size // 2 - int(4 * scale)), (0, 0, 0), 2, tipLength=0.3)
+    for box, name, score in zip(bev_corners(detections.boxes), detections.names, detections.scores):
+        colour = _class_colour(name)
+        poly = np.round(px(box[:, 0], box[:, 1])).astype(np.int32)
+        cv2.polylines(img, [poly], True, colour, 2, cv2.LINE_AA)
+        front = np.round(poly[:2].mean(axis=0)).astype(int)
+        cv2.line(img, tuple(np.round(poly.mean(axis=0)).astype(int)), tuple(front), colour, 1, cv2.LINE_AA)
+        _text(img, f"{name} {score:.2f}", tuple(poly.max(axis=0) + np.array([2, 0])), colour, 0.35)
+    _text(img, f"bird's-eye view, {len(detections)} boxes (x up, y left)", (10, 20))
+    return img
+
+
+def draw_detections(detections: "Detections", rig: Rig, images: Mapping[str, np.ndarray | None] | None = None, tile: int = 400) -> np.ndarray:
+    """The fisheye images with the boxes projected through the rig's camera models, beside the BEV.
+
+    Cameras without an image are drawn on black. Returns one BGR picture: a 2-column grid of
+    camera tiles on the left, the bird's-eye view on the right.
+    """
+    from fisheye_infer.boxes import project_boxes
+
+    lines = project_boxes(detections.boxes, rig)
+    tiles = []
+    for cam in rig.cameras:
+        model = cam.model
+        image = None if images is None else images.get(cam.name)
+        canvas = np.zeros((model.height, model.width, 3), np.uint8) if image is None else np.ascontiguousarray(image.copy())
+        thickness = max(1, model.width // 400)
+        for polylines, name, score in zip(lines[cam.name], detections.names, detections.scores):
+            colour = _class_colour(name)
+            for line in polylines:
+                cv2.polylines(canvas, [np.round(line).astype(np.int32)], False, colour, thickness, cv2.LINE_AA)
+            if polylines:
+                top = np.concatenate(polylines).min(axis=0)
+                _text(canvas, f"{name} {score:.2f}", (int(top[0]), max(12, int(top[1]) - 4)), colour, 0.4 * thickness)
+        canvas = cv2.resize(canvas, (tile, tile), interpolation=cv2.INTER_AREA)
+        _text(canvas, cam.name, (8, tile - 10), (255, 255, 255))
+        tiles.append(canvas)
+    while len(tiles) % 2:
+        tiles.append(np.zeros_like(tiles[0]))
+    grid = np.vstack([np.hstack(tiles[i : i + 2]) for i in range(0, len(tiles), 2)])
+    bev = draw_bev(detections, size=grid.shape[0], rig=rig)
+    return np.hstack([grid, bev])

@@ -8,6 +8,7 @@ from torch import nn
 
 from .checkpoint import GeometryReport, check_keys, load_checkpoint, load_official_state_dict
 from .config import BEVDetConfig
+from .cyl_config import BEVDetCylConfig, CylPETRConfig
 from .mmconfig import read_mmdet3d_config
 from .petr_config import PETRConfig
 from .registry import create_model, get_model_entry, list_models, register_model
@@ -15,6 +16,8 @@ from .synthetic import make_checkpoint
 
 __all__ = [
     "BEVDetConfig",
+    "BEVDetCylConfig",
+    "CylPETRConfig",
     "GeometryReport",
     "PETRConfig",
     "check_keys",

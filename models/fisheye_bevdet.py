@@ -18,13 +18,14 @@ import torch
 from torch import nn
 
 from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
+from fisheye_infer.geometry.tables import LSSParams
 
 from .backbone import FPN, ResNet
 from .bev_encoder import SECOND, SECONDFPN
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
 from .config import BEVDetConfig
 from .registry import register_model
-from .synthetic import batchnorm_statistics, synthetic_images
+from .synthetic import batchnorm_statistics, synthetic_images, temper_attention
 from .transfusion import TransFusionHead
 from .view_transform import FisheyeLSS, LSSGeometry
 
@@ -66,6 +67,8 @@ def calibrate(model: nn.Module, seed: int) -> None:
     with batchnorm_statistics(model):
         for frame in frames:
             model.predict(frame)
+    temper_attention(model, lambda: model.predict(frames[0]))
+    _shape_box_heads(model, frames[0])
     # Heatmap logits: affine-map so the median cell sits at the official prior (-2.19, p = 0.1) and
     # the largest at about +0.8 (p = 0.69): peaks stay far from sigmoid saturation, where float32
     # would round neighbouring scores to the same value and create ties at the top-k boundary.
@@ -76,6 +79,38 @@ def calibrate(model: nn.Module, seed: int) -> None:
         final = model.bbox_head.heatmap_head[1]  # type: ignore[index]
         final.weight.mul_(scale)
         final.bias.mul_(scale).add_(HEATMAP_PRIOR_LOGIT - scale * float(median))
+
+
+#: Target (mean, std) of the raw regression outputs of a trained head: centre offsets in cells,
+#: gravity-centre height (m), log box sizes (l, w, h of a car-sized box), and sin/cos of yaw with
+#: a norm near 1 (atan2 of a near-zero vector turns float32 rounding into large yaw errors; a
+#: trained head predicts unit vectors, a random one does not unless told).
+BOX_HEAD_TARGETS = {"center": ((0.0, 0.0), 0.3), "height": ((-0.8,), 0.4), "dim": ((1.4, 0.65, 0.45), 0.25), "rot": ((0.7, 0.7), 0.1)}
+
+
+@torch.no_grad()
+def _shape_box_heads(model: nn.Module, frame: torch.Tensor) -> None:
+    """Affine-map each regression head's last layer so its outputs have a trained head's range.
+
+    Random heads predict log-sizes of +-4 (boxes of 50 m): exp() then multiplies float32
+    rounding by the box size, which a trained model never does.
+    """
+    head = model.bbox_head.prediction_heads[0]  # type: ignore[index]
+    outputs = {}
+    hooks = [getattr(head, name)[-1].register_forward_hook(lambda m, i, o, name=name: outputs.__setitem__(name, o))
+             for name in BOX_HEAD_TARGETS]
+    try:
+        model.predict(frame)
+    finally:
+        for h in hooks:
+            h.remove()
+    for name, (means, std) in BOX_HEAD_TARGETS.items():
+        final = getattr(head, name)[-1]
+        out = outputs[name]  # B x C x P
+        mu, sigma = out.mean(dim=(0, 2)), out.std(dim=(0, 2)).clamp(min=1e-6)
+        gain = std / sigma
+        final.weight.mul_(gain[:, None, None])
+        final.bias.copy_((final.bias - mu) * gain + torch.tensor(means, dtype=final.bias.dtype))
 
 
 @register_model("fisheye-bevdet", config_cls=BEVDetConfig, manifest="fisheye_bevdet_keys.json",
@@ -182,6 +217,14 @@ class FisheyeBEVDet(nn.Module):
     def geometry_tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables the exported graph holds as named initializers."""
         return self.view_transform.tables()
+
+    def geometry_params(self) -> LSSParams:
+        """The parameters that define the geometry tables (what a re-baked file recomputes them from)."""
+        vt = self.config.view_transform
+        return LSSParams(feature_size=tuple(vt.feature_size), azimuth_range=tuple(vt.azimuth_range),
+                         elevation_range=tuple(vt.elevation_range), dbound=tuple(vt.dbound), xbound=tuple(vt.xbound),
+                         ybound=tuple(vt.ybound), zbound=tuple(vt.zbound),
+                         bucket_sizes=tuple(self.view_transform.geometry.plan.bucket_sizes))
 
     # -- official checkpoint ----------------------------------------------------------------
 

@@ -25,11 +25,13 @@ from fisheye_infer.geometry.frustum import depth_bins, spherical_frustum
 
 from .backbone import FPN, ResNet
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
+from fisheye_infer.geometry.tables import PETRParams
+
 from .petr_config import PETRConfig
 from .petr_geometry import PETRGeometry
 from .petr_head import FisheyePETRHead
 from .registry import register_model
-from .synthetic import batchnorm_statistics, synthetic_images
+from .synthetic import batchnorm_statistics, synthetic_images, temper_attention
 
 __all__ = ["FisheyePETR", "checkpoint_filter_fn", "rename_official_keys", "calibrate", "GEOMETRY_KEYS"]
 
@@ -95,6 +97,7 @@ def calibrate(model: nn.Module, seed: int) -> None:
     with batchnorm_statistics(model):
         for frame in frames:
             model.forward_features(frame)  # type: ignore[operator]
+    temper_attention(model, lambda: head.forward_decoder(model.forward_features(frames[0])))  # type: ignore[operator]
     with torch.no_grad():
         feats = head.transformer.decoder.post_norm(torch.randn(cfg.num_query, cfg.embed_dims, generator=gen))
         cls, _ = head.predict(feats)
@@ -172,6 +175,10 @@ class FisheyePETR(nn.Module):
     def geometry_tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables the exported graph holds as named initializers."""
         return self.pts_bbox_head.tables()
+
+    def geometry_params(self) -> PETRParams:
+        """The parameters that define the geometry tables (what a re-baked file recomputes them from)."""
+        return self.pts_bbox_head.params()
 
     def _check_inputs(self, images: torch.Tensor, camera_valid: torch.Tensor | None) -> None:
         n, (h, w) = self.config.num_cameras, self.config.image_size

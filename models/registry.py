@@ -22,7 +22,7 @@ __all__ = ["ModelEntry", "register_model", "set_calibration", "create_model", "l
            "read_manifest"]
 
 # Detector modules imported on first use of the registry; a missing one is skipped.
-_BUILTIN_MODULES = ("fisheye_bevdet", "fisheye_petr")
+_BUILTIN_MODULES = ("fisheye_bevdet", "fisheye_petr", "fisheye_bevdet_cyl", "fisheye_petr_cyl")
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -38,3 +39,93 @@ def ocam800(rig: Rig) -> OCamModel:
 @pytest.fixture(scope="session")
 def ocam1600() -> OCamModel:
     return OCamModel.from_file(DATA / "ocam_sample_1600.txt", fov=360)
+
+
+# -- exported models, once per session -------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Exported:
+    """A seeded checkpoint and its verified ONNX export for the shipped rig."""
+
+    arch: str
+    ckpt: Path
+    onnx: Path
+    result: object  # fisheye_infer.export.exporter.ExportResult
+
+
+def _export(arch: str, folder: Path) -> Exported:
+    pytest.importorskip("torch")
+    from fisheye_infer.export.exporter import export
+    from fisheye_infer.models import make_checkpoint
+
+    ckpt = folder / f"{arch}.pth"
+    make_checkpoint(arch, seed=0, path=ckpt)
+    out = folder / f"{arch}.onnx"
+    result = export(ckpt, out, progress=lambda _: None)
+    return Exported(arch, ckpt, out, result)
+
+
+@pytest.fixture(scope="session")
+def bevdet_export(tmp_path_factory: pytest.TempPathFactory) -> Exported:
+    """FisheyeBEVDet, seed 0, exported for the default rig (about 40 s on 2 cores)."""
+    return _export("fisheye-bevdet", tmp_path_factory.mktemp("bevdet"))
+
+
+@pytest.fixture(scope="session")
+def petr_export(tmp_path_factory: pytest.TempPathFactory) -> Exported:
+    """FisheyePETR, seed 0, exported for the default rig (about 60 s on 2 cores)."""
+    return _export("fisheye-petr", tmp_path_factory.mktemp("petr"))
+
+
+@pytest.fixture(scope="session", params=["fisheye-bevdet", "fisheye-petr"])
+def exported(request: pytest.FixtureRequest) -> Exported:
+    return request.getfixturevalue("bevdet_export" if request.param == "fisheye-bevdet" else "petr_export")
+
+
+@pytest.fixture(scope="session")
+def moved_rig(rig: Rig) -> Rig:
+    """The shipped rig with every camera moved 0.2 m forward and turned 1.7 degrees: new extrinsics."""
+    c, s = np.cos(0.03), np.sin(0.03)
+    move = np.array([[c, -s, 0, 0.2], [s, c, 0, 0.05], [0, 0, 1, 0.1], [0, 0, 0, 1.0]])
+    data = rig.model_dump(mode="json")
+    for cam in data["cameras"]:
+        cam["cam2lidar"] = (move @ np.array(cam["cam2lidar"])).tolist()
+    data["name"] = "moved"
+    return Rig.from_dict(data)
+
+
+@pytest.fixture(scope="session")
+def small_bevdet_config():
+    """Four 160x160 cameras, an 8x32 angular grid, 24 depth bins, a 48 m BEV square of 80x80 cells,
+    narrower BEV encoder and head: every stage of the official graph, at a fraction of the cost.
+    Goes with the shipped rig resized by 0.2 (``fisheye_infer.synth.resized_rig``)."""
+    pytest.importorskip("torch")
+    from fisheye_infer.models import BEVDetConfig
+
+    return BEVDetConfig().replace(
+        image={"height": 160, "width": 160},
+        view_transform={"out_channels": 32, "feature_size": (8, 32), "xbound": (-24.0, 24.0, 0.6),
+                        "ybound": (-24.0, 24.0, 0.6), "dbound": (0.5, 24.5, 1.0)},
+        bev_encoder={"in_channels": 32, "out_channels": (32, 64), "layer_nums": (1, 1),
+                     "fpn_in_channels": (32, 64), "fpn_out_channels": (32, 32)},
+        head={"in_channels": 64, "hidden_channel": 32, "num_heads": 4, "ffn_channels": 64, "head_conv": 16,
+              "num_proposals": 50, "grid_size": (320, 320, 40), "pc_range": (-24.0, -24.0),
+              "voxel_size": (0.15, 0.15), "post_center_range": (-26.0, -26.0, -5.0, 26.0, 26.0, 5.0)},
+    )
+
+
+@pytest.fixture(scope="session")
+def small_export(tmp_path_factory: pytest.TempPathFactory, small_bevdet_config) -> Exported:
+    """A reduced FisheyeBEVDet (four 160x160 cameras) exported for the shipped rig resized by 0.2:
+    the whole graph in seconds, for tests of what surrounds the model (service, CLI)."""
+    from fisheye_infer.export.exporter import export
+    from fisheye_infer.models import make_checkpoint
+    from fisheye_infer.synth import resized_rig
+
+    folder = tmp_path_factory.mktemp("small_export")
+    small_rig = resized_rig(default_rig(), 0.2)
+    ckpt = folder / "small.pth"
+    make_checkpoint("fisheye-bevdet", seed=3, path=ckpt, config=small_bevdet_config, rig=small_rig)
+    result = export(ckpt, folder / "small.onnx", config=small_bevdet_config, rig=small_rig, progress=lambda _: None)
+    return Exported("fisheye-bevdet", ckpt, result.path, result)

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.grids import DEFAULT_AZIMUTH_RANGE, DEFAULT_ELEVATION_RANGE, cylindrical_directions, spherical_directions
 
-__all__ = ["depth_bins", "spherical_frustum", "cylindrical_frustum", "frustum_to_lidar"]
+__all__ = ["depth_bins", "linspace_depth_bins", "spherical_frustum", "cylindrical_frustum", "frustum_to_lidar"]
 
 
 def depth_bins(dbound: tuple[float, float, float] = (0.5, 48.5, 0.5)) -> np.ndarray:
@@ -19,6 +20,19 @@ def depth_bins(dbound: tuple[float, float, float] = (0.5, 48.5, 0.5)) -> np.ndar
     start, stop, step = dbound
     count = int(np.ceil((stop - start) / step))
     return (start + step * np.arange(count, dtype=np.float64)).astype(np.float32)
+
+
+def linspace_depth_bins(dbound: tuple[float, float, float] = (0.5, 48.5, 0.5)) -> np.ndarray:
+    """Depths ``linspace(start, stop, int((stop - start) / step))`` (stop included), float32.
+
+    The cylindrical LSS of the official baselines spaces its bins this way: 0.5 ... 48.5 in
+    steps of 48/95 by default, one bin count with :func:`depth_bins` but different depths.
+    """
+    start, stop, step = dbound
+    count = int((stop - start) / step) if step > 0 else 0
+    if count < 1:
+        raise ConfigError(f"dbound={tuple(dbound)}: expected start < stop and 0 < step <= stop - start")
+    return np.linspace(start, stop, count).astype(np.float32)
 
 
 def _lift(depths: np.ndarray, rays: np.ndarray) -> np.ndarray:

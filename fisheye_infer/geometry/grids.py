@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from fisheye_infer.camera import OCamModel
+from fisheye_infer.errors import ConfigError
 
 __all__ = [
     "DEFAULT_AZIMUTH_RANGE",
@@ -27,6 +28,9 @@ __all__ = [
     "spherical_grid",
     "cylindrical_grid",
     "cylindrical_remap",
+    "REMAP_SUBPIXELS",
+    "remap_grid",
+    "cylindrical_image_grid",
     "sample_bilinear",
     "invalid_mask",
 ]
@@ -98,6 +102,61 @@ def cylindrical_remap(camera: OCamModel, out_hw: tuple[int, int], azimuth_range:
     rays = cylindrical_directions(out_hw, azimuth_range, height_range)
     uv = camera.world2cam(rays.reshape(-1, 3)).reshape(*out_hw, 2).astype(np.float32)
     return uv[..., 0].copy(), uv[..., 1].copy()
+
+
+#: cv2.remap (OpenCV 4.x) rounds float maps to 1/32 px (INTER_TAB_SIZE) before bilinear sampling.
+REMAP_SUBPIXELS = 32
+#: Where a pixel that cv2.remap fills with the border value is sent: every bilinear tap of a
+#: coordinate of -2 px lies outside the image, so grid_sample reads exactly 0 there too.
+_OUTSIDE_PX = -2.0
+
+
+def remap_grid(map_x: np.ndarray, map_y: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The ``grid_sample`` grid (H, W, 2) float32 that resamples a ``width`` x ``height`` image as
+    ``cv2.remap(image, map_x, map_y, INTER_LINEAR, BORDER_CONSTANT=0)`` does.
+
+    The cylindrical baselines rectify the raw fisheye images with ``cv2.remap`` in the data
+    pipeline; an exported graph does it with GridSample (bilinear, zeros, ``align_corners=True``).
+    Two details make the two agree to rounding:
+
+    - OpenCV 4.x, the version of the official mmcv 2.x stack, converts float maps to fixed point
+      with 1/32 px steps (round half to even), so the map coordinates are rounded the same way
+      here. OpenCV 5.0 samples float maps unrounded; ``cv2.convertMaps(..., CV_16SC2)`` still
+      gives the rounded maps of OpenCV 4.x.
+    - Pixel coordinates are normalised for ``align_corners=True``, ``g = 2 u / (W - 1) - 1``
+      (pixel centres at the integers, as in cv2), unlike the feature grids of this module.
+
+    Coordinates whose taps all read the border value in cv2 (at or beyond -1 or the image size,
+    which includes the OCam out-of-view sentinel (-1, -1)) are moved to -2 px, where grid_sample
+    reads exactly 0 as well instead of a float-rounding sliver of pixel 0.
+    """
+    mx = np.asarray(map_x, dtype=np.float32)
+    my = np.asarray(map_y, dtype=np.float32)
+    if mx.ndim != 2 or mx.shape != my.shape:
+        raise ConfigError(f"map_x, map_y: expected two (H, W) maps of one shape, got {mx.shape} and {my.shape}")
+    if width < 2 or height < 2:
+        raise ConfigError(f"width, height: the image must be at least 2 x 2 pixels, got {width} x {height}")
+    step = float(REMAP_SUBPIXELS)
+    u = np.rint(mx.astype(np.float64) * step) / step
+    v = np.rint(my.astype(np.float64) * step) / step
+    outside = (u <= -1) | (u >= width) | (v <= -1) | (v >= height)
+    u[outside] = _OUTSIDE_PX
+    v[outside] = _OUTSIDE_PX
+    grid = np.stack([2.0 * u / (width - 1) - 1.0, 2.0 * v / (height - 1) - 1.0], axis=-1)
+    return grid.astype(np.float32)
+
+
+def cylindrical_image_grid(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> np.ndarray:
+    """(H, W, 2) float32 grid that rectifies a whole fisheye image onto a cylinder with GridSample.
+
+    Equivalent to ``cv2.remap`` with :func:`cylindrical_remap`'s maps (see :func:`remap_grid`):
+    output row r, column c reads the ray (sin az_c, y_r, cos az_c) with az and y linspaced over
+    ``azimuth_range`` and ``height_range`` (tan of the elevation bounds), both ends included.
+    Angles are used as given: the official cylindrical configs pass degrees that their code uses
+    as radians, and reproducing them means passing the same numbers here.
+    """
+    map_x, map_y = cylindrical_remap(camera, out_hw, azimuth_range, height_range)
+    return remap_grid(map_x, map_y, camera.width, camera.height)
 
 
 def sample_bilinear(image: np.ndarray, grid: np.ndarray) -> np.ndarray:

@@ -1,0 +1,79 @@
+"""Command-line wiring of ``fisheye-infer export``, ``rebake`` and ``make-checkpoint``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = ["configure_export", "configure_rebake", "configure_make_checkpoint"]
+
+_NEEDS_EXPORT = "this command needs the export extra: pip install 'fisheye-infer[export]' (install torch==2.13.0 first)"
+
+
+def _missing_extra(exc: ImportError) -> int:
+    print(f"{_NEEDS_EXPORT} ({exc})", file=sys.stderr)
+    return 1
+
+
+def configure_export(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--ckpt", required=True, help="official mmdet3d checkpoint (.pth) or one written by make-checkpoint")
+    parser.add_argument("--out", required=True, help="ONNX file to write")
+    parser.add_argument("--arch", choices=("fisheye-bevdet", "fisheye-petr", "fisheye-bevdet-cyl", "fisheye-petr-cyl"), help="architecture (default: from the checkpoint's keys)")
+    parser.add_argument("--config", help="the official config file the checkpoint was trained with (read, never executed)")
+    parser.add_argument("--rig", default="default", help="rig file, folder with calib_results.txt + lidar2cam.json, or 'default'")
+    parser.add_argument("--geometry", choices=("verify", "checkpoint", "rig"), default="verify",
+                        help="tables stored in the checkpoint vs recomputed for the rig: verify they agree (default), or choose")
+    parser.add_argument("--verify-images", help="folder with your own frames to add to the parity check")
+    parser.add_argument("--frames", type=int, default=2, help="seeded synthetic frames for the parity check (default 2)")
+    parser.add_argument("--force", action="store_true", help="keep the file even when parity fails")
+    parser.add_argument("--allow-pickle", action="store_true", help="load a checkpoint that needs pickle (only from a source you trust)")
+    parser.set_defaults(run=run_export)
+
+
+def run_export(args: argparse.Namespace) -> int:
+    try:
+        from fisheye_infer.export.exporter import export
+    except ImportError as exc:
+        return _missing_extra(exc)
+    result = export(args.ckpt, args.out, arch=args.arch, config=args.config, rig=args.rig, geometry=args.geometry,
+                    verify_images=args.verify_images, frames=args.frames, force=args.force, allow_pickle=args.allow_pickle)
+    print(result.summary())
+    return 0
+
+
+def configure_rebake(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", help="an ONNX file written by fisheye-infer export")
+    parser.add_argument("--rig", required=True, help="the new rig: rig file or folder with calib_results.txt + lidar2cam.json")
+    parser.add_argument("--out", required=True, help="ONNX file to write (the input is never modified)")
+    parser.set_defaults(run=run_rebake)
+
+
+def run_rebake(args: argparse.Namespace) -> int:
+    try:
+        from fisheye_infer.export.rebake import rebake
+    except ImportError as exc:
+        print(f"rebake needs the onnx package: pip install onnx ({exc})", file=sys.stderr)
+        return 1
+    meta = rebake(args.model, args.rig, args.out)
+    print(f"wrote {args.out}: {meta.model_id}, rig {meta.rig.name!r} ({meta.rig_hash}), {len(meta.geometry_initializers)} geometry tables recomputed")
+    return 0
+
+
+def configure_make_checkpoint(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--arch", choices=("fisheye-bevdet", "fisheye-petr", "fisheye-bevdet-cyl", "fisheye-petr-cyl"), default="fisheye-bevdet")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rig", default="default", help="rig whose geometry tables the checkpoint stores")
+    parser.add_argument("--out", required=True, help=".pth file to write")
+    parser.set_defaults(run=run_make_checkpoint)
+
+
+def run_make_checkpoint(args: argparse.Namespace) -> int:
+    try:
+        from fisheye_infer.models import make_checkpoint
+    except ImportError as exc:
+        return _missing_extra(exc)
+    from fisheye_infer.rig import resolve_rig
+
+    make_checkpoint(args.arch, seed=args.seed, path=args.out, rig=resolve_rig(args.rig))
+    print(f"wrote {args.out}: {args.arch} with seeded random weights (seed {args.seed}); its boxes mean nothing")
+    return 0

@@ -1,0 +1,124 @@
+"""Trace a detector to ONNX with its geometry tables as named, size-agnostic initializers.
+
+The model is traced with ``torch.onnx.export(dynamo=True)`` and every ``geom.*`` table passed as
+a graph input. The batch axis is symbolic, and so is the row count K_b of every pooling bucket:
+the resulting graph contains no constant derived from a table's size, which is what lets
+``rebake`` give the same graph any rig's tables. Afterwards the table inputs become named
+initializers. The tracer sees example buckets of at least two rows (a bucket may be empty or
+hold one cell for a given rig, and torch.export specialises sizes 0 and 1); the padding rows
+point at the zero depth slot and no cell reads them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import warnings
+from typing import Mapping
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+from torch.export import Dim
+
+from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS
+from fisheye_infer.errors import ExportError
+
+from .graph import check_standard_ops, inputs_to_initializers, rename_values, strip_shape_info
+
+__all__ = ["OPSET", "trace_to_onnx"]
+
+OPSET = 18
+_BUCKET_PREFIXES = ("geom.pool.points.", "geom.pool.pixels.")
+
+
+class _Graph(nn.Module):
+    """The exported interface: (images, camera_valid, *tables) -> boxes, scores, labels, valid."""
+
+    def __init__(self, model: nn.Module, names: list[str]) -> None:
+        super().__init__()
+        self.model = model
+        self.names = names
+
+    def forward(self, images: torch.Tensor, camera_valid: torch.Tensor, tables: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
+        out = self.model(images, camera_valid, tables=dict(zip(self.names, tables)))
+        return tuple(out[k] for k in OUTPUTS)
+
+
+def _example_tables(tables: Mapping[str, np.ndarray], num_points: int) -> dict[str, torch.Tensor]:
+    examples = {}
+    for name, value in tables.items():
+        t = torch.from_numpy(np.ascontiguousarray(value))
+        if name.startswith(_BUCKET_PREFIXES) and t.shape[0] < 2:
+            fill = num_points if name.startswith("geom.pool.points.") else 0
+            t = torch.cat([t, torch.full((2, t.shape[1]), fill, dtype=t.dtype)])
+        examples[name] = t
+    return examples
+
+
+def _dynamic_shapes(names: list[str]) -> tuple:
+    batch = Dim("batch", min=1, max=1024)
+    bucket_dims: dict[str, Dim] = {}
+    table_shapes = []
+    for name in names:
+        if name.startswith(_BUCKET_PREFIXES):
+            index = name.rsplit(".", 1)[1]
+            bucket_dims.setdefault(index, Dim(f"cells_{index}", min=0, max=1 << 24))
+            table_shapes.append({0: bucket_dims[index]})
+        else:
+            table_shapes.append({})  # static
+    return {"images": {0: batch}, "camera_valid": {0: batch}, "tables": tuple(table_shapes)}
+
+
+def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], num_points: int, image_hw: tuple[int, int], num_cameras: int) -> onnx.ModelProto:
+    """ONNX model of ``model`` with ``tables`` as initializers named ``geom.*``.
+
+    ``num_points`` is the zero slot the pooling buckets pad with (N*D*H*W for LSS, unused otherwise).
+    """
+    names = list(tables)
+    examples = _example_tables(tables, num_points)
+    h, w = image_hw
+    images = torch.zeros((2, num_cameras, h, w, 3), dtype=torch.uint8)
+    valid = torch.ones((2, num_cameras), dtype=torch.bool)
+    graph = _Graph(model.eval(), names)
+    log = io.StringIO()
+    try:
+        with warnings.catch_warnings(), contextlib.redirect_stdout(log), _quiet_loggers():
+            warnings.simplefilter("ignore")
+            program = torch.onnx.export(
+                graph,
+                (images, valid, tuple(examples[n] for n in names)),
+                dynamo=True,
+                opset_version=OPSET,
+                external_data=False,
+                dynamic_shapes=_dynamic_shapes(names),
+                verbose=False,
+            )
+    except Exception as exc:
+        raise ExportError(f"tracing {type(model).__name__} to ONNX failed: {exc}\n{log.getvalue()[-2000:]}") from exc
+    proto = program.model_proto
+    traced_inputs = [i.name for i in proto.graph.input]
+    if len(traced_inputs) != 2 + len(names):
+        raise ExportError(f"the traced graph has inputs {traced_inputs}; expected images, camera_valid and {len(names)} tables")
+    rename_values(proto, dict(zip(traced_inputs, [INPUT_IMAGES, INPUT_CAMERA_VALID, *names])))
+    rename_values(proto, dict(zip([o.name for o in proto.graph.output], OUTPUTS)))
+    inputs_to_initializers(proto, tables)
+    strip_shape_info(proto)
+    check_standard_ops(proto, OPSET)
+    return proto
+
+
+@contextlib.contextmanager
+def _quiet_loggers():
+    """The exporter logs progress and optimiser notes at WARNING; keep the user's terminal readable."""
+    loggers = [logging.getLogger(n) for n in ("torch.onnx", "torch.export", "torch._dynamo", "onnxscript", "torch.fx.experimental.symbolic_shapes")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
