@@ -100,10 +100,7 @@ def run_eval(args: argparse.Namespace) -> int:
         return _fail("a MODEL is evaluated on --data; --results/--ground-truth are for saved results")
     if not args.data:
         return _fail("a MODEL needs --data ROOT (a Fisheye3DOD-layout folder)")
-    try:
-        from fisheye_infer.detector import Detector
-    except ImportError:
-        return _fail("evaluating a MODEL needs the runtime Detector (fisheye_infer.detector), which this installation lacks; evaluate saved results with --results/--ground-truth")
+    from fisheye_infer.detector import Detector
     from fisheye_infer.eval.dataset import Fisheye3DOD, camera_name
 
     detector = Detector(args.model, threads=args.threads)

@@ -57,3 +57,34 @@ def test_demo_runs_on_defaults(tmp_path: Path, capsys: pytest.CaptureFixture[str
     out = capsys.readouterr().out
     assert "554,668 of 960,000 frustum points" in out
     assert (tmp_path / "rig.png").is_file() and (tmp_path / "sampling_grid.png").is_file()
+
+
+def test_detect_writes_results_and_picture_then_redraws_them(small_export, tmp_path: Path) -> None:
+    import json
+
+    import numpy as np
+
+    from fisheye_infer.artifact import read_meta
+    from fisheye_infer.synth import Renderer, random_scene
+
+    rig = read_meta(small_export.onnx).rig
+    frame_dir = tmp_path / "frame"
+    frame_dir.mkdir()
+    for name, image in Renderer().render(rig, random_scene(np.random.default_rng(1))).items():
+        cv2.imwrite(str(frame_dir / f"{name.removeprefix('fisheye_camera_')}.png"), image)
+    out, viz = tmp_path / "result.json", tmp_path / "result.png"
+    assert main(["detect", str(small_export.onnx), "--images", str(frame_dir), "--out", str(out), "--viz", str(viz), "--score-threshold", "0.05"]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["model_id"] == read_meta(small_export.onnx).model_id and len(doc["frames"]) == 1
+    frame = doc["frames"][0]
+    assert all(d["score"] >= 0.05 for d in frame["detections"]) and len(frame["records"]) == len(frame["detections"])
+    picture = cv2.imread(str(viz))
+    assert picture is not None and picture.shape[1] > picture.shape[0]
+    redrawn = tmp_path / "redrawn.png"
+    assert main(["detect", "--result", str(out), "--images", str(frame_dir), "--viz", str(redrawn)]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(redrawn)), picture)
+
+
+def test_detect_without_images_is_a_clear_error(small_export, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["detect", str(small_export.onnx)]) == 1
+    assert "give a model and --images" in capsys.readouterr().err
