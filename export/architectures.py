@@ -65,59 +65,49 @@ def _bevdet_classes(model: nn.Module) -> tuple[str, ...]:
     return tuple(FISHEYE3DOD_CLASSES[: model.config.head.num_classes])
 
 
+_BEVDET_SCORES = "sigmoid(class logit) x the proposal's heatmap peak (TransFusion); no threshold, no NMS, as the official test time"
+_PETR_SCORES = "sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time"
+
+
+def _bevdet_family(name: str, read_config: Callable[[Path], Any], *, cylindrical: bool) -> ArchSpec:
+    grid = "view_transform.sphere_grid_2d"
+    return ArchSpec(
+        name=name,
+        signature_keys=("view_transform.depthnet.weight", "bbox_head.heatmap_head.1.weight") + (() if cylindrical else (grid,)),
+        absent_keys=(grid,) if cylindrical else (),
+        read_config=read_config,
+        classes=_bevdet_classes,
+        image_size=lambda m: (m.config.image.width, m.config.image.height),
+        normalisation=lambda m: (tuple(m.config.image.mean), tuple(m.config.image.std)),
+        num_boxes=lambda m: m.config.head.num_proposals,
+        num_points=lambda m: m.view_transform.geometry.plan.num_points,
+        rebake_weights=lambda m: None,
+        score_semantics=_BEVDET_SCORES,
+    )
+
+
+def _petr_family(name: str, read_config: Callable[[Path], Any], *, cylindrical: bool) -> ArchSpec:
+    grid = "pts_bbox_head.sphere_grid_2d"
+    return ArchSpec(
+        name=name,
+        signature_keys=("pts_bbox_head.position_encoder.0.weight", "pts_bbox_head.query_embedding.0.weight") + (() if cylindrical else (grid,)),
+        absent_keys=(grid,) if cylindrical else (),
+        read_config=read_config,
+        classes=lambda m: tuple(m.config.classes),
+        image_size=lambda m: (m.config.image_size[1], m.config.image_size[0]),
+        normalisation=lambda m: (tuple(m.config.mean), tuple(m.config.std)),
+        num_boxes=lambda m: m.config.max_num,
+        num_points=lambda m: 0,
+        rebake_weights=lambda m: m.pts_bbox_head.embedding_weights(),
+        score_semantics=_PETR_SCORES,
+    )
+
+
 ARCHITECTURES: dict[str, ArchSpec] = {
-    "fisheye-bevdet": ArchSpec(
-        name="fisheye-bevdet",
-        signature_keys=("view_transform.depthnet.weight", "bbox_head.heatmap_head.1.weight", "view_transform.sphere_grid_2d"),
-        absent_keys=(),
-        read_config=_bevdet_config,
-        classes=_bevdet_classes,
-        image_size=lambda m: (m.config.image.width, m.config.image.height),
-        normalisation=lambda m: (tuple(m.config.image.mean), tuple(m.config.image.std)),
-        num_boxes=lambda m: m.config.head.num_proposals,
-        num_points=lambda m: m.view_transform.geometry.plan.num_points,
-        rebake_weights=lambda m: None,
-        score_semantics="sigmoid(class logit) x the proposal's heatmap peak (TransFusion); no threshold, no NMS, as the official test time",
-    ),
-    "fisheye-bevdet-cyl": ArchSpec(
-        name="fisheye-bevdet-cyl",
-        signature_keys=("view_transform.depthnet.weight", "bbox_head.heatmap_head.1.weight"),
-        absent_keys=("view_transform.sphere_grid_2d",),
-        read_config=_bevdet_cyl_config,
-        classes=_bevdet_classes,
-        image_size=lambda m: (m.config.image.width, m.config.image.height),
-        normalisation=lambda m: (tuple(m.config.image.mean), tuple(m.config.image.std)),
-        num_boxes=lambda m: m.config.head.num_proposals,
-        num_points=lambda m: m.view_transform.geometry.plan.num_points,
-        rebake_weights=lambda m: None,
-        score_semantics="sigmoid(class logit) x the proposal's heatmap peak (TransFusion); no threshold, no NMS, as the official test time",
-    ),
-    "fisheye-petr": ArchSpec(
-        name="fisheye-petr",
-        signature_keys=("pts_bbox_head.position_encoder.0.weight", "pts_bbox_head.query_embedding.0.weight", "pts_bbox_head.sphere_grid_2d"),
-        absent_keys=(),
-        read_config=_petr_config,
-        classes=lambda m: tuple(m.config.classes),
-        image_size=lambda m: (m.config.image_size[1], m.config.image_size[0]),
-        normalisation=lambda m: (tuple(m.config.mean), tuple(m.config.std)),
-        num_boxes=lambda m: m.config.max_num,
-        num_points=lambda m: 0,
-        rebake_weights=lambda m: m.pts_bbox_head.embedding_weights(),
-        score_semantics="sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time",
-    ),
-    "fisheye-petr-cyl": ArchSpec(
-        name="fisheye-petr-cyl",
-        signature_keys=("pts_bbox_head.position_encoder.0.weight", "pts_bbox_head.query_embedding.0.weight"),
-        absent_keys=("pts_bbox_head.sphere_grid_2d",),
-        read_config=_petr_cyl_config,
-        classes=lambda m: tuple(m.config.classes),
-        image_size=lambda m: (m.config.image_size[1], m.config.image_size[0]),
-        normalisation=lambda m: (tuple(m.config.mean), tuple(m.config.std)),
-        num_boxes=lambda m: m.config.max_num,
-        num_points=lambda m: 0,
-        rebake_weights=lambda m: m.pts_bbox_head.embedding_weights(),
-        score_semantics="sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time",
-    ),
+    "fisheye-bevdet": _bevdet_family("fisheye-bevdet", _bevdet_config, cylindrical=False),
+    "fisheye-bevdet-cyl": _bevdet_family("fisheye-bevdet-cyl", _bevdet_cyl_config, cylindrical=True),
+    "fisheye-petr": _petr_family("fisheye-petr", _petr_config, cylindrical=False),
+    "fisheye-petr-cyl": _petr_family("fisheye-petr-cyl", _petr_cyl_config, cylindrical=True),
 }
 
 

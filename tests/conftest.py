@@ -97,22 +97,11 @@ def moved_rig(rig: Rig) -> Rig:
 
 @pytest.fixture(scope="session")
 def small_bevdet_config():
-    """Four 160x160 cameras, an 8x32 angular grid, 24 depth bins, a 48 m BEV square of 80x80 cells,
-    narrower BEV encoder and head: every stage of the official graph, at a fraction of the cost.
-    Goes with the shipped rig resized by 0.2 (``fisheye_infer.synth.resized_rig``)."""
+    """The reduced FisheyeBEVDet of ``small_configs`` (four 160x160 cameras)."""
     pytest.importorskip("torch")
-    from fisheye_infer.models import BEVDetConfig
+    from small_configs import small_bevdet_config
 
-    return BEVDetConfig().replace(
-        image={"height": 160, "width": 160},
-        view_transform={"out_channels": 32, "feature_size": (8, 32), "xbound": (-24.0, 24.0, 0.6),
-                        "ybound": (-24.0, 24.0, 0.6), "dbound": (0.5, 24.5, 1.0)},
-        bev_encoder={"in_channels": 32, "out_channels": (32, 64), "layer_nums": (1, 1),
-                     "fpn_in_channels": (32, 64), "fpn_out_channels": (32, 32)},
-        head={"in_channels": 64, "hidden_channel": 32, "num_heads": 4, "ffn_channels": 64, "head_conv": 16,
-              "num_proposals": 50, "grid_size": (320, 320, 40), "pc_range": (-24.0, -24.0),
-              "voxel_size": (0.15, 0.15), "post_center_range": (-26.0, -26.0, -5.0, 26.0, 26.0, 5.0)},
-    )
+    return small_bevdet_config()
 
 
 @pytest.fixture(scope="session")

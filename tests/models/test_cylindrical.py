@@ -28,6 +28,8 @@ from fisheye_infer.models.synthetic import manifest_specs
 from fisheye_infer.rig import Rig
 from fisheye_infer.synth import Renderer, random_scene
 
+from small_configs import SMALL_BEV_SECTIONS  # noqa: E402
+
 DATA = Path(__file__).parent / "data"
 BEVDET, PETR = "fisheye-bevdet-cyl", "fisheye-petr-cyl"
 TAN45 = 1.6197752  # tan(45 rad): the released vertical range taken as radians
@@ -36,13 +38,7 @@ CORRECTED = {"azimuth_range": (-math.radians(110), math.radians(110)),
 
 SMALL_BEVDET = BEVDetCylConfig().replace(
     cylinder={"height": 48, "width": 96},
-    view_transform={"out_channels": 32, "feature_size": (3, 6), "xbound": (-24.0, 24.0, 0.6),
-                    "ybound": (-24.0, 24.0, 0.6), "dbound": (0.5, 24.5, 1.0)},
-    bev_encoder={"in_channels": 32, "out_channels": (32, 64), "layer_nums": (1, 1),
-                 "fpn_in_channels": (32, 64), "fpn_out_channels": (32, 32)},
-    head={"in_channels": 64, "hidden_channel": 32, "num_heads": 4, "ffn_channels": 64, "head_conv": 16,
-          "num_proposals": 50, "grid_size": (320, 320, 40), "pc_range": (-24.0, -24.0),
-          "voxel_size": (0.15, 0.15), "post_center_range": (-26.0, -26.0, -5.0, 26.0, 26.0, 5.0)},
+    **dict(SMALL_BEV_SECTIONS, view_transform={**SMALL_BEV_SECTIONS["view_transform"], "feature_size": (3, 6)}),
 )
 SMALL_PETR = dataclasses.replace(CylPETRConfig(), cylinder_size=(48, 96), feature_size=(3, 6), num_query=40,
                                  max_num=30, embed_dims=64, num_heads=4, ffn_dims=128, num_layers=2)
