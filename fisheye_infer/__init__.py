@@ -1,7 +1,8 @@
 """fisheye-infer: run surround-view fisheye 3D object detectors with ONNX Runtime.
 
 The core (this package) needs numpy, onnxruntime, OpenCV and pydantic only: camera models,
-rigs and the geometry tables the detectors are built on. ``fisheye_infer.models`` and
+rigs, the geometry tables the detectors are built on, and ``Detector``, which runs an exported
+model and returns ``Detections``. ``fisheye_infer.models`` and
 ``fisheye_infer.export`` need the ``[export]`` extra (torch, onnx); ``fisheye_infer.service``
 needs ``[serve]``.
 """
@@ -9,6 +10,8 @@ needs ``[serve]``.
 from fisheye_infer._version import __version__
 from fisheye_infer.camera import CameraModel, Equidistant, KannalaBrandt, OCamModel, Pinhole
 from fisheye_infer.camera_fit import OCamFit, fit_ocam_from_kb
+from fisheye_infer.detections import Detections
+from fisheye_infer.detector import Detector, DetectorInfo
 from fisheye_infer.errors import (
     ArtifactError,
     CameraModelError,
@@ -21,6 +24,7 @@ from fisheye_infer.errors import (
     ParityError,
     RigError,
 )
+from fisheye_infer.nms import NmsConfig
 from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig, RigCamera, default_rig, resolve_rig
 
 __all__ = [
@@ -30,6 +34,9 @@ __all__ = [
     "CameraModelError",
     "CheckpointError",
     "ConfigError",
+    "Detections",
+    "Detector",
+    "DetectorInfo",
     "Equidistant",
     "ExportError",
     "FISHEYE3DOD_CAMERAS",
@@ -37,6 +44,7 @@ __all__ = [
     "FrameError",
     "InferenceError",
     "KannalaBrandt",
+    "NmsConfig",
     "OCamFit",
     "OCamModel",
     "ParityError",
