@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import base64
 import io
-import json
 from pathlib import Path
 from typing import Mapping
 
@@ -26,7 +25,6 @@ __all__ = [
     "rename_values",
     "inputs_to_initializers",
     "replace_initializers",
-    "initializer_arrays",
     "strip_shape_info",
     "check_standard_ops",
     "set_metadata",
@@ -67,10 +65,6 @@ def inputs_to_initializers(model: onnx.ModelProto, tables: Mapping[str, np.ndarr
     graph.input.extend(kept)
     for name, array in tables.items():
         graph.initializer.append(numpy_helper.from_array(np.ascontiguousarray(array), name))
-
-
-def initializer_arrays(model: onnx.ModelProto, prefix: str = "") -> dict[str, np.ndarray]:
-    return {i.name: numpy_helper.to_array(i) for i in model.graph.initializer if i.name.startswith(prefix)}
 
 
 def replace_initializers(model: onnx.ModelProto, tables: Mapping[str, np.ndarray]) -> None:
@@ -137,9 +131,3 @@ def save_model(model: onnx.ModelProto, path: str | Path) -> Path:
     onnx.save_model(model, str(path), save_as_external_data=False)
     return path
 
-
-def metadata_json(model: onnx.ModelProto) -> dict:
-    value = get_metadata(model).get(METADATA_KEY)
-    if value is None:
-        raise ArtifactError(f"no '{METADATA_KEY}' metadata in the model")
-    return json.loads(value)
