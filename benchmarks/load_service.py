@@ -1,0 +1,192 @@
+"""Load a local ``fisheye-infer serve`` for a fixed time and report what it sustained.
+
+    python benchmarks/load_service.py model.onnx --duration 10 --concurrency 4 --stream-fps 30
+
+It starts the server as a subprocess on a free 127.0.0.1 port (loopback only, never another
+address), renders one synthetic frame for the model's own rig, then runs two phases of
+``--duration`` seconds each:
+
+1. ``/detect``: ``--concurrency`` clients post the frame (multipart JPEG) back to back;
+2. ``/stream``: one WebSocket client sends the frame at ``--stream-fps`` while reading answers
+   (latest frame wins, so at rates above the model's some frames are dropped by design).
+
+It prints throughput, p50/p99 latency, status counts and dropped frames per phase, and the
+server's peak resident memory (VmHWM). Requests are bounded by the duration (at most 120 s per
+phase); the server is stopped with SIGTERM at the end. Not part of the test suite.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import httpx
+import numpy as np
+from websockets.sync.client import connect
+
+from fisheye_infer.artifact import read_meta
+from fisheye_infer.service.protocol import encode_frame
+from fisheye_infer.synth import Renderer, random_scene
+
+HOST = "127.0.0.1"
+MAX_SECONDS = 120.0
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind((HOST, 0))
+        return s.getsockname()[1]
+
+
+def _peak_rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _frame(model: Path) -> dict[str, bytes]:
+    rig = read_meta(model).rig
+    images = Renderer(texture_seed=1).render(rig, random_scene(np.random.default_rng(0)))
+    return {name: cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes() for name, image in images.items()}
+
+
+def _percentiles(latencies: list[float]) -> str:
+    if not latencies:
+        return "p50 -, p99 -"
+    p50, p99 = np.percentile(np.asarray(latencies) * 1e3, [50, 99])
+    return f"p50 {p50:.0f} ms, p99 {p99:.0f} ms"
+
+
+def detect_phase(url: str, frame: dict[str, bytes], duration: float, concurrency: int) -> None:
+    files = [(name, (f"{name}.jpg", data, "image/jpeg")) for name, data in frame.items()]
+    latencies: list[float] = []
+    statuses: collections.Counter[str] = collections.Counter()
+    lock = threading.Lock()
+    stop_at = time.monotonic() + duration
+
+    def client() -> None:
+        with httpx.Client(base_url=url, timeout=30) as http:
+            while time.monotonic() < stop_at:
+                t0 = time.perf_counter()
+                try:
+                    status = str(http.post("/detect", files=files).status_code)
+                except httpx.HTTPError as exc:
+                    status = type(exc).__name__
+                with lock:
+                    statuses[status] += 1
+                    if status == "200":
+                        latencies.append(time.perf_counter() - t0)
+
+    threads = [threading.Thread(target=client) for _ in range(concurrency)]
+    started = time.perf_counter()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    elapsed = time.perf_counter() - started
+    ok = statuses.get("200", 0)
+    errors = sum(statuses.values()) - ok
+    print(f"/detect   {concurrency} clients, {elapsed:.1f} s: {ok / elapsed:.1f} frames/s, {_percentiles(latencies)}, "
+          f"{ok} ok, {errors} refused or failed {dict(statuses)}")
+
+
+def stream_phase(ws_url: str, frame: dict[str, bytes], duration: float, fps: float) -> None:
+    sent_at: dict[int, float] = {}
+    latencies: list[float] = []
+    counts: collections.Counter[str] = collections.Counter()
+    with connect(ws_url, max_size=None) as ws:
+        done = threading.Event()
+
+        def receiver() -> None:
+            while not done.is_set() or len(sent_at) > 0:
+                try:
+                    answer = json.loads(ws.recv(timeout=5))
+                except TimeoutError:
+                    return
+                counts["dropped"] += len(answer["dropped"])
+                for frame_id in answer["dropped"]:
+                    sent_at.pop(frame_id, None)
+                t0 = sent_at.pop(answer["frame_id"], None)
+                counts[answer["kind"]] += 1
+                if answer["kind"] == "result" and t0 is not None:
+                    latencies.append(time.perf_counter() - t0)
+
+        reader = threading.Thread(target=receiver)
+        reader.start()
+        started = time.perf_counter()
+        frame_id = 0
+        while time.perf_counter() - started < duration:
+            sent_at[frame_id] = time.perf_counter()
+            ws.send(encode_frame(frame_id, frame))
+            frame_id += 1
+            time.sleep(max(0.0, started + frame_id / fps - time.perf_counter()))
+        done.set()
+        reader.join(30)
+        elapsed = time.perf_counter() - started
+    print(f"/stream   {fps:g} fps sent for {elapsed:.1f} s: {frame_id} sent, {counts['result']} answered "
+          f"({counts['result'] / elapsed:.1f} frames/s), {counts['dropped']} dropped (latest frame wins), "
+          f"{counts['error']} errors, {_percentiles(latencies)} (send to answer)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("model", type=Path, help="ONNX file written by fisheye-infer export")
+    parser.add_argument("--duration", type=float, default=10.0, help=f"seconds per phase (at most {MAX_SECONDS:g})")
+    parser.add_argument("--concurrency", type=int, default=4, help="/detect clients")
+    parser.add_argument("--stream-fps", type=float, default=30.0)
+    parser.add_argument("--threads", type=int, help="server: ONNX Runtime intra-op threads")
+    parser.add_argument("--workers", type=int, default=1, help="server: inference threads")
+    parser.add_argument("--queue-size", type=int, default=8)
+    parser.add_argument("--microbatch", type=int, default=1, help="server: microbatch_max_size (1: off)")
+    args = parser.parse_args(argv)
+    duration = min(args.duration, MAX_SECONDS)
+
+    port = _free_port()
+    command = [sys.executable, "-m", "fisheye_infer", "serve", str(args.model), "--host", HOST, "--port", str(port),
+               "--workers", str(args.workers), "--queue-size", str(args.queue_size), "--microbatch-max-size", str(args.microbatch),
+               "--log-level", "warning"]
+    if args.threads:
+        command += ["--threads", str(args.threads)]
+    server = subprocess.Popen(command)
+    url = f"http://{HOST}:{port}"
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if server.poll() is not None or time.monotonic() > deadline:
+                print("the server did not come up", file=sys.stderr)
+                return 1
+            time.sleep(0.2)
+        info = httpx.get(f"{url}/model").json()
+        frame = _frame(args.model)
+        print(f"model {info['model_id']}: {len(info['cameras'])} cameras at {info['image_size']['width']}x{info['image_size']['height']}, "
+              f"frame {sum(map(len, frame.values())) / 1024:.0f} kB (JPEG); server pid {server.pid}, idle RSS peak {_peak_rss_mb(server.pid):.0f} MB")
+        detect_phase(url, frame, duration, args.concurrency)
+        print(f"          server peak RSS so far {_peak_rss_mb(server.pid):.0f} MB")
+        stream_phase(f"ws://{HOST}:{port}/stream", frame, duration, args.stream_fps)
+        print(f"          server peak RSS {_peak_rss_mb(server.pid):.0f} MB")
+    finally:
+        server.send_signal(signal.SIGTERM)
+        try:
+            server.wait(30)
+        except subprocess.TimeoutExpired:
+            server.kill()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,267 @@
+"""Request bodies -> checked encoded images -> decoded frames, refusing early and by name.
+
+Order of the checks, cheapest first, so a bad request costs little:
+
+1. the request's Content-Type: multipart/form-data or application/json, else 415;
+2. part and field names: every camera known, none twice, none missing (unless
+   ``allow_missing_cameras``), options known and valid, else 422;
+3. each image's declared content type (415) and its first bytes: PNG or JPEG signature (415);
+4. each image's width and height read from its PNG/JPEG header, before any decoding: they must
+   be the model's (422). A tiny file claiming 60000x60000 pixels (a decompression bomb) is
+   refused here and never reaches the decoder;
+5. decoding, off the event loop (corrupt data: 422).
+
+The body size limit (413) is enforced earlier, while the body is read (``middleware.py``).
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import time
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+from pydantic import ValidationError
+from starlette.datastructures import UploadFile
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import Request
+
+from fisheye_infer.detector import DetectorInfo
+from fisheye_infer.errors import FisheyeInferError, FrameError
+from fisheye_infer.preprocess import decode_image, encoded_image_size
+from fisheye_infer.service.errors import BadRequest, RequestInvalid, ServiceError, UnsupportedMediaType
+from fisheye_infer.service.schemas import BatchJsonRequest, DetectJsonRequest, DetectOptions
+
+__all__ = ["FrameSpec", "EncodedFrame", "OPTION_FIELDS", "read_request", "parse_options", "check_frame", "decode_frames"]
+
+EncodedFrame = dict[str, bytes]
+OPTION_FIELDS = ("score_threshold", "classes", "nms", "allow_missing_cameras")
+PART_TYPES = ("image/jpeg", "image/png", "image/jpg", "image/pjpeg", "application/octet-stream")
+_PNG, _JPEG = b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff"
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    """What a frame must look like for this model and service."""
+
+    cameras: tuple[str, ...]
+    image_size: tuple[int, int]  # (width, height)
+    classes: tuple[str, ...]
+    max_batch_frames: int
+
+    @classmethod
+    def of(cls, info: DetectorInfo, max_batch_frames: int) -> "FrameSpec":
+        return cls(info.cameras, info.image_size, info.classes, max_batch_frames)
+
+
+# -- options ------------------------------------------------------------------------------------
+
+
+def _invalid(exc: ValidationError, prefix: str = "") -> ServiceError:
+    first = exc.errors()[0]
+    if first["type"] == "json_invalid":
+        return BadRequest(f"JSON body: {first['msg']}", field="body")
+    loc = prefix + ".".join(str(x) for x in first["loc"])
+    got = repr(first.get("input"))
+    got = got if len(got) <= 60 else got[:57] + "..."
+    return RequestInvalid(f"{loc or 'body'}: {first['msg']} (got {got})", field=loc or "body")
+
+
+def _check_classes(options: DetectOptions, spec: FrameSpec) -> DetectOptions:
+    unknown = sorted(set(options.classes or ()) - set(spec.classes))
+    if unknown:
+        raise RequestInvalid(f"classes: unknown {unknown}; the model's classes are {', '.join(spec.classes)}", field="classes")
+    return options
+
+
+def parse_options(fields: Mapping[str, str], spec: FrameSpec) -> DetectOptions:
+    """Options given as strings (form fields, query parameters); empty values count as absent."""
+    raw: dict[str, object] = {k: v for k, v in fields.items() if v != ""}
+    if "classes" in raw:
+        raw["classes"] = [c.strip() for c in str(raw["classes"]).split(",") if c.strip()]
+    try:
+        return _check_classes(DetectOptions.model_validate(raw), spec)
+    except ValidationError as exc:
+        raise _invalid(exc) from None
+
+
+# -- images -------------------------------------------------------------------------------------
+
+
+def _check_image(data: bytes, label: str, spec: FrameSpec, declared: str | None = None) -> None:
+    media = (declared or "").split(";")[0].strip().lower()
+    if media and media not in PART_TYPES:
+        raise UnsupportedMediaType(f"camera '{label}': content type {media}, expected image/jpeg or image/png", field=label)
+    if not data:
+        raise RequestInvalid(f"camera '{label}': empty image, expected a {spec.image_size[0]}x{spec.image_size[1]} JPEG or PNG", field=label)
+    if not (data.startswith(_PNG) or data.startswith(_JPEG)):
+        raise UnsupportedMediaType(f"camera '{label}': not a JPEG or PNG image (first bytes {data[:8].hex()})", field=label)
+    size = encoded_image_size(data)
+    width, height = spec.image_size
+    if size is None:
+        raise RequestInvalid(f"camera '{label}': image header is truncated or unreadable (no width and height found), expected a {width}x{height} image", field=label)
+    if size != (width, height):
+        raise RequestInvalid(f"camera '{label}': image is {size[0]}x{size[1]}, model expects {width}x{height}", field=label)
+
+
+def check_frame(images: Mapping[str, bytes], spec: FrameSpec, options: DetectOptions, types: Mapping[str, str | None] | None = None) -> None:
+    """Names, presence, content types and header sizes of one frame's images (no decoding)."""
+    unknown = [name for name in images if name not in spec.cameras]
+    if unknown:
+        raise RequestInvalid(f"camera '{unknown[0]}': not a camera of this model (cameras: {', '.join(spec.cameras)})", field=unknown[0])
+    if not images:
+        raise RequestInvalid(f"images: none given, expected one per camera ({', '.join(spec.cameras)})", field="images")
+    missing = [c for c in spec.cameras if c not in images]
+    if missing and not options.allow_missing_cameras:
+        raise RequestInvalid(f"camera '{missing[0]}': missing (expected all of {', '.join(spec.cameras)}; "
+                             f"set allow_missing_cameras to run without {', '.join(missing)})", field=missing[0])
+    for camera, data in images.items():
+        _check_image(data, camera, spec, (types or {}).get(camera))
+
+
+def _in_frame(index: int, exc: FisheyeInferError) -> FisheyeInferError:
+    """The same refusal, naming the frame of a batch (``field`` becomes ``<frame>.<camera>``)."""
+    if not isinstance(exc, ServiceError):
+        return RequestInvalid(f"frame {index}: {exc}", field=str(index))
+    field = f"{index}.{exc.field}" if exc.field else str(index)
+    return type(exc)(f"frame {index}: {exc}", field=field, retry_after=exc.retry_after)
+
+
+def check_frames(frames: list[EncodedFrame], spec: FrameSpec, options: DetectOptions, types: list[dict[str, str | None]] | None = None) -> None:
+    if len(frames) > spec.max_batch_frames:
+        raise RequestInvalid(f"frames: got {len(frames)}, at most max_batch_frames={spec.max_batch_frames} per request", field="frames")
+    for i, frame in enumerate(frames):
+        try:
+            check_frame(frame, spec, options, types[i] if types else None)
+        except FisheyeInferError as exc:
+            raise (_in_frame(i, exc) if len(frames) > 1 else exc) from None
+
+
+def decode_frames(frames: list[EncodedFrame], spec: FrameSpec) -> tuple[list[list[np.ndarray | None]], list[float]]:
+    """Decode checked frames (call off the event loop); returns the frames and each one's time in ms."""
+    out, times = [], []
+    for i, frame in enumerate(frames):
+        t0 = time.perf_counter()
+        loaded: list[np.ndarray | None] = []
+        for camera in spec.cameras:
+            data = frame.get(camera)
+            try:
+                loaded.append(None if data is None else decode_image(data, camera, spec.image_size))
+            except FrameError as exc:
+                error = RequestInvalid(str(exc), field=camera)
+                raise (_in_frame(i, error) if len(frames) > 1 else error) from None
+        out.append(loaded)
+        times.append((time.perf_counter() - t0) * 1e3)
+    return out, times
+
+
+# -- request bodies -----------------------------------------------------------------------------
+
+
+def _media_type(request: Request) -> str:
+    return request.headers.get("content-type", "").split(";")[0].strip().lower()
+
+
+async def _read_form(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[tuple[str, UploadFile]], dict[str, str]]:
+    # room for a few parts too many, so that an unknown or repeated camera is refused by name
+    max_files = len(spec.cameras) * ((spec.max_batch_frames if batch else 1) + 1)
+    try:
+        form = await request.form(max_files=max_files, max_fields=2 * len(OPTION_FIELDS), max_part_size=64 * 1024)
+    except StarletteHTTPException as exc:
+        if "Too many files" in str(exc.detail):
+            expected = len(spec.cameras) * (spec.max_batch_frames if batch else 1)
+            raise RequestInvalid(f"images: more than {max_files} image parts, expected at most {expected} ({len(spec.cameras)} cameras"
+                                 f"{f' x max_batch_frames={spec.max_batch_frames}' if batch else ''})", field="images") from None
+        raise BadRequest(f"multipart body: {exc.detail}", field="body") from None
+    try:
+        return _split_form(form.multi_items(), spec, batch)
+    except ServiceError:
+        await form.close()
+        raise
+
+
+def _split_form(items: list[tuple[str, UploadFile | str]], spec: FrameSpec, batch: bool) -> tuple[list[tuple[str, UploadFile]], dict[str, str]]:
+    files: list[tuple[str, UploadFile]] = []
+    fields: dict[str, str] = {}
+    for name, value in items:
+        if isinstance(value, UploadFile):
+            if any(name == seen for seen, _ in files):
+                raise RequestInvalid(f"camera '{name}': given twice", field=name)
+            files.append((name, value))
+            continue
+        if name not in OPTION_FIELDS:
+            is_camera = name in spec.cameras or (batch and name.partition(".")[2] in spec.cameras)
+            if is_camera:
+                raise RequestInvalid(f"camera '{name}': send the image as a file part (with a filename), got a text field", field=name)
+            raise RequestInvalid(f"field '{name}': not an image part or option (options: {', '.join(OPTION_FIELDS)})", field=name)
+        if name in fields:
+            raise RequestInvalid(f"field '{name}': given twice", field=name)
+        fields[name] = value
+    return files, fields
+
+
+def _batch_index(name: str, spec: FrameSpec) -> tuple[int, str]:
+    index, dot, camera = name.partition(".")
+    if not dot or not index.isdigit():
+        raise RequestInvalid(f"part '{name}': expected '<frame index>.<camera>', e.g. '0.{spec.cameras[0]}'", field=name)
+    return int(index), camera
+
+
+async def _multipart(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[EncodedFrame], DetectOptions, list[dict[str, str | None]]]:
+    files, fields = await _read_form(request, spec, batch)
+    try:
+        options = parse_options(fields, spec)
+        frames: dict[int, EncodedFrame] = {}
+        types: dict[int, dict[str, str | None]] = {}
+        for name, upload in files:
+            index, camera = _batch_index(name, spec) if batch else (0, name)
+            frames.setdefault(index, {})[camera] = await upload.read()
+            types.setdefault(index, {})[camera] = upload.content_type
+    finally:
+        for _, upload in files:
+            await upload.close()
+    count = max(frames, default=-1) + 1
+    if count > spec.max_batch_frames:
+        raise RequestInvalid(f"frames: got {count}, at most max_batch_frames={spec.max_batch_frames} per request", field="frames")
+    gaps = [i for i in range(count) if i not in frames]
+    if gaps:
+        raise RequestInvalid(f"frame {gaps[0]}: no image parts, expected frames numbered 0..{count - 1} without gaps", field=str(gaps[0]))
+    return [frames[i] for i in range(count)], options, [types[i] for i in range(count)]
+
+
+def _b64(text: str, label: str) -> bytes:
+    try:
+        return base64.b64decode(text, validate=True)
+    except (binascii.Error, ValueError) as exc:
+        raise RequestInvalid(f"camera '{label}': not valid base64 ({exc})", field=label) from None
+
+
+async def _json(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[EncodedFrame], DetectOptions]:
+    body = await request.body()
+    try:
+        doc: DetectJsonRequest | BatchJsonRequest = (BatchJsonRequest if batch else DetectJsonRequest).model_validate_json(body)
+    except ValidationError as exc:
+        raise _invalid(exc) from None
+    options = _check_classes(DetectOptions.model_validate(doc.model_dump(include=set(OPTION_FIELDS))), spec)
+    raw = [f.images for f in doc.frames] if isinstance(doc, BatchJsonRequest) else [doc.images]
+    if len(raw) > spec.max_batch_frames:
+        raise RequestInvalid(f"frames: got {len(raw)}, at most max_batch_frames={spec.max_batch_frames} per request", field="frames")
+    return [{camera: _b64(text, camera) for camera, text in images.items()} for images in raw], options
+
+
+async def read_request(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[EncodedFrame], DetectOptions]:
+    """Read, parse and check (without decoding) a /detect or /detect/batch body."""
+    media = _media_type(request)
+    types = None
+    if media == "multipart/form-data":
+        frames, options, types = await _multipart(request, spec, batch)
+    elif media == "application/json" or media.endswith("+json"):
+        frames, options = await _json(request, spec, batch)
+    else:
+        raise UnsupportedMediaType(f"Content-Type: got '{media or 'none'}', expected multipart/form-data or application/json", field="Content-Type")
+    if not frames:
+        raise RequestInvalid(f"images: none given, expected one part per camera ({', '.join(spec.cameras)})", field="images")
+    check_frames(frames, spec, options, types)
+    return frames, options

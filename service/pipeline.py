@@ -1,0 +1,65 @@
+"""One admitted request's frames through decode -> queue -> per-request options -> result documents.
+
+Shared by ``/detect``, ``/detect/batch`` and ``/stream``. The worker always runs the official
+output set (no threshold, no NMS), so requests with different options can share one
+micro-batch; each request's threshold, class filter and NMS are applied afterwards, off the
+event loop, and counted as postprocess time.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import anyio
+
+from fisheye_infer.nms import NmsConfig
+from fisheye_infer.service.errors import Unavailable
+from fisheye_infer.service.intake import EncodedFrame, decode_frames
+from fisheye_infer.service.queue import RunResult, Ticket
+from fisheye_infer.service.schemas import DetectOptions
+from fisheye_infer.service.state import Service
+
+__all__ = ["run_frames", "finish"]
+
+
+def finish(result: RunResult, options: DetectOptions, decode_ms: float) -> dict[str, Any]:
+    """A ``FrameResult`` document for one frame, after the request's options."""
+    dets = result.detections
+    t0 = time.perf_counter()
+    if options.score_threshold is not None or options.classes is not None:
+        dets = dets.filter(min_score=options.score_threshold, classes=options.classes)
+    if options.nms is not None:
+        dets = dets.with_nms(NmsConfig(kind=options.nms))
+    extra_ms = (time.perf_counter() - t0) * 1e3
+    t = result.detections.timings_ms
+    timings = {
+        "queue_wait": result.queue_wait_ms,
+        "decode": decode_ms,
+        "preprocess": t.get("decode", 0.0) + t.get("preprocess", 0.0),  # the Detector's array checks + stacking
+        "inference": t.get("inference", 0.0),
+        "postprocess": t.get("postprocess", 0.0) + extra_ms,
+    }
+    return {
+        "detections": dets.to_dicts(),
+        "records": dets.to_nuscenes(),
+        "cameras_used": list(dets.cameras_used),
+        "timings_ms": timings,
+        "batch_size": result.batch_size,
+    }
+
+
+def _finish_all(results: list[RunResult], options: DetectOptions, decode_ms: list[float]) -> list[dict[str, Any]]:
+    return [finish(r, options, ms) for r, ms in zip(results, decode_ms, strict=True)]
+
+
+async def run_frames(service: Service, ticket: Ticket, frames: list[EncodedFrame], options: DetectOptions) -> list[dict[str, Any]]:
+    """Decode (thread) -> queue (worker) -> options (thread); one document per frame, in order."""
+    if service.spec is None:
+        raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
+    loaded, decode_ms = await anyio.to_thread.run_sync(decode_frames, frames, service.spec)
+    results = await ticket.run(loaded)
+    documents = await anyio.to_thread.run_sync(_finish_all, results, options, decode_ms)
+    for doc in documents:
+        service.metrics.observe_stages(doc["timings_ms"])
+    return documents

@@ -1,0 +1,78 @@
+"""uvicorn with a graceful drain: the first SIGTERM/SIGINT stops new work, not work in flight.
+
+    server = build_server(settings)       # or build_server(settings, app)
+    server.run()                          # blocks; returns after the drain and shutdown
+
+On the first signal (or ``request_drain()``, for embedding and tests) the service starts
+draining: new requests get 503 with Retry-After while the listening socket stays open, streams
+answer their frame in flight and close with 1001. When nothing is in flight, or after
+``drain_timeout_s``, uvicorn's own shutdown runs (lifespan: the workers stop). A second signal
+skips the wait (uvicorn's behaviour: a second Ctrl-C forces the exit).
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import time
+from types import FrameType
+
+import uvicorn
+from fastapi import FastAPI
+
+from fisheye_infer.service.app import create_app
+from fisheye_infer.service.settings import ServiceSettings
+from fisheye_infer.service.state import Service
+
+__all__ = ["DrainingServer", "build_server"]
+
+log = logging.getLogger("fisheye_infer.service")
+
+
+class DrainingServer(uvicorn.Server):
+    """See the module docstring."""
+
+    def __init__(self, config: uvicorn.Config, service: Service) -> None:
+        super().__init__(config)
+        self.service = service
+        self._drain_requested = False
+        self._drain_deadline: float | None = None
+
+    def request_drain(self) -> None:
+        """Start a graceful shutdown (thread-safe: only sets a flag the event loop reads)."""
+        self._drain_requested = True
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        if self._drain_requested or self.service.settings.drain_timeout_s == 0:
+            super().handle_exit(sig, frame)
+            return
+        log.info("received %s: draining", signal.Signals(sig).name)
+        self.request_drain()
+
+    async def on_tick(self, counter: int) -> bool:
+        if self._drain_requested and not self.should_exit:
+            now = time.monotonic()
+            if self._drain_deadline is None:
+                self.service.begin_drain()
+                self._drain_deadline = now + self.service.settings.drain_timeout_s
+            elif self.service.busy == 0 or now >= self._drain_deadline:
+                if self.service.busy:
+                    log.warning("drain_timeout_s passed with %d request(s) or stream(s) still open", self.service.busy)
+                self.should_exit = True
+        return await super().on_tick(counter)
+
+
+def build_server(settings: ServiceSettings, app: FastAPI | None = None, log_level: str = "info") -> DrainingServer:
+    """A ``DrainingServer`` for ``settings`` (the app is built from them unless given)."""
+    app = app if app is not None else create_app(settings)
+    config = uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_level=log_level,
+        lifespan="on",
+        ws_max_size=settings.max_body_bytes,  # a larger stream message closes the socket with 1009
+        timeout_graceful_shutdown=max(1, int(settings.drain_timeout_s)),
+        server_header=False,
+    )
+    return DrainingServer(config, app.state.service)

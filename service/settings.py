@@ -1,0 +1,85 @@
+"""``ServiceSettings``: every knob of the service, typed, read from ``FISHEYE_*`` variables.
+
+    FISHEYE_MODEL_PATH=/models/model.onnx FISHEYE_QUEUE_SIZE=16 fisheye-infer serve
+    ServiceSettings(model_path="model.onnx", microbatch_max_size=4)      # in Python
+
+| setting | default | what it bounds |
+|---|---|---|
+| ``model_path`` | required | the ONNX file written by ``fisheye-infer export`` |
+| ``host`` / ``port`` | 127.0.0.1 / 8000 | where uvicorn listens; loopback unless told otherwise |
+| ``threads`` | all cores | ONNX Runtime intra-op threads |
+| ``workers`` | 1 | inference threads calling the Detector |
+| ``queue_size`` | 8 | requests admitted and not yet running; beyond it: 503 + Retry-After |
+| ``max_body_bytes`` | 32 MiB | request body and WebSocket message size (413 beyond) |
+| ``max_batch_frames`` | 8 | frames in one /detect/batch request (422 beyond) |
+| ``microbatch_max_size`` | 1 (off) | single-frame requests grouped into one run |
+| ``microbatch_max_wait_ms`` | 5 | how long the first request of a group waits for others |
+| ``request_timeout_s`` | 60 | no request waits longer for its result (504) |
+| ``drain_timeout_s`` | 30 | graceful shutdown: longest wait for in-flight work |
+| ``api_key`` | none | when set, required as ``X-API-Key`` (health endpoints stay open) |
+| ``cors_origins`` | none | browser origins allowed to call the API |
+
+Unsafe or contradictory combinations are refused when the settings are built, not at the
+first request.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+__all__ = ["ServiceSettings", "MIN_API_KEY_LENGTH"]
+
+MIN_API_KEY_LENGTH = 16
+
+
+class ServiceSettings(BaseSettings):
+    """See the module docstring for the table of settings."""
+
+    model_config = SettingsConfigDict(env_prefix="FISHEYE_", extra="ignore", frozen=True)
+
+    model_path: Path = Field(description="ONNX file written by fisheye-infer export")
+    host: str = "127.0.0.1"
+    port: int = Field(default=8000, ge=0, le=65535)
+    threads: int | None = Field(default=None, ge=1, description="ONNX Runtime intra-op threads (default: all cores)")
+    workers: int = Field(default=1, ge=1, le=16, description="inference threads calling the Detector")
+    queue_size: int = Field(default=8, ge=1, description="requests admitted and not yet running")
+    max_body_bytes: int = Field(default=32 * 1024 * 1024, ge=1024)
+    max_batch_frames: int = Field(default=8, ge=1)
+    microbatch_max_size: int = Field(default=1, ge=1, description="1 turns micro-batching off")
+    microbatch_max_wait_ms: float = Field(default=5.0, ge=0.0, le=1000.0)
+    request_timeout_s: float = Field(default=60.0, gt=0.0)
+    drain_timeout_s: float = Field(default=30.0, ge=0.0)
+    retry_after_s: int = Field(default=1, ge=1, description="Retry-After sent with 503 answers")
+    api_key: SecretStr | None = None
+    metrics_public: bool = Field(default=True, description="serve /metrics without the API key (for scrapers)")
+    cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
+    warmup: bool = True
+
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _split_origins(cls, value: object) -> object:
+        """Accept ``FISHEYE_CORS_ORIGINS=https://a,https://b`` as well as a JSON list."""
+        if isinstance(value, str):
+            if value.lstrip().startswith("["):
+                return json.loads(value)
+            return [v.strip() for v in value.split(",") if v.strip()]
+        return value
+
+    @model_validator(mode="after")
+    def _refuse_unsafe(self) -> "ServiceSettings":
+        if self.api_key is not None and len(self.api_key.get_secret_value()) < MIN_API_KEY_LENGTH:
+            raise ValueError(f"api_key: expected at least {MIN_API_KEY_LENGTH} characters, got {len(self.api_key.get_secret_value())}")
+        if self.microbatch_max_size > self.max_batch_frames:
+            raise ValueError(f"microbatch_max_size: {self.microbatch_max_size} exceeds max_batch_frames {self.max_batch_frames}")
+        if "*" in self.cors_origins and self.api_key is not None:
+            raise ValueError("cors_origins: '*' together with an api_key would let any web page use a key it obtains; list the origins")
+        return self
+
+    @property
+    def microbatching(self) -> bool:
+        return self.microbatch_max_size > 1

@@ -1,0 +1,44 @@
+"""ServiceSettings: FISHEYE_* variables, safe defaults, and unsafe combinations refused by name."""
+
+from __future__ import annotations
+
+from contextlib import ExitStack as DoesNotRaise
+from typing import Any
+
+import pytest
+from pydantic import ValidationError
+
+from fisheye_infer.service.settings import ServiceSettings
+
+
+def test_defaults_listen_on_loopback_without_microbatching() -> None:
+    s = ServiceSettings(model_path="m.onnx")
+    assert (s.host, s.port, s.api_key, s.microbatching, s.cors_origins) == ("127.0.0.1", 8000, None, False, [])
+
+
+def test_environment_with_prefix(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("FISHEYE_MODEL_PATH", "/models/model.onnx")
+    monkeypatch.setenv("FISHEYE_QUEUE_SIZE", "16")
+    monkeypatch.setenv("FISHEYE_API_KEY", "s3cret-s3cret-s3cret")
+    monkeypatch.setenv("FISHEYE_CORS_ORIGINS", "https://a.example,https://b.example")
+    s = ServiceSettings()
+    assert str(s.model_path) == "/models/model.onnx" and s.queue_size == 16
+    assert s.api_key is not None and s.api_key.get_secret_value() == "s3cret-s3cret-s3cret"
+    assert "s3cret" not in repr(s)  # never printed
+    assert s.cors_origins == ["https://a.example", "https://b.example"]
+
+
+@pytest.mark.parametrize(
+    "overrides, expectation",
+    [
+        ({"microbatch_max_size": 4, "max_batch_frames": 8}, DoesNotRaise()),  # micro-batches fit a batch
+        ({"api_key": "short"}, pytest.raises(ValidationError, match="api_key: expected at least 16 characters, got 5")),
+        ({"microbatch_max_size": 9}, pytest.raises(ValidationError, match="microbatch_max_size: 9 exceeds max_batch_frames 8")),
+        ({"cors_origins": ["*"], "api_key": "k" * 16}, pytest.raises(ValidationError, match="cors_origins")),  # any page could use the key
+        ({"queue_size": 0}, pytest.raises(ValidationError, match="queue_size")),
+        ({"port": 70000}, pytest.raises(ValidationError, match="port")),
+    ],
+)
+def test_unsafe_combinations_are_refused(overrides: dict[str, Any], expectation) -> None:
+    with expectation:
+        ServiceSettings(model_path="m.onnx", **overrides)
