@@ -27,7 +27,7 @@ import onnxruntime as ort
 import torch
 
 from fisheye_infer._version import __version__
-from fisheye_infer.artifact import ArtifactMeta, Normalisation, ParityReport
+from fisheye_infer.artifact import ArtifactMeta, Normalisation, ParityReport, Quantization
 from fisheye_infer.errors import ExportError, ParityError, RigError
 from fisheye_infer.preprocess import frames_from_paths, prepare_batch
 from fisheye_infer.rig import Rig, resolve_rig
@@ -36,9 +36,35 @@ from fisheye_infer.synth import Renderer, random_scene
 from .architectures import get_arch, infer_architecture
 from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata
 from .trace import OPSET, trace_to_onnx
+from .quantize import MIN_TOP_MATCHED, FrameReader, int8_parity, int8_path_for, quantize, quantized_scope
 from .verify import verify
 
-__all__ = ["ExportResult", "export", "verification_frames", "file_sha256"]
+__all__ = ["ExportResult", "Int8Result", "export", "export_int8", "verification_frames", "file_sha256"]
+
+#: Calibration frames are rendered from seeds offset by this, so they never coincide with the
+#: verification frames (seeds 0, 1, ...) the int8 file is judged on.
+CALIBRATION_SEED = 1000
+
+
+@dataclass(frozen=True)
+class Int8Result:
+    """The int8 file written next to (or instead of at --out, see ``export``) the fp32 one."""
+
+    path: Path | None
+    meta: ArtifactMeta
+    parity: ParityReport
+    seconds: float
+    file_bytes: int
+
+    def summary(self) -> str:
+        p, q = self.parity, self.meta.quantization
+        assert q is not None
+        return "\n".join([
+            f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {q.mode}, {q.scope}, "
+            f"calibrated on {q.calibration_frames} frame(s))",
+            f"int8 vs the fp32 ONNX file on {p.frames} frames: {p.top_matched_fraction:.1%} of the top-50 boxes matched within "
+            f"{p.tolerance_box_m:g} m with the same label (need {MIN_TOP_MATCHED:.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+        ])
 
 @dataclass(frozen=True)
 class ExportResult:
@@ -48,6 +74,7 @@ class ExportResult:
     seconds: float
     file_bytes: int
     initializer_bytes: int
+    int8: Int8Result | None = None
 
     def summary(self) -> str:
         p = self.parity
@@ -60,8 +87,12 @@ class ExportResult:
             f"valid {'equal' if p.valid_equal else 'DIFFERS'} -> {'PASSED' if p.passed else 'FAILED'}",
             f"took {self.seconds:.1f} s",
         ]
+        if self.int8 is not None:
+            lines.append(self.int8.summary())
         if self.path:
             lines.append(f"next: fisheye-infer detect {self.path} --images DIR --out result.json --viz result.png")
+        if self.int8 is not None and self.int8.path:
+            lines.append(f"      fisheye-infer detect {self.int8.path} ...   (int8); fisheye-infer bench {self.int8.path}")
         return "\n".join(lines)
 
 
@@ -106,12 +137,17 @@ def export(
     threads: Sequence[int] = (1, 2),
     force: bool = False,
     allow_pickle: bool = False,
+    int8: bool = False,
+    calib_images: str | Path | None = None,
+    calib_frames: int = 8,
     progress: Callable[[str], None] = print,
 ) -> ExportResult:
     """Export ``ckpt`` to ``out``; see the module docstring. Raises ``ParityError`` when parity fails.
 
     ``config`` is the official config file the checkpoint was trained with (read, never executed)
     or a configuration object; by default the official configuration of the architecture.
+    ``int8``: once the fp32 file is written, also write ``export_int8``'s file next to it
+    (``model.onnx`` -> ``model.int8.onnx``); ``out`` always stays the verified fp32 file.
     """
     from fisheye_infer.models import load_checkpoint, load_model
 
@@ -120,6 +156,12 @@ def export(
     ckpt = Path(ckpt)
     if out.suffix != ".onnx":
         raise ExportError(f"--out {out}: expected a path ending in .onnx")
+    if int8 and calib_frames < 0:
+        raise ExportError(f"--calib-frames {calib_frames}: expected 0 or more synthetic calibration frames")
+    if int8 and calib_frames == 0 and calib_images is None:
+        raise ExportError("--calib-frames 0 without --calib-images: int8 calibration needs at least one frame")
+    if calib_images is not None and not Path(calib_images).exists():
+        raise ExportError(f"--calib-images {calib_images}: no such file or folder")
     progress(f"[1/5] reading {ckpt}")
     state_dict, _ = load_checkpoint(ckpt, allow_pickle=allow_pickle)
     name = arch or infer_architecture(state_dict)
@@ -183,4 +225,66 @@ def export(
     result = ExportResult(written, meta, parity, time.perf_counter() - start, out.stat().st_size if written else 0, geometry_bytes)
     if not parity.passed and not force:
         raise ParityError(f"the ONNX graph disagrees with PyTorch beyond tolerance; no file written (use --force to keep it)\n{result.summary()}")
+    if int8 and written is not None:
+        quant = export_int8(written, calib_images=calib_images, calib_frames=calib_frames, frames=frames,
+                            verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
+        result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes, result.initializer_bytes, quant)
+        if not quant.parity.passed and not force:
+            raise ParityError(f"the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written (use --force to keep it)\n{result.summary()}")
     return result
+
+
+def export_int8(
+    fp32_path: str | Path,
+    out: str | Path | None = None,
+    *,
+    calib_images: str | Path | None = None,
+    calib_frames: int = 8,
+    frames: int = 2,
+    verify_images: str | Path | None = None,
+    threads: int = 2,
+    force: bool = False,
+    progress: Callable[[str], None] = print,
+) -> Int8Result:
+    """A verified fp32 file -> its static-QDQ int8 file (image backbone and neck only); see ``quantize``.
+
+    Calibration: ``calib_frames`` seeded synthetic renders of the file's own rig (seeds from
+    ``CALIBRATION_SEED``, disjoint from the verification seeds) plus the user's frames from
+    ``calib_images``. Evidence: the int8 file against the fp32 file on the same verification
+    frames as the fp32 export; the file is written only when ``MIN_TOP_MATCHED`` of the fp32
+    top-50 boxes are found again (or with ``force``). The result carries a ``ParityReport``
+    with ``reference="fp32-onnx"`` and a ``Quantization`` record in its metadata.
+    """
+    from fisheye_infer.artifact import read_meta
+
+    start = time.perf_counter()
+    src = Path(fp32_path)
+    out = Path(out) if out is not None else int8_path_for(src)
+    meta = read_meta(src)
+    if meta.quantization is not None:
+        raise ExportError(f"int8: {src} is already quantized ({meta.quantization.mode}); give the fp32 file")
+    progress(f"int8 [1/3] rendering {calib_frames} calibration frame(s){' + ' + str(calib_images) if calib_images else ''}")
+    calibration = verification_frames(meta.rig, calib_frames, seed=CALIBRATION_SEED, images=calib_images)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.q.tmp")
+    try:
+        progress("int8 [2/3] static QDQ quantization of the image backbone and neck (U8 activations, S8 per-channel weights)")
+        quantize(src, tmp, FrameReader(calibration))
+        proto = onnx.load(str(tmp))
+        scope = quantized_scope(onnx.load(str(src), load_external_data=False))
+        progress(f"int8 [3/3] comparing with the fp32 file on {frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''}")
+        batch = verification_frames(meta.rig, frames, images=verify_images)
+        parity = int8_parity(src, tmp, batch, threads=threads)
+        quant_meta = meta.model_copy(update={
+            "model_id": f"{meta.model_id}-int8",
+            "parity": parity,
+            "quantization": Quantization(mode="int8-qdq", scope=scope, calibration_frames=len(calibration)),
+        })
+        set_metadata(proto, quant_meta)  # the re-baking key copied from the fp32 file stays
+        written: Path | None = None
+        if parity.passed or force:
+            save_model(proto, tmp)
+            os.replace(tmp, out)
+            written = out
+    finally:
+        tmp.unlink(missing_ok=True)
+    return Int8Result(written, quant_meta, parity, time.perf_counter() - start, out.stat().st_size if written else 0)

@@ -166,8 +166,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     configure_serve(sub.add_parser("serve", help="serve a model over HTTP and WebSocket", description="Serve a model over HTTP and WebSocket (needs the [serve] extra)."))
 
+    from fisheye_infer.bench import configure_bench
+
+    configure_bench(sub.add_parser("bench", help="benchmark a model on this machine: latency per stage, throughput, peak RSS"))
     for name, text in (
-        ("bench", "benchmark a model on this machine"),
     ):
         cmd = sub.add_parser(name, help=f"{text} (not available yet)", description=f"{text}. Not available in this version yet.")
         cmd.set_defaults(run=_not_yet(name))

