@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Callable
 
 from fisheye_infer._version import __version__
 from fisheye_infer.errors import FisheyeInferError
@@ -101,14 +100,6 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _not_yet(name: str) -> Callable[[argparse.Namespace], int]:
-    def run(args: argparse.Namespace) -> int:
-        print(f"fisheye-infer {name}: not available in version {__version__} yet.", file=sys.stderr)
-        return 2
-
-    return run
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fisheye-infer", description="Export, run and serve surround-view fisheye 3D object detectors.")
     parser.add_argument("--version", action="version", version=f"fisheye-infer {__version__}")
@@ -169,10 +160,6 @@ def build_parser() -> argparse.ArgumentParser:
     from fisheye_infer.bench import configure_bench
 
     configure_bench(sub.add_parser("bench", help="benchmark a model on this machine: latency per stage, throughput, peak RSS"))
-    for name, text in (
-    ):
-        cmd = sub.add_parser(name, help=f"{text} (not available yet)", description=f"{text}. Not available in this version yet.")
-        cmd.set_defaults(run=_not_yet(name))
     return parser
 
 
