@@ -54,10 +54,13 @@ def encoded_image_size(data: bytes) -> tuple[int, int] | None:
 def decode_image(data: bytes, camera: str, expected_wh: tuple[int, int] | None = None) -> np.ndarray:
     """Decode JPEG/PNG bytes to (H, W, 3) uint8 BGR, checking the size from the header first."""
     buf = bytes(data)
-    if expected_wh is not None:
-        size = encoded_image_size(buf)
-        if size is not None and size != tuple(expected_wh):
-            raise FrameError(f"camera '{camera}': image is {size[0]}x{size[1]}, model expects {expected_wh[0]}x{expected_wh[1]}")
+    size = encoded_image_size(buf)
+    if size is None:
+        # Only PNG and JPEG are decoded: their headers state the size, so nothing of unknown size
+        # (a decompression bomb in another format) ever reaches the decoder.
+        raise FrameError(f"camera '{camera}': the bytes are not a decodable JPEG or PNG image ({len(buf)} bytes, no PNG or JPEG header)")
+    if expected_wh is not None and size != tuple(expected_wh):
+        raise FrameError(f"camera '{camera}': image is {size[0]}x{size[1]}, model expects {expected_wh[0]}x{expected_wh[1]}")
     image = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         raise FrameError(f"camera '{camera}': the bytes are not a decodable JPEG or PNG image ({len(buf)} bytes)")

@@ -63,13 +63,14 @@ def test_missing_camera_is_degraded_mode(arrays: list[np.ndarray]) -> None:
         ({"right": np.zeros((96, 128, 3), np.uint8)}, "camera 'right': image is 128x96, model expects 64x48"),
         ({"rear": png(np.zeros((96, 128, 3), np.uint8))}, "camera 'rear': image is 128x96, model expects 64x48"),
         ({"front": b"not an image"}, "camera 'front': the bytes are not a decodable JPEG or PNG"),
+        ({"front": cv2.imencode(".bmp", image(0))[1].tobytes()}, "camera 'front': .* no PNG or JPEG header"),
         ({"front": png(image(0))[:40]}, "camera 'front': the bytes are not a decodable"),
         ({"front": "/no/such/file.png"}, "camera 'front': cannot read /no/such/file.png"),
         ({"front": 3.5}, "camera 'front': expected an ndarray, encoded bytes or a path, got float"),
         ({}, "no camera image given"),
         ("front.png", "expected a mapping camera name -> image or a sequence"),
     ],
-    ids=["unknown-camera", "too-few", "dtype", "channels", "size", "size-from-header", "garbage", "truncated", "missing-path", "wrong-type", "empty", "string"],
+    ids=["unknown-camera", "too-few", "dtype", "channels", "size", "size-from-header", "garbage", "bmp", "truncated", "missing-path", "wrong-type", "empty", "string"],
 )
 def test_bad_input_names_the_problem(frame, message: str) -> None:
     with pytest.raises(FrameError, match=message):
