@@ -1,4 +1,4 @@
-"""``fisheye-infer eval`` and ``synth`` as the lead wires them: argparse in, files and exit codes out."""
+"""``fisheye-infer eval`` and ``synth``: argparse in, files and exit codes out."""
 
 from __future__ import annotations
 
