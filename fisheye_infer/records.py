@@ -144,13 +144,14 @@ def _column(records: Sequence[Mapping[str, Any]], field: str, width: int | None)
     return values.astype(np.float64, copy=False)
 
 
-def _diagnose(records: Sequence[Any], class_names: Sequence[str], source: str) -> FrameError:
+def _diagnose(records: Sequence[Any], class_names: Sequence[str], source: str, scored: bool = True) -> FrameError:
     """Walk the records one by one to name the first bad index and field; only called on failure."""
+    fields = RECORD_FIELDS if scored else RECORD_FIELDS[:-1]
     for i, r in enumerate(records):
         where = f"{source}, record {i}"
         if not isinstance(r, Mapping):
-            return FrameError(f"{where}: expected an object with {', '.join(RECORD_FIELDS)}, got {type(r).__name__}")
-        for field in RECORD_FIELDS:
+            return FrameError(f"{where}: expected an object with {', '.join(fields)}, got {type(r).__name__}")
+        for field in fields:
             if field not in r:
                 return FrameError(f"{where}: missing field '{field}'")
         for field, width in (("translation", 3), ("size", 3), ("rotation", 4)):
@@ -166,6 +167,8 @@ def _diagnose(records: Sequence[Any], class_names: Sequence[str], source: str) -
         name = r["detection_name"]
         if name not in class_names:
             return FrameError(f"{where}: 'detection_name' {name!r} is not one of {', '.join(class_names)}")
+        if not scored:
+            continue
         score = r["detection_score"]
         if not isinstance(score, (int, float)) or isinstance(score, bool) or not math.isfinite(score):
             return FrameError(f"{where}: 'detection_score' must be a finite number, got {score!r}")
@@ -177,12 +180,15 @@ def record_columns(
     class_names: Sequence[str] = CLASSES,
     *,
     source: str = "records",
+    scored: bool = True,
 ) -> dict[str, np.ndarray]:
     """K records -> the evaluator's columns, without touching the numbers.
 
     ``translation`` (K, 3) gravity centre, ``size`` (K, 3) as (w, l, h), ``yaw`` (K,),
     ``score`` (K,) float64 and ``label`` (K,) int64. Validation is vectorised; only when it
     fails are the records walked one by one to name the bad index and field.
+    ``scored=False`` reads ground truth: ``detection_score`` is ignored (it may be absent) and
+    every score is ``GT_SCORE``.
     """
     if not isinstance(records, Sequence) or isinstance(records, (str, bytes)):
         raise FrameError(f"{source}: expected a list of records, got {type(records).__name__}")
@@ -194,15 +200,15 @@ def record_columns(
         translation = _column(records, "translation", 3)
         size = _column(records, "size", 3)
         rotation = _column(records, "rotation", 4)
-        score = _column(records, "detection_score", None)
+        score = _column(records, "detection_score", None) if scored else np.full(k, GT_SCORE)
         label = np.array([lookup.get(r["detection_name"], -1) for r in records], dtype=np.int64)
     except (KeyError, TypeError):
-        raise _diagnose(records, class_names, source) from None
+        raise _diagnose(records, class_names, source, scored) from None
     if translation is None or size is None or rotation is None or score is None:
-        raise _diagnose(records, class_names, source)
+        raise _diagnose(records, class_names, source, scored)
     finite = all(np.all(np.isfinite(c)) for c in (translation, size, rotation, score))
     if not finite or np.any(label < 0) or np.any(size <= 0) or np.any(~rotation.any(axis=1)):
-        raise _diagnose(records, class_names, source)
+        raise _diagnose(records, class_names, source, scored)
     return {"translation": translation, "size": size, "yaw": quaternion_to_yaw(rotation), "score": score, "label": label}
 
 

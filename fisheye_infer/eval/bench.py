@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     gt_res, pred_res = to_results(gt), to_results(pred)
     t2 = time.perf_counter()
     tokens = list(pred_res)
-    gt_boxes = EvalBoxes.from_records(gt_res, tokens=tokens)
+    gt_boxes = EvalBoxes.from_records(gt_res, tokens=tokens, ground_truth=True)
     pred_boxes = EvalBoxes.from_records(pred_res, tokens=tokens)
     t3 = time.perf_counter()
     again = evaluate(gt_boxes, pred_boxes, EvalConfig())

@@ -47,10 +47,17 @@ class EvalBoxes:
         return cls(tuple(tokens), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), z, z)
 
     @classmethod
-    def from_records(cls, results: Mapping[str, Sequence[Mapping[str, Any]]], class_names: Sequence[str] = CLASSES, tokens: Sequence[str] | None = None) -> "EvalBoxes":
+    def from_records(
+        cls,
+        results: Mapping[str, Sequence[Mapping[str, Any]]],
+        class_names: Sequence[str] = CLASSES,
+        tokens: Sequence[str] | None = None,
+        ground_truth: bool = False,
+    ) -> "EvalBoxes":
         """``{sample_token: [record, ...]}`` -> boxes; ``tokens`` fixes the sample order (default: the mapping's).
 
-        A token in ``tokens`` that ``results`` lacks is a sample without boxes.
+        A token in ``tokens`` that ``results`` lacks is a sample without boxes. With
+        ``ground_truth`` the records' ``detection_score`` is ignored (and may be absent).
         """
         if not isinstance(results, Mapping):
             raise FrameError(f"results: expected an object mapping sample tokens to lists of records, got {type(results).__name__}")
@@ -64,10 +71,10 @@ class EvalBoxes:
             flat.extend(records)
             counts[i] = len(records)
         try:
-            cols = record_columns(flat, class_names, source="results")
+            cols = record_columns(flat, class_names, source="results", scored=not ground_truth)
         except FrameError:
             for token in order:  # name the sample: rerun only to locate the first bad record
-                record_columns(results.get(token, ()), class_names, source=f"sample {token}")
+                record_columns(results.get(token, ()), class_names, source=f"sample {token}", scored=not ground_truth)
             raise
         sample = np.repeat(np.arange(len(order), dtype=np.int64), counts)
         return cls(order, sample, cols["label"], cols["translation"], cols["size"], cols["yaw"], cols["score"])

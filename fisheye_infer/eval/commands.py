@@ -47,7 +47,7 @@ def configure_eval(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", nargs="?", help="exported model (.onnx) to run on --data; omit to evaluate saved results")
     files = parser.add_argument_group("saved results")
     files.add_argument("--results", help='predictions: {"results": {sample_token: [record, ...]}}')
-    files.add_argument("--ground-truth", help="ground truth in the same format (detection_score -1)")
+    files.add_argument("--ground-truth", help="ground truth in the same format (detection_score optional, ignored)")
     files.add_argument("--allow-missing", action="store_true", help="count ground-truth samples absent from --results as frames with no detections")
     data = parser.add_argument_group("running a model")
     data.add_argument("--data", help="Fisheye3DOD-layout root (calib_results.txt, ImageSets-2hz/, scenes)")
@@ -80,6 +80,26 @@ def _write_report(report: MetricsReport, out: str | Path) -> None:
     print(f"wrote {out} and {out.with_suffix('.md')}")
 
 
+class _Progress:
+    """A progress bar on stderr: redrawn in place on a terminal, one line per ``every`` frames otherwise."""
+
+    def __init__(self, total: int, every: int = 100, width: int = 30) -> None:
+        self.total, self.every, self.width = total, every, width
+        self.tty = sys.stderr.isatty()
+        self.t0 = time.perf_counter()
+
+    def update(self, done: int) -> None:
+        if not (self.tty or done % self.every == 0 or done == self.total):
+            return
+        elapsed = time.perf_counter() - self.t0
+        rate = done / elapsed if elapsed > 0 else 0.0
+        filled = self.width * done // max(self.total, 1)
+        eta = (self.total - done) / rate if rate > 0 else 0.0
+        line = f"  [{'#' * filled}{'.' * (self.width - filled)}] {done}/{self.total} frames, {rate:.1f} frames/s, {eta:.0f} s left"
+        end = "\n" if not self.tty or done == self.total else ""
+        print(("\r" if self.tty else "") + line, end=end, file=sys.stderr, flush=True)
+
+
 def _fail(message: str) -> int:
     print(f"fisheye-infer eval: error: {message}", file=sys.stderr)
     return 2
@@ -88,6 +108,8 @@ def _fail(message: str) -> int:
 def run_eval(args: argparse.Namespace) -> int:
     """Evaluate saved results, or run a model over a split and evaluate its output."""
     config = _config(args)
+    if Path(args.out).suffix.lower() == ".md":
+        return _fail(f"--out names the report JSON; the Markdown report is written beside it (got {args.out})")
     if args.model is None:
         if not (args.results and args.ground_truth):
             return _fail("give --results and --ground-truth, or a MODEL with --data")
@@ -109,15 +131,13 @@ def run_eval(args: argparse.Namespace) -> int:
     cameras = [camera_name(c) for c in args.cameras] if args.cameras else list(detector.info.cameras)
     dataset = Fisheye3DOD(args.data, args.split, cameras=cameras, scenes=args.scenes, limit=args.limit, class_names=config.class_names)
     gt, pred = {}, {}
-    t0 = time.perf_counter()
+    progress = _Progress(len(dataset))
     for i, frame in enumerate(dataset, start=1):
         if i == 1:
             _warn_if_rigs_differ(frame.rig, detector.info.rig)
         pred[frame.token] = detector.detect(dict(frame.image_paths)).to_nuscenes()
         gt[frame.token] = frame.gt_records()
-        if i % 100 == 0 or i == len(dataset):
-            rate = i / (time.perf_counter() - t0)
-            print(f"  {i}/{len(dataset)} frames, {rate:.1f} frames/s", file=sys.stderr)
+        progress.update(i)
     if args.save_results:
         path = Path(args.save_results)
         meta = {"model": str(args.model), "data": str(args.data), "split": args.split, "cameras": cameras}

@@ -93,13 +93,16 @@ def _sample_order(gt: Results, pred: Results, allow_missing: bool) -> list[str]:
 
 
 def evaluate_results(gt: Results, pred: Results, config: EvalConfig | None = None, allow_missing: bool = False) -> MetricsReport:
-    """``{sample_token: [record, ...]}`` for ground truth and predictions -> report."""
+    """``{sample_token: [record, ...]}`` for ground truth and predictions -> report.
+
+    Ground-truth records need no ``detection_score``; whatever they carry is ignored.
+    """
     config = config or EvalConfig()
     for name, results in (("ground truth", gt), ("predictions", pred)):
         if not isinstance(results, Mapping):
             raise FrameError(f"{name}: expected an object mapping sample tokens to lists of records, got {type(results).__name__}")
     tokens = _sample_order(gt, pred, allow_missing)
-    gt_boxes = EvalBoxes.from_records(gt, config.class_names, tokens)
+    gt_boxes = EvalBoxes.from_records(gt, config.class_names, tokens, ground_truth=True)
     pred_boxes = EvalBoxes.from_records(pred, config.class_names, tokens)
     return evaluate(gt_boxes, pred_boxes, config)
 

@@ -126,6 +126,19 @@ def test_half_recall_gives_ap_below_one_and_tp_errors_up_to_max_recall() -> None
     assert calc_tp(md, 0.1, "trans_err") == pytest.approx(0.5)
 
 
+def test_tp_error_is_the_cumulative_mean_read_at_each_recall_points_confidence() -> None:
+    """Two matches, errors 0.2 (score 0.9) then 0.6 (score 0.8): cumulative means 0.2, 0.4.
+
+    Recall points 11..50 sit at confidence 0.9 (error 0.2); points 51..100 interpolate the
+    confidence from 0.9 to 0.8 and so the error from 0.2 to 0.4: mean 0.302. Over the 90 points
+    (40 * 0.2 + 50 * 0.302) / 90, not the plain mean 0.4 of the matches.
+    """
+    gt, pred = _boxes([record(10, 0), record(-10, 0)], [record(10.2, 0, score=0.9), record(-10.6, 0, score=0.8)])
+    md = accumulate(gt, pred, 2.0)
+    assert md.max_recall_ind == 100
+    assert calc_tp(md, 0.1, "trans_err") == pytest.approx((40 * 0.2 + 50 * 0.302) / 90)
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

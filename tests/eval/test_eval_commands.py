@@ -64,6 +64,15 @@ def test_eval_refuses_mixed_or_missing_arguments(argv: list[str], message: str, 
     assert message in capsys.readouterr().err
 
 
+def test_eval_refuses_a_markdown_out_path(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The Markdown report goes beside the JSON one; ``--out x.md`` would have it overwrite the JSON."""
+    save_results(tmp_path / "gt.json", {"s": one_of_each()})
+    save_results(tmp_path / "pred.json", {"s": one_of_each(score=0.9)})
+    argv = ["--results", str(tmp_path / "pred.json"), "--ground-truth", str(tmp_path / "gt.json"), "--out", str(tmp_path / "r.md")]
+    assert _run(configure_eval, argv) == 2
+    assert "--out names the report JSON" in capsys.readouterr().err and not (tmp_path / "r.md").exists()
+
+
 def test_eval_runs_an_exported_model_over_synthetic_data(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The whole loop: a real ONNX model in ONNX Runtime over Fisheye3DOD-layout frames rendered for its
     rig, scored with FDS; then with two cameras only (degraded mode)."""
@@ -74,6 +83,7 @@ def test_eval_runs_an_exported_model_over_synthetic_data(small_export, tmp_path:
     synthesize(rig, tmp_path / "data", frames=2, seed=4)
     out = tmp_path / "report.json"
     assert _run(configure_eval, [str(small_export.onnx), "--data", str(tmp_path / "data"), "--split", "val", "--out", str(out), "--save-results", str(tmp_path / "pred.json")]) == 0
+    assert "2/2 frames" in capsys.readouterr().err  # the progress bar's last line
     doc = json.loads(out.read_text())
     assert {"FDS", "mAP", "mATE", "mASE", "mAOE"} <= set(doc["main"])
     assert 0.0 <= doc["main"]["FDS"] <= 1.0

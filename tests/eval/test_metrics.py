@@ -172,6 +172,16 @@ def test_results_are_checked(gt: dict, pred: dict, allow: bool, message: str) ->
         evaluate_results(gt, pred, allow_missing=allow)
 
 
+def test_ground_truth_score_is_ignored_and_may_be_absent() -> None:
+    pred = {"s": one_of_each(score=0.9, shift=0.7)}
+    reference = evaluate_results({"s": one_of_each()}, pred).details()
+    unscored = [{k: v for k, v in r.items() if k != "detection_score"} for r in one_of_each()]
+    assert evaluate_results({"s": unscored}, pred).details() == reference
+    assert evaluate_results({"s": one_of_each(score=0.5)}, pred).details() == reference
+    with pytest.raises(FrameError, match=r"sample s, record 0: missing field 'detection_score'"):
+        evaluate_results({"s": one_of_each()}, {"s": unscored})
+
+
 def test_missing_samples_can_count_as_empty() -> None:
     report = evaluate_results({"a": [record(10, 0)], "b": [record(10, 0)]}, {"a": [record(10, 0, score=0.9)]}, allow_missing=True)
     assert report.num_samples == 2 and report.main.classes["Car"].ap == pytest.approx(40 / 90)
