@@ -19,7 +19,7 @@ import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import onnx
@@ -28,7 +28,7 @@ import torch
 
 from fisheye_infer._version import __version__
 from fisheye_infer.artifact import ArtifactMeta, Normalisation, ParityReport, Quantization
-from fisheye_infer.errors import ExportError, ParityError, RigError
+from fisheye_infer.errors import CheckpointError, ExportError, ParityError, RigError
 from fisheye_infer.preprocess import frames_from_paths, prepare_batch
 from fisheye_infer.rig import Rig, resolve_rig
 from fisheye_infer.synth import Renderer, random_scene
@@ -73,13 +73,14 @@ class ExportResult:
     parity: ParityReport
     seconds: float
     file_bytes: int
-    initializer_bytes: int
+    initializer_bytes: int  # every initializer: weights and geometry tables
+    geometry_bytes: int  # the ``geom.*`` initializers alone
     int8: Int8Result | None = None
 
     def summary(self) -> str:
         p = self.parity
         lines = [
-            f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB, geometry tables {self.initializer_bytes / 1e6:.1f} MB)",
+            f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; initializers {self.initializer_bytes / 1e6:.1f} MB, of which geometry tables {self.geometry_bytes / 1e6:.1f} MB)",
             f"model {self.meta.model_id}: {self.meta.architecture}, {len(self.meta.cameras)} cameras at {self.meta.image_size[0]}x{self.meta.image_size[1]}, {self.meta.num_boxes} boxes, rig {self.meta.rig_hash}",
             f"parity vs PyTorch on {p.frames} frames at {', '.join(map(str, p.threads))} thread(s): max |box| {p.max_box_abs_diff_m:.2e} m (tol {p.tolerance_box_m:g}), "
             f"max |score| {p.max_score_abs_diff:.2e} (tol {p.tolerance_score:g}), labels {'equal' if p.labels_equal else 'DIFFER'}, "
@@ -120,6 +121,27 @@ def verification_frames(rig: Rig, count: int, seed: int = 0, images: str | Path 
     return batch
 
 
+def _architecture(state_dict: Mapping[str, object], arch: str | None, ckpt: Path) -> str:
+    """``arch`` if given and not contradicted by the checkpoint's keys, else the one the keys name."""
+    if arch is None:
+        return infer_architecture(state_dict)
+    get_arch(arch)
+    try:
+        found = infer_architecture(state_dict)
+    except ExportError:  # keys of no known architecture: strict loading names what is wrong
+        return arch
+    if found != arch:
+        raise ExportError(f"--arch {arch}: checkpoint {ckpt.name} holds a {found} model (its keys say so); "
+                          f"pass --arch {found} or omit --arch")
+    return arch
+
+
+def _initializer_bytes(model: onnx.ModelProto) -> int:
+    """Bytes of every initializer's data (raw or typed fields), as the file stores them."""
+    return sum(len(i.raw_data) if i.HasField("raw_data") else int(np.prod(i.dims, dtype=np.int64)) * onnx.helper.tensor_dtype_to_np_dtype(i.data_type).itemsize
+               for i in model.graph.initializer)
+
+
 def _tool_versions() -> dict[str, str]:
     return {"fisheye_infer": __version__, "torch": torch.__version__, "onnx": onnx.__version__, "onnxruntime": ort.__version__, "opset": str(OPSET), "python": platform.python_version()}
 
@@ -149,7 +171,7 @@ def export(
     ``int8``: once the fp32 file is written, also write ``export_int8``'s file next to it
     (``model.onnx`` -> ``model.int8.onnx``); ``out`` always stays the verified fp32 file.
     """
-    from fisheye_infer.models import load_checkpoint, load_model
+    from fisheye_infer.models import create_model, get_model_entry, load_checkpoint, load_official_state_dict
 
     start = time.perf_counter()
     out = Path(out)
@@ -164,18 +186,27 @@ def export(
         raise ExportError(f"--calib-images {calib_images}: no such file or folder")
     progress(f"[1/5] reading {ckpt}")
     state_dict, _ = load_checkpoint(ckpt, allow_pickle=allow_pickle)
-    name = arch or infer_architecture(state_dict)
+    name = _architecture(state_dict, arch, ckpt)
     spec = get_arch(name)
     cfg = spec.read_config(Path(config)) if isinstance(config, (str, Path)) else config
     the_rig = rig if isinstance(rig, Rig) else resolve_rig(rig)
 
     progress(f"[2/5] building {name} for rig {the_rig.name!r} ({the_rig.hash}) and loading the checkpoint strictly")
-    model, report = load_model(name, {"state_dict": state_dict}, cfg, the_rig, geometry=geometry)
+    model = create_model(name, cfg, the_rig)
     width, height = spec.image_size(model)
-    try:
+    try:  # before the checkpoint's geometry is compared, which would blame the calibration instead
         the_rig.require(the_rig.names, (width, height))
     except RigError as exc:
-        raise ExportError(f"rig does not fit the model: {exc}") from exc
+        raise ExportError(f"rig {the_rig.name!r} does not fit the {name} configuration: {exc}") from exc
+    try:
+        report = load_official_state_dict(model, state_dict, geometry=geometry, ignore=get_model_entry(name).ignored_keys,
+                                          context=f"{name} checkpoint {ckpt.name}")
+    except CheckpointError as exc:
+        if "does not fit the model" not in str(exc):
+            raise
+        source = f"--config {config}" if isinstance(config, (str, Path)) else "the configuration given" if config is not None else f"the official {name} configuration"
+        raise CheckpointError(f"{exc}\n(model built from {source}; pass the config the checkpoint was trained with)") from None
+    model.eval()
     progress(f"      geometry tables from the {report.source}")
 
     progress("[3/5] tracing to ONNX (geometry as named initializers)")
@@ -222,13 +253,15 @@ def export(
     finally:
         tmp.unlink(missing_ok=True)
     geometry_bytes = sum(np.asarray(v).nbytes for v in tables.values())
-    result = ExportResult(written, meta, parity, time.perf_counter() - start, out.stat().st_size if written else 0, geometry_bytes)
+    result = ExportResult(written, meta, parity, time.perf_counter() - start, out.stat().st_size if written else 0,
+                          _initializer_bytes(proto), geometry_bytes)
     if not parity.passed and not force:
         raise ParityError(f"the ONNX graph disagrees with PyTorch beyond tolerance; no file written (use --force to keep it)\n{result.summary()}")
     if int8 and written is not None:
         quant = export_int8(written, calib_images=calib_images, calib_frames=calib_frames, frames=frames,
                             verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
-        result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes, result.initializer_bytes, quant)
+        result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes,
+                              result.initializer_bytes, result.geometry_bytes, quant)
         if not quant.parity.passed and not force:
             raise ParityError(f"the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written (use --force to keep it)\n{result.summary()}")
     return result

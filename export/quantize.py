@@ -34,7 +34,7 @@ from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, Q
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, ParityReport
 from fisheye_infer.errors import ExportError
 
-from .graph import save_model
+from .graph import check_standard_ops, save_model
 from .verify import run_onnx
 
 __all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "FrameReader", "image_region", "int8_parity", "int8_path_for", "quantize", "quantized_scope", "top_matched"]
@@ -232,6 +232,7 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: CalibrationDataRead
     changed = sorted(k for k in before if after.get(k) != before[k])
     if changed:
         raise ExportError(f"int8: quantization altered geometry tables {changed}; refusing to write {out}")
+    check_standard_ops(result)  # QDQ in the default domain only: no com.microsoft contrib nodes
     tmp_out = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
         save_model(result, tmp_out)

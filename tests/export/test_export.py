@@ -9,17 +9,18 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pytest
+from onnx import numpy_helper
 
 torch = pytest.importorskip("torch")
 
 from fisheye_infer.artifact import METADATA_KEY, OUTPUTS, read_meta
 from fisheye_infer.errors import ArtifactError, CheckpointError, ExportError, ParityError
-from fisheye_infer.export import verify as verify_module
+from fisheye_infer.export import exporter as exporter_module
 from fisheye_infer.export.architectures import infer_architecture
 from fisheye_infer.export.exporter import export, verification_frames
 from fisheye_infer.export.graph import get_metadata
 from fisheye_infer.export.verify import compare_outputs, run_onnx, run_torch
-from fisheye_infer.models import load_model, make_checkpoint
+from fisheye_infer.models import load_model
 from fisheye_infer.rig import Rig, default_rig
 from fisheye_infer.synth import resized_rig
 
@@ -124,32 +125,49 @@ SMALL_RIG = resized_rig(default_rig(), 0.2)  # 160 x 160
 
 
 @pytest.fixture(scope="module")
-def small_ckpt(tmp_path_factory: pytest.TempPathFactory, small_bevdet_config) -> Path:
-    path = tmp_path_factory.mktemp("small") / "small.pth"
-    make_checkpoint("fisheye-bevdet", seed=3, path=path, config=small_bevdet_config, rig=SMALL_RIG)
-    return path
+def small_ckpt(small_export) -> Path:
+    """The seeded checkpoint behind ``small_export`` (reduced FisheyeBEVDet, rig resized to 160x160)."""
+    return small_export.ckpt
 
 
-def test_small_export_passes(small_ckpt: Path, small_bevdet_config, tmp_path: Path) -> None:
-    result = export(small_ckpt, tmp_path / "small.onnx", config=small_bevdet_config, rig=SMALL_RIG, progress=lambda _: None)
-    assert result.parity.passed and result.path.is_file()
-    assert "parity vs PyTorch" in result.summary()
+def test_small_export_passes(small_export) -> None:
+    result = small_export.result
+    assert result.parity.passed and result.path.is_file() and result.parity.threads == (1, 2)
+    assert 0 < result.geometry_bytes < result.initializer_bytes < result.file_bytes
+    summary = result.summary()
+    assert "parity vs PyTorch" in summary and "initializers" in summary and "took" in summary
 
 
-def test_failed_parity_keeps_no_file(small_ckpt: Path, small_bevdet_config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(verify_module, "TOLERANCE_BOX_M", 0.0)
-    monkeypatch.setattr(verify_module, "TOLERANCE_SCORE", 0.0)
+def _broken_trace(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The traced graph's box-centre bias moves by 0.5 BEV cells: a file that disagrees with PyTorch."""
+    real = exporter_module.trace_to_onnx
+
+    def broken(*args, **kwargs) -> onnx.ModelProto:
+        proto = real(*args, **kwargs)
+        init = next(i for i in proto.graph.initializer if i.name.endswith("prediction_heads.0.center.1.bias"))
+        init.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(init) + np.float32(0.5), init.name))
+        return proto
+
+    monkeypatch.setattr(exporter_module, "trace_to_onnx", broken)
+
+
+def test_a_graph_that_disagrees_with_pytorch_is_refused(small_ckpt: Path, small_bevdet_config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    _broken_trace(monkeypatch)
     out = tmp_path / "small.onnx"
-    with pytest.raises(ParityError, match="no file written"):
+    with pytest.raises(ParityError, match="no file written") as info:
         export(small_ckpt, out, config=small_bevdet_config, rig=SMALL_RIG, progress=lambda _: None)
+    assert "FAILED" in str(info.value)
     assert list(tmp_path.iterdir()) == []
     result = export(small_ckpt, out, config=small_bevdet_config, rig=SMALL_RIG, force=True, progress=lambda _: None)
-    assert out.is_file() and not read_meta(out).parity.passed and result.path == out
+    parity = read_meta(out).parity
+    assert out.is_file() and result.path == out and not parity.passed
+    assert parity.max_box_abs_diff_m > 1e-3 or parity.unmatched > 0
 
 
 def test_rig_of_another_image_size_is_refused(small_ckpt: Path, small_bevdet_config, tmp_path: Path) -> None:
-    with pytest.raises(Exception, match="image is 800x800, model expects 160x160"):
-        export(small_ckpt, tmp_path / "x.onnx", config=small_bevdet_config, rig=default_rig(), geometry="rig", progress=lambda _: None)
+    with pytest.raises(ExportError, match="image is 800x800, model expects 160x160"):
+        export(small_ckpt, tmp_path / "x.onnx", config=small_bevdet_config, rig=default_rig(), progress=lambda _: None)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_checkpoint_missing_a_key_is_named(small_ckpt: Path, small_bevdet_config, tmp_path: Path) -> None:
@@ -161,9 +179,17 @@ def test_checkpoint_missing_a_key_is_named(small_ckpt: Path, small_bevdet_config
         export(bad, tmp_path / "x.onnx", config=small_bevdet_config, rig=SMALL_RIG, progress=lambda _: None)
 
 
+def test_config_that_does_not_fit_the_checkpoint_is_named(small_ckpt: Path, small_bevdet_config, tmp_path: Path) -> None:
+    wider = small_bevdet_config.replace(head={"hidden_channel": 48})
+    with pytest.raises(CheckpointError, match=r"shape mismatches(.|\n)*model \[48(.|\n)*the config the checkpoint was trained with"):
+        export(small_ckpt, tmp_path / "x.onnx", config=wider, rig=SMALL_RIG, progress=lambda _: None)
+
+
 def test_wrong_architecture_is_refused(small_ckpt: Path, tmp_path: Path) -> None:
-    with pytest.raises(CheckpointError):
+    with pytest.raises(ExportError, match="--arch fisheye-petr: checkpoint small.pth holds a fisheye-bevdet model"):
         export(small_ckpt, tmp_path / "x.onnx", arch="fisheye-petr", rig=SMALL_RIG, progress=lambda _: None)
+    with pytest.raises(ExportError, match="cannot be exported"):
+        export(small_ckpt, tmp_path / "x.onnx", arch="fisheye-lss", rig=SMALL_RIG, progress=lambda _: None)
 
 
 def test_metadata_is_required_and_checked(bevdet_export, tmp_path: Path) -> None:

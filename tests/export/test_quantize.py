@@ -16,7 +16,7 @@ from fisheye_infer.cli import main
 from fisheye_infer.detector import Detector
 from fisheye_infer.errors import ExportError
 from fisheye_infer.export import exporter as exporter_module
-from fisheye_infer.export.exporter import Int8Result, export_int8
+from fisheye_infer.export.exporter import Int8Result, export, export_int8
 from fisheye_infer.export.quantize import QUANT_OPS, FrameReader, image_region, int8_path_for, quantize, top_matched
 
 
@@ -40,6 +40,7 @@ def test_qdq_nodes_only_in_backbone_and_neck(small_export, small_int8: Int8Resul
     model, region = _region_names(small_int8.path)
     quant = [n for n in model.graph.node if n.op_type in QUANT_OPS]
     assert quant, "no QuantizeLinear/DequantizeLinear in the int8 file"
+    assert {n.domain for n in model.graph.node} <= {"", "ai.onnx"}  # standard QDQ, no contrib ops
     assert all(n.name in region for n in quant)
     assert any(n.op_type == "Conv" and n.name in region for n in model.graph.node)
     fp32 = onnx.load(str(small_export.onnx))
@@ -157,6 +158,20 @@ def test_quantizing_an_int8_file_is_refused(small_int8: Int8Result, tmp_path: Pa
 def test_calibration_options_need_int8(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert main(["export", "--ckpt", "x.pth", "--out", str(tmp_path / "m.onnx"), "--calib-frames", "3"]) == 2
     assert "--int8" in capsys.readouterr().err
+
+
+def test_export_with_int8_writes_both_files(small_export, small_bevdet_config, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    """``export(int8=True)`` (``--int8``): the verified fp32 file at ``out``, the int8 file next to it, both in the summary."""
+    out = tmp_path / "m.onnx"
+    result = export(small_export.ckpt, out, config=small_bevdet_config, rig=read_meta(small_export.onnx).rig, frames=1,
+                    int8=True, calib_frames=1, force=True)
+    assert read_meta(out).quantization is None and read_meta(out).parity.passed
+    assert result.int8 is not None and result.int8.path == tmp_path / "m.int8.onnx"
+    assert read_meta(result.int8.path).parity.reference == "fp32-onnx"
+    summary = result.summary()
+    assert "parity vs PyTorch" in summary and "top-50 boxes matched" in summary
+    printed = capsys.readouterr().out
+    assert "[4/5] verifying" in printed and "int8 [2/3]" in printed
 
 
 @pytest.mark.slow
