@@ -6,6 +6,12 @@ builds the matrix with CARLA's own formula. That conversion ("compat") is exact 
 sensors have no pitch or roll relative to the world; it is what the released checkpoints were
 trained with, so it is the default. The "exact" convention reflects the transform properly
 (S M S with S = diag(1, -1, 1)) and is meant for new rigs and models trained with it.
+
+Whether the Fisheye3DOD fisheyes are pitched (which would make the two conventions differ) is not
+stated in the official code; the shipped rig's extrinsics settle it: every optical axis is within
+0.1 degree of horizontal (tests/runtime/test_rig.py). For such a level mount the two conventions
+give the same relative rotation; the translations differ only through the vehicle's own world
+pitch and roll (spec camera-data-metric.md §2.3).
 """
 
 from __future__ import annotations

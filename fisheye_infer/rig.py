@@ -251,8 +251,14 @@ class Rig(BaseModel):
 
     @property
     def hash(self) -> str:
-        """sha256 (hex, first 16 digits) of the cameras' canonical JSON; the rig's name does not count."""
-        doc = json.dumps([c.model_dump(mode="json") for c in self.cameras], sort_keys=True, separators=(",", ":"))
+        """sha256 (hex, first 16 digits) of the cameras' canonical JSON; the rig's name does not count.
+
+        Numbers are rounded to 10 decimals and -0.0 is written as 0.0 first, so the hash does not
+        depend on the last bits of a matrix inverse (``from_ocam_extrinsics`` inverts lidar2cam with
+        LAPACK, whose rounding may differ between machines; entries that are zero up to 1e-17 noise
+        would otherwise change it).
+        """
+        doc = json.dumps(_canonical([c.model_dump(mode="json") for c in self.cameras]), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(doc.encode()).hexdigest()[:16]
 
     def describe(self) -> str:
@@ -267,6 +273,17 @@ class Rig(BaseModel):
                 f"   {x:>7.3f}, {y:>7.3f}, {z:>7.3f}     {math.degrees(cam.heading):>7.1f}°"
             )
         return "\n".join(lines)
+
+
+def _canonical(value: Any) -> Any:
+    """JSON data with every float rounded to 10 decimals and signed zeros made positive."""
+    if isinstance(value, float):
+        return round(value, 10) + 0.0
+    if isinstance(value, dict):
+        return {k: _canonical(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_canonical(v) for v in value]
+    return value
 
 
 def _as_dict(model: Any) -> Any:

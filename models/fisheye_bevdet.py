@@ -34,7 +34,10 @@ __all__ = ["FisheyeBEVDet", "checkpoint_filter_fn", "GEOMETRY_KEYS", "IGNORED_KE
 _VT = "view_transform."
 #: Official checkpoint keys holding geometry tables (not weights of this model).
 GEOMETRY_KEYS = tuple(_VT + k for k in ("frustum", "sphere_grid_3d", "dx", "bx", "nx", "valid_fov_mask", "sphere_grid_2d"))
-#: Keys an older code version may have saved; never used by the inference graph.
+#: Keys an older code version may have saved; never used by the inference graph. At the released
+#: commit (84a5bbd) they cannot occur: ``BaseFisheyeLSSTransform.__init__`` calls ``self.init_layer()``,
+#: which dispatches to ``FisheyeLSSTransform.init_layer`` (depthnet only), so the base class's
+#: ``proj_x`` is never built. Should a checkpoint still carry them, they are dropped with a warning.
 IGNORED_KEYS = (_VT + "proj_x.weight", _VT + "proj_x.bias")
 GRID_ATOL = 1e-5  # normalised grid units (~0.004 px on an 800 px image)
 FRUSTUM_RTOL, FRUSTUM_ATOL = 0.0, 5e-5  # float32 linspace/trig of the official code: up to 7.6e-6 m at 48 m

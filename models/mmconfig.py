@@ -44,6 +44,7 @@ _MODULES: dict[str, dict[str, Any]] = {
 }
 _MAX_POW = 64
 _MAX_REPEAT = 1_000_000
+_MAX_INT_BITS = 4096  # chained ``**``/``*`` of integers would otherwise grow without bound
 
 
 def _repeats_too_much(left: Any, right: Any) -> bool:
@@ -127,9 +128,12 @@ class _Evaluator:
             if isinstance(node.op, ast.Mult) and _repeats_too_much(left, right):
                 raise self.fail(node, "repeating a sequence more than a million times")
             try:
-                return _BINOPS[type(node.op)](left, right)
+                result = _BINOPS[type(node.op)](left, right)
             except Exception as exc:  # TypeError, ZeroDivisionError, ...
                 raise self.fail(node, f"arithmetic that fails ({exc})") from None
+            if isinstance(result, int) and result.bit_length() > _MAX_INT_BITS:
+                raise self.fail(node, f"an integer of more than {_MAX_INT_BITS} bits")
+            return result
         if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
             return _UNARY[type(node.op)](self.eval(node.operand))
         if isinstance(node, ast.Attribute):

@@ -475,6 +475,8 @@ def test_config_variant_is_mapped(tmp_path: Path) -> None:
     ("w = [i for i in range(3)]", "ListComp"),
     ("v = undefined_name + 1", "name 'undefined_name'"),
     ("def f():\n    pass", "FunctionDef"),
+    ("f = lambda: 0", "Lambda"),
+    ("g = ((10 ** 64) ** 64) ** 64", "an integer of more than 4096 bits"),
 ])
 def test_config_refuses_code(tmp_path: Path, line: str, construct: str) -> None:
     text = (DATA / "fisheye_bevdet.py").read_text()
