@@ -34,8 +34,15 @@ def configure_detect(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--score-threshold", type=float, help="drop boxes below this score (default: keep all, as the official output)")
     parser.add_argument("--classes", help="comma-separated class names to keep")
     parser.add_argument("--nms", choices=("rotated", "circle"), help="optional NMS (the official output has none)")
-    parser.add_argument("--threads", type=int, help="ONNX Runtime intra-op threads (default: all cores)")
+    parser.add_argument("--threads", type=_positive_int, help="ONNX Runtime intra-op threads (default: all cores)")
     parser.set_defaults(run=run_detect)
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
+    return value
 
 
 def _viz_paths(viz: Path, names: list[str]) -> list[Path]:
@@ -72,7 +79,10 @@ def run_detect(args: argparse.Namespace) -> int:
     nms = NmsConfig(kind=args.nms) if args.nms else None
     detector = Detector(args.model, threads=args.threads, score_threshold=args.score_threshold, nms=nms)
     frames = frames_from_paths(args.images, detector.info.cameras)
-    classes = args.classes.split(",") if args.classes else None
+    classes = [c.strip() for c in args.classes.split(",") if c.strip()] if args.classes else None
+    unknown = sorted(set(classes or ()) - set(detector.info.classes))
+    if unknown:
+        raise FrameError(f"--classes: unknown {unknown}; the model's classes are {', '.join(detector.info.classes)}")
     results = [detector.detect(files, classes=classes) for _, files in frames]
     doc = {
         "model_id": detector.info.model_id,

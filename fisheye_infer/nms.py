@@ -16,7 +16,7 @@ from typing import Literal, Mapping
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from fisheye_infer.boxes import check_boxes
 
@@ -37,6 +37,16 @@ class NmsConfig(BaseModel):
     radius: float = Field(default=2.0, gt=0.0, description="circle: suppress within this centre distance (m)")
     per_class: dict[str, float] = Field(default_factory=dict, description="class name -> iou or radius")
     class_aware: bool = True
+
+    @model_validator(mode="after")
+    def _check_per_class(self) -> "NmsConfig":
+        """Per-class values obey the default's bounds: an IoU of 0 or a negative radius would
+        silently suppress every other box of the class."""
+        for name, value in self.per_class.items():
+            if not value > 0 or (self.kind == "rotated" and value > 1):
+                expected = "an IoU in (0, 1]" if self.kind == "rotated" else "a radius > 0 (m)"
+                raise ValueError(f"per_class['{name}']: expected {expected}, got {value}")
+        return self
 
 
 def _rect(box: np.ndarray) -> tuple[tuple[float, float], tuple[float, float], float]:

@@ -47,7 +47,7 @@ def test_rig_convert_then_show(tmp_path: Path, data_dir: Path, rig: Rig) -> None
 def test_bad_rig_is_a_clear_error_not_a_traceback(tmp_path: Path) -> None:
     bad = tmp_path / "rig.json"
     bad.write_text('{"cameras": []}')
-    result = subprocess.run([sys.executable, "-m", "fisheye_infer", "rig", "show", str(bad)], capture_output=True, text=True)
+    result = subprocess.run([sys.executable, "-m", "fisheye_infer", "rig", "show", str(bad)], capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert "error: rig file" in result.stderr and "Traceback" not in result.stderr
 
@@ -88,3 +88,17 @@ def test_detect_writes_results_and_picture_then_redraws_them(small_export, tmp_p
 def test_detect_without_images_is_a_clear_error(small_export, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["detect", str(small_export.onnx)]) == 1
     assert "give a model and --images" in capsys.readouterr().err
+
+
+def test_detect_names_an_unknown_class(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import numpy as np
+
+    from fisheye_infer.artifact import read_meta
+    from fisheye_infer.synth import Renderer, random_scene
+
+    frame_dir = tmp_path / "frame"
+    frame_dir.mkdir()
+    for name, image in Renderer().render(read_meta(small_export.onnx).rig, random_scene(np.random.default_rng(1))).items():
+        cv2.imwrite(str(frame_dir / f"{name}.png"), image)
+    assert main(["detect", str(small_export.onnx), "--images", str(frame_dir), "--classes", "Car,Tram"]) == 1
+    assert "--classes: unknown ['Tram']; the model's classes are Car" in capsys.readouterr().err

@@ -147,3 +147,13 @@ def test_tampered_rig_is_refused(bevdet_export, tmp_path: Path) -> None:
     onnx.save(model, str(tampered))
     with pytest.raises(ArtifactError, match="rig_hash"):
         Detector(tampered)
+
+
+def test_providers_default_to_cpu_and_unknown_ones_are_named(small_export) -> None:
+    assert Detector(small_export.onnx, threads=1, warmup=False).info.providers == ("CPUExecutionProvider",)
+    auto = Detector(small_export.onnx, threads=1, providers="auto")  # whatever this onnxruntime offers, CPU last
+    assert auto.info.providers[-1] == "CPUExecutionProvider" and auto.ready
+    with pytest.raises(ValueError, match="providers: NoSuchExecutionProvider not offered by the installed onnxruntime"):
+        Detector(small_export.onnx, providers=["NoSuchExecutionProvider"])
+    with pytest.raises(ValueError, match="threads: expected a positive number, got 0"):
+        Detector(small_export.onnx, threads=0)

@@ -44,8 +44,12 @@ class TestIou:
             (box(0, 0), box(2, 0), 4.0 / 12.0),  # half overlap along x: 2x2 of two 4x2
             (box(0, 0), box(10, 0), 0.0),
             (box(0, 0, l=2, w=2), box(0, 0, l=2, w=2, yaw=math.pi / 4), (8 * (math.sqrt(2) - 1)) / (8 - 8 * (math.sqrt(2) - 1))),
+            # two 4x1 boxes at yaw +30 degrees, the second 2 m further along their common length axis:
+            # half of each overlaps, IoU 1/3 only if yaw turns counter-clockwise as the boxes' layout says
+            (box(0, 0, l=4, w=1, yaw=math.pi / 6), box(math.sqrt(3), 1.0, l=4, w=1, yaw=math.pi / 6), 1.0 / 3.0),
+            (box(0, 0, l=4, w=1, yaw=math.pi / 6), box(math.sqrt(3), -1.0, l=4, w=1, yaw=math.pi / 6), 0.0),
         ],
-        ids=["identical", "half-overlap", "apart", "rotated-square"],
+        ids=["identical", "half-overlap", "apart", "rotated-square", "rotated-along-length", "rotated-mirrored"],
     )
     def test_bev_iou(self, a, b, expected: float) -> None:
         assert bev_iou(np.array(a), np.array(b)) == pytest.approx(expected, abs=1e-4)
@@ -78,6 +82,19 @@ class TestNms:
         assert sorted(keep.tolist()) == [0, 1, 2, 3, 4]
         with pytest.raises(ValueError, match="unknown class"):
             apply_nms(self.boxes, self.scores, self.labels, NmsConfig(per_class={"Tram": 0.1}), CLASSES)
+
+    @pytest.mark.parametrize(
+        ("kwargs", "words"),
+        [
+            ({"per_class": {"Car": 0.0}}, r"per_class\['Car'\]: expected an IoU in \(0, 1\], got 0.0"),
+            ({"per_class": {"Car": 1.5}}, r"per_class\['Car'\]: expected an IoU in \(0, 1\], got 1.5"),
+            ({"kind": "circle", "per_class": {"Bus": -2.0}}, r"per_class\['Bus'\]: expected a radius > 0"),
+            ({"iou": 0.0}, "iou"),
+        ],
+    )
+    def test_config_refuses_thresholds_that_suppress_everything(self, kwargs: dict, words: str) -> None:
+        with pytest.raises(ValueError, match=words):
+            NmsConfig(**kwargs)
 
 
 class TestDetections:
@@ -123,3 +140,20 @@ def test_box_ahead_projects_into_the_front_camera_only_where_visible(rig: Rig) -
     assert abs(pts[:, 0].mean() - model.center_col) < 40  # straight ahead: around the image centre
     # the rear camera sees nothing of a box 8 m ahead, occluded by nothing but out of its 220-degree fov
     assert lines["fisheye_camera_rear"][0] == []
+
+
+def test_projected_edges_stay_inside_each_cameras_valid_area(rig: Rig) -> None:
+    """Boxes all around the car: every drawn point lies in the lens's valid area (its fov ellipse,
+    2 px of rasterisation slack), and edges that leave it are cut, not drawn through."""
+    import cv2
+
+    boxes = np.array([box(x, y, yaw=0.3) for x in (-15.0, -4.0, 0.0, 4.0, 15.0) for y in (-10.0, -3.0, 3.0, 10.0)])
+    lines = project_boxes(boxes, rig, samples_per_edge=16)
+    model = rig.shared_model()
+    area = cv2.dilate(model.valid_area(), np.ones((5, 5), np.uint8))
+    drawn = [line for per_box in lines.values() for polylines in per_box for line in polylines]
+    assert drawn
+    for line in drawn:
+        pixels = np.round(line).astype(int)
+        assert area[pixels[:, 1], pixels[:, 0]].all()
+    assert any(len(line) < 16 for line in drawn)  # some edges leave a camera's view and are cut there

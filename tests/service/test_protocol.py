@@ -59,5 +59,5 @@ def test_importable_without_the_web_stack() -> None:
 
     code = ("import sys, fisheye_infer.service.protocol as p; p.decode_frame(p.encode_frame(1, {'a': b'x'}));"
             "print(sorted(m for m in ('fastapi', 'starlette', 'uvicorn') if m in sys.modules))")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
     assert result.stdout.strip() == "[]"
