@@ -89,7 +89,20 @@ def _rss_child(model_path: str, threads: int, runs: int) -> None:
     detector = Detector(model_path, threads=threads)
     for _ in range(runs):
         detector.detect(frame)
-    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)  # Linux: KiB
+    print(_own_peak_rss_mb())
+
+
+def _own_peak_rss_mb() -> float:
+    """This process's peak RSS. Linux: ``VmHWM``, which starts afresh at exec; ``ru_maxrss`` would
+    report the parent's peak instead when the parent was larger (it survives fork and exec)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024  # kB
+    except OSError:
+        pass
+    scale = 1024 * 1024 if sys.platform == "darwin" else 1024  # bytes on macOS, KiB on Linux
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / scale
 
 
 def machine() -> dict[str, Any]:

@@ -56,11 +56,22 @@ def _draw(viz: str, rig: Rig, frames: list[tuple[str, dict]], results: list[Dete
 
 
 def _draw_saved(args: argparse.Namespace) -> int:
-    doc = json.loads(Path(args.result).read_text())
+    try:
+        doc = json.loads(Path(args.result).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise FrameError(f"--result {args.result}: cannot be read as JSON ({exc})") from None
+    missing = [k for k in ("rig", "classes", "frames") if not isinstance(doc, dict) or k not in doc]
+    if missing:
+        raise FrameError(f"--result {args.result}: missing {', '.join(missing)}; expected a file written by 'fisheye-infer detect --out'")
     rig = Rig.from_dict(doc["rig"], source=f"results file {args.result}")
     classes = tuple(doc["classes"])
     frames = frames_from_paths(args.images, rig.names) if args.images else [(f["name"], {}) for f in doc["frames"]]
-    results = [Detections.from_json(json.dumps(f), classes) for f in doc["frames"]]
+    results = []
+    for i, f in enumerate(doc["frames"]):
+        try:
+            results.append(Detections.from_json(json.dumps(f), classes))
+        except FrameError as exc:
+            raise FrameError(f"--result {args.result}, frames[{i}]: {exc}") from None
     if len(frames) != len(results):
         raise FrameError(f"--images gives {len(frames)} frame(s), the results file holds {len(results)}")
     _draw(args.viz, rig, frames, results)

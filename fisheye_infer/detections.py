@@ -18,6 +18,7 @@ import numpy as np
 
 from fisheye_infer.boxes import check_boxes
 from fisheye_infer.boxes import corners as box_corners
+from fisheye_infer.errors import FrameError
 from fisheye_infer.nms import NmsConfig, apply_nms
 
 __all__ = ["Detections"]
@@ -114,10 +115,25 @@ class Detections:
 
     @classmethod
     def from_json(cls, text: str, class_names: Sequence[str]) -> "Detections":
-        """Read back what ``to_json`` wrote (e.g. to draw a saved result)."""
-        doc = json.loads(text)
-        rows = doc.get("detections", [])
-        boxes = np.array([[r[k] for k in ("x", "y", "z_bottom", "l", "w", "h", "yaw")] for r in rows], np.float32).reshape(-1, 7)
-        scores = np.array([r["score"] for r in rows], np.float32)
-        labels = np.array([class_names.index(r["class_name"]) for r in rows], np.int64)
+        """Read back what ``to_json`` wrote (e.g. to draw a saved result); a bad row is named."""
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise FrameError(f"detections: not valid JSON ({exc})") from None
+        rows = doc.get("detections", []) if isinstance(doc, dict) else None
+        if not isinstance(rows, list):
+            raise FrameError("detections: expected an object with a 'detections' list")
+        fields = ("x", "y", "z_bottom", "l", "w", "h", "yaw", "score")
+        for i, r in enumerate(rows):
+            missing = [k for k in (*fields, "class_name") if not isinstance(r, dict) or k not in r]
+            if missing:
+                raise FrameError(f"detections[{i}]: missing {', '.join(missing)}")
+            if r["class_name"] not in class_names:
+                raise FrameError(f"detections[{i}]: class_name {r['class_name']!r} is not one of {', '.join(class_names)}")
+        try:
+            values = np.array([[r[k] for k in fields] for r in rows], np.float32).reshape(-1, len(fields))
+        except (TypeError, ValueError) as exc:
+            raise FrameError(f"detections: box fields must be numbers ({exc})") from None
+        boxes, scores = values[:, :7], values[:, 7]
+        labels = np.array([list(class_names).index(r["class_name"]) for r in rows], np.int64)
         return cls(boxes, scores, labels, tuple(class_names), tuple(doc.get("cameras_used", ())), doc.get("timings_ms", {}), doc.get("model_id", ""))

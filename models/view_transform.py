@@ -166,7 +166,9 @@ class FisheyeLSS(nn.Module):
         """Mean-pool depth (B x N x D x H x W) times ctx (B x N x H x W x C) into B x C x X x Y.
 
         Only Gather, MatMul and Concat; bucket sizes K_b come from the tables' shapes, so the same
-        graph serves any rig (the exporter traces it with K_b symbolic).
+        graph serves any rig (the exporter traces it with K_b symbolic). Gathers go through
+        ``index_select`` on flattened indices: advanced indexing (``x[:, idx]``) would export as
+        GatherND between Transposes of the lifted tensor, which cost more than the gathers.
         """
         tables = tables or self.tables()
         b, c = depth.shape[0], ctx.shape[-1]
@@ -175,14 +177,15 @@ class FisheyeLSS(nn.Module):
         ctx_flat = ctx.reshape(b, -1, c)  # B x NHW x C
         rows = []
         for i in range(self._num_buckets):
-            pts = tables[f"geom.pool.points.{i}"]
-            pix = tables[f"geom.pool.pixels.{i}"]
-            w = depth_flat[:, pts]  # B x K x L
-            f = ctx_flat[:, pix]  # B x K x L x C
-            rows.append(torch.matmul(w.unsqueeze(2), f).squeeze(2))  # B x K x C
+            pts = tables[f"geom.pool.points.{i}"]  # K x L
+            pix = tables[f"geom.pool.pixels.{i}"]  # K x L
+            k, l = pts.shape
+            w = depth_flat.index_select(1, pts.reshape(-1)).reshape(b, k, 1, l)
+            f = ctx_flat.index_select(1, pix.reshape(-1)).reshape(b, k, l, c)
+            rows.append(torch.matmul(w, f).reshape(b, k, c))
         rows.append(ctx_flat.new_zeros(b, 1, c))  # row for empty cells
         table = torch.cat(rows, dim=1)  # B x (sum K + 1) x C
-        bev = table[:, tables["geom.pool.cell_rows"]] / tables["geom.pool.counts"]  # B x XY x C, counts >= 1
+        bev = table.index_select(1, tables["geom.pool.cell_rows"]) / tables["geom.pool.counts"]  # B x XY x C, counts >= 1
         return bev.reshape(b, x_cells, y_cells, c).permute(0, 3, 1, 2)
 
     def lift(self, feat: torch.Tensor, camera_valid: torch.Tensor | None,

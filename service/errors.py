@@ -152,7 +152,9 @@ def error_response(exc: FisheyeInferError) -> "JSONResponse":
     retry_after = getattr(exc, "retry_after", None)
     if retry_after is not None:
         headers["Retry-After"] = str(retry_after)
-    if status >= 500:
+    if status == 503:  # overload, draining or warming up: an expected answer the client retries
+        log.warning("%s: %s", type(exc).__name__, exc)
+    elif status >= 500:
         log.error("%s: %s", type(exc).__name__, exc)
     return JSONResponse(error_body(exc), status_code=status, headers=headers)
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, computed_field, model_validator
 
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.records import CLASSES
@@ -208,13 +208,31 @@ class MetricsReport(BaseModel):
     config: EvalConfig
     eval_seconds: float = 0.0
 
+    # The headline figures at the top of the JSON document too, where a script looks first.
+    @computed_field
     @property
     def FDS(self) -> float:
         return self.main.FDS
 
+    @computed_field
     @property
     def mAP(self) -> float:
         return self.main.mAP
+
+    @computed_field
+    @property
+    def mATE(self) -> float:
+        return self.main.mATE
+
+    @computed_field
+    @property
+    def mASE(self) -> float:
+        return self.main.mASE
+
+    @computed_field
+    @property
+    def mAOE(self) -> float:
+        return self.main.mAOE
 
     def details(self) -> dict[str, float]:
         """The official evaluator's flat keys (``NDS`` is FDS; ``Car_AP@0.5``...), for side-by-side checks."""

@@ -109,7 +109,8 @@ def build_pooling_plan(points_lidar: np.ndarray, grid: BevGrid, bucket_sizes: tu
 
     ``bucket_sizes`` fixes the bucket ladder (so that two rigs give tables of the same structure);
     by default it is 1, 2, 4, ... up to the largest cell's count. Every bucket is present, even
-    when no cell falls in it.
+    when no cell falls in it: it then holds one row of padding that no cell reads (a bucket of
+    zero rows would put zero-size tensors in the exported graph, which OpenVINO cannot shape).
     """
     pts = np.asarray(points_lidar)
     if pts.ndim != 5 or pts.shape[-1] != 3:
@@ -142,10 +143,12 @@ def build_pooling_plan(points_lidar: np.ndarray, grid: BevGrid, bucket_sizes: tu
         gather = np.where(filled, starts[cells_b, None] + slot[None, :], 0)
         pts_b = np.where(filled, sorted_points[gather] if len(sorted_points) else 0, num_points).astype(np.int64)
         pix_b = np.where(filled, (pts_b // (depth * pixels_per_cam)) * pixels_per_cam + pts_b % pixels_per_cam, 0)
+        if len(cells_b) == 0:  # one all-padding row that no cell reads: no zero-size tensor in the graph
+            pts_b, pix_b = np.full((1, size), num_points, np.int64), np.zeros((1, size), np.int64)
         bucket_points.append(pts_b)
         bucket_pixels.append(pix_b.astype(np.int64))
         cell_rows[cells_b] = row + np.arange(len(cells_b))
-        row += len(cells_b)
+        row += len(pts_b)
     cell_rows[cell_rows < 0] = row  # the trailing zero row
     return PoolingPlan(
         lift_shape=(n_cam, depth, height, width),

@@ -38,6 +38,7 @@ def test_eval_saved_results_writes_json_and_markdown(tmp_path: Path, capsys: pyt
     assert "| FDS | mAP | mATE | mASE | mAOE |" in printed and "0-30 m" in printed
     doc = json.loads(out.read_text())
     assert {"FDS", "mAP", "mATE", "mASE", "mAOE"} <= set(doc["main"]) and set(doc["main"]["classes"]["Car"]["ap_by_threshold"]) == {"0.5", "1.0", "2.0", "4.0"}
+    assert all(doc[k] == doc["main"][k] for k in ("FDS", "mAP", "mATE", "mASE", "mAOE"))  # headline figures at the top too
 
 
 def test_eval_with_config_and_ref_range(tmp_path: Path) -> None:

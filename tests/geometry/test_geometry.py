@@ -183,6 +183,11 @@ class TestPoolingPlan:
         occupied = plan.counts > 0
         assert np.all(plan.cell_rows[~occupied] == plan.num_rows)
         assert len(np.unique(plan.cell_rows[occupied])) == occupied.sum()
+        assert all(len(pts) > 0 for pts in plan.bucket_points)  # an empty bucket holds one padding row
+        read = np.zeros(plan.num_rows + 1, bool)
+        read[plan.cell_rows] = True
+        padding = np.concatenate([np.all(b == plan.num_points, axis=1) for b in plan.bucket_points])
+        assert not np.any(read[:-1] & padding) and np.all(read[:-1] | padding)
 
     def test_pool_matches_add_at_reference(self, plan, lidar_points) -> None:
         rng = np.random.default_rng(0)
@@ -212,6 +217,11 @@ class TestPoolingPlan:
         ladder = tuple(2**i for i in range(12))
         plan = build_pooling_plan(lidar_points[:2], BevGrid(), bucket_sizes=ladder)
         assert plan.bucket_sizes == ladder and len(plan.bucket_points) == 12
+        assert [len(b) for b in plan.bucket_points][-1] == 1  # no cell holds 2048 points: one padding row
+        rng = np.random.default_rng(1)
+        depth = rng.random((2, 96, 25, 100)).astype(np.float32)
+        ctx = rng.normal(size=(2, 25, 100, 4)).astype(np.float32)
+        np.testing.assert_allclose(pool_bev(depth, ctx, plan), pool_bev_reference(depth, ctx, lidar_points[:2], BevGrid()), atol=1e-6, rtol=1e-5)
         with pytest.raises(ValueError, match="more than the largest bucket"):
             build_pooling_plan(lidar_points, BevGrid(), bucket_sizes=(1, 2, 4))
 

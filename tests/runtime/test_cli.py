@@ -85,6 +85,14 @@ def test_detect_writes_results_and_picture_then_redraws_them(small_export, tmp_p
     np.testing.assert_array_equal(cv2.imread(str(redrawn)), picture)
 
 
+def test_detect_names_what_a_saved_result_lacks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "other.json"
+    bad.write_text('{"results": {}}')
+    assert main(["detect", "--result", str(bad), "--viz", str(tmp_path / "x.png")]) == 1
+    assert "missing rig, classes, frames; expected a file written by 'fisheye-infer detect --out'" in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()
+
+
 def test_detect_without_images_is_a_clear_error(small_export, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["detect", str(small_export.onnx)]) == 1
     assert "give a model and --images" in capsys.readouterr().err

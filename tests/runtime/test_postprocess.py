@@ -9,6 +9,7 @@ import pytest
 
 from fisheye_infer.boxes import bev_corners, corners, project_boxes
 from fisheye_infer.detections import Detections
+from fisheye_infer.errors import FrameError
 from fisheye_infer.nms import NmsConfig, apply_nms, bev_iou, circle_nms, rotated_bev_nms
 from fisheye_infer.rig import Rig
 
@@ -123,6 +124,23 @@ class TestDetections:
         back = Detections.from_json(self.dets.to_json(), CLASSES)
         np.testing.assert_allclose(back.boxes, self.dets.boxes)
         assert back.names == self.dets.names and back.cameras_used == ("front",)
+        np.testing.assert_allclose(back.scores, self.dets.scores)
+
+    @pytest.mark.parametrize(
+        "edit, message",
+        [
+            (lambda rows: rows[1].update(class_name="Tram"), r"detections\[1\]: class_name 'Tram' is not one of Car"),
+            (lambda rows: rows[2].pop("yaw"), r"detections\[2\]: missing yaw"),
+            (lambda rows: rows[0].update(x="far"), "box fields must be numbers"),
+        ],
+    )
+    def test_bad_saved_rows_are_named(self, edit, message: str) -> None:
+        import json
+
+        doc = json.loads(self.dets.to_json())
+        edit(doc["detections"])
+        with pytest.raises(FrameError, match=message):
+            Detections.from_json(json.dumps(doc), CLASSES)
 
     def test_corners_and_indexing(self) -> None:
         assert self.dets.corners().shape == (3, 8, 3)
