@@ -209,7 +209,8 @@ def service_overhead(onnx_path: Path, frame_jpeg: dict[str, bytes], frame_arrays
             def direct() -> None:
                 detector.detect(frame_arrays)
 
-            post(), direct()  # warm-up
+            post()  # warm-up
+            direct()
             decode.clear()
             service, plain = [], []
             for _ in range(repeat):  # alternating, so load spikes hit both alike
