@@ -27,14 +27,14 @@ import onnxruntime as ort
 import torch
 
 from fisheye_infer._version import __version__
-from fisheye_infer.artifact import ArtifactMeta, Normalisation, ParityReport, Quantization
+from fisheye_infer.artifact import RANKING_OUTPUTS, ArtifactMeta, Normalisation, ParityReport, Quantization
 from fisheye_infer.errors import CheckpointError, ExportError, ParityError, RigError
 from fisheye_infer.preprocess import frames_from_paths, prepare_batch
 from fisheye_infer.rig import Rig, resolve_rig
 from fisheye_infer.synth import Renderer, random_scene
 
 from .architectures import get_arch, infer_architecture
-from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata
+from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata, without_outputs
 from .trace import OPSET, trace_to_onnx
 from .quantize import MIN_TOP_MATCHED, FrameReader, int8_parity, int8_path_for, quantize, quantized_scope
 from .verify import verify
@@ -82,10 +82,15 @@ class ExportResult:
         lines = [
             f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; initializers {self.initializer_bytes / 1e6:.1f} MB, of which geometry tables {self.geometry_bytes / 1e6:.1f} MB)",
             f"model {self.meta.model_id}: {self.meta.architecture}, {len(self.meta.cameras)} cameras at {self.meta.image_size[0]}x{self.meta.image_size[1]}, {self.meta.num_boxes} boxes, rig {self.meta.rig_hash}",
-            f"parity vs PyTorch on {p.frames} frames at {', '.join(map(str, p.threads))} thread(s): max |box| {p.max_box_abs_diff_m:.2e} m (tol {p.tolerance_box_m:g}), "
-            f"max |score| {p.max_score_abs_diff:.2e} (tol {p.tolerance_score:g}), labels {'equal' if p.labels_equal else 'DIFFER'}, "
-            f"order {'equal' if p.order_equal else f'equal up to {p.tie_swaps} swap(s) of tied scores'}, {p.unmatched} unmatched, "
-            f"valid {'equal' if p.valid_equal else 'DIFFERS'} -> {'PASSED' if p.passed else 'FAILED'}",
+            f"parity vs PyTorch float64 on {p.frames} frames at {', '.join(map(str, p.threads))} thread(s) "
+            f"(PyTorch float32 itself: dense {_f32(p, 0)}, box {_f32(p, 1)} m, score {_f32(p, 2)}):",
+            f"  scores before ranking max |diff| {p.max_rank_score_abs_diff or 0.0:.2e} (tol {p.tolerance_rank_score or p.tolerance_score:.1e}); "
+            f"top-k choice: {_choice(p)}",
+            f"  at that choice max |box| {p.max_box_abs_diff_m:.2e} m (tol {p.tolerance_box_m:.1e}), max |score| {p.max_score_abs_diff:.2e} "
+            f"(tol {p.tolerance_score:.1e}), labels {'equal' if p.labels_equal else 'DIFFER'}, valid {'equal' if p.valid_equal else 'DIFFERS'}, "
+            f"{p.unmatched} box(es) off{'; the written file DIFFERS from the checked graph' if p.written_equals_checked is False else ''} "
+            f"-> {'PASSED' if p.passed else 'FAILED'}",
+            *(f"  {problem}" for problem in p.problems),
             f"took {self.seconds:.1f} s",
         ]
         if self.int8 is not None:
@@ -95,6 +100,19 @@ class ExportResult:
         if self.int8 is not None and self.int8.path:
             lines.append(f"      fisheye-infer detect {self.int8.path} ...   (int8); fisheye-infer bench {self.int8.path}")
         return "\n".join(lines)
+
+
+def _f32(p: ParityReport, i: int) -> str:
+    return f"{p.pytorch_float32[i]:.1e}" if p.pytorch_float32 else "-"
+
+
+def _choice(p: ParityReport) -> str:
+    """How the graph's top-k choice relates to PyTorch's, in words."""
+    if p.order_equal:
+        return "PyTorch float32's own"
+    if p.selection_valid:
+        return f"a top-k of its scores, ties broken otherwise than PyTorch float32 ({p.tie_substitutions} substitution(s), {p.tie_swaps} position(s))"
+    return "NOT a top-k of its own scores"
 
 
 def file_sha256(path: Path) -> str:
@@ -211,7 +229,7 @@ def export(
 
     progress("[3/5] tracing to ONNX (geometry as named initializers)")
     tables = {k: v.detach().cpu().numpy() for k, v in model.geometry_tables().items()}
-    proto = trace_to_onnx(model, tables, spec.num_points(model), (height, width), len(the_rig))
+    proto = without_outputs(trace_to_onnx(model, tables, spec.num_points(model), (height, width), len(the_rig)), RANKING_OUTPUTS)
 
     mean, std = spec.normalisation(model)
     rig_hash = the_rig.hash

@@ -10,7 +10,7 @@ from __future__ import annotations
 import base64
 import io
 from pathlib import Path
-from typing import Mapping
+from typing import Iterator, Mapping, Sequence
 
 import numpy as np
 import onnx
@@ -26,6 +26,8 @@ __all__ = [
     "inputs_to_initializers",
     "replace_initializers",
     "strip_shape_info",
+    "without_outputs",
+    "with_outputs",
     "check_standard_ops",
     "set_metadata",
     "get_metadata",
@@ -84,6 +86,53 @@ def replace_initializers(model: onnx.ModelProto, tables: Mapping[str, np.ndarray
 def strip_shape_info(model: onnx.ModelProto) -> None:
     """Drop inferred intermediate shapes; after re-baking they could be stale. ORT infers them again."""
     del model.graph.value_info[:]
+
+
+def without_outputs(model: onnx.ModelProto, names: Sequence[str]) -> onnx.ModelProto:
+    """A copy of ``model`` whose graph no longer outputs ``names``; nodes nothing reads any more go too."""
+    out = onnx.ModelProto()
+    out.CopyFrom(model)
+    graph = out.graph
+    missing = set(names) - {o.name for o in graph.output}
+    if missing:
+        raise ExportError(f"the graph has no outputs {sorted(missing)}")
+    kept = [o for o in graph.output if o.name not in names]
+    del graph.output[:]
+    graph.output.extend(kept)
+    needed = {o.name for o in kept}
+    nodes = []
+    for node in reversed(graph.node):
+        if any(name in needed for name in node.output):
+            nodes.append(node)
+            needed.update(_reads(node))
+    del graph.node[:]
+    graph.node.extend(reversed(nodes))
+    inits = [i for i in graph.initializer if i.name in needed]
+    del graph.initializer[:]
+    graph.initializer.extend(inits)
+    return out
+
+
+def with_outputs(model: onnx.ModelProto, outputs: Mapping[str, int]) -> onnx.ModelProto:
+    """A copy of ``model`` that also outputs the intermediate values ``outputs`` (name -> ONNX element type)."""
+    produced = {name for node in model.graph.node for name in node.output}
+    missing = sorted(set(outputs) - produced)
+    if missing:
+        raise ExportError(f"the graph computes no values named {missing}")
+    out = onnx.ModelProto()
+    out.CopyFrom(model)
+    present = {o.name for o in out.graph.output}
+    out.graph.output.extend(onnx.helper.make_tensor_value_info(name, elem, None) for name, elem in outputs.items() if name not in present)
+    return out
+
+
+def _reads(node: onnx.NodeProto) -> Iterator[str]:
+    """Every value ``node`` reads, those of its subgraphs (If, Loop, Scan) included."""
+    yield from (n for n in node.input if n)
+    for attr in node.attribute:
+        for sub in [attr.g] if attr.HasField("g") else list(attr.graphs):
+            for inner in sub.node:
+                yield from _reads(inner)
 
 
 def check_standard_ops(model: onnx.ModelProto, min_opset: int = 18) -> None:

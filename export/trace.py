@@ -23,7 +23,7 @@ import torch
 from torch import nn
 from torch.export import Dim
 
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS
+from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS
 from fisheye_infer.errors import ExportError
 
 from .graph import check_standard_ops, inputs_to_initializers, rename_values, strip_shape_info
@@ -35,7 +35,8 @@ _BUCKET_PREFIXES = ("geom.pool.points.", "geom.pool.pixels.")
 
 
 class _Graph(nn.Module):
-    """The exported interface: (images, camera_valid, *tables) -> boxes, scores, labels, valid."""
+    """The traced interface: (images, camera_valid, *tables) -> boxes, scores, labels, valid, and the
+    ranking step's rank_scores, rank_indices (which the export check reads and the written file drops)."""
 
     def __init__(self, model: nn.Module, names: list[str]) -> None:
         super().__init__()
@@ -44,7 +45,7 @@ class _Graph(nn.Module):
 
     def forward(self, images: torch.Tensor, camera_valid: torch.Tensor, tables: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
         out = self.model(images, camera_valid, tables=dict(zip(self.names, tables)))
-        return tuple(out[k] for k in OUTPUTS)
+        return tuple(out[k] for k in OUTPUTS + RANKING_OUTPUTS)
 
 
 def _example_tables(tables: Mapping[str, np.ndarray], num_points: int) -> dict[str, torch.Tensor]:
@@ -73,7 +74,8 @@ def _dynamic_shapes(names: list[str]) -> tuple:
 
 
 def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], num_points: int, image_hw: tuple[int, int], num_cameras: int) -> onnx.ModelProto:
-    """ONNX model of ``model`` with ``tables`` as initializers named ``geom.*``.
+    """ONNX model of ``model`` with ``tables`` as initializers named ``geom.*``; its outputs are
+    ``OUTPUTS`` then ``RANKING_OUTPUTS`` (``graph.without_outputs`` makes the file to write).
 
     ``num_points`` is the zero slot the pooling buckets pad with (N*D*H*W for LSS, unused otherwise).
     """
@@ -103,7 +105,7 @@ def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], num_points
     if len(traced_inputs) != 2 + len(names):
         raise ExportError(f"the traced graph has inputs {traced_inputs}; expected images, camera_valid and {len(names)} tables")
     rename_values(proto, dict(zip(traced_inputs, [INPUT_IMAGES, INPUT_CAMERA_VALID, *names])))
-    rename_values(proto, dict(zip([o.name for o in proto.graph.output], OUTPUTS)))
+    rename_values(proto, dict(zip([o.name for o in proto.graph.output], OUTPUTS + RANKING_OUTPUTS)))
     inputs_to_initializers(proto, tables)
     strip_shape_info(proto)
     check_standard_ops(proto, OPSET)

@@ -1,42 +1,103 @@
-"""Parity: the exported file in ONNX Runtime against the PyTorch model, on the same frames.
+"""The export check: the graph in ONNX Runtime against the PyTorch model, on the same frames.
 
-Every export ends here. Every box of the PyTorch output must have its counterpart in the ONNX
-output: the same label and validity, the box within 1e-3 m and the score within 1e-4. Position
-by position is the rule; a swap between boxes whose scores are equal to within the score
-tolerance is allowed (top-k order among such ties is not defined) and counted, and a box that
-ties the last kept score may fall off the end. Whether labels and order are identical position
-by position is reported too. It runs at each requested intra-op thread count (pooling
-must be deterministic under threads) and with a batch of all frames (the dynamic batch axis).
+Every export ends here. The reference is the PyTorch model evaluated in float64, and the graph
+must be about as close to it as PyTorch's own float32 evaluation is: for each compared quantity
+the graph's largest difference from float64 may be at most ``SLACK`` times PyTorch float32's on
+the same frames, and never needs to be below the fixed floors (1e-4 for scores, 1e-3 m for
+boxes). With trained-like weights float32 itself drifts from the exact answer by more than such
+fixed floors; a tolerance scaled by the measured float32 drift holds on any CPU and any weights,
+while a wrong weight, table or operator is off by orders of magnitude more.
+
+What is compared is what is defined (see ``models.ranking``):
+
+1. the dense scores each detector ranks, before any discrete step (TransFusion's sigmoid
+   heatmap, PETR's sigmoid class scores), element by element;
+2. the graph's discrete choices: the float64 model replays the ranking from the graph's own dense
+   scores and must find the graph's indices to be a top-k of them (after local-max suppression,
+   for TransFusion). Choices that differ from PyTorch float32's at tied or near-tied scores are
+   allowed and counted (``tie_swaps``, ``tie_substitutions``);
+3. every output box, position by position, against the float64 model at that same choice: the
+   same label and validity, the box and the score within tolerance. No box may miss.
+
+The graph checked is the file with its ranking values made outputs again (the written file
+computes them but does not output them), and the file's own outputs must equal the checked
+graph's. The check runs at each
+requested intra-op thread count frame by frame, and with a batch of all frames (the dynamic
+batch axis).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import onnx
 import onnxruntime as ort
 import torch
 from torch import nn
 
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, ParityReport
+from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ParityReport
+from fisheye_infer.models.ranking import TopK, replay_ranking
 
-__all__ = ["TOLERANCE_BOX_M", "TOLERANCE_SCORE", "compare_outputs", "run_onnx", "run_torch", "verify"]
+from .graph import save_model, with_outputs
 
-TOLERANCE_BOX_M = 1e-3
-TOLERANCE_SCORE = 1e-4
+__all__ = ["FLOOR_BOX_M", "FLOOR_SCORE", "PROBE", "SLACK", "Errors", "Reference", "checked_graph", "compare_run", "run_onnx", "run_torch", "verify"]
+
+FLOOR_BOX_M = 1e-3
+FLOOR_SCORE = 1e-4
+#: How much further from float64 than PyTorch float32 the graph may be.
+SLACK = 4.0
+
+Outputs = dict[str, np.ndarray]
+#: What the checked graph outputs: the file's outputs, then the ranking values.
+PROBE = OUTPUTS + RANKING_OUTPUTS
 
 
-@dataclass(frozen=True)
-class _Diff:
-    box: float  # over matched pairs
-    score: float
-    labels_equal: bool  # position by position
-    order_equal: bool  # position by position: same boxes in the same order
-    valid_equal: bool
-    swaps: int  # pairs found at another position, among near-equal scores
-    unmatched: int  # reference boxes with no counterpart (boundary ties excepted)
+@dataclass
+class Errors:
+    """Largest differences from the float64 reference (dense scores, boxes in m, scores)."""
+
+    rank_score: float = 0.0
+    box: float = 0.0
+    score: float = 0.0
+
+    def update(self, other: Errors) -> None:
+        self.rank_score = max(self.rank_score, other.rank_score)
+        self.box = max(self.box, other.box)
+        self.score = max(self.score, other.score)
+
+    def tolerances(self) -> Errors:
+        """What a graph may differ by, given that PyTorch float32 differs by ``self``."""
+        return Errors(max(FLOOR_SCORE, SLACK * self.rank_score), max(FLOOR_BOX_M, SLACK * self.box), max(FLOOR_SCORE, SLACK * self.score))
+
+
+@dataclass
+class RunDiff:
+    """One ONNX Runtime run (a batch of frames) against the float64 reference."""
+
+    errors: Errors = field(default_factory=Errors)
+    boxes: list[np.ndarray] = field(default_factory=list)  # per frame: box difference per position
+    scores: list[np.ndarray] = field(default_factory=list)
+    selection_valid: bool = True  # the graph's choice is a top-k of its own dense scores
+    own_selection: bool = True  # ... and it is PyTorch float32's own choice, position by position
+    tie_swaps: int = 0  # positions whose index differs from PyTorch float32's choice
+    tie_substitutions: int = 0  # chosen indices outside PyTorch float32's top K
+    labels_equal: bool = True
+    valid_equal: bool = True
+    other_label_or_validity: int = 0  # boxes
+    notes: list[str] = field(default_factory=list)
+
+    def mismatched(self, tol: Errors) -> int:
+        """Boxes beyond tolerance, or of another label or validity."""
+        off = sum(int(np.count_nonzero((b > tol.box) | (s > tol.score))) for b, s in zip(self.boxes, self.scores))
+        return off + self.other_label_or_validity
+
+    def passed(self, tol: Errors) -> bool:
+        return (self.errors.rank_score <= tol.rank_score and self.selection_valid and self.mismatched(tol) == 0)
 
 
 def _box_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -46,105 +107,176 @@ def _box_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return d.max(axis=-1)
 
 
-def _match_sample(rb: np.ndarray, rs: np.ndarray, rl: np.ndarray, cb: np.ndarray, cs: np.ndarray, cl: np.ndarray) -> tuple[list[int], int, int]:
-    """Counterpart in the candidate of each reference box; -1 where none.
-
-    A box matches at its own position when label and box agree; otherwise any unused candidate
-    with the same label, a box within tolerance and a score within tolerance counts (top-k order
-    among scores equal to float precision is not defined). Unmatched boxes whose score ties the
-    last kept score are boundary ties and are not counted as failures.
-    """
-    k = len(rb)
-    used = np.zeros(k, bool)
-    match = [-1] * k
-    swaps = unmatched = 0
-    for i in range(k):
-        if rl[i] == cl[i] and _box_diff(rb[i], cb[i]) <= TOLERANCE_BOX_M:
-            match[i], used[i] = i, True
-    for i in range(k):
-        if match[i] >= 0:
-            continue
-        near = np.flatnonzero(~used & (cl == rl[i]) & (np.abs(cs - rs[i]) <= TOLERANCE_SCORE))
-        near = [j for j in near if _box_diff(rb[i], cb[j]) <= TOLERANCE_BOX_M]
-        if near:
-            match[i], used[near[0]] = near[0], True
-            swaps += 1
-        elif rs[i] > rs.min() + TOLERANCE_SCORE:
-            unmatched += 1
-    return match, swaps, unmatched
-
-
-def compare_outputs(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray]) -> _Diff:
-    """Compare batches of (boxes, scores, labels, valid) from two runs of the same model."""
-    rb, rs, rl, rv = reference
-    cb, cs, cl, cv = candidate
-    box = score = 0.0
-    swaps = unmatched = 0
-    valid_equal = True
-    for b in range(len(rb)):
-        match, s, u = _match_sample(rb[b], rs[b], rl[b], cb[b], cs[b], cl[b])
-        swaps, unmatched = swaps + s, unmatched + u
-        pairs = [(i, j) for i, j in enumerate(match) if j >= 0]
-        if pairs:
-            i, j = (np.array(v) for v in zip(*pairs))
-            box = max(box, float(_box_diff(rb[b][i], cb[b][j]).max()))
-            score = max(score, float(np.abs(rs[b][i].astype(np.float64) - cs[b][j]).max()))
-            valid_equal &= bool(np.array_equal(rv[b][i], cv[b][j]))
-    return _Diff(
-        box=box,
-        score=score,
-        labels_equal=bool(np.array_equal(rl, cl)),
-        order_equal=bool(np.array_equal(rl, cl) and np.all(_box_diff(rb, cb) <= TOLERANCE_BOX_M)),
-        valid_equal=valid_equal,
-        swaps=swaps,
-        unmatched=unmatched,
-    )
-
-
 @torch.no_grad()
-def run_torch(model: nn.Module, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
+def run_torch(model: nn.Module, images: np.ndarray, valid: np.ndarray) -> Outputs:
+    """PyTorch's outputs and ranking outputs."""
     out = model(torch.from_numpy(images), torch.from_numpy(valid))
-    return [out[k].cpu().numpy() for k in OUTPUTS]
+    return {k: out[k].cpu().numpy() for k in PROBE}
 
 
-def run_onnx(path: str | Path, images: np.ndarray, valid: np.ndarray, threads: int) -> list[np.ndarray]:
+def run_onnx(path: str | Path, images: np.ndarray, valid: np.ndarray, threads: int, outputs: Sequence[str] = OUTPUTS) -> Outputs:
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.log_severity_level = 3
     session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    return session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})
+    return dict(zip(outputs, session.run(list(outputs), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})))
 
 
-def verify(path: str | Path, model: nn.Module, frames: np.ndarray, valid: np.ndarray | None = None, threads: Sequence[int] = (1, 2)) -> ParityReport:
-    """Compare ``path`` in ORT with ``model`` on ``frames`` (F, N, H, W, 3) uint8, one by one and batched."""
+@dataclass(frozen=True)
+class _Exact:
+    out: Outputs  # the float64 model's outputs at a replayed ranking
+    own_dense: np.ndarray  # (M,) the float64 model's own dense scores
+    problem: str  # "" when the replayed indices are a top-k of the replayed scores
+
+
+class Reference:
+    """The float64 model, replaying rankings, and PyTorch float32's own answer for each frame.
+
+    The float64 trunk runs once per frame: the inputs of the head that holds the ranking step are
+    kept, and every replay runs that head alone.
+    """
+
+    def __init__(self, model: nn.Module, frames: np.ndarray, valid: np.ndarray) -> None:
+        self.frames, self.valid = frames, valid
+        self.float32 = [run_torch(model, frames[i : i + 1], valid[i : i + 1]) for i in range(len(frames))]
+        exact_model = copy.deepcopy(model).double().eval()
+        self.head = _ranking_head(exact_model)
+        self.head_inputs: list[tuple[tuple, dict]] = []
+        hook = self.head.register_forward_pre_hook(lambda _, args, kwargs: self.head_inputs.append((args, kwargs)), with_kwargs=True)
+        try:
+            with torch.no_grad():
+                for i in range(len(frames)):
+                    exact_model(torch.from_numpy(frames[i : i + 1]), torch.from_numpy(valid[i : i + 1]))
+        finally:
+            hook.remove()
+        self._cache: dict[tuple[int, bytes, bytes], _Exact] = {}
+        self.float32_errors = Errors()
+        for f, out in enumerate(self.float32):
+            self.float32_errors.update(self.diff(f, out)[0].errors)
+
+    def __len__(self) -> int:
+        return len(self.float32)
+
+    @torch.no_grad()
+    def exact(self, frame: int, dense: np.ndarray, indices: np.ndarray) -> _Exact:
+        """The float64 answer of ``frame`` when the ranking starts from ``dense`` (M,) and picks ``indices`` (K,)."""
+        key = (frame, np.ascontiguousarray(indices, np.int64).tobytes(), np.ascontiguousarray(dense).tobytes())
+        if key not in self._cache:
+            args, kwargs = self.head_inputs[frame]
+            d = torch.from_numpy(np.ascontiguousarray(dense[None], np.float64))
+            with replay_ranking(self.head, d, torch.from_numpy(np.ascontiguousarray(indices[None]))) as step:
+                out = self.head(*args, **kwargs)
+            assert step.own_dense is not None
+            self._cache[key] = _Exact({k: out[k].cpu().numpy() for k in PROBE}, step.own_dense.cpu().numpy()[0], step.problem)
+        return self._cache[key]
+
+    def diff(self, frame: int, got: Outputs, row: int = 0) -> tuple[RunDiff, Outputs]:
+        """How ``got[...][row]`` (one frame's outputs with ranking outputs) differs from float64."""
+        diff = RunDiff()
+        dense, chosen = got["rank_scores"][row], got["rank_indices"][row]
+        exact = self.exact(frame, dense, chosen)
+        if exact.problem:
+            diff.selection_valid = False
+            diff.notes.append(f"frame {frame}: the graph's choice is not a top-k of its own scores: {exact.problem}")
+        box = _box_diff(exact.out["boxes"][0], got["boxes"][row])
+        score = np.abs(exact.out["scores"][0] - got["scores"][row].astype(np.float64))
+        labels = exact.out["labels"][0] == got["labels"][row]
+        valid = exact.out["valid"][0] == got["valid"][row]
+        diff.errors = Errors(float(np.abs(dense.astype(np.float64) - exact.own_dense).max()), float(box.max()), float(score.max()))
+        diff.boxes, diff.scores = [box], [score]
+        diff.labels_equal, diff.valid_equal = bool(labels.all()), bool(valid.all())
+        diff.other_label_or_validity = int(np.count_nonzero(~labels | ~valid))
+        return diff, exact.out
+
+
+def _ranking_head(model: nn.Module) -> nn.Module:
+    """The child of ``model`` that holds its ranking step and returns the detector's outputs."""
+    for _, child in model.named_children():
+        if any(isinstance(m, TopK) for m in child.modules()):
+            return child
+    raise ValueError(f"{type(model).__name__} has no ranking step")
+
+
+def compare_run(reference: Reference, candidate: Outputs) -> RunDiff:
+    """Compare one ORT run over all of ``reference``'s frames (a batch, with ranking outputs)."""
+    total = RunDiff()
+    for f in range(len(reference)):
+        diff, _ = reference.diff(f, candidate, row=f)
+        own = reference.float32[f]["rank_indices"][0]
+        chosen = candidate["rank_indices"][f]
+        swaps = int(np.count_nonzero(chosen != own))
+        total.errors.update(diff.errors)
+        total.boxes += diff.boxes
+        total.scores += diff.scores
+        total.selection_valid &= diff.selection_valid
+        total.own_selection &= swaps == 0
+        total.tie_swaps += swaps
+        total.tie_substitutions += len(chosen) - len(np.intersect1d(chosen, own))
+        total.labels_equal &= diff.labels_equal
+        total.valid_equal &= diff.valid_equal
+        total.other_label_or_validity += diff.other_label_or_validity
+        total.notes += diff.notes
+    return total
+
+
+def _outputs_equal(a: Outputs, b: Outputs) -> bool:
+    """The written file's outputs against the checked graph's: the same computation, so equal."""
+    return all(np.array_equal(a[k], b[k]) for k in OUTPUTS)
+
+
+def checked_graph(path: str | Path, out: str | Path) -> Path:
+    """Write the file ``path`` with its ranking values (``RANKING_OUTPUTS``) as extra outputs to ``out``."""
+    model = onnx.load(str(path))
+    return save_model(with_outputs(model, {"rank_scores": onnx.TensorProto.FLOAT, "rank_indices": onnx.TensorProto.INT64}), out)
+
+
+def verify(path: str | Path, model: nn.Module, frames: np.ndarray, valid: np.ndarray | None = None,
+           threads: Sequence[int] = (1, 2)) -> ParityReport:
+    """Check the file ``path`` against ``model`` on ``frames`` (F, N, H, W, 3) uint8, one by one and batched."""
     if valid is None:
         valid = np.ones(frames.shape[:2], dtype=bool)
-    singles = [run_torch(model, frames[i : i + 1], valid[i : i + 1]) for i in range(len(frames))]
-    reference = [np.concatenate([s[k] for s in singles]) for k in range(len(OUTPUTS))]
+    path = Path(path)
+    checked = checked_graph(path, path.with_name(f".{path.name}.{os.getpid()}.checked"))
+    try:
+        return _verify(path, checked, model, frames, valid, threads)
+    finally:
+        checked.unlink(missing_ok=True)
+
+
+def _verify(path: Path, checked: Path, model: nn.Module, frames: np.ndarray, valid: np.ndarray, threads: Sequence[int]) -> ParityReport:
+    reference = Reference(model, frames, valid)
+    tol = reference.float32_errors.tolerances()
     diffs = []
     for t in threads:
-        one_by_one = [run_onnx(path, frames[i : i + 1], valid[i : i + 1], t) for i in range(len(frames))]
-        diffs.append(compare_outputs(reference, [np.concatenate([o[k] for o in one_by_one]) for k in range(len(OUTPUTS))]))
-    diffs.append(compare_outputs(reference, run_onnx(path, frames, valid, threads[-1])))
-    box = max(d.box for d in diffs)
-    score = max(d.score for d in diffs)
-    labels_equal = all(d.labels_equal for d in diffs)
-    order_equal = all(d.order_equal for d in diffs)
-    valid_equal = all(d.valid_equal for d in diffs)
-    swaps = max(d.swaps for d in diffs)
-    unmatched = max(d.unmatched for d in diffs)
+        singles = [run_onnx(checked, frames[i : i + 1], valid[i : i + 1], t, PROBE) for i in range(len(frames))]
+        diffs.append(compare_run(reference, {k: np.concatenate([s[k] for s in singles]) for k in PROBE}))
+    batched = run_onnx(checked, frames, valid, threads[-1], PROBE)
+    diffs.append(compare_run(reference, batched))
+    written_equal = _outputs_equal(run_onnx(path, frames, valid, threads[-1]), batched)
+    errors = Errors()
+    for d in diffs:
+        errors.update(d.errors)
+    f32 = reference.float32_errors
     return ParityReport(
         frames=len(frames),
         threads=tuple(threads),
-        max_box_abs_diff_m=box,
-        max_score_abs_diff=score,
-        labels_equal=labels_equal,
-        order_equal=order_equal,
-        valid_equal=valid_equal,
-        tie_swaps=swaps,
-        unmatched=unmatched,
-        tolerance_box_m=TOLERANCE_BOX_M,
-        tolerance_score=TOLERANCE_SCORE,
-        passed=bool(box <= TOLERANCE_BOX_M and score <= TOLERANCE_SCORE and unmatched == 0 and valid_equal),
+        reference="pytorch-float64",
+        max_box_abs_diff_m=errors.box,
+        max_score_abs_diff=errors.score,
+        max_rank_score_abs_diff=errors.rank_score,
+        pytorch_float32=(f32.rank_score, f32.box, f32.score),
+        labels_equal=all(d.labels_equal for d in diffs),
+        order_equal=all(d.own_selection for d in diffs),
+        valid_equal=all(d.valid_equal for d in diffs),
+        selection_valid=all(d.selection_valid for d in diffs),
+        tie_swaps=max(d.tie_swaps for d in diffs),
+        tie_substitutions=max(d.tie_substitutions for d in diffs),
+        unmatched=max(d.mismatched(tol) for d in diffs),
+        written_equals_checked=written_equal,
+        problems=tuple(dict.fromkeys(note for d in diffs for note in d.notes))[:5],
+        tolerance_box_m=tol.box,
+        tolerance_score=tol.score,
+        tolerance_rank_score=tol.rank_score,
+        passed=bool(all(d.passed(tol) for d in diffs) and written_equal),
     )

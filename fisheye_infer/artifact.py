@@ -26,6 +26,7 @@ __all__ = [
     "INPUT_IMAGES",
     "INPUT_CAMERA_VALID",
     "OUTPUTS",
+    "RANKING_OUTPUTS",
     "ArtifactMeta",
     "Normalisation",
     "ParityReport",
@@ -39,6 +40,9 @@ METADATA_KEY = "fisheye_infer"
 INPUT_IMAGES = "images"  # uint8 (B, N, H, W, 3) in the colour order below
 INPUT_CAMERA_VALID = "camera_valid"  # bool (B, N): False zeroes that camera's features
 OUTPUTS = ("boxes", "scores", "labels", "valid")  # (B, K, 7) f32, (B, K) f32, (B, K) i64, (B, K) bool
+#: The dense scores a detector ranks (B, M) f32 and the K indices it chooses (B, K) i64. Only the
+#: graph that the export check runs has them; a written file's outputs are ``OUTPUTS``.
+RANKING_OUTPUTS = ("rank_scores", "rank_indices")
 
 
 class _Model(BaseModel):
@@ -57,21 +61,35 @@ class Normalisation(_Model):
 
 
 class ParityReport(_Model):
-    """ONNX Runtime against PyTorch on the same frames, measured at export time."""
+    """ONNX Runtime against PyTorch on the same frames, measured at export time.
+
+    For an fp32 export (``reference="pytorch-float64"``) the graph is compared with the PyTorch
+    model evaluated in float64, and may differ from it by at most a few times what PyTorch's own
+    float32 evaluation does (``pytorch_float32``; the tolerances applied are recorded). Boxes are
+    compared position by position at the graph's own top-k choice, which must be a top-k of its
+    dense scores: ties broken otherwise than PyTorch float32 does are counted, not failed.
+    """
 
     frames: int
     threads: tuple[int, ...]
     max_box_abs_diff_m: float
     max_score_abs_diff: float
+    max_rank_score_abs_diff: float | None = None  # the dense scores before ranking (heatmap / class scores)
+    pytorch_float32: tuple[float, float, float] | None = None  # PyTorch float32's (dense score, box m, score) differences
     labels_equal: bool
-    order_equal: bool
+    order_equal: bool  # the graph chose exactly PyTorch float32's top k, in the same order
     valid_equal: bool
-    tie_swaps: int = 0  # boxes found at another position among scores equal within tolerance
-    unmatched: int = 0  # boxes without a counterpart (ties at the last kept score excepted)
+    selection_valid: bool | None = None  # the graph's choice is a top-k of its dense scores
+    tie_swaps: int = 0  # positions whose proposal differs from PyTorch float32's choice (tied scores)
+    tie_substitutions: int = 0  # proposals chosen from outside PyTorch float32's top k (tied scores)
+    unmatched: int = 0  # boxes beyond tolerance or of another label / validity
+    written_equals_checked: bool | None = None  # the written file (no ranking outputs) answers as the checked graph
+    problems: tuple[str, ...] = ()
     tolerance_box_m: float
     tolerance_score: float
+    tolerance_rank_score: float | None = None
     passed: bool
-    reference: str = "pytorch"  # or "fp32-onnx" for an int8 file: what the numbers compare against
+    reference: str = "pytorch"  # "pytorch-float64", or "fp32-onnx" for an int8 file: what the numbers compare against
     top_matched_fraction: float | None = None  # int8: fraction of top boxes matched within 0.5 m and same label
 
 

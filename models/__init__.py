@@ -12,7 +12,7 @@ from .cyl_config import BEVDetCylConfig, CylPETRConfig
 from .mmconfig import read_mmdet3d_config
 from .petr_config import PETRConfig
 from .registry import create_model, get_model_entry, list_models, register_model
-from .synthetic import make_checkpoint
+from .synthetic import calibrated_checkpoint, make_checkpoint
 
 __all__ = [
     "BEVDetConfig",
@@ -21,6 +21,7 @@ __all__ = [
     "GeometryReport",
     "PETRConfig",
     "check_keys",
+    "calibrated_checkpoint",
     "create_model",
     "get_model_entry",
     "list_models",

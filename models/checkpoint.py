@@ -202,13 +202,21 @@ def load_official_state_dict(model: OfficialCheckpointModel, state_dict: Mapping
     if present:
         warnings.warn(f"{context}: ignoring keys that the inference graph never uses: {', '.join(present)}",
                       UserWarning, stacklevel=2)
-    sd = {k: v for k, v in state_dict.items() if k not in present}
-    check_keys(model.official_keys(), sd, context=context)
+    expected = model.official_keys()
+    sd = {k: _as_scalar(v) if k in expected and len(expected[k][0]) == 0 else v for k, v in state_dict.items() if k not in present}
+    check_keys(expected, sd, context=context)
     weights = model.checkpoint_filter_fn(sd)
     result = model.load_state_dict(weights, strict=True)  # type: ignore[attr-defined]
     if getattr(result, "missing_keys", None) or getattr(result, "unexpected_keys", None):
         raise CheckpointError(f"{context}: internal key map incomplete: {result}")
     return model.apply_checkpoint_geometry(sd, geometry)
+
+
+def _as_scalar(value: torch.Tensor) -> torch.Tensor:
+    """A one-element 1-D tensor stored for a 0-D buffer (older checkpoints store ``num_batches_tracked``
+    as shape [1]) as the 0-D tensor it stands for, as ``torch.nn.Module.load_state_dict`` accepts it;
+    anything else unchanged, for ``check_keys`` to name."""
+    return value.reshape(()) if torch.is_tensor(value) and tuple(value.shape) == (1,) else value
 
 
 def as_numpy(t: torch.Tensor) -> np.ndarray:

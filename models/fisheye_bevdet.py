@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from fisheye_infer.artifact import OUTPUTS, RANKING_OUTPUTS
 from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
 from fisheye_infer.geometry.tables import LSSParams
 
@@ -183,7 +184,8 @@ class FisheyeBEVDet(nn.Module):
     def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
                 return_extras: bool = False, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
         """images B x N x H x W x 3 (uint8 BGR), camera_valid B x N (1 = present) ->
-        boxes B x P x 7 (x, y, z_bottom, l, w, h, yaw), scores B x P, labels B x P int64, valid B x P bool.
+        boxes B x P x 7 (x, y, z_bottom, l, w, h, yaw), scores B x P, labels B x P int64, valid B x P bool,
+        and the ranking step's ``rank_scores`` / ``rank_indices`` (see ``models.ranking``).
 
         A camera with camera_valid = 0 contributes zero features to the BEV mean; cell counts stay
         those of the full rig (see ``FisheyeLSS.lift``).
@@ -192,7 +194,7 @@ class FisheyeBEVDet(nn.Module):
         out = self.predict(images, camera_valid, tables)
         if return_extras:
             return out
-        return {k: out[k] for k in ("boxes", "scores", "labels", "valid")}
+        return {k: out[k] for k in OUTPUTS + RANKING_OUTPUTS}
 
     def forward_dynamic(self, images: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray,
                         camera_valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
@@ -207,7 +209,7 @@ class FisheyeBEVDet(nn.Module):
         p3 = feats[0].reshape(b, n, *feats[0].shape[1:])
         bev = self.view_transform.forward_dynamic(p3, cam2lidar, camera_valid)
         out = self.bbox_head(self.pts_neck(self.pts_backbone(bev)))
-        return {k: out[k] for k in ("boxes", "scores", "labels", "valid")}
+        return {k: out[k] for k in OUTPUTS + RANKING_OUTPUTS}
 
     def _check_images(self, images: torch.Tensor, camera_valid: torch.Tensor | None) -> None:
         n = len(self.camera_names)

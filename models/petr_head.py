@@ -34,6 +34,7 @@ from .petr_config import PETRConfig
 from .petr_embedding import inverse_sigmoid, pos2posemb3d
 from .petr_geometry import PETRGeometry
 from .petr_transformer import PETRTransformer, key_padding_bias
+from .ranking import TopK
 
 __all__ = ["FisheyePETRHead", "decode_predictions"]
 
@@ -75,6 +76,7 @@ class FisheyePETRHead(nn.Module):
         reg_branch = nn.Sequential(*reg_layers, nn.Linear(c, cfg.code_size))
         self.cls_branches = nn.ModuleList([cls_branch] * cfg.num_layers)
         self.reg_branches = nn.ModuleList([reg_branch] * cfg.num_layers)
+        self.select = TopK(cfg.max_num)
         self.adapt_pos3d = _conv_mlp(c * 3 // 2, c * 4, c)
         self.position_encoder = _conv_mlp(3 * cfg.depth_num, c * 4, c)
         self.reference_points = nn.Embedding(cfg.num_query, 3)
@@ -234,21 +236,24 @@ class FisheyePETRHead(nn.Module):
                 cam2lidar: Any = None, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
         """P3 (B, N, C, h, w) -> decoded detections (see ``decode_predictions``)."""
         cls, preds = self.predict(self.forward_decoder(p3, camera_valid, cam2lidar, tables=tables))
-        return decode_predictions(cls, preds, self.cfg.max_num, self.cfg.post_center_range)
+        return decode_predictions(cls, preds, self.select, self.cfg.post_center_range)
 
 
-def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, max_num: int = 300,
+def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, select: TopK,
                        post_center_range: tuple[float, ...] = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0),
                        ) -> dict[str, torch.Tensor]:
-    """NMSFreeCoder: top-k of all Q*K sigmoid scores, then boxes in the lidar frame.
+    """NMSFreeCoder: top-k (``select``, M = select.k) of all Q*K sigmoid scores, then boxes in the lidar frame.
 
     cls (B, Q, K) logits and preds (B, Q, 8) -> boxes (B, M, 7) = [x, y, z_bottom, dx, dy, dz, yaw],
     scores (B, M), labels (B, M) int64, valid (B, M) bool (centre inside post_center_range; the
-    official filter drops the others, here they are flagged so the output size stays M).
+    official filter drops the others, here they are flagged so the output size stays M), and the
+    ranking step's ``rank_scores`` (B, Q*K) / ``rank_indices`` (B, M).
     Yaw: theta' = atan2(sin, cos) is -yaw - pi/2, so yaw = -theta' - pi/2 wrapped to [-pi, pi).
     """
     b, q, k = cls.shape
-    scores, idx = torch.sigmoid(cls).reshape(b, q * k).topk(max_num, dim=1)  # sorted, largest first
+    max_num = select.k
+    rank_scores = select.dense(torch.sigmoid(cls).reshape(b, q * k))
+    scores, idx = select(rank_scores)  # sorted, largest first
     labels = torch.remainder(idx, k)
     query = torch.div(idx, k, rounding_mode="floor")
     p = torch.gather(preds, 1, query.unsqueeze(-1).expand(b, max_num, preds.shape[-1]))  # B x M x 8
@@ -262,7 +267,8 @@ def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, max_num: int = 30
     valid = torch.ones_like(scores, dtype=torch.bool)
     for axis in range(3):
         valid = valid & (centre[..., axis] >= lo[axis]) & (centre[..., axis] <= hi[axis])
-    return {"boxes": boxes, "scores": scores, "labels": labels, "valid": valid}
+    return {"boxes": boxes, "scores": scores, "labels": labels, "valid": valid,
+            "rank_scores": rank_scores, "rank_indices": idx}
 
 
 def _same_tables(a: PETRGeometry, b: PETRGeometry) -> bool:

@@ -16,8 +16,12 @@ from __future__ import annotations
 
 import contextlib
 import math
+import re
+import zlib
 from pathlib import Path
-from typing import Callable, Any, Iterator
+from typing import Any, Callable, Iterator, Mapping
+
+import numpy as np
 
 import torch
 import torch.nn.functional as F
@@ -27,7 +31,7 @@ from fisheye_infer.errors import CheckpointError
 
 from .registry import create_model, get_model_entry, read_manifest
 
-__all__ = ["make_checkpoint", "init_weights", "batchnorm_statistics", "synthetic_images", "manifest_specs"]
+__all__ = ["make_checkpoint", "calibrated_checkpoint", "init_weights", "batchnorm_statistics", "synthetic_images", "manifest_specs"]
 
 _BN = (nn.BatchNorm1d, nn.BatchNorm2d)
 _DTYPES = {"float32": torch.float32, "int64": torch.int64}
@@ -181,6 +185,60 @@ def make_checkpoint(arch: str, seed: int = 0, path: str | Path | None = None, *,
     meta: dict[str, Any] = {"arch": arch, "seed": int(seed), "synthetic": True,
                             "config": cfg.to_dict() if hasattr(cfg, "to_dict") else None}
     ckpt = {"state_dict": state_dict, "meta": meta}
+    if path is not None:
+        torch.save(ckpt, Path(path))
+    return ckpt
+
+
+def _keyed_tensor(key: str, shape: tuple[int, ...], dtype: str, seed: int) -> np.ndarray:
+    """One learnable tensor from a generator seeded by (seed, crc32(key)): it depends only on the
+    key, its shape and the seed, not on key order, machine or torch version. LeCun-scaled normals
+    (variance 1 / fan_in) keep activations of order one; 1-D weights near 1, 1-D biases near 0."""
+    rng = np.random.default_rng([seed, zlib.crc32(key.encode())])
+    leaf = key.rsplit(".", 1)[-1]
+    if "int" in dtype:
+        x = np.zeros(shape)
+    elif leaf == "running_mean":
+        x = np.zeros(shape)
+    elif leaf == "running_var":
+        x = np.ones(shape)
+    elif key.endswith("reference_points.weight"):
+        x = rng.uniform(0.0, 1.0, shape)
+    elif len(shape) == 1 and leaf == "weight":
+        x = 1.0 + rng.normal(0.0, 0.1, shape)
+    elif len(shape) == 1:
+        x = rng.normal(0.0, 0.05, shape)
+    else:
+        fan_in = int(np.prod(shape[1:])) if len(shape) > 1 else 1
+        x = rng.normal(0.0, 1.0, shape) * np.sqrt(1.0 / max(fan_in, 1))
+    return x.astype(np.int64 if "int" in dtype else np.float32)
+
+
+def calibrated_checkpoint(arch: str, statistics: Mapping[str, np.ndarray], geometry: Mapping[str, np.ndarray],
+                          seed: int = 0, path: str | Path | None = None) -> dict[str, Any]:
+    """An official-format checkpoint whose BatchNorm statistics were measured elsewhere.
+
+    Learnable tensors come from per-key seeded generators (``_keyed_tensor``); BatchNorm running
+    statistics from ``statistics`` (calibrated by running the official model on these very
+    weights, so features and heads spread as a trained network's do, with no saturated or
+    collapsed head); geometry buffers from ``geometry`` (official key names). Every manifest key
+    must be covered. PETR's per-layer cls/reg branch copies are made equal, as the official head
+    shares one module across its decoder layers.
+    """
+    entries = [e for e in read_manifest(arch) if not e.get("uncertain")]
+    state: dict[str, torch.Tensor] = {}
+    for e in entries:
+        key, shape, dtype = e["key"], tuple(int(n) for n in e["shape"]), e.get("dtype", "float32")
+        source = geometry if key in geometry else statistics if key in statistics else None
+        array = _keyed_tensor(key, shape, dtype, seed) if source is None else np.asarray(source[key]).reshape(shape)
+        state[key] = torch.from_numpy(np.array(array, order="C")).to(_DTYPES[dtype])  # np.array keeps 0-D
+    for key in list(state):
+        m = re.match(r"(pts_bbox_head\.(?:cls|reg)_branches\.)(\d+)(\..*)", key)
+        if m:
+            last = max(int(k.split(".")[2]) for k in state if k.startswith(m.group(1)))
+            state[key] = state[f"{m.group(1)}{last}{m.group(3)}"].clone()
+    _verify_manifest(arch, state)
+    ckpt = {"state_dict": state, "meta": {"arch": arch, "seed": int(seed), "synthetic": True, "statistics": "calibrated"}}
     if path is not None:
         torch.save(ckpt, Path(path))
     return ckpt

@@ -23,6 +23,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .ranking import TopK
+
 __all__ = ["TransFusionHead", "SeparateHead", "TransFusionDecoderLayer", "PositionEncodingLearned"]
 
 DEFAULT_COMMON_HEADS: dict[str, tuple[int, int]] = {"center": (2, 2), "height": (1, 2), "dim": (3, 2), "rot": (2, 2)}
@@ -178,6 +180,7 @@ class TransFusionHead(nn.Module):
         self.heatmap_head = nn.Sequential(ConvBN(hidden_channel, hidden_channel, 3, dims=2),
                                           nn.Conv2d(hidden_channel, num_classes, 3, padding=1, bias=True))
         self.class_encoding = nn.Conv1d(num_classes, hidden_channel, 1)
+        self.select = TopK(num_proposals)
         self.decoder = nn.ModuleList(TransFusionDecoderLayer(hidden_channel, num_heads, ffn_channels)
                                      for _ in range(num_decoder_layers))
         heads = dict(DEFAULT_COMMON_HEADS if common_heads is None else common_heads)
@@ -213,9 +216,9 @@ class TransFusionHead(nn.Module):
         xy = self.bev_size[0] * self.bev_size[1]
         feat_flat = feat.reshape(b, c, xy)  # B x C x XY
         dense_heatmap = self.heatmap_head(feat)  # B x K x X x Y (logits)
-        heat = self.local_max_nms(torch.sigmoid(dense_heatmap)).reshape(b, self.num_classes, xy)
-        top_score, top_idx = torch.topk(heat.reshape(b, self.num_classes * xy), self.num_proposals,
-                                        dim=-1, largest=True, sorted=True)  # B x P
+        rank_scores = self.select.dense(torch.sigmoid(dense_heatmap).reshape(b, self.num_classes * xy))  # B x K*XY
+        heat = self.local_max_nms(rank_scores.reshape_as(dense_heatmap)).reshape(b, self.num_classes, xy)
+        top_score, top_idx = self.select(heat.reshape(b, self.num_classes * xy))  # B x P
         cls = torch.div(top_idx, xy, rounding_mode="floor")  # B x P (int64)
         cell = top_idx - cls * xy
         query = feat_flat.gather(2, cell.unsqueeze(1).expand(b, c, self.num_proposals))  # B x C x P
@@ -233,7 +236,8 @@ class TransFusionHead(nn.Module):
             query_pos = res["center"].detach().transpose(1, 2)
         peak = heat.gather(2, cell.unsqueeze(1).expand(b, self.num_classes, self.num_proposals))  # B x K x P
         out = self.decode(res, peak, cls)
-        out.update(top_indices=top_idx, top_scores=top_score, query_labels=cls, dense_heatmap=dense_heatmap)
+        out.update(top_indices=top_idx, top_scores=top_score, query_labels=cls, dense_heatmap=dense_heatmap,
+                   rank_scores=rank_scores, rank_indices=top_idx)
         return out
 
     def decode(self, res: Mapping[str, torch.Tensor], peak: torch.Tensor,

@@ -12,6 +12,7 @@ from fisheye_infer.camera import OCamModel
 from fisheye_infer.rig import Rig, default_rig
 
 DATA = Path(__file__).parent / "data"
+SAMPLE_FRAME = Path(__file__).parents[1] / "fisheye_infer" / "data" / "sample_frame"
 
 
 @pytest.fixture(scope="session")
@@ -46,7 +47,7 @@ def ocam1600() -> OCamModel:
 
 @dataclass(frozen=True)
 class Exported:
-    """A seeded checkpoint and its verified ONNX export for the shipped rig."""
+    """A checkpoint and its verified ONNX export for the shipped rig."""
 
     arch: str
     ckpt: Path
@@ -57,24 +58,26 @@ class Exported:
 def _export(arch: str, folder: Path) -> Exported:
     pytest.importorskip("torch")
     from fisheye_infer.export.exporter import export
-    from fisheye_infer.models import make_checkpoint
 
-    ckpt = folder / f"{arch}.pth"
-    make_checkpoint(arch, seed=0, path=ckpt)
+    from checkpoint_kit import kit_checkpoint
+
+    ckpt = kit_checkpoint(arch, folder / f"{arch}.pth")
     out = folder / f"{arch}.onnx"
-    result = export(ckpt, out, progress=lambda _: None)
+    result = export(ckpt, out, verify_images=SAMPLE_FRAME, progress=lambda _: None)
     return Exported(arch, ckpt, out, result)
 
 
 @pytest.fixture(scope="session")
 def bevdet_export(tmp_path_factory: pytest.TempPathFactory) -> Exported:
-    """FisheyeBEVDet, seed 0, exported for the default rig (about 40 s on 2 cores)."""
+    """The kit's FisheyeBEVDet exported for the default rig: self-check on two rendered frames and the
+    bundled sample frame (``--verify-images``), at 1 and 2 threads."""
     return _export("fisheye-bevdet", tmp_path_factory.mktemp("bevdet"))
 
 
 @pytest.fixture(scope="session")
 def petr_export(tmp_path_factory: pytest.TempPathFactory) -> Exported:
-    """FisheyePETR, seed 0, exported for the default rig (about 60 s on 2 cores)."""
+    """The kit's FisheyePETR exported for the default rig: self-check on two rendered frames and the
+    bundled sample frame (``--verify-images``), at 1 and 2 threads."""
     return _export("fisheye-petr", tmp_path_factory.mktemp("petr"))
 
 

@@ -67,17 +67,23 @@ def sine_frequencies(num_feats: int = 128, temperature: float = 10000.0) -> np.n
     return (np.float32(temperature) ** (2 * np.floor(k / 2) / np.float32(num_feats))).astype(np.float32)
 
 
-def _interleave_sin_cos(a: np.ndarray, dim_t: np.ndarray) -> np.ndarray:
+def _blocked_sin_cos(a: np.ndarray, dim_t: np.ndarray) -> np.ndarray:
+    """(...,) -> (..., F): the sines of the even frequencies, then the cosines of the odd ones.
+
+    The official ``SinePositionalEncoding3D`` stacks the two halves on a new axis *before* the
+    frequency axis and flattens, so the halves are blocked, not interleaved (unlike the query
+    encoding ``pos2posemb3d``, which stacks after it).
+    """
     p = a[..., None] / dim_t
-    return np.stack((np.sin(p[..., 0::2]), np.cos(p[..., 1::2])), axis=-1).reshape(*a.shape, -1)
+    return np.concatenate((np.sin(p[..., 0::2]), np.cos(p[..., 1::2])), axis=-1)
 
 
 def sine_position_encoding(mask: np.ndarray, num_feats: int = 128, temperature: float = 10000.0, eps: float = 1e-6, scale: float = 2 * np.pi) -> np.ndarray:
     """PETR's 3D sine encoding of a key mask (N, H, W), True = ignored -> (N, 3 * num_feats, H, W) float32.
 
     Counts of valid cells accumulate (float32) along cameras, rows and columns, are normalised
-    by the last count (+ eps) times ``scale``, and each is encoded by interleaved sin/cos pairs;
-    channel blocks are in the order (camera, row, column).
+    by the last count (+ eps) times ``scale``, and each is encoded as F/2 sines followed by F/2
+    cosines (blocked layout); the three encodings are in the order (camera, row, column).
     """
     valid = 1.0 - np.asarray(mask, dtype=np.float32)
     n = np.cumsum(valid, axis=0, dtype=np.float32)
@@ -88,5 +94,5 @@ def sine_position_encoding(mask: np.ndarray, num_feats: int = 128, temperature: 
     y = y / (y[:, -1:] + eps32) * scale32
     x = x / (x[:, :, -1:] + eps32) * scale32
     dim_t = sine_frequencies(num_feats, temperature)
-    pe = np.concatenate([_interleave_sin_cos(v, dim_t) for v in (n, y, x)], axis=-1)  # N x H x W x 3F
+    pe = np.concatenate([_blocked_sin_cos(v, dim_t) for v in (n, y, x)], axis=-1)  # N x H x W x 3F
     return pe.transpose(0, 3, 1, 2).astype(np.float32)

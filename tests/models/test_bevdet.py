@@ -236,7 +236,7 @@ def test_small_forward_and_quirks_of_inputs(small_model) -> None:
     images = synthetic_images(3, 2, 4, 160, 160)
     with torch.no_grad():
         out = small_model(images)
-    assert set(out) == {"boxes", "scores", "labels", "valid"}
+    assert set(out) == {"boxes", "scores", "labels", "valid", "rank_scores", "rank_indices"}
     assert out["boxes"].shape == (2, 50, 7) and torch.isfinite(out["boxes"]).all()
     with pytest.raises(FrameError, match="expected \\(B, 4, 160, 160, 3\\)"):
         small_model(images[:, :3])

@@ -23,6 +23,7 @@ from fisheye_infer.models.petr_config import PETRConfig
 from fisheye_infer.models.petr_embedding import inverse_sigmoid, pos2posemb3d
 from fisheye_infer.models.petr_geometry import PETRGeometry
 from fisheye_infer.models.petr_head import decode_predictions
+from fisheye_infer.models.ranking import TopK
 from fisheye_infer.models.petr_transformer import MultiheadAttention, PETRTransformerDecoder, key_padding_bias
 from fisheye_infer.models.registry import create_model, list_models, read_manifest
 from fisheye_infer.models.synthetic import make_checkpoint, synthetic_images
@@ -365,6 +366,60 @@ def test_inverse_sigmoid_saturation() -> None:
     np.testing.assert_allclose(coords[:, 0::3], LOGIT_MAX, atol=1e-4)
 
 
+def official_sine_encoding(mask: torch.Tensor, num_feats: int = 128) -> torch.Tensor:
+    """SinePositionalEncoding3D(num_feats, normalize=True) of a (B, N, H, W) bool mask, written
+    straight from the official formula: float32 cumsums, then per block stack((sin, cos), dim=4)."""
+    b, n, h, w = mask.shape
+    not_mask = ~mask
+    eps, scale = 1e-6, 2 * math.pi
+    embeds = [not_mask.cumsum(axis, dtype=torch.float32) for axis in (1, 2, 3)]
+    embeds[0] = embeds[0] / (embeds[0][:, -1:, :, :] + eps) * scale
+    embeds[1] = embeds[1] / (embeds[1][:, :, -1:, :] + eps) * scale
+    embeds[2] = embeds[2] / (embeds[2][:, :, :, -1:] + eps) * scale
+    dim_t = torch.arange(num_feats, dtype=torch.float32)
+    dim_t = 10000 ** (2 * (dim_t // 2) / num_feats)
+    parts = []
+    for e in embeds:
+        p = e[:, :, :, :, None] / dim_t
+        parts.append(torch.stack((p[:, :, :, :, 0::2].sin(), p[:, :, :, :, 1::2].cos()), dim=4).view(b, n, h, w, -1))
+    return torch.cat(parts, dim=4).permute(0, 1, 4, 2, 3)
+
+
+def _interleaved(pe: np.ndarray, num_feats: int = 128) -> np.ndarray:
+    """The same values in the interleaved layout (sin, cos, sin, cos, ...) per block."""
+    n, c, h, w = pe.shape
+    blocks = pe.reshape(n, 3, 2, num_feats // 2, h, w)  # (camera, block, sin|cos, frequency pair)
+    return blocks.transpose(0, 1, 3, 2, 4, 5).reshape(n, c, h, w)
+
+
+def _odd_mask() -> np.ndarray:
+    rng = np.random.default_rng(7)
+    mask = rng.random((4, 5, 7)) < 0.25
+    mask[:, 2, :] = True  # a fully masked row
+    mask[1] = rng.random((5, 7)) < 0.6  # cameras differ, so the camera counts do too
+    return mask
+
+
+@pytest.mark.parametrize("source", ["random", "model"])
+def test_sine_encoding_equals_the_official_formula_on_every_channel(source: str, small_petr: FisheyePETR) -> None:
+    mask = _odd_mask() if source == "random" else small_petr.pts_bbox_head.key_mask()[0].numpy()
+    ours = sine_position_encoding(mask)
+    official = official_sine_encoding(torch.from_numpy(mask)[None])[0].numpy()
+    assert ours.shape == official.shape == (mask.shape[0], 384, *mask.shape[1:])
+    np.testing.assert_allclose(ours, official, rtol=0, atol=2e-6)
+
+
+def test_sine_encoding_is_blocked_not_interleaved() -> None:
+    mask = _odd_mask()
+    ours = sine_position_encoding(mask)
+    official = official_sine_encoding(torch.from_numpy(mask)[None])[0].numpy()
+    assert np.array_equal(ours[:, 0], _interleaved(ours)[:, 0])  # channel 0 cannot tell the layouts apart
+    assert np.abs(_interleaved(ours) - official).max() > 0.5  # the interleaved layout is not the official one
+    full = sine_position_encoding(np.zeros((4, 2, 3), bool))
+    a = 1 / (4 + 1e-6) * 2 * math.pi  # camera 0 of four valid cameras
+    np.testing.assert_allclose(full[0, 64], math.cos(a), atol=1e-6)  # the cosines start at channel 64
+
+
 def test_sine_encoding_of_shared_mask(small_petr: FisheyePETR) -> None:
     mask = small_petr.pts_bbox_head.key_mask()[0].numpy()  # 4 x H x W, the same for every camera
     pe = sine_position_encoding(mask)  # 4 x 384 x H x W
@@ -372,22 +427,23 @@ def test_sine_encoding_of_shared_mask(small_petr: FisheyePETR) -> None:
     for n in range(4):
         a = (n + 1) / (4 + 1e-6) * 2 * math.pi
         np.testing.assert_allclose(pe[n, 0][valid], math.sin(a), atol=1e-6)
-        np.testing.assert_allclose(pe[n, 1][valid], math.cos(a), atol=1e-6)
+        np.testing.assert_allclose(pe[n, 64][valid], math.cos(a), atol=1e-6)
+        np.testing.assert_allclose(pe[n, 1][valid], math.sin(a / 10000 ** (2 / 128)), atol=1e-6)
 
 
 def test_sine_encoding_hand_mask() -> None:
     mask = np.array([[[False, True, False], [False, False, False]]])  # 1 x 2 x 3
-    pe = sine_position_encoding(mask)[0]  # 384 x 2 x 3, blocks (camera, y, x)
+    pe = sine_position_encoding(mask)[0]  # 384 x 2 x 3, blocks (camera, y, x), each 64 sin then 64 cos
     two_pi, eps = 2 * math.pi, 1e-6
     # x counts along the row: [1, 1, 2] (the masked cell does not advance) / (2 + eps)
     x = [c / (2 + eps) * two_pi for c in (1, 1, 2)]
     np.testing.assert_allclose(pe[256, 0], [math.sin(v) for v in x], atol=1e-6)
-    np.testing.assert_allclose(pe[257, 0], [math.cos(v) for v in x], atol=1e-6)
+    np.testing.assert_allclose(pe[320, 0], [math.cos(v) for v in x], atol=1e-6)
     # y counts down the columns; column 1 is [0, 1] / (1 + eps)
     np.testing.assert_allclose(pe[128, :, 1], [0.0, math.sin(1 / (1 + eps) * two_pi)], atol=1e-6)
-    # frequency k = 2 divides by 10000 ** (2 / 128)
+    # frequency k = 2 divides by 10000 ** (2 / 128): the second sine of the y block
     y = 1 / (2 + eps) * two_pi
-    assert abs(float(pe[130, 0, 0]) - math.sin(y / 10000 ** (2 / 128))) < 1e-6
+    assert abs(float(pe[129, 0, 0]) - math.sin(y / 10000 ** (2 / 128))) < 1e-6
 
 
 def test_pos2posemb3d_order_is_y_x_z() -> None:
@@ -430,7 +486,7 @@ def test_decode_boxes_by_hand() -> None:
                            _pred(10.0, -3.0, 2.0, (12.0, 3.0, 3.5), 3.0)]])
     cls = torch.full((1, 3, 6), -9.0)
     cls[0, 2, 4], cls[0, 0, 1], cls[0, 2, 0] = 3.0, 2.0, 1.0
-    out = decode_predictions(cls, preds, max_num=3)
+    out = decode_predictions(cls, preds, TopK(3))
     assert out["labels"].tolist() == [[4, 1, 0]]  # idx % 6
     torch.testing.assert_close(out["scores"], torch.sigmoid(torch.tensor([[3.0, 2.0, 1.0]])))
     expected = torch.tensor([[10.0, -3.0, 2.0 - 3.5 / 2, 12.0, 3.0, 3.5, 3.0],   # query 2 = idx // 6
@@ -439,14 +495,14 @@ def test_decode_boxes_by_hand() -> None:
     torch.testing.assert_close(out["boxes"][0], expected, rtol=1e-5, atol=1e-5)
     assert out["valid"].tolist() == [[True, True, True]]
     flagged = decode_predictions(torch.where(torch.arange(3)[None, :, None] == 1, 5.0, -9.0).expand(1, 3, 6),
-                                 preds, max_num=2)
+                                 preds, TopK(2))
     assert flagged["valid"].tolist() == [[False, False]]
 
 
 @pytest.mark.parametrize("yaw", [0.0, 0.3, -2.0, math.pi / 2, 3.1, -3.1])
 def test_yaw_from_sin_cos(yaw: float) -> None:
     preds = torch.tensor([[_pred(0.0, 0.0, 0.0, (1.0, 1.0, 1.0), yaw)]])
-    out = decode_predictions(torch.zeros(1, 1, 6), preds, max_num=1)
+    out = decode_predictions(torch.zeros(1, 1, 6), preds, TopK(1))
     got = float(out["boxes"][0, 0, 6])
     assert -math.pi <= got < math.pi
     assert abs(math.remainder(got - yaw, 2 * math.pi)) < 1e-5
