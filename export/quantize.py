@@ -293,7 +293,7 @@ def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray
     runs = []
     for path in (fp32_path, int8_path):
         outs = [run_onnx(path, frames[i : i + 1], valid[i : i + 1], threads) for i in range(len(frames))]
-        runs.append([np.concatenate([o[k] for o in outs]) for k in range(len(OUTPUTS))])
+        runs.append([np.concatenate([o[k] for o in outs]) for k in OUTPUTS])
     ref, cand = runs
     matched, considered, box, score = top_matched(ref, cand)
     fraction = matched / considered if considered else 1.0
