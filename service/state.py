@@ -9,6 +9,7 @@ server when nothing is left.
 from __future__ import annotations
 
 import logging
+import os
 from functools import partial
 from typing import Protocol
 
@@ -41,6 +42,7 @@ class Service:
         self.spec: FrameSpec | None = None
         self.draining = False
         self.streams: set[_Stream] = set()
+        self.decode_limiter: anyio.CapacityLimiter | None = None  # decode threads, at most one per core
 
     async def start(self, detector: Detector | None = None) -> None:
         """Load (unless given) and warm the Detector in a thread, then start the workers."""
@@ -51,6 +53,7 @@ class Service:
             await anyio.to_thread.run_sync(detector.warmup)
         if detector.score_threshold is not None or detector.nms is not None:
             log.warning("the Detector's own score_threshold/nms apply to every request before the request's options")
+        self.decode_limiter = anyio.CapacityLimiter(os.cpu_count() or 1)
         self.detector = detector
         self.spec = FrameSpec.of(detector.info, s.max_batch_frames)
         self.queue = InferenceQueue(detector, s, self.metrics)
@@ -85,7 +88,14 @@ class Service:
         """Admitted requests and open streams: what a graceful shutdown waits for."""
         return (self.queue.busy if self.queue else 0) + len(self.streams)
 
+    def refuse_if_full(self) -> None:
+        """503 now if the queue is full, loading or draining; called before reading a body."""
+        if self.queue is None:
+            raise Unavailable("model: not loaded yet", field="model", retry_after=self.settings.retry_after_s)
+        self.queue.refuse_if_full(self.draining)
+
     def admit(self) -> Ticket:
+        """A queue place, taken once the request's images are decoded (see ``queue.py``)."""
         if self.queue is None:
             raise Unavailable("model: not loaded yet", field="model", retry_after=self.settings.retry_after_s)
         return self.queue.admit(self.draining)
