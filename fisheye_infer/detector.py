@@ -113,8 +113,6 @@ class Detector:
         nms: NmsConfig | str | None = None,
         warmup: bool = True,
     ) -> None:
-        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-            raise OptionError(f"threads: expected a whole number >= 1 or None, got {_shown(threads)}")
         self.score_threshold = check_score_threshold(score_threshold)
         self.nms = check_nms(nms)
         self.path = Path(model_path)
