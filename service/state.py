@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import logging
 import os
+from contextlib import contextmanager
 from functools import partial
-from typing import Protocol
+from typing import Iterator, Protocol
 
 import anyio
 
@@ -43,6 +44,7 @@ class Service:
         self.draining = False
         self.streams: set[_Stream] = set()
         self.decode_limiter: anyio.CapacityLimiter | None = None  # decode threads, at most one per core
+        self.reading = 0  # requests whose body is arriving or whose images are decoding (no queue place yet)
 
     async def start(self, detector: Detector | None = None) -> None:
         """Load (unless given) and warm the Detector in a thread, then start the workers."""
@@ -85,8 +87,17 @@ class Service:
 
     @property
     def busy(self) -> int:
-        """Admitted requests and open streams: what a graceful shutdown waits for."""
-        return (self.queue.busy if self.queue else 0) + len(self.streams)
+        """Requests being read, decoded or run, and open streams: what a graceful shutdown waits for."""
+        return (self.queue.busy if self.queue else 0) + len(self.streams) + self.reading
+
+    @contextmanager
+    def reading_request(self) -> Iterator[None]:
+        """Counts a request from its headers to its answer, so that a drain waits for it to be answered."""
+        self.reading += 1
+        try:
+            yield
+        finally:
+            self.reading -= 1
 
     def refuse_if_full(self) -> None:
         """503 now if the queue is full, loading or draining; called before reading a body."""

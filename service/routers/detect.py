@@ -75,13 +75,14 @@ async def _serve(request: Request, service: Service, batch: bool) -> list[dict[s
         raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
     service.refuse_if_full()  # before reading the body: a full queue refuses at once
     timeout = service.settings.body_timeout_s
-    try:
-        frames, options = await asyncio.wait_for(read_request(request, service.spec, batch), timeout)
-    except asyncio.TimeoutError:
-        raise RequestTimeout(f"body: not received within body_timeout_s={timeout:g} s; the connection is closed", field="body") from None
-    except ClientDisconnect:
-        return None
-    return await _unless_client_leaves(request, run_frames(service, frames, options))
+    with service.reading_request():
+        try:
+            frames, options = await asyncio.wait_for(read_request(request, service.spec, batch), timeout)
+        except asyncio.TimeoutError:
+            raise RequestTimeout(f"body: not received within body_timeout_s={timeout:g} s; the connection is closed", field="body") from None
+        except ClientDisconnect:
+            return None
+        return await _unless_client_leaves(request, run_frames(service, frames, options))
 
 
 @router.post("/detect", response_model=DetectResponse, responses=ERROR_RESPONSES, summary="detect objects in one frame")
