@@ -1,6 +1,6 @@
 """fisheye-infer: run surround-view fisheye 3D object detectors with ONNX Runtime.
 
-The core (this package) needs numpy, onnxruntime, OpenCV and pydantic only: camera models,
+The core (this package) needs numpy, onnxruntime, OpenCV, simplejpeg and pydantic only: camera models,
 rigs, the geometry tables the detectors are built on, and ``Detector``, which runs an exported
 model and returns ``Detections``. ``fisheye_infer.models`` and
 ``fisheye_infer.export`` need the ``[export]`` extra (torch, onnx); ``fisheye_infer.service``
@@ -21,6 +21,7 @@ from fisheye_infer.errors import (
     FisheyeInferError,
     FrameError,
     InferenceError,
+    OptionError,
     ParityError,
     RigError,
 )
@@ -47,6 +48,7 @@ __all__ = [
     "NmsConfig",
     "OCamFit",
     "OCamModel",
+    "OptionError",
     "ParityError",
     "Pinhole",
     "Rig",

@@ -8,26 +8,80 @@ The default result is exactly the official test-time output set: every box whose
 in the model's post_center_range, no score threshold, no NMS. Thresholds, class filters and
 NMS are opt-in, per Detector or per call. One Detector may be shared by threads: ONNX Runtime
 sessions are safe to run concurrently and the Detector keeps no per-call state.
+
+Options are checked where they enter, before any work, with an ``OptionError`` naming the option
+(a threshold of 2.0 or NaN would otherwise silently return no boxes). The file's metadata is
+checked against its graph at load: the box count against the outputs' static shapes, and the
+class list against the labels the graph returns (at warm-up, and on every run).
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, METADATA_KEY, OUTPUTS, ArtifactMeta, parse_meta
 from fisheye_infer.detections import Detections
-from fisheye_infer.errors import ArtifactError, FrameError
+from fisheye_infer.errors import ArtifactError, FrameError, OptionError
 from fisheye_infer.nms import NmsConfig
 from fisheye_infer.preprocess import Frame, load_frame, stack_frames
 from fisheye_infer.rig import Rig
 from fisheye_infer.session import create_session, map_ort_errors
 
-__all__ = ["Detector", "DetectorInfo"]
+__all__ = ["Detector", "DetectorInfo", "check_score_threshold", "check_classes", "check_nms"]
+
+NMS_KINDS = ("rotated", "circle")
+
+
+def _shown(value: object, limit: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def check_score_threshold(value: object) -> float | None:
+    """``None`` or a real number in [0, 1] (NaN refused), as a float."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise OptionError(f"score_threshold: expected a number in [0, 1], got {type(value).__name__} {_shown(value)}")
+    number = float(value)
+    if math.isnan(number) or not 0.0 <= number <= 1.0:
+        raise OptionError(f"score_threshold: expected a number in [0, 1], got {number}")
+    return number
+
+
+def check_classes(value: object, known: Sequence[str]) -> tuple[str, ...] | None:
+    """``None`` or class names of this model; a bare string is refused rather than split into letters."""
+    if value is None:
+        return None
+    if isinstance(value, (str, bytes)):
+        raise OptionError(f"classes: got the single string {_shown(value)}; pass a list of class names, e.g. [{_shown(value)}]")
+    if isinstance(value, Mapping) or not isinstance(value, Iterable):
+        raise OptionError(f"classes: expected a list of class names, got {type(value).__name__}")
+    names = tuple(value)
+    wrong = [name for name in names if not isinstance(name, str)]
+    if wrong:
+        raise OptionError(f"classes: expected class names (strings), got {type(wrong[0]).__name__} {_shown(wrong[0])}")
+    unknown = sorted(set(names) - set(known))
+    if unknown:
+        shown = ", ".join(_shown(name) for name in unknown[:20]) + (f" and {len(unknown) - 20} more" if len(unknown) > 20 else "")
+        raise OptionError(f"classes: unknown {shown}; the model's classes are {', '.join(known)}")
+    return names
+
+
+def check_nms(value: object) -> NmsConfig | None:
+    """``None``, an ``NmsConfig``, or the name of a kind (``"rotated"``/``"circle"``) with its defaults."""
+    if value is None or isinstance(value, NmsConfig):
+        return value
+    if isinstance(value, str) and value in NMS_KINDS:
+        return NmsConfig(kind=value)  # type: ignore[arg-type]
+    raise OptionError(f"nms: expected an NmsConfig or one of {', '.join(repr(k) for k in NMS_KINDS)}, got {type(value).__name__} {_shown(value)}")
 
 
 @dataclass(frozen=True)
@@ -56,9 +110,11 @@ class Detector:
         threads: int | None = None,
         providers: str | Sequence[str] | None = None,
         score_threshold: float | None = None,
-        nms: NmsConfig | None = None,
+        nms: NmsConfig | str | None = None,
         warmup: bool = True,
     ) -> None:
+        self.score_threshold = check_score_threshold(score_threshold)
+        self.nms = check_nms(nms)
         self.path = Path(model_path)
         if not self.path.is_file():
             raise ArtifactError(f"model {self.path}: no such file")
@@ -77,8 +133,6 @@ class Detector:
             providers=tuple(self._session.get_providers()),
             meta=meta,
         )
-        self.score_threshold = score_threshold
-        self.nms = nms
         self.ready = False
         if warmup:
             self.warmup()
@@ -92,6 +146,22 @@ class Detector:
         width, height = meta.image_size
         if list(shape[1:]) != [len(meta.cameras), height, width, 3]:
             raise ArtifactError(f"model {self.path}: images input is {shape}, metadata says (B, {len(meta.cameras)}, {height}, {width}, 3)")
+        for output in self._session.get_outputs():
+            boxes = output.shape[1] if len(output.shape) > 1 else None
+            if isinstance(boxes, int) and boxes != meta.num_boxes:
+                raise ArtifactError(f"model {self.path}: num_boxes: metadata says {meta.num_boxes}, the graph's '{output.name}' output has {boxes}")
+            if output.name == "boxes" and isinstance(output.shape[-1], int) and output.shape[-1] != len(meta.box_layout):
+                raise ArtifactError(f"model {self.path}: box_layout: metadata names {len(meta.box_layout)} values per box, the graph's 'boxes' output has {output.shape[-1]}")
+
+    def _check_outputs(self, outputs: list[np.ndarray]) -> None:
+        """What only a run shows: the box count of dynamic shapes, and labels within the class list."""
+        boxes, _, labels, _ = outputs
+        if boxes.shape[1] != self.info.num_boxes:
+            raise ArtifactError(f"model {self.path}: num_boxes: metadata says {self.info.num_boxes}, the graph returned {boxes.shape[1]} boxes per frame")
+        if labels.size and (labels.min() < 0 or labels.max() >= len(self.info.classes)):
+            raise ArtifactError(f"model {self.path}: classes: metadata lists {len(self.info.classes)} ({', '.join(self.info.classes)}), "
+                                f"the graph returned label {int(labels.max() if labels.max() >= len(self.info.classes) else labels.min())}; "
+                                "the file's metadata does not match its graph")
 
     def warmup(self) -> None:
         """One run on a black frame, so the first real call does not pay for allocation."""
@@ -104,19 +174,27 @@ class Detector:
 
     def _run(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
         with map_ort_errors(f"model {self.path.name}"):
-            return self._session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})
+            outputs = self._session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})
+        self._check_outputs(outputs)
+        return outputs
 
     def run_arrays(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
         """The raw graph outputs (boxes, scores, labels, valid) for a prepared batch."""
         return self._run(np.ascontiguousarray(images, np.uint8), np.ascontiguousarray(valid, bool))
 
-    def detect(self, frame: Frame, *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | None = None) -> Detections:
+    def detect(self, frame: Frame, *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | str | None = None) -> Detections:
         """Detections for one frame (mapping camera -> image, or a sequence in camera order)."""
         return self.detect_batch([frame], score_threshold=score_threshold, classes=classes, nms=nms)[0]
 
-    def detect_batch(self, frames: Sequence[Frame], *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | None = None) -> list[Detections]:
-        """Detections for several frames, run as one batch through the session."""
-        if isinstance(frames, dict) or len(frames) == 0:
+    def detect_batch(self, frames: Iterable[Frame], *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | str | None = None) -> list[Detections]:
+        """Detections for several frames (a list, or any iterable such as a generator), run as one batch."""
+        score_threshold = check_score_threshold(score_threshold)
+        classes = check_classes(classes, self.info.classes)
+        nms = check_nms(nms)
+        if isinstance(frames, (Mapping, str, bytes, np.ndarray)) or not isinstance(frames, Iterable):
+            raise FrameError(f"frames: expected a list (or other iterable) of frames, got {type(frames).__name__}; for one frame use detect()")
+        frames = frames if isinstance(frames, Sequence) else list(frames)
+        if len(frames) == 0:
             raise FrameError("frames: expected a non-empty sequence of frames")
         t0 = time.perf_counter()
         loaded = []

@@ -9,6 +9,7 @@
      │    └── ParityError   the exported graph disagrees with PyTorch beyond tolerance
      ├── ArtifactError      an ONNX file lacks or has wrong fisheye-infer metadata
      ├── FrameError         an input frame is unusable (camera and field named)
+ ├── OptionError        a Detector or detect option has the wrong type or is out of range
      ├── DatasetError       a Fisheye3DOD folder is missing or malformed (what is missing named)
      └── InferenceError     ONNX Runtime failed while running a valid frame
 
@@ -28,6 +29,7 @@ __all__ = [
     "ParityError",
     "ArtifactError",
     "FrameError",
+    "OptionError",
     "DatasetError",
     "InferenceError",
 ]
@@ -67,6 +69,11 @@ class ArtifactError(FisheyeInferError):
 
 class FrameError(FisheyeInferError, ValueError):
     """An input frame is unusable: wrong camera names, size, dtype, or undecodable bytes."""
+
+
+class OptionError(FisheyeInferError, ValueError):
+    """A Detector or detect option is refused: a threshold outside [0, 1] or not a number, an unknown
+    NMS kind, class names given as one string. Raised before any work, naming the option."""
 
 
 class DatasetError(FisheyeInferError, ValueError):

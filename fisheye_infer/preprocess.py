@@ -10,61 +10,18 @@ the camera and says what was expected.
 from __future__ import annotations
 
 import os
-import struct
 from pathlib import Path
 from typing import Mapping, Sequence
 
-import cv2
 import numpy as np
 
+from fisheye_infer.codec import decode_image, encoded_image_size
 from fisheye_infer.errors import FrameError
 
 __all__ = ["ImageInput", "Frame", "encoded_image_size", "decode_image", "load_frame", "stack_frames", "prepare_batch", "frames_from_paths"]
 
 ImageInput = np.ndarray | bytes | bytearray | memoryview | str | os.PathLike | None
 Frame = Mapping[str, ImageInput] | Sequence[ImageInput]
-
-
-def encoded_image_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) read from a PNG or JPEG header without decoding; None if not recognised.
-
-    Lets a caller refuse an image of the wrong size (or a decompression bomb) before paying
-    for the decode.
-    """
-    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24 and data[12:16] == b"IHDR":
-        width, height = struct.unpack(">II", data[16:24])
-        return int(width), int(height)
-    if data[:2] == b"\xff\xd8":
-        i = 2
-        while i + 9 < len(data):
-            if data[i] != 0xFF:
-                return None
-            marker = data[i + 1]
-            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
-                i += 2
-                continue
-            length = struct.unpack(">H", data[i + 2 : i + 4])[0]
-            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
-                height, width = struct.unpack(">HH", data[i + 5 : i + 9])
-                return int(width), int(height)
-            i += 2 + length
-    return None
-
-
-def decode_image(data: bytes, camera: str, expected_wh: tuple[int, int] | None = None) -> np.ndarray:
-    """Decode JPEG/PNG bytes to (H, W, 3) uint8 BGR, checking the size from the header first."""
-    buf = bytes(data)
-    size = encoded_image_size(buf)
-    if size is None:
-        # Only PNG and JPEG are decoded: their headers state the size, so nothing of unknown size
-        # (a decompression bomb in another format) ever reaches the decoder.
-        raise FrameError(f"camera '{camera}': the bytes are not a decodable JPEG or PNG image ({len(buf)} bytes, no PNG or JPEG header)")
-    if expected_wh is not None and size != tuple(expected_wh):
-        raise FrameError(f"camera '{camera}': image is {size[0]}x{size[1]}, model expects {expected_wh[0]}x{expected_wh[1]}")
-    image = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_COLOR)
-    if image is None:
-        raise FrameError(f"camera '{camera}': the bytes are not a decodable JPEG or PNG image ({len(buf)} bytes)")
-    return image
 
 
 def _to_array(image: ImageInput, camera: str, expected_wh: tuple[int, int]) -> np.ndarray:

@@ -12,7 +12,11 @@ small, pure subset is evaluated:
 - ``math.radians``, ``math.degrees``, ``math.pi``, ``math.e``, ``np.pi``/``numpy.pi``, after
   ``import math`` / ``import numpy as np`` (these imports only bind the whitelisted names).
 
-Anything else raises :class:`ConfigError` naming the file, the line and the construct.
+Anything else raises :class:`ConfigError` naming the file, the line and the construct. Every
+value it builds is bounded: a string, list, tuple or dict of more than ``_MAX_LEN`` items (made by
+``*``, ``+``, a call or a literal) and more than ``_MAX_TOTAL`` items built over the whole file are
+refused before they are built, as are ``%`` formatting of strings, integers of more than
+``_MAX_INT_BITS`` bits and expressions nested too deeply, so a hostile file cannot exhaust memory.
 ``_base_`` is returned as a value; bases are merged only on request (``merge_bases=True``).
 """
 
@@ -43,15 +47,21 @@ _MODULES: dict[str, dict[str, Any]] = {
     "numpy": {"pi": math.pi},
 }
 _MAX_POW = 64
-_MAX_REPEAT = 1_000_000
+_MAX_LEN = 1_000_000  # items (characters) of one string, list, tuple or dict
+_MAX_TOTAL = 20_000_000  # items built over the whole file: many bounded values must not add up
 _MAX_INT_BITS = 4096  # chained ``**``/``*`` of integers would otherwise grow without bound
+_SIZED = (str, list, tuple, dict)
 
 
-def _repeats_too_much(left: Any, right: Any) -> bool:
-    for seq, count in ((left, right), (right, left)):
-        if isinstance(seq, (str, list, tuple)) and isinstance(count, int) and count * max(len(seq), 1) > _MAX_REPEAT:
-            return True
-    return False
+def _result_len(op: ast.operator, left: Any, right: Any) -> int:
+    """The length ``left <op> right`` would have, computed without building it (0: not a sequence)."""
+    if isinstance(op, ast.Mult):
+        for seq, count in ((left, right), (right, left)):
+            if isinstance(seq, (str, list, tuple)) and isinstance(count, int) and not isinstance(count, bool):
+                return max(count, 0) * len(seq)
+    if isinstance(op, ast.Add) and isinstance(left, (str, list, tuple)) and type(left) is type(right):
+        return len(left) + len(right)
+    return 0
 
 
 class _Evaluator:
@@ -60,6 +70,15 @@ class _Evaluator:
         self.env: dict[str, Any] = {}
         self.aliases: dict[str, str] = {}  # local name -> module in _MODULES
         self.imported: dict[str, Any] = {}  # names bound by `from math import radians`
+        self.built = 0  # items of the strings, lists, tuples and dicts built so far
+
+    def charge(self, node: ast.AST, size: int) -> None:
+        """Count ``size`` items about to be built; refuse one value or a file total over the bounds."""
+        if size > _MAX_LEN:
+            raise self.fail(node, f"building a value of {size:,} items (at most {_MAX_LEN:,})")
+        self.built += size
+        if self.built > _MAX_TOTAL:
+            raise self.fail(node, f"building more than {_MAX_TOTAL:,} items in all")
 
     def fail(self, node: ast.AST, what: str) -> ConfigError:
         line = getattr(node, "lineno", "?")
@@ -104,16 +123,21 @@ class _Evaluator:
                 raise self.fail(node, f"constant of type {type(node.value).__name__}")
             return node.value
         if isinstance(node, ast.List):
+            self.charge(node, len(node.elts))
             return [self.eval(e) for e in self._no_starred(node.elts)]
         if isinstance(node, ast.Tuple):
+            self.charge(node, len(node.elts))
             return tuple(self.eval(e) for e in self._no_starred(node.elts))
         if isinstance(node, ast.Dict):
             out: dict[Any, Any] = {}
             for k, v in zip(node.keys, node.values):
                 if k is None:
-                    out.update(self._as_dict(v))
+                    extra = self._as_dict(v)
+                    self.charge(node, len(out) + len(extra))
+                    out.update(extra)
                 else:
                     out[self.eval(k)] = self.eval(v)
+            self.charge(node, len(out))
             return out
         if isinstance(node, ast.Name):
             if node.id in self.env:
@@ -125,8 +149,9 @@ class _Evaluator:
             left, right = self.eval(node.left), self.eval(node.right)
             if isinstance(node.op, ast.Pow) and isinstance(right, (int, float)) and abs(right) > _MAX_POW:
                 raise self.fail(node, f"an exponent of {right}")
-            if isinstance(node.op, ast.Mult) and _repeats_too_much(left, right):
-                raise self.fail(node, "repeating a sequence more than a million times")
+            if isinstance(node.op, ast.Mod) and isinstance(left, str):
+                raise self.fail(node, "'%' formatting of a string")
+            self.charge(node, _result_len(node.op, left, right))
             try:
                 result = _BINOPS[type(node.op)](left, right)
             except Exception as exc:  # TypeError, ZeroDivisionError, ...
@@ -195,10 +220,15 @@ class _Evaluator:
                 kwargs[kw.arg] = self.eval(kw.value)
         if kwargs and func is not dict:
             raise self.fail(node, "keyword arguments outside dict()")
+        if func in (dict, list, tuple):
+            self.charge(node, len(kwargs) + sum(len(a) if isinstance(a, _SIZED) else 0 for a in args))
         try:
-            return func(*args, **kwargs)
+            result = func(*args, **kwargs)
         except Exception as exc:
             raise self.fail(node, f"a call that fails ({exc})") from None
+        if isinstance(result, int) and result.bit_length() > _MAX_INT_BITS:
+            raise self.fail(node, f"an integer of more than {_MAX_INT_BITS} bits")
+        return result
 
 
 def evaluate_config_source(source: str, filename: str = "<config>") -> dict[str, Any]:
@@ -207,7 +237,12 @@ def evaluate_config_source(source: str, filename: str = "<config>") -> dict[str,
         tree = ast.parse(source, filename=filename)
     except SyntaxError as exc:
         raise ConfigError(f"{filename} line {exc.lineno}: not valid Python ({exc.msg})") from None
-    return _Evaluator(source, filename).run(tree)
+    except (RecursionError, MemoryError):
+        raise ConfigError(f"{filename}: expressions nested too deeply to read") from None
+    try:
+        return _Evaluator(source, filename).run(tree)
+    except RecursionError:
+        raise ConfigError(f"{filename}: expressions nested too deeply to evaluate") from None
 
 
 def _merge(base: dict[str, Any], child: dict[str, Any]) -> dict[str, Any]:

@@ -14,13 +14,15 @@ import logging
 from contextlib import asynccontextmanager
 from typing import AsyncIterator
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, JSONResponse
 
 from fisheye_infer._version import __version__
 from fisheye_infer.detector import Detector
 from fisheye_infer.errors import FisheyeInferError
+from fisheye_infer.service.deps import require_api_key
 from fisheye_infer.service.errors import handle_fisheye_error
 from fisheye_infer.service.middleware import ServiceMiddleware
 from fisheye_infer.service.openapi import install_openapi
@@ -42,7 +44,8 @@ Surround-view fisheye 3D object detection: send one image per camera, get boxes 
 - `GET /model`: the camera names, image size and classes to use; `/healthz`, `/readyz`, `/metrics`.
 
 Every refusal is an `ErrorOut` naming the camera or field. With an API key configured, send it as
-`X-API-Key` (the health endpoints do not need it).
+`X-API-Key` (the health endpoints do not need it; this document and `/docs` need it too unless the
+service was started with `docs_public`).
 """
 
 
@@ -52,9 +55,24 @@ async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"error": "internal error; see the server log", "status": 500, "type": "InternalError", "field": None}, status_code=500)
 
 
+def _add_protected_docs(app: FastAPI) -> None:
+    """``/openapi.json`` and ``/docs`` behind the API key: the schema names the model's cameras,
+    classes and limits, which a service with a key does not tell strangers."""
+    key = [Depends(require_api_key)]
+
+    @app.get("/openapi.json", include_in_schema=False, dependencies=key)
+    async def openapi_document() -> JSONResponse:
+        return JSONResponse(app.openapi())
+
+    @app.get("/docs", include_in_schema=False, dependencies=key)
+    async def docs() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url="/openapi.json", title=f"{app.title} - docs")
+
+
 def create_app(settings: ServiceSettings, detector: Detector | None = None) -> FastAPI:
     """The service for ``settings``; see the module docstring."""
     service = Service(settings)
+    protect_docs = settings.api_key is not None and not settings.docs_public
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -64,7 +82,12 @@ def create_app(settings: ServiceSettings, detector: Detector | None = None) -> F
         finally:
             await service.stop()
 
-    app = FastAPI(title="fisheye-infer", version=__version__, description=DESCRIPTION, lifespan=lifespan)
+    if protect_docs:
+        app = FastAPI(title="fisheye-infer", version=__version__, description=DESCRIPTION, lifespan=lifespan,
+                      docs_url=None, redoc_url=None, openapi_url=None)
+        _add_protected_docs(app)
+    else:
+        app = FastAPI(title="fisheye-infer", version=__version__, description=DESCRIPTION, lifespan=lifespan)
     app.state.service = service
     app.add_exception_handler(FisheyeInferError, handle_fisheye_error)
     app.add_exception_handler(Exception, _unexpected)

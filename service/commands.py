@@ -20,7 +20,8 @@ NEEDS_SERVE = "fisheye-infer serve needs the serve extra: pip install 'fisheye-i
 
 # flag -> ServiceSettings field (None: not given, the environment or the default applies)
 _FLAGS = ("host", "port", "threads", "workers", "queue_size", "max_body_bytes", "max_batch_frames",
-          "microbatch_max_size", "microbatch_max_wait_ms", "request_timeout_s", "drain_timeout_s", "cors_origins")
+          "microbatch_max_size", "microbatch_max_wait_ms", "request_timeout_s", "header_timeout_s", "body_timeout_s",
+          "max_connections", "drain_timeout_s", "cors_origins")
 
 
 def configure_serve(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +35,10 @@ def configure_serve(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-batch-frames", type=int, help="most frames in one /detect/batch request (default 8)")
     parser.add_argument("--microbatch-max-size", type=int, help="group up to this many concurrent single-frame requests into one run (default 1: off)")
     parser.add_argument("--microbatch-max-wait-ms", type=float, help="how long a request waits for others to group with (default 5)")
-    parser.add_argument("--request-timeout-s", type=float, help="longest wait for a body or a result (default 60)")
+    parser.add_argument("--request-timeout-s", type=float, help="longest wait for a result (default 60)")
+    parser.add_argument("--header-timeout-s", type=float, help="longest time for a request's headers to arrive (default 10)")
+    parser.add_argument("--body-timeout-s", type=float, help="longest time for a request's body to arrive (default 30)")
+    parser.add_argument("--max-connections", type=int, help="open connections and requests in progress; beyond, 503 (default 64)")
     parser.add_argument("--drain-timeout-s", type=float, help="on SIGTERM, longest wait for work in flight (default 30)")
     parser.add_argument("--cors-origins", help="comma-separated browser origins allowed to call the API")
     parser.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))

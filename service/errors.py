@@ -5,21 +5,24 @@ network front end makes, each carrying its status code::
 
     FisheyeInferError
      ├── FrameError            422  an image or camera is unusable (the runtime's message)
+     ├── OptionError           422  an option out of range (the runtime's message)
      ├── ConfigError           422
      ├── ArtifactError         500  the model file is wrong: an operator's problem, not the client's
      ├── InferenceError        500
      └── ServiceError               (this module)
           ├── BadRequest           400  the body cannot be parsed (malformed multipart or JSON)
           ├── Unauthorized         401  X-API-Key missing or wrong
-          ├── RequestTimeout       408  the body did not arrive within request_timeout_s
-          ├── PayloadTooLarge      413  body or stream message over max_body_bytes
+          ├── RequestTimeout       408  headers or body did not arrive in time (connection closed)
+          ├── PayloadTooLarge      413  body or stream message over max_body_bytes (connection closed)
           ├── UnsupportedMediaType 415  request or image part is not multipart/JSON, JPEG/PNG
           ├── RequestInvalid       422  a field, camera name, count or image size is refused
           ├── Unavailable          503  queue full, draining or not ready (with Retry-After)
           └── InferenceTimeout     504  the result did not come within request_timeout_s
 
 ``error_response`` is the single mapping; ``app.py`` registers it once for the whole tree.
-Every answer is an ``ErrorOut`` JSON body naming the field or camera that was refused.
+Every answer is an ``ErrorOut`` JSON body naming the field or camera that was refused. What a
+message repeats from the request is capped (``shown``, ``listed``): a 10 kB part name or 100,000
+unknown class names are not echoed back whole.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
-from fisheye_infer.errors import ArtifactError, ConfigError, FisheyeInferError, FrameError, InferenceError
+from fisheye_infer.errors import ArtifactError, ConfigError, FisheyeInferError, FrameError, InferenceError, OptionError
 
 __all__ = [
     "ServiceError",
@@ -39,6 +42,8 @@ __all__ = [
     "RequestInvalid",
     "Unavailable",
     "InferenceTimeout",
+    "shown",
+    "listed",
     "status_of",
     "error_body",
     "error_response",
@@ -52,14 +57,30 @@ if TYPE_CHECKING:  # the classes stay importable without the web stack (stream c
 log = logging.getLogger("fisheye_infer.service")
 
 
+MAX_SHOWN_CHARS = 64
+MAX_LISTED = 20
+
+
+def shown(text: str, limit: int = MAX_SHOWN_CHARS) -> str:
+    """``text`` as a message repeats it: cut to ``limit`` characters, saying how long it was."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def listed(names: "list[str] | tuple[str, ...]", limit: int = MAX_LISTED) -> str:
+    """At most ``limit`` names, each ``shown``, then "and N more"."""
+    text = ", ".join(shown(str(n)) for n in names[:limit])
+    return text + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
 class ServiceError(FisheyeInferError):
     """A refusal by the service; ``field`` names the form field, camera or header concerned."""
 
     status = 500
+    closes_connection = False  # answered with Connection: close (the rest of the request is not read)
 
     def __init__(self, message: str, *, field: str | None = None, retry_after: int | None = None) -> None:
         super().__init__(message)
-        self.field = field
+        self.field = None if field is None else shown(field)
         self.retry_after = retry_after
 
 
@@ -76,15 +97,17 @@ class Unauthorized(ServiceError):
 
 
 class RequestTimeout(ServiceError):
-    """The body did not arrive within request_timeout_s (a stalled or very slow upload)."""
+    """The headers or the body did not arrive in time (a stalled or very slow upload)."""
 
     status = 408
+    closes_connection = True
 
 
 class PayloadTooLarge(ServiceError):
     """The body (or a stream message) is larger than max_body_bytes."""
 
     status = 413
+    closes_connection = True
 
 
 class UnsupportedMediaType(ServiceError):
@@ -113,6 +136,7 @@ class InferenceTimeout(ServiceError):
 
 _STATUS: tuple[tuple[type[FisheyeInferError], int], ...] = (
     (FrameError, 422),
+    (OptionError, 422),
     (ConfigError, 422),
     (ArtifactError, 500),
     (InferenceError, 500),
@@ -144,11 +168,14 @@ def error_body(exc: FisheyeInferError) -> dict[str, object]:
     return {"error": str(exc), "status": status_of(exc), "type": type(exc).__name__, "field": _field_of(exc)}
 
 
-def error_response(exc: FisheyeInferError) -> "JSONResponse":
+def error_response(exc: FisheyeInferError, close: bool = False) -> "JSONResponse":
+    """The answer to ``exc``; ``close`` (or the error's own ``closes_connection``) ends the connection after it."""
     from starlette.responses import JSONResponse
 
     status = status_of(exc)
     headers = {}
+    if close or getattr(exc, "closes_connection", False):
+        headers["Connection"] = "close"
     retry_after = getattr(exc, "retry_after", None)
     if retry_after is not None:
         headers["Retry-After"] = str(retry_after)

@@ -2,28 +2,37 @@
 
 Order of the checks, cheapest first, so a bad request costs little:
 
-1. the request's Content-Type: multipart/form-data or application/json, else 415;
-2. part and field names: every camera known, none twice, none missing (unless
+1. the request's Content-Type: multipart/form-data or application/json, and no
+   Content-Encoding (images are compressed already), else 415;
+2. the body's structure: a multipart body must end with its closing boundary (a body cut short
+   is named as such, not reported as a missing camera), part headers must be of sane length,
+   JSON must parse (a number with thousands of digits is named by its field), else 400/422;
+3. part and field names: every camera known, none twice (in a batch ``0.front`` and ``00.front``
+   are the same camera of the same frame), frame indices in ASCII digits, none missing (unless
    ``allow_missing_cameras``), options known and valid, else 422;
-3. each image's declared content type (415) and its first bytes: PNG or JPEG signature (415);
-4. each image's width and height read from its PNG/JPEG header, before any decoding: they must
+4. each image's declared content type (415) and its first bytes: PNG or JPEG signature (415);
+5. each image's width and height read from its PNG/JPEG header, before any decoding: they must
    be the model's (422). A tiny file claiming 60000x60000 pixels (a decompression bomb) is
    refused here and never reaches the decoder;
-5. decoding, off the event loop (corrupt data: 422).
+6. decoding, in a thread, before the request takes a queue place (too many JPEG scans, corrupt
+   data: 422; see ``fisheye_infer.codec``).
 
 The body size limit (413) is enforced earlier, while the body is read (``middleware.py``).
+Messages repeat at most a bounded part of what the client sent (``errors.shown``/``listed``).
 """
 
 from __future__ import annotations
 
 import base64
 import binascii
+import re
 import time
 from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
 from pydantic import ValidationError
+from python_multipart.multipart import parse_options_header
 from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import Request
@@ -31,7 +40,7 @@ from starlette.requests import Request
 from fisheye_infer.detector import DetectorInfo
 from fisheye_infer.errors import FisheyeInferError, FrameError
 from fisheye_infer.preprocess import decode_image, encoded_image_size
-from fisheye_infer.service.errors import BadRequest, RequestInvalid, ServiceError, UnsupportedMediaType
+from fisheye_infer.service.errors import BadRequest, RequestInvalid, ServiceError, UnsupportedMediaType, listed, shown
 from fisheye_infer.service.schemas import BatchJsonRequest, DetectJsonRequest, DetectOptions
 
 __all__ = ["FrameSpec", "EncodedFrame", "OPTION_FIELDS", "read_request", "parse_options", "check_frame", "decode_frames"]
@@ -40,6 +49,9 @@ EncodedFrame = dict[str, bytes]
 OPTION_FIELDS = ("score_threshold", "classes", "nms", "allow_missing_cameras")
 PART_TYPES = ("image/jpeg", "image/png", "image/jpg", "image/pjpeg", "application/octet-stream")
 _PNG, _JPEG = b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff"
+MAX_INDEX_DIGITS = 6  # frame indices in batch part names
+_KEY_BEFORE_NUMBER = re.compile(rb'"((?:[^"\\]|\\.){1,200})"\s*:\s*\[?\s*[-+0-9.eE]*$')
+_JSON_POSITION = re.compile(r"line (\d+) column (\d+)")
 
 
 @dataclass(frozen=True)
@@ -59,9 +71,24 @@ class FrameSpec:
 # -- options ------------------------------------------------------------------------------------
 
 
-def _invalid(exc: ValidationError, prefix: str = "") -> ServiceError:
+def _number_field(body: bytes, message: str) -> str | None:
+    """The key whose value a JSON parse error at "line L column C" points into, if it is a number."""
+    where = _JSON_POSITION.search(message)
+    if where is None:
+        return None
+    line, column = int(where.group(1)), int(where.group(2))
+    lines = body.split(b"\n", line - 1)
+    pos = sum(len(text) + 1 for text in lines[: line - 1]) + column
+    found = _KEY_BEFORE_NUMBER.search(body[max(0, pos - 8192) : pos])
+    return found.group(1).decode("utf-8", "replace") if found else None
+
+
+def _invalid(exc: ValidationError, prefix: str = "", body: bytes = b"") -> ServiceError:
     first = exc.errors()[0]
     if first["type"] == "json_invalid":
+        field = _number_field(body, first["msg"]) if "number out of range" in first["msg"] else None
+        if field is not None:
+            return RequestInvalid(f"{shown(field)}: number out of range (too many digits to read); expected an ordinary number", field=field)
         return BadRequest(f"JSON body: {first['msg']}", field="body")
     loc = prefix + ".".join(str(x) for x in first["loc"])
     got = repr(first.get("input"))
@@ -72,7 +99,7 @@ def _invalid(exc: ValidationError, prefix: str = "") -> ServiceError:
 def _check_classes(options: DetectOptions, spec: FrameSpec) -> DetectOptions:
     unknown = sorted(set(options.classes or ()) - set(spec.classes))
     if unknown:
-        raise RequestInvalid(f"classes: unknown {unknown}; the model's classes are {', '.join(spec.classes)}", field="classes")
+        raise RequestInvalid(f"classes: unknown {listed(unknown)}; the model's classes are {', '.join(spec.classes)}", field="classes")
     return options
 
 
@@ -93,7 +120,7 @@ def parse_options(fields: Mapping[str, str], spec: FrameSpec) -> DetectOptions:
 def _check_image(data: bytes, label: str, spec: FrameSpec, declared: str | None = None) -> None:
     media = (declared or "").split(";")[0].strip().lower()
     if media and media not in PART_TYPES:
-        raise UnsupportedMediaType(f"camera '{label}': content type {media}, expected image/jpeg or image/png", field=label)
+        raise UnsupportedMediaType(f"camera '{label}': content type {shown(media)}, expected image/jpeg or image/png", field=label)
     if not data:
         raise RequestInvalid(f"camera '{label}': empty image, expected a {spec.image_size[0]}x{spec.image_size[1]} JPEG or PNG", field=label)
     if not (data.startswith(_PNG) or data.startswith(_JPEG)):
@@ -110,7 +137,7 @@ def check_frame(images: Mapping[str, bytes], spec: FrameSpec, options: DetectOpt
     """Names, presence, content types and header sizes of one frame's images (no decoding)."""
     unknown = [name for name in images if name not in spec.cameras]
     if unknown:
-        raise RequestInvalid(f"camera '{unknown[0]}': not a camera of this model (cameras: {', '.join(spec.cameras)})", field=unknown[0])
+        raise RequestInvalid(f"camera '{shown(unknown[0])}': not a camera of this model (cameras: {', '.join(spec.cameras)})", field=unknown[0])
     if not images:
         raise RequestInvalid(f"images: none given, expected one per camera ({', '.join(spec.cameras)})", field="images")
     missing = [c for c in spec.cameras if c not in images]
@@ -164,7 +191,43 @@ def _media_type(request: Request) -> str:
     return request.headers.get("content-type", "").split(";")[0].strip().lower()
 
 
+def _boundary(request: Request) -> bytes | None:
+    _, params = parse_options_header(request.headers.get("content-type", ""))
+    return params.get(b"boundary") or None
+
+
+def _check_closed(body: bytes, boundary: bytes) -> None:
+    """A multipart body ends with ``--boundary--``; without it the upload was cut short."""
+    last = body.rfind(b"--" + boundary)
+    end = last + 2 + len(boundary)
+    if last < 0 or body[end : end + 2] != b"--":
+        raise BadRequest(f"multipart body: ended before its closing boundary '--{shown(boundary.decode('latin-1'))}--' "
+                         f"({len(body)} bytes received); the upload was cut short or the body is not the multipart it claims", field="body")
+
+
+def _parse_failure(exc: StarletteHTTPException, body: bytes, boundary: bytes | None) -> ServiceError:
+    """Name what the multipart parser refused: a part whose headers are too long is named by its part name."""
+    cause = exc.__context__.__cause__ if exc.__context__ is not None else None
+    reason = str(cause) if cause is not None else str(exc.detail)
+    offset = getattr(cause, "offset", -1)
+    if "header size" in reason and boundary and offset >= 0:
+        start = max(body.rfind(b"--" + boundary, 0, offset + 1), 0)
+        found = re.search(rb'name="([^"]*)', body[start : start + (1 << 20)])
+        if found:
+            name = found.group(1).decode("utf-8", "replace")
+            return RequestInvalid(f"part '{shown(name)}': its name or headers are too long ({reason.lower()}); "
+                                  "expected a camera name or an option", field=name)
+    if "Field exceeded" in reason:
+        return BadRequest(f"multipart body: {reason} (option fields are short text; images go in file parts)", field="body")
+    return BadRequest(f"multipart body: {exc.detail} ({reason})" if cause is not None else f"multipart body: {exc.detail}", field="body")
+
+
 async def _read_form(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[tuple[str, UploadFile]], dict[str, str]]:
+    # the whole body first (bounded by max_body_bytes): its end is checked, and parse errors can be located
+    body = await request.body()
+    boundary = _boundary(request)
+    if boundary:
+        _check_closed(body, boundary)
     # room for a few parts too many, so that an unknown or repeated camera is refused by name
     max_files = len(spec.cameras) * ((spec.max_batch_frames if batch else 1) + 1)
     try:
@@ -174,7 +237,7 @@ async def _read_form(request: Request, spec: FrameSpec, batch: bool) -> tuple[li
             expected = len(spec.cameras) * (spec.max_batch_frames if batch else 1)
             raise RequestInvalid(f"images: more than {max_files} image parts, expected at most {expected} ({len(spec.cameras)} cameras"
                                  f"{f' x max_batch_frames={spec.max_batch_frames}' if batch else ''})", field="images") from None
-        raise BadRequest(f"multipart body: {exc.detail}", field="body") from None
+        raise _parse_failure(exc, body, boundary) from None
     try:
         return _split_form(form.multi_items(), spec, batch)
     except ServiceError:
@@ -188,24 +251,26 @@ def _split_form(items: list[tuple[str, UploadFile | str]], spec: FrameSpec, batc
     for name, value in items:
         if isinstance(value, UploadFile):
             if any(name == seen for seen, _ in files):
-                raise RequestInvalid(f"camera '{name}': given twice", field=name)
+                raise RequestInvalid(f"camera '{shown(name)}': given twice", field=name)
             files.append((name, value))
             continue
         if name not in OPTION_FIELDS:
             is_camera = name in spec.cameras or (batch and name.partition(".")[2] in spec.cameras)
             if is_camera:
-                raise RequestInvalid(f"camera '{name}': send the image as a file part (with a filename), got a text field", field=name)
-            raise RequestInvalid(f"field '{name}': not an image part or option (options: {', '.join(OPTION_FIELDS)})", field=name)
+                raise RequestInvalid(f"camera '{shown(name)}': send the image as a file part (with a filename), got a text field", field=name)
+            raise RequestInvalid(f"field '{shown(name)}': not an image part or option (options: {', '.join(OPTION_FIELDS)})", field=name)
         if name in fields:
-            raise RequestInvalid(f"field '{name}': given twice", field=name)
+            raise RequestInvalid(f"field '{shown(name)}': given twice", field=name)
         fields[name] = value
     return files, fields
 
 
 def _batch_index(name: str, spec: FrameSpec) -> tuple[int, str]:
+    """``'<frame index>.<camera>'`` -> (index, camera); the index in ASCII digits ("²" is a digit to Python, not here)."""
     index, dot, camera = name.partition(".")
-    if not dot or not index.isdigit():
-        raise RequestInvalid(f"part '{name}': expected '<frame index>.<camera>', e.g. '0.{spec.cameras[0]}'", field=name)
+    if not dot or not (index.isascii() and index.isdigit()) or len(index) > MAX_INDEX_DIGITS:
+        raise RequestInvalid(f"part '{shown(name)}': expected '<frame index>.<camera>' with the index in digits 0-9, "
+                             f"e.g. '0.{spec.cameras[0]}'", field=name)
     return int(index), camera
 
 
@@ -217,6 +282,9 @@ async def _multipart(request: Request, spec: FrameSpec, batch: bool) -> tuple[li
         types: dict[int, dict[str, str | None]] = {}
         for name, upload in files:
             index, camera = _batch_index(name, spec) if batch else (0, name)
+            if camera in frames.get(index, {}):
+                raise RequestInvalid(f"frame {index}: camera '{shown(camera)}' given twice (part '{shown(name)}' repeats an earlier part)",
+                                     field=f"{index}.{camera}")
             frames.setdefault(index, {})[camera] = await upload.read()
             types.setdefault(index, {})[camera] = upload.content_type
     finally:
@@ -243,7 +311,7 @@ async def _json(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[En
     try:
         doc: DetectJsonRequest | BatchJsonRequest = (BatchJsonRequest if batch else DetectJsonRequest).model_validate_json(body)
     except ValidationError as exc:
-        raise _invalid(exc) from None
+        raise _invalid(exc, body=body) from None
     options = _check_classes(DetectOptions.model_validate(doc.model_dump(include=set(OPTION_FIELDS))), spec)
     raw = [f.images for f in doc.frames] if isinstance(doc, BatchJsonRequest) else [doc.images]
     if len(raw) > spec.max_batch_frames:
@@ -254,13 +322,17 @@ async def _json(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[En
 async def read_request(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[EncodedFrame], DetectOptions]:
     """Read, parse and check (without decoding) a /detect or /detect/batch body."""
     media = _media_type(request)
+    encoding = request.headers.get("content-encoding", "identity").strip().lower()
+    if encoding not in ("", "identity"):
+        raise UnsupportedMediaType(f"Content-Encoding: got '{shown(encoding)}', expected none; send the body uncompressed "
+                                   "(JPEG and PNG images are compressed already)", field="Content-Encoding")
     types = None
     if media == "multipart/form-data":
         frames, options, types = await _multipart(request, spec, batch)
     elif media == "application/json" or media.endswith("+json"):
         frames, options = await _json(request, spec, batch)
     else:
-        raise UnsupportedMediaType(f"Content-Type: got '{media or 'none'}', expected multipart/form-data or application/json", field="Content-Type")
+        raise UnsupportedMediaType(f"Content-Type: got '{shown(media) or 'none'}', expected multipart/form-data or application/json", field="Content-Type")
     if not frames:
         raise RequestInvalid(f"images: none given, expected one part per camera ({', '.join(spec.cameras)})", field="images")
     check_frames(frames, spec, options, types)

@@ -1,6 +1,7 @@
-"""One admitted request's frames through decode -> queue -> per-request options -> result documents.
+"""One request's frames through decode -> queue -> per-request options -> result documents.
 
-Shared by ``/detect``, ``/detect/batch`` and ``/stream``. The worker always runs the official
+The images are decoded in a thread (at most one decode per core at a time), before the request
+takes its queue place: a slow decode holds a thread, never the queue or the event loop. Shared by ``/detect``, ``/detect/batch`` and ``/stream``. The worker always runs the official
 output set (no threshold, no NMS), so requests with different options can share one
 micro-batch; each request's threshold, class filter and NMS are applied afterwards, off the
 event loop, and counted as postprocess time.
@@ -16,7 +17,7 @@ import anyio
 from fisheye_infer.nms import NmsConfig
 from fisheye_infer.service.errors import Unavailable
 from fisheye_infer.service.intake import EncodedFrame, decode_frames
-from fisheye_infer.service.queue import RunResult, Ticket
+from fisheye_infer.service.queue import RunResult
 from fisheye_infer.service.schemas import DetectOptions
 from fisheye_infer.service.state import Service
 
@@ -53,12 +54,17 @@ def _finish_all(results: list[RunResult], options: DetectOptions, decode_ms: lis
     return [finish(r, options, ms) for r, ms in zip(results, decode_ms, strict=True)]
 
 
-async def run_frames(service: Service, ticket: Ticket, frames: list[EncodedFrame], options: DetectOptions) -> list[dict[str, Any]]:
-    """Decode (thread) -> queue (worker) -> options (thread); one document per frame, in order."""
+async def run_frames(service: Service, frames: list[EncodedFrame], options: DetectOptions) -> list[dict[str, Any]]:
+    """Decode (thread) -> queue place -> run (worker) -> options (thread); one document per frame, in order."""
     if service.spec is None:
         raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
-    loaded, decode_ms = await anyio.to_thread.run_sync(decode_frames, frames, service.spec)
-    results = await ticket.run(loaded)
+    service.refuse_if_full()  # no decoding for a request the queue would refuse
+    loaded, decode_ms = await anyio.to_thread.run_sync(decode_frames, frames, service.spec, limiter=service.decode_limiter)
+    ticket = service.admit()
+    try:
+        results = await ticket.run(loaded)
+    finally:
+        ticket.release()
     documents = await anyio.to_thread.run_sync(_finish_all, results, options, decode_ms)
     for doc in documents:
         service.metrics.observe_stages(doc["timings_ms"])

@@ -1,14 +1,19 @@
 """The bounded inference queue: worker threads call the Detector, the event loop never does.
 
-    ticket = queue.admit()              # 503 + Retry-After at once when full or draining
+    queue.refuse_if_full()              # before reading a body: 503 + Retry-After at once when full
+    ...                                 # the body arrives and is decoded
+    ticket = queue.admit()              # the place is taken only now (503 if full meanwhile)
     try:
         results = await ticket.run([frame])   # frame: one array (or None) per camera
     finally:
         ticket.release()
 
-Why admission comes first: a request takes its place before its body is read and decoded,
-so a full queue refuses work before paying for it, and the memory held by waiting requests is
-bounded by ``queue_size`` frames sets. Every admitted request is answered: with its result,
+Why admission comes last: a place is taken only by a request whose body has arrived and whose
+images are decoded, so clients that send headers and stall (or upload slowly, or send images
+that are slow to decode) cannot fill the queue and lock out everyone else; the time they may
+take is bounded by ``header_timeout_s`` and ``body_timeout_s`` instead. A full queue is still
+refused cheaply: ``refuse_if_full`` answers 503 before the body is read. The memory held by
+waiting requests is bounded by ``queue_size`` decoded frame sets. Every admitted request is answered: with its result,
 with the Detector's error, with 504 after ``request_timeout_s``, or with 503 when the service
 stops before its turn. A request whose client left is taken out of the queue (or, if already
 running, its result is discarded), so nothing waits for nobody.
@@ -143,13 +148,21 @@ class InferenceQueue:
 
     # -- admission (event loop thread) -----------------------------------------------------------
 
-    def admit(self, draining: bool = False) -> Ticket:
+    def _refuse_if_full(self, draining: bool) -> None:
         retry = self.settings.retry_after_s
+        if draining or self._stopping:
+            raise Unavailable("service: shutting down, not accepting new work", field="service", retry_after=retry)
+        if self._pending >= self.settings.queue_size:
+            raise Unavailable(f"queue: full ({self._pending} requests waiting, queue_size={self.settings.queue_size}); retry after {retry} s", field="queue", retry_after=retry)
+
+    def refuse_if_full(self, draining: bool = False) -> None:
+        """503 now if ``admit`` would refuse: checked before a body is read, no place is taken."""
         with self._cond:
-            if draining or self._stopping:
-                raise Unavailable("service: shutting down, not accepting new work", field="service", retry_after=retry)
-            if self._pending >= self.settings.queue_size:
-                raise Unavailable(f"queue: full ({self._pending} requests waiting, queue_size={self.settings.queue_size}); retry after {retry} s", field="queue", retry_after=retry)
+            self._refuse_if_full(draining)
+
+    def admit(self, draining: bool = False) -> Ticket:
+        with self._cond:
+            self._refuse_if_full(draining)
             self._pending += 1
             self._busy += 1
             self._gauges()

@@ -157,6 +157,8 @@ class Limits(BaseModel):
     queue_size: int
     microbatch_max_size: int
     microbatch_max_wait_ms: float
+    body_timeout_s: float = Field(description="a request's body must arrive within this time (408 beyond)")
+    max_jpeg_scans: int = Field(description="scans per JPEG image (a progressive JPEG with more is refused, 422)")
     stream_protocol_version: int
 
 

@@ -8,6 +8,11 @@ draining: new requests get 503 with Retry-After while the listening socket stays
 answer their frame in flight and close with 1001. When nothing is in flight, or after
 ``drain_timeout_s``, uvicorn's own shutdown runs (lifespan: the workers stop). A second signal
 skips the wait (uvicorn's behaviour: a second Ctrl-C forces the exit).
+
+Limits set here, at the socket: ``max_connections`` (uvicorn's ``limit_concurrency``: beyond it
+new requests get uvicorn's plain 503), the header deadline (``edge.py``) and uvicorn's keep-alive
+timeout for idle connections. Only uvicorn's h11 protocol is used, whatever else is installed,
+so these limits hold the same everywhere.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import uvicorn
 from fastapi import FastAPI
 
 from fisheye_infer.service.app import create_app
+from fisheye_infer.service.edge import header_timeout_protocol
 from fisheye_infer.service.settings import ServiceSettings
 from fisheye_infer.service.state import Service
 
@@ -71,6 +77,9 @@ def build_server(settings: ServiceSettings, app: FastAPI | None = None, log_leve
         port=settings.port,
         log_level=log_level,
         lifespan="on",
+        http=header_timeout_protocol(settings.header_timeout_s),
+        limit_concurrency=settings.max_connections,
+        timeout_keep_alive=5,
         ws_max_size=settings.max_body_bytes,  # a larger stream message closes the socket with 1009
         timeout_graceful_shutdown=max(1, int(settings.drain_timeout_s)),
         server_header=False,

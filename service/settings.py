@@ -15,8 +15,12 @@
 | ``microbatch_max_size`` | 1 (off) | single-frame requests grouped into one run |
 | ``microbatch_max_wait_ms`` | 5 | how long the first request of a group waits for others |
 | ``request_timeout_s`` | 60 | no request waits longer for its result (504) |
+| ``header_timeout_s`` | 10 | time for a request's headers to arrive (then 408 and the connection closed) |
+| ``body_timeout_s`` | 30 | time for a request's body to arrive (then 408 and the connection closed) |
+| ``max_connections`` | 64 | open connections and requests in progress (beyond: uvicorn answers 503) |
 | ``drain_timeout_s`` | 30 | graceful shutdown: longest wait for in-flight work |
 | ``api_key`` | none | when set, required as ``X-API-Key`` (health endpoints stay open) |
+| ``docs_public`` | false | with an ``api_key``: serve ``/docs`` and ``/openapi.json`` without it |
 | ``cors_origins`` | none | browser origins allowed to call the API |
 
 Unsafe or contradictory combinations are refused when the settings are built, not at the
@@ -53,10 +57,14 @@ class ServiceSettings(BaseSettings):
     microbatch_max_size: int = Field(default=1, ge=1, description="1 turns micro-batching off")
     microbatch_max_wait_ms: float = Field(default=5.0, ge=0.0, le=1000.0)
     request_timeout_s: float = Field(default=60.0, gt=0.0)
+    header_timeout_s: float = Field(default=10.0, gt=0.0, le=300.0, description="time for a request's headers to arrive")
+    body_timeout_s: float = Field(default=30.0, gt=0.0, description="time for a request's body to arrive")
+    max_connections: int = Field(default=64, ge=2, description="open connections and requests in progress")
     drain_timeout_s: float = Field(default=30.0, ge=0.0)
     retry_after_s: int = Field(default=1, ge=1, description="Retry-After sent with 503 answers")
     api_key: SecretStr | None = None
     metrics_public: bool = Field(default=True, description="serve /metrics without the API key (for scrapers)")
+    docs_public: bool = Field(default=False, description="with an api_key: serve /docs and /openapi.json without it")
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     warmup: bool = True
 

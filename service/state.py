@@ -9,8 +9,10 @@ server when nothing is left.
 from __future__ import annotations
 
 import logging
+import os
+from contextlib import contextmanager
 from functools import partial
-from typing import Protocol
+from typing import Iterator, Protocol
 
 import anyio
 
@@ -41,6 +43,8 @@ class Service:
         self.spec: FrameSpec | None = None
         self.draining = False
         self.streams: set[_Stream] = set()
+        self.decode_limiter: anyio.CapacityLimiter | None = None  # decode threads, at most one per core
+        self.reading = 0  # requests whose body is arriving or whose images are decoding (no queue place yet)
 
     async def start(self, detector: Detector | None = None) -> None:
         """Load (unless given) and warm the Detector in a thread, then start the workers."""
@@ -51,6 +55,7 @@ class Service:
             await anyio.to_thread.run_sync(detector.warmup)
         if detector.score_threshold is not None or detector.nms is not None:
             log.warning("the Detector's own score_threshold/nms apply to every request before the request's options")
+        self.decode_limiter = anyio.CapacityLimiter(os.cpu_count() or 1)
         self.detector = detector
         self.spec = FrameSpec.of(detector.info, s.max_batch_frames)
         self.queue = InferenceQueue(detector, s, self.metrics)
@@ -82,10 +87,26 @@ class Service:
 
     @property
     def busy(self) -> int:
-        """Admitted requests and open streams: what a graceful shutdown waits for."""
-        return (self.queue.busy if self.queue else 0) + len(self.streams)
+        """Requests being read, decoded or run, and open streams: what a graceful shutdown waits for."""
+        return (self.queue.busy if self.queue else 0) + len(self.streams) + self.reading
+
+    @contextmanager
+    def reading_request(self) -> Iterator[None]:
+        """Counts a request from its headers to its answer, so that a drain waits for it to be answered."""
+        self.reading += 1
+        try:
+            yield
+        finally:
+            self.reading -= 1
+
+    def refuse_if_full(self) -> None:
+        """503 now if the queue is full, loading or draining; called before reading a body."""
+        if self.queue is None:
+            raise Unavailable("model: not loaded yet", field="model", retry_after=self.settings.retry_after_s)
+        self.queue.refuse_if_full(self.draining)
 
     def admit(self) -> Ticket:
+        """A queue place, taken once the request's images are decoded (see ``queue.py``)."""
         if self.queue is None:
             raise Unavailable("model: not loaded yet", field="model", retry_after=self.settings.retry_after_s)
         return self.queue.admit(self.draining)

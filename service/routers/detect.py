@@ -9,9 +9,10 @@ Bodies (documented in the OpenAPI schema by ``openapi.py``, which knows the mode
 - application/json: ``DetectJsonRequest`` ``{"images": {camera: base64}, ...options}`` or
   ``BatchJsonRequest`` ``{"frames": [{"images": {...}}, ...], ...options}``.
 
-A request takes its queue place before its body is read (503 at once when full), its body must
-arrive within ``request_timeout_s`` (408), and if its client leaves while it waits, its place
-is given back and the work is dropped (counted as status 499 in the metrics).
+A full queue is refused before the body is read (503 at once). The body must arrive within
+``body_timeout_s`` (408, connection closed); its images are decoded in a thread, and only then
+does the request take a queue place, so stalled or slow uploads never hold one. If the client
+leaves while it waits, its place is given back and the work is dropped (counted as status 499).
 """
 
 from __future__ import annotations
@@ -36,12 +37,13 @@ router = APIRouter(tags=["detect"], dependencies=[Depends(require_api_key)])
 
 CLIENT_CLOSED = 499  # nginx's convention: the client left before the answer
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    400: {"model": ErrorOut, "description": "malformed multipart or JSON body"},
+    400: {"model": ErrorOut, "description": "malformed multipart or JSON body, or both Content-Length and Transfer-Encoding"},
     401: {"model": ErrorOut, "description": "X-API-Key missing or wrong"},
-    408: {"model": ErrorOut, "description": "the body did not arrive within request_timeout_s"},
+    408: {"model": ErrorOut, "description": "the headers or body did not arrive within header_timeout_s / body_timeout_s"},
     413: {"model": ErrorOut, "description": "body larger than max_body_bytes"},
-    415: {"model": ErrorOut, "description": "not multipart/JSON, or an image that is not JPEG/PNG"},
-    422: {"model": ErrorOut, "description": "unknown or missing camera, bad option, wrong image size (read from the header), corrupt image"},
+    415: {"model": ErrorOut, "description": "not multipart/JSON, a Content-Encoding, or an image that is not JPEG/PNG"},
+    422: {"model": ErrorOut, "description": "unknown, missing or repeated camera, bad option, wrong image size (read from the header), "
+                                            "too many JPEG scans, corrupt image"},
     503: {"model": ErrorOut, "description": "queue full, draining or loading; see Retry-After"},
     504: {"model": ErrorOut, "description": "no result within request_timeout_s"},
 }
@@ -69,20 +71,18 @@ async def _unless_client_leaves(request: Request, work: Awaitable[list[dict[str,
 
 
 async def _serve(request: Request, service: Service, batch: bool) -> list[dict[str, Any]] | None:
-    ticket = service.admit()  # before reading the body: a full queue refuses at once
-    try:
-        if service.spec is None:
-            raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
-        timeout = service.settings.request_timeout_s
+    if service.spec is None:
+        raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
+    service.refuse_if_full()  # before reading the body: a full queue refuses at once
+    timeout = service.settings.body_timeout_s
+    with service.reading_request():
         try:
             frames, options = await asyncio.wait_for(read_request(request, service.spec, batch), timeout)
         except asyncio.TimeoutError:
-            raise RequestTimeout(f"body: not received within request_timeout_s={timeout:g} s", field="body") from None
-        return await _unless_client_leaves(request, run_frames(service, ticket, frames, options))
-    except ClientDisconnect:
-        return None
-    finally:
-        ticket.release()
+            raise RequestTimeout(f"body: not received within body_timeout_s={timeout:g} s; the connection is closed", field="body") from None
+        except ClientDisconnect:
+            return None
+        return await _unless_client_leaves(request, run_frames(service, frames, options))
 
 
 @router.post("/detect", response_model=DetectResponse, responses=ERROR_RESPONSES, summary="detect objects in one frame")

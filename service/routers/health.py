@@ -10,6 +10,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse, Response
 
+from fisheye_infer.codec import MAX_JPEG_SCANS
 from fisheye_infer.service.deps import ApiKeyDep, DetectorDep, ServiceDep, check_api_key
 from fisheye_infer.service.metrics import CONTENT_TYPE
 from fisheye_infer.service.protocol import VERSION
@@ -64,5 +65,5 @@ async def model(detector: DetectorDep, service: ServiceDep, _: ApiKeyDep) -> Mod
         providers=list(info.providers),
         limits=Limits(max_body_bytes=s.max_body_bytes, max_batch_frames=s.max_batch_frames, queue_size=s.queue_size,
                       microbatch_max_size=s.microbatch_max_size, microbatch_max_wait_ms=s.microbatch_max_wait_ms,
-                      stream_protocol_version=VERSION),
+                      body_timeout_s=s.body_timeout_s, max_jpeg_scans=MAX_JPEG_SCANS, stream_protocol_version=VERSION),
     )

@@ -168,11 +168,7 @@ class StreamSession:
                 raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
             frame = decode_frame(data)
             check_frame(frame.images, service.spec, self.options)
-            ticket = service.admit()
-            try:
-                documents = await run_frames(service, ticket, [frame.images], self.options)
-            finally:
-                ticket.release()
+            documents = await run_frames(service, [frame.images], self.options)
         except FisheyeInferError as exc:
             await self._refuse(exc, frame_id)
             return

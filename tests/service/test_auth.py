@@ -1,4 +1,4 @@
-"""X-API-Key: required everywhere except the health endpoints; compared, never echoed."""
+"""X-API-Key: required everywhere except the health endpoints (and, with docs_public, the docs); compared, never echoed."""
 
 from __future__ import annotations
 
@@ -25,6 +25,11 @@ from fisheye_infer.service.protocol import encode_frame
         ("GET", "/metrics", API_KEY, 200),
         ("POST", "/detect", None, 401),
         ("POST", "/detect/batch", "", 401),
+        ("GET", "/openapi.json", None, 401),  # the schema names cameras, classes and limits
+        ("GET", "/openapi.json", API_KEY, 200),
+        ("GET", "/docs", None, 401),
+        ("GET", "/docs", API_KEY, 200),
+        ("GET", "/redoc", API_KEY, 404),  # not served behind a key
     ],
 )
 def test_key_is_required_except_for_health(keyed_server: LiveServer, method: str, path: str, key: str | None, status: int) -> None:
@@ -57,3 +62,12 @@ def test_cors_preflight_allows_the_configured_origin_and_the_key_header(keyed_se
     response = httpx.options(keyed_server.url + "/detect", headers=headers, timeout=10)
     assert (response.status_code == 200) is allowed
     assert (response.headers.get("access-control-allow-origin") == origin) is allowed
+
+
+def test_docs_public_serves_the_schema_without_the_key(small_model, detector) -> None:
+    from service_live import serve, settings_for
+
+    for live in serve(settings_for(small_model, api_key=API_KEY, docs_public=True), detector):
+        assert httpx.get(live.url + "/openapi.json", timeout=20).status_code == 200
+        assert httpx.get(live.url + "/docs", timeout=20).status_code == 200
+        assert httpx.get(live.url + "/model", timeout=20).status_code == 401

@@ -90,6 +90,7 @@ def test_model_info(client: httpx.Client, detector: Detector) -> None:
     assert body["image_size"] == {"width": 160, "height": 160}
     assert body["rig_hash"] == info.meta.rig_hash and body["model_id"] == info.model_id
     assert body["limits"]["queue_size"] == 2 and body["limits"]["stream_protocol_version"] == 1
+    assert body["limits"]["body_timeout_s"] == 30 and body["limits"]["max_jpeg_scans"] == 64
 
 
 def test_health_ready_and_docs(client: httpx.Client) -> None:

@@ -3,7 +3,6 @@ requests, and a client that leaves mid-request gives its place back."""
 
 from __future__ import annotations
 
-import contextlib
 import http.client
 import json
 import socket
@@ -48,11 +47,11 @@ def _headers_only(port: int) -> socket.socket:
     return sock
 
 
-def test_full_queue_refuses_before_reading_the_body(server: LiveServer) -> None:
-    """503 at once: the refused client gets its answer without having sent a byte of its body."""
-    with contextlib.ExitStack() as stack:
-        for _ in range(server.settings.queue_size):  # each takes its queue place, then waits for its body
-            stack.callback(stack.enter_context(_headers_only(server.port)).shutdown, socket.SHUT_RDWR)
+def test_full_queue_refuses_before_reading_the_body(server: LiveServer, images: dict[str, bytes]) -> None:
+    """503 at once: with the queue full of decoded work, a client gets its answer without having sent a byte of its body."""
+    batch = [part for i in range(8) for part in multipart(images, f"{i}.")]  # each keeps the worker ~0.7 s
+    with ThreadPoolExecutor(3) as pool:
+        busy = [pool.submit(httpx.post, f"{server.url}/detect/batch", files=batch, timeout=60) for _ in range(3)]  # one runs, two wait
         assert server.wait_metric("fisheye_queue_depth", lambda v: v == server.settings.queue_size) == server.settings.queue_size
         with _headers_only(server.port) as refused:
             answer = http.client.HTTPResponse(refused)
@@ -60,7 +59,8 @@ def test_full_queue_refuses_before_reading_the_body(server: LiveServer) -> None:
             body = json.loads(answer.read())
         assert answer.status == 503 and answer.getheader("Retry-After") == "1"
         assert body["field"] == "queue" and "queue_size=2" in body["error"]
-    assert server.wait_metric("fisheye_inflight", lambda v: v == 0) == 0  # the waiting clients left: places given back
+        assert [f.result().status_code for f in busy] == [200] * 3
+    assert server.wait_metric("fisheye_inflight", lambda v: v == 0) == 0
     assert server.metric("fisheye_queue_depth") == 0
 
 

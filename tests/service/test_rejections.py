@@ -4,6 +4,7 @@ keeps serving afterwards."""
 from __future__ import annotations
 
 import base64
+import gzip
 import struct
 import zlib
 from typing import Any, Callable, Iterator
@@ -43,6 +44,39 @@ def corrupt_png(images: dict[str, bytes]) -> bytes:
     at = data.index(b"IDAT")
     data[at + 10 : at + 40] = bytes(30)
     return bytes(data)
+
+
+def header_then_noise(images: dict[str, bytes]) -> bytes:
+    """A valid 160x160 JPEG header and scan header, then random bytes: OpenCV decodes it to a picture."""
+    image = cv2.imdecode(np.frombuffer(images[FRONT], np.uint8), cv2.IMREAD_COLOR)
+    data = cv2.imencode(".jpg", image)[1].tobytes()
+    sos = data.index(b"\xff\xda")
+    header_end = sos + 2 + ((data[sos + 2] << 8) | data[sos + 3])
+    return data[:header_end] + np.random.default_rng(0).integers(0, 256, 20000, dtype=np.uint8).tobytes() + b"\xff\xd9"
+
+
+def many_scans(images: dict[str, bytes], copies: int = 1000) -> bytes:
+    """A 160x160 progressive JPEG with a thousand scans (its first scan repeated), under the 1 MiB body limit."""
+    image = cv2.imdecode(np.frombuffer(images[FRONT], np.uint8), cv2.IMREAD_COLOR)
+    data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])[1].tobytes()
+    first = data.index(b"\xff\xda")
+    second = data.index(b"\xff\xda", first + 2)
+    return data[:second] + data[first:second] * copies + data[second:]
+
+
+def raw_multipart(images: dict[str, bytes]) -> tuple[bytes, str]:
+    request = httpx.Request("POST", "http://127.0.0.1/detect", files=multipart(images))
+    return request.read(), request.headers["content-type"]
+
+
+def unterminated(images: dict[str, bytes]) -> dict[str, Any]:
+    body, content_type = raw_multipart(images)
+    return {"content": body[:-300], "headers": {"content-type": content_type}}
+
+
+def gzipped(images: dict[str, bytes]) -> dict[str, Any]:
+    body, content_type = raw_multipart(images)
+    return {"content": gzip.compress(body), "headers": {"content-type": content_type, "content-encoding": "gzip"}}
 
 
 def with_front(images: dict[str, bytes], data: bytes, content_type: str = "image/png") -> dict[str, Any]:
@@ -97,6 +131,20 @@ CASES: list[tuple[str, str, Request, int, str | None, str]] = [
     ("batch: too many frames", "/detect/batch", lambda im: {"json": {"frames": [{"images": {FRONT: "AA=="}}] * 9}}, 422, "frames", "max_batch_frames=8"),
     ("batch: bad frame named", "/detect/batch", lambda im: {"files": multipart(im, "0.") + multipart({**im, FRONT: png_header_claiming(60000, 60000)}, "1.")}, 422, f"1.{FRONT}", "frame 1"),
     ("batch: empty frame list", "/detect/batch", lambda im: {"json": {"frames": []}}, 422, "frames", "at least 1"),
+    ("corrupt JPEG data", "/detect", lambda im: with_front(im, header_then_noise(im), "image/jpeg"), 422, FRONT, "corrupt data"),
+    ("JPEG with a thousand scans", "/detect", lambda im: with_front(im, many_scans(im), "image/jpeg"), 422, FRONT, "more than 64 scans"),
+    ("batch: non-ASCII digit", "/detect/batch", lambda im: {"files": multipart(im, "\u00b2.")}, 422, f"\u00b2.{FRONT}", "digits 0-9"),
+    ("batch: index of many digits", "/detect/batch", lambda im: {"files": multipart(im, "9" * 50 + ".")}, 422, None, "digits 0-9"),
+    ("batch: camera twice, 0 and 00", "/detect/batch", lambda im: {"files": multipart(im, "0.") + multipart({FRONT: im[FRONT]}, "00.")}, 422,
+     f"0.{FRONT}", f"camera '{FRONT}' given twice"),
+    ("10 kB part name", "/detect", lambda im: {"files": multipart(im) + [("x" * 10000, ("x.png", im[FRONT], "image/png"))]}, 422,
+     "x" * 64 + "... (10000 characters)", "too long"),
+    ("gzip body", "/detect", gzipped, 415, "Content-Encoding", "gzip"),
+    ("unterminated multipart", "/detect", unterminated, 400, "body", "ended before its closing boundary"),
+    ("5000-digit JSON number", "/detect", lambda im: {"content": b'{"images": {}, "score_threshold": ' + b"9" * 5000 + b"}",
+                                                      "headers": {"content-type": "application/json"}}, 422, "score_threshold", "number out of range"),
+    ("100k unknown classes", "/detect", lambda im: {"json": {"images": b64(im), "classes": [f"c{i}" for i in range(100_000)]}}, 422,
+     "classes", "and 99980 more"),
 ]
 
 
@@ -109,6 +157,7 @@ def test_refusal(client: httpx.Client, images: dict[str, bytes], path: str, buil
     if field is not None:
         assert body["field"] == field, body
     assert words in body["error"], body
+    assert len(response.content) < 4096  # what a message repeats of the request is capped
     assert client.get("/healthz").status_code == 200
 
 

@@ -1,0 +1,211 @@
+"""Hostile and careless clients against a real ``fisheye-infer serve`` on loopback, and what they get.
+
+    python benchmarks/probe_service.py MODEL.onnx [--images DIR] [--json out.json]
+
+Starts the service (``build_server``, as ``fisheye-infer serve`` does, with an API key and the
+default limits) on a free 127.0.0.1 port, then runs each probe with raw sockets or httpx and
+sorts the outcomes: the status code answered, ``reset`` (the connection was reset before an
+answer could be read), ``closed`` (closed without an answer) or ``hang`` (no answer within the
+probe's bound). Last, it holds 9 stalled uploads open (headers and 100 bytes of a 1 MB body) and
+times valid ``/detect`` requests meanwhile. Not part of the tests: the tests assert the same
+behaviours one by one (``tests/service/test_hardening.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import contextlib
+import gzip
+import http.client
+import json
+import socket
+import statistics
+import sys
+import threading
+import time
+import urllib.error
+import urllib.request
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import httpx
+import numpy as np
+
+from fisheye_infer.detector import Detector
+from fisheye_infer.service.app import create_app
+from fisheye_infer.service.server import build_server
+from fisheye_infer.service.settings import ServiceSettings
+
+KEY = "probe-key-0123456789abcdef"
+Outcome = str  # "200", "422", ..., "reset", "closed", "hang"
+
+
+def _stalled(port: int, path: str = "/detect") -> socket.socket:
+    sock = socket.create_connection(("127.0.0.1", port), timeout=60)
+    sock.sendall(f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nX-API-Key: {KEY}\r\nContent-Length: 1000000\r\n"
+                 "Content-Type: multipart/form-data; boundary=bnd\r\n\r\n".encode() + b"--bnd\r\n" + b"x" * 93)
+    return sock
+
+
+def _many_scan_jpeg(image: np.ndarray, copies: int) -> bytes:
+    data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])[1].tobytes()
+    first = data.index(b"\xff\xda")
+    second = data.index(b"\xff\xda", first + 2)
+    return data[:second] + data[first:second] * copies + data[second:]
+
+
+def probes(url: str, port: int, pngs: dict[str, bytes], jpegs: dict[str, bytes]) -> dict[str, Callable[[], Outcome]]:
+    cams = list(pngs)
+    front = cams[0]
+    key = {"X-API-Key": KEY}
+    files = [(c, (f"{c}.png", b, "image/png")) for c, b in pngs.items()]
+    rng = np.random.default_rng(0)
+    jpeg = jpegs[front]
+    sos = jpeg.index(b"\xff\xda")
+    corrupt = jpeg[: sos + 2 + ((jpeg[sos + 2] << 8) | jpeg[sos + 3])] + rng.integers(0, 256, 20000, dtype=np.uint8).tobytes() + b"\xff\xd9"
+    image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    body = httpx.Request("POST", url, files=files).read()
+    boundary = body[2 : body.index(b"\r\n")].decode()
+    multipart = {"content-type": f"multipart/form-data; boundary={boundary}", **key}
+
+    def post(path: str = "/detect", timeout: float = 30, **kwargs: object) -> Outcome:
+        try:
+            return str(httpx.post(url + path, timeout=timeout, **kwargs).status_code)  # type: ignore[arg-type]
+        except httpx.ReadTimeout:
+            return "hang"
+        except (httpx.RemoteProtocolError, httpx.ReadError, httpx.WriteError):
+            return "reset"
+
+    def with_front(data: bytes, kind: str = "image/jpeg") -> list:
+        return [(c, (f"{c}.bin", data if c == front else b, kind if c == front else "image/png")) for c, b in pngs.items()]
+
+    def urllib_40mib() -> Outcome:
+        request = urllib.request.Request(url + "/detect", data=b"x" * (40 << 20), headers={"Content-Type": "application/json", **key})
+        try:
+            return str(urllib.request.urlopen(request, timeout=30).status)
+        except urllib.error.HTTPError as exc:
+            return str(exc.code)
+        except (urllib.error.URLError, ConnectionError):
+            return "reset"
+
+    def smuggled() -> Outcome:
+        data = (f"POST /detect HTTP/1.1\r\nHost: x\r\nX-API-Key: {KEY}\r\nContent-Type: application/json\r\nContent-Length: 4\r\n"
+                "Transfer-Encoding: chunked\r\n\r\n0\r\n\r\nGET /healthz HTTP/1.1\r\nHost: x\r\n\r\n").encode()
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+            sock.sendall(data)
+            seen = b""
+            with contextlib.suppress(OSError):
+                while chunk := sock.recv(65536):
+                    seen += chunk
+        if seen.count(b"HTTP/1.1 ") > 1:
+            return "smuggled request answered"
+        return seen.split(b" ", 2)[1].decode() if seen else "closed"
+
+    def trickle(head: bytes, data: bytes) -> Outcome:  # ``head`` at once, then one byte of ``data`` a second
+        with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+            sock.sendall(head)
+            sock.settimeout(1.0)
+            for byte in data:
+                try:
+                    sock.sendall(bytes([byte]))
+                    answer = sock.recv(65536)
+                except socket.timeout:
+                    continue
+                except (ConnectionResetError, BrokenPipeError):
+                    return "reset"
+                return answer.split(b" ", 2)[1].decode() if answer else "closed"
+        return "hang"
+
+    return {
+        "stalled-queue: see latency below": lambda: "n/a",
+        "many-scan progressive JPEG": lambda: post(files=with_front(_many_scan_jpeg(image, 3000)), headers=key),
+        "corrupt JPEG data": lambda: post(files=with_front(corrupt), headers=key),
+        "non-ASCII digit part name": lambda: post("/detect/batch", files=[("\u00b2." + c, f) for c, f in files], headers=key),
+        "same camera twice (0. / 00.)": lambda: post("/detect/batch", files=[("0." + c, f) for c, f in files] + [("00." + front, files[0][1])], headers=key),
+        "slow headers (1 byte/s)": lambda: trickle(b"", f"GET /model HTTP/1.1\r\nHost: x\r\nX-API-Key: {KEY}\r\n\r\n".encode()),
+        "Content-Length + Transfer-Encoding": smuggled,
+        "40 MiB body, urllib": urllib_40mib,
+        "/docs without the key": lambda: str(httpx.get(url + "/docs", timeout=10).status_code),
+        "/openapi.json without the key": lambda: str(httpx.get(url + "/openapi.json", timeout=10).status_code),
+        "10 kB camera name": lambda: post(files=files + [("x" * 10000, ("a.png", pngs[front], "image/png"))], headers=key),
+        "gzip body": lambda: post(content=gzip.compress(body), headers={**multipart, "Content-Encoding": "gzip"}),
+        "unterminated multipart": lambda: post(content=body[:-200], headers=multipart),
+        "5000-digit JSON integer": lambda: post(content=b'{"images": {}, "score_threshold": ' + b"9" * 5000 + b"}", headers={"Content-Type": "application/json", **key}),
+        "100k unknown classes, JSON": lambda: (lambda r: f"{r.status_code} ({len(r.content)} bytes answered)")(httpx.post(
+            url + "/detect", json={"images": {c: base64.b64encode(b).decode() for c, b in pngs.items()}, "classes": [f"c{i}" for i in range(100_000)]},
+            headers=key, timeout=30)),
+        "slow body (1 byte/s)": lambda: trickle(f"POST /detect HTTP/1.1\r\nHost: x\r\nX-API-Key: {KEY}\r\nContent-Type: {multipart['content-type']}\r\n"
+                                                f"Content-Length: {len(body)}\r\n\r\n".encode(), body),
+        "base64 JSON, valid": lambda: post(json={"images": {c: base64.b64encode(b).decode() for c, b in pngs.items()}}, headers=key),
+    }
+
+
+def latency_with_stalled(url: str, port: int, pngs: dict[str, bytes], stalled: int = 9, requests: int = 20) -> dict[str, object]:
+    files = [(c, (f"{c}.png", b, "image/png")) for c, b in pngs.items()]
+    with contextlib.ExitStack() as stack:
+        for _ in range(stalled):
+            stack.enter_context(_stalled(port))
+        time.sleep(0.5)
+        times, statuses = [], []
+        with httpx.Client(base_url=url, timeout=30, headers={"X-API-Key": KEY}) as client:
+            for _ in range(requests):
+                t0 = time.perf_counter()
+                statuses.append(client.post("/detect", files=files).status_code)
+                times.append((time.perf_counter() - t0) * 1e3)
+    return {"stalled_uploads": stalled, "requests": requests, "statuses": sorted(set(statuses)),
+            "median_ms": round(statistics.median(times), 1), "max_ms": round(max(times), 1)}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("model")
+    parser.add_argument("--images", type=Path, help="folder with <camera>.png (default: black frames of the model's size)")
+    parser.add_argument("--json", type=Path, help="write the outcomes here")
+    args = parser.parse_args()
+
+    detector = Detector(args.model, threads=1)
+    width, height = detector.info.image_size
+    frames = {c: (cv2.imread(str(args.images / f"{c}.png")) if args.images else np.zeros((height, width, 3), np.uint8)) for c in detector.info.cameras}
+    pngs = {c: cv2.imencode(".png", im)[1].tobytes() for c, im in frames.items()}
+    jpegs = {c: cv2.imencode(".jpg", im)[1].tobytes() for c, im in frames.items()}
+    settings = ServiceSettings(model_path=args.model, threads=1, api_key=KEY, port=0)
+    server = build_server(settings, create_app(settings, detector), log_level="error")
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    while not server.started:
+        time.sleep(0.05)
+    url = f"http://127.0.0.1:{port}"
+
+    table = probes(url, port, pngs, jpegs)
+    with ThreadPoolExecutor(4) as pool:  # the slow probes run beside the quick ones
+        futures = {name: pool.submit(run) for name, run in table.items()}
+        outcomes = {name: f.result() for name, f in futures.items()}
+    del outcomes["stalled-queue: see latency below"]
+    latency = latency_with_stalled(url, port, pngs)
+    server.should_exit = True
+    thread.join(15)
+
+    counts = {"2xx": 0, "4xx": 0, "5xx": 0, "reset": 0, "closed": 0, "hang": 0, "other": 0}
+    for outcome in outcomes.values():
+        head = outcome.split()[0]
+        kind = f"{head[0]}xx" if head[:1] in "245" and head[:3].isdigit() else head if head in counts else "other"
+        counts[kind] += 1
+    width = max(map(len, outcomes))
+    for name, outcome in outcomes.items():
+        print(f"{name:<{width}}  {outcome}")
+    print("counts:", ", ".join(f"{k} {v}" for k, v in counts.items()))
+    print(f"valid /detect while {latency['stalled_uploads']} stalled uploads are held: statuses {latency['statuses']}, "
+          f"median {latency['median_ms']} ms, max {latency['max_ms']} ms over {latency['requests']} requests")
+    if args.json:
+        args.json.write_text(json.dumps({"outcomes": outcomes, "counts": counts, "latency": latency}, indent=2))
+    return 0 if counts["5xx"] == counts["reset"] == counts["hang"] == counts["other"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
