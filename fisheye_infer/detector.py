@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from fisheye_infer.preprocess import Frame, load_frame, stack_frames
 from fisheye_infer.rig import Rig
 from fisheye_infer.session import create_session, map_ort_errors
 
-__all__ = ["Detector", "DetectorInfo"]
+__all__ = ["Detector", "DetectorInfo", "FrameDetector", "check_interface", "describe"]
 
 
 @dataclass(frozen=True)
@@ -46,52 +46,50 @@ class DetectorInfo:
     meta: ArtifactMeta
 
 
-class Detector:
-    """Runs an exported fisheye detector. See the module docstring."""
+def check_interface(inputs: Mapping[str, Sequence[object]], outputs: Sequence[str], meta: ArtifactMeta, source: str) -> None:
+    """Refuse a graph (local or served) whose inputs and outputs are not the fisheye-infer interface.
 
-    def __init__(
-        self,
-        model_path: str | Path,
-        *,
-        threads: int | None = None,
-        providers: str | Sequence[str] | None = None,
-        score_threshold: float | None = None,
-        nms: NmsConfig | None = None,
-        warmup: bool = True,
-    ) -> None:
-        self.path = Path(model_path)
-        if not self.path.is_file():
-            raise ArtifactError(f"model {self.path}: no such file")
-        self._session = create_session(self.path, threads=threads, providers=providers)
-        meta = parse_meta(self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}")
-        self._check_graph(meta)
-        self.info = DetectorInfo(
-            architecture=meta.architecture,
-            model_id=meta.model_id,
-            classes=meta.classes,
-            cameras=meta.cameras,
-            image_size=meta.image_size,
-            colour_order=meta.colour_order,
-            num_boxes=meta.num_boxes,
-            rig=meta.rig,
-            providers=tuple(self._session.get_providers()),
-            meta=meta,
-        )
+    ``inputs`` maps input name -> shape with the batch axis first; the images input must be
+    ``(B, N, H, W, 3)`` for the metadata's cameras and image size.
+    """
+    if set(inputs) != {INPUT_IMAGES, INPUT_CAMERA_VALID} or list(outputs) != list(OUTPUTS):
+        raise ArtifactError(f"{source}: graph inputs {sorted(inputs)} / outputs {list(outputs)} are not the fisheye-infer interface")
+    shape = list(inputs[INPUT_IMAGES])
+    width, height = meta.image_size
+    if shape[1:] != [len(meta.cameras), height, width, 3]:
+        raise ArtifactError(f"{source}: images input is {shape}, metadata says (B, {len(meta.cameras)}, {height}, {width}, 3)")
+
+
+def describe(meta: ArtifactMeta, providers: Sequence[str]) -> DetectorInfo:
+    return DetectorInfo(
+        architecture=meta.architecture,
+        model_id=meta.model_id,
+        classes=meta.classes,
+        cameras=meta.cameras,
+        image_size=meta.image_size,
+        colour_order=meta.colour_order,
+        num_boxes=meta.num_boxes,
+        rig=meta.rig,
+        providers=tuple(providers),
+        meta=meta,
+    )
+
+
+class FrameDetector:
+    """Frames in, ``Detections`` out, around one graph run; subclasses say where the graph runs.
+
+    ``Detector`` runs it in-process with ONNX Runtime; ``fisheye_infer.triton.TritonDetector``
+    sends the same prepared tensors to a Triton (KServe v2) server. Decoding, validation,
+    stacking and post-processing live here once, so every runtime returns the same boxes.
+    """
+
+    info: DetectorInfo
+
+    def __init__(self, info: DetectorInfo, *, score_threshold: float | None = None, nms: NmsConfig | None = None) -> None:
+        self.info = info
         self.score_threshold = score_threshold
         self.nms = nms
         self.ready = False
-        if warmup:
-            self.warmup()
-
-    def _check_graph(self, meta: ArtifactMeta) -> None:
-        inputs = {i.name: i for i in self._session.get_inputs()}
-        outputs = [o.name for o in self._session.get_outputs()]
-        if set(inputs) != {INPUT_IMAGES, INPUT_CAMERA_VALID} or outputs != list(OUTPUTS):
-            raise ArtifactError(f"model {self.path}: graph inputs {sorted(inputs)} / outputs {outputs} are not the fisheye-infer interface")
-        shape = inputs[INPUT_IMAGES].shape
-        width, height = meta.image_size
-        if list(shape[1:]) != [len(meta.cameras), height, width, 3]:
-            raise ArtifactError(f"model {self.path}: images input is {shape}, metadata says (B, {len(meta.cameras)}, {height}, {width}, 3)")
 
     def warmup(self) -> None:
         """One run on a black frame, so the first real call does not pay for allocation."""
@@ -103,8 +101,8 @@ class Detector:
     # -- running ---------------------------------------------------------------------------
 
     def _run(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
-        with map_ort_errors(f"model {self.path.name}"):
-            return self._session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})
+        """The graph's outputs (boxes, scores, labels, valid) for ``(B, N, H, W, 3)`` uint8 and ``(B, N)`` bool."""
+        raise NotImplementedError
 
     def run_arrays(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
         """The raw graph outputs (boxes, scores, labels, valid) for a prepared batch."""
@@ -146,3 +144,31 @@ class Detector:
             dets = dets.filter(min_score=threshold, classes=classes)
         config = nms if nms is not None else self.nms
         return dets.with_nms(config) if config is not None else dets
+
+
+class Detector(FrameDetector):
+    """Runs an exported fisheye detector in ONNX Runtime. See the module docstring."""
+
+    def __init__(
+        self,
+        model_path: str | Path,
+        *,
+        threads: int | None = None,
+        providers: str | Sequence[str] | None = None,
+        score_threshold: float | None = None,
+        nms: NmsConfig | None = None,
+        warmup: bool = True,
+    ) -> None:
+        self.path = Path(model_path)
+        if not self.path.is_file():
+            raise ArtifactError(f"model {self.path}: no such file")
+        self._session = create_session(self.path, threads=threads, providers=providers)
+        meta = parse_meta(self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}")
+        check_interface({i.name: i.shape for i in self._session.get_inputs()}, [o.name for o in self._session.get_outputs()], meta, f"model {self.path}")
+        super().__init__(describe(meta, self._session.get_providers()), score_threshold=score_threshold, nms=nms)
+        if warmup:
+            self.warmup()
+
+    def _run(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
+        with map_ort_errors(f"model {self.path.name}"):
+            return self._session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})
