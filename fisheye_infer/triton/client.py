@@ -80,10 +80,10 @@ class TritonDetector(FrameDetector):
         self._local = threading.local()
         where = f"model '{model}' at {self.url}"
         with _mapped(where, ArtifactError):
+            metadata = self._client().get_model_metadata(model, version, headers=self.headers)  # raises with the server's reason
+            config = self._client().get_model_config(model, version, headers=self.headers)
             if not self._client().is_model_ready(model, version, headers=self.headers):
                 raise ArtifactError(f"{where}: the server does not report it ready")
-            config = self._client().get_model_config(model, version, headers=self.headers)
-            metadata = self._client().get_model_metadata(model, version, headers=self.headers)
         document = (config.get("parameters", {}).get(METADATA_KEY) or {}).get("string_value")
         meta = parse_meta(document, source=where)
         self.max_batch_size = int(config.get("max_batch_size", 0))

@@ -15,7 +15,7 @@ it. The inputs are the graph's own, ``images`` uint8 ``(B, N, H, W, 3)`` and ``c
 bool ``(B, N)``; the outputs are the fixed-size ``boxes``, ``scores``, ``labels`` and ``valid``.
 
 The service's limits hold here too: the body size (413), at most ``max_batch_frames`` frames
-(422), a queue place taken before the body is read (503 when full or draining), a result within
+and no more than fit in ``max_body_bytes`` (the ``max_batch_size`` the config reports; 422), a queue place taken before the body is read (503 when full or draining), a result within
 ``request_timeout_s`` (504), the API key. At most ``workers`` graph runs at a time. Errors are
 the service's ``ErrorOut``, whose ``error`` field is what KServe clients read. These routes
 are left out of the OpenAPI document: the KServe v2 specification describes them.
@@ -44,6 +44,7 @@ __all__ = ["router", "ModelNotFound", "HEADER_LENGTH"]
 
 HEADER_LENGTH = "Inference-Header-Content-Length"
 VERSION = "1"
+_HEADER_ROOM = 16 * 1024  # room for the JSON header of a binary request
 _NUMPY = {"UINT8": np.uint8, "BOOL": np.bool_, "FP32": np.float32, "INT64": np.int64, "INT32": np.int32, "FP16": np.float16, "FP64": np.float64}
 _KSERVE = {np.dtype(v): k for k, v in _NUMPY.items()}
 
@@ -61,10 +62,21 @@ async def _config(request: Request, service: Service) -> dict[str, Any]:
     """The model's Triton configuration, read from the model file once per app (in a thread)."""
     cached = getattr(request.app.state, "kserve_config", None)
     if cached is None:
-        options = TritonOptions(max_batch_size=service.settings.max_batch_frames, instances=service.settings.workers, kind="cpu")
-        cached = await anyio.to_thread.run_sync(model_config, service.settings.model_path, options)
+        s = service.settings
+        options = TritonOptions(max_batch_size=_max_batch(service), instances=s.workers, kind="cpu")
+        cached = await anyio.to_thread.run_sync(model_config, s.model_path, options)
         request.app.state.kserve_config = cached
     return cached
+
+
+def _max_batch(service: Service) -> int:
+    """Frames per request: at most ``max_batch_frames``, and no more than fit in ``max_body_bytes`` as binary tensors."""
+    s, info = service.settings, service.detector.info if service.detector else None
+    if info is None:
+        raise Unavailable("model: not loaded yet", field="model", retry_after=s.retry_after_s)
+    width, height = info.image_size
+    frame_bytes = len(info.cameras) * (height * width * 3 + 1)
+    return max(1, min(s.max_batch_frames, (s.max_body_bytes - _HEADER_ROOM) // frame_bytes))
 
 
 def _check_model(service: Service, name: str, version: str | None) -> None:
@@ -136,49 +148,56 @@ def _split_body(body: bytes, header_length: str | None) -> tuple[dict[str, Any],
     return doc, body[size:]
 
 
-def _tensor(item: Any, binary: memoryview, offset: int, expected: dict[str, Any]) -> tuple[np.ndarray, int]:
-    """One input tensor, checked against the graph's input ``expected`` (from the config)."""
-    name = expected["name"]
-    want = KSERVE_DTYPES[expected["data_type"]]
+def _shape(item: dict[str, Any], expected: dict[str, Any]) -> list[int]:
+    """An input's shape, after checking its datatype and shape against the graph's input ``expected``."""
+    name, want, dims = expected["name"], KSERVE_DTYPES[expected["data_type"]], expected["dims"]
     if item.get("datatype") != want:
         raise RequestInvalid(f"input '{name}': datatype {item.get('datatype')!r}, expected {want}", field=name)
     shape = item.get("shape")
-    dims = expected["dims"]
     if not (isinstance(shape, list) and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in shape)
             and len(shape) == len(dims) + 1 and all(d == -1 or d == s for d, s in zip(dims, shape[1:]))):
         raise RequestInvalid(f"input '{name}': shape {shape!r}, expected [B, {', '.join(map(str, dims))}]", field=name)
-    dtype = np.dtype(_NUMPY[want])
-    count = int(np.prod(shape))
+    return shape
+
+
+def _data(item: dict[str, Any], shape: list[int], dtype: np.dtype, binary: memoryview, offset: int) -> tuple[np.ndarray, int]:
+    """An input's values: from the binary part (binary tensor extension) or from its JSON ``data``."""
+    name, count = item["name"], int(np.prod(shape))
     size = (item.get("parameters") or {}).get("binary_data_size")
     if size is not None:
         if not isinstance(size, int) or size != count * dtype.itemsize or offset + size > len(binary):
-            raise RequestInvalid(f"input '{name}': binary_data_size {size!r} does not fit shape {shape} of {want} "
+            raise RequestInvalid(f"input '{name}': binary_data_size {size!r} does not fit shape {shape} "
                                  f"({count * dtype.itemsize} bytes) in the {len(binary) - offset} bytes left", field=name)
         return np.frombuffer(binary[offset : offset + size], dtype).reshape(shape), offset + size
     try:
         data = np.asarray(item.get("data"), dtype).reshape(-1)
     except (TypeError, ValueError) as exc:
-        raise RequestInvalid(f"input '{name}': data cannot be read as {want} ({exc})", field=name) from None
+        raise RequestInvalid(f"input '{name}': data cannot be read as {item['datatype']} ({exc})", field=name) from None
     if data.size != count:
         raise RequestInvalid(f"input '{name}': {data.size} values in data, shape {shape} needs {count}", field=name)
     return data.reshape(shape), offset
 
 
 def _inputs(doc: dict[str, Any], binary: bytes, config: dict[str, Any], max_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Names, datatypes, shapes and the frame count first (cheap), then the values."""
     expected = {t["name"]: t for t in config["input"]}
     given = {item.get("name"): item for item in doc["inputs"] if isinstance(item, dict)}
     if len(given) != len(doc["inputs"]) or set(given) != set(expected):
         names = [item.get("name") if isinstance(item, dict) else item for item in doc["inputs"]]
         raise RequestInvalid(f"inputs: got {names}, expected exactly {sorted(expected)} once each", field="inputs")
+    shapes = {name: _shape(item, expected[name]) for name, item in given.items()}
+    frames = {shape[0] for shape in shapes.values()}
+    if len(frames) != 1 or 0 in frames:
+        raise RequestInvalid(f"inputs: {INPUT_IMAGES} has {shapes[INPUT_IMAGES][0]} frames, {INPUT_CAMERA_VALID} {shapes[INPUT_CAMERA_VALID][0]}; "
+                             "expected the same, at least 1", field="inputs")
+    if frames.pop() > max_frames:
+        raise RequestInvalid(f"inputs: {shapes[INPUT_IMAGES][0]} frames, at most max_batch_size={max_frames} per request "
+                             "(max_batch_frames, and what fits in max_body_bytes)", field="inputs")
     view, offset, arrays = memoryview(binary), 0, {}
     for item in doc["inputs"]:  # binary data follows the header in the order of the inputs
-        arrays[item["name"]], offset = _tensor(item, view, offset, expected[item["name"]])
-    images, valid = arrays[INPUT_IMAGES], arrays[INPUT_CAMERA_VALID]
-    if images.shape[0] != valid.shape[0] or images.shape[0] == 0:
-        raise RequestInvalid(f"inputs: {INPUT_IMAGES} has {images.shape[0]} frames, {INPUT_CAMERA_VALID} {valid.shape[0]}; expected the same, at least 1", field="inputs")
-    if images.shape[0] > max_frames:
-        raise RequestInvalid(f"inputs: {images.shape[0]} frames, at most max_batch_frames={max_frames} per request", field="inputs")
-    return images, valid
+        dtype = np.dtype(_NUMPY[item["datatype"]])
+        arrays[item["name"]], offset = _data(item, shapes[item["name"]], dtype, view, offset)
+    return arrays[INPUT_IMAGES], arrays[INPUT_CAMERA_VALID]
 
 
 def _wanted(doc: dict[str, Any]) -> list[tuple[str, bool]]:
@@ -234,7 +253,7 @@ async def infer(name: str, request: Request, service: ServiceDep, version: str |
             raise RequestTimeout(f"body: not received within request_timeout_s={settings.request_timeout_s:g} s", field="body") from None
         doc, binary = _split_body(body, request.headers.get(HEADER_LENGTH))
         config = await _config(request, service)
-        images, valid = _inputs(doc, binary, config, settings.max_batch_frames)
+        images, valid = _inputs(doc, binary, config, config["max_batch_size"])
         wanted = _wanted(doc)
         try:
             with anyio.fail_after(settings.request_timeout_s):
