@@ -8,6 +8,10 @@ The default result is exactly the official test-time output set: every box whose
 in the model's post_center_range, no score threshold, no NMS. Thresholds, class filters and
 NMS are opt-in, per Detector or per call. One Detector may be shared by threads: ONNX Runtime
 sessions are safe to run concurrently and the Detector keeps no per-call state.
+
+``FrameDetector`` holds everything around the graph run (decode, checks, stacking,
+post-processing); ``Detector`` runs the graph with ONNX Runtime, ``TritonDetector``
+(``fisheye_infer.triton``) on a Triton server, and both return the same boxes.
 """
 
 from __future__ import annotations

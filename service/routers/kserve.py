@@ -87,8 +87,10 @@ def _check_model(service: Service, name: str, version: str | None) -> None:
         raise ModelNotFound(f"model '{name}': version '{version}' not served here (versions: {VERSION})", field="version")
 
 
-def _io(items: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    return [{"name": t["name"], "datatype": KSERVE_DTYPES[t["data_type"]], "shape": [-1, *t["dims"]]} for t in items]
+def _io(config: dict[str, Any], key: str) -> list[dict[str, Any]]:
+    """Tensors as KServe metadata lists them: the batch axis, if batched, as -1 in front of the dims."""
+    batch = [-1] if config["max_batch_size"] > 0 else []
+    return [{"name": t["name"], "datatype": KSERVE_DTYPES[t["data_type"]], "shape": [*batch, *t["dims"]]} for t in config[key]]
 
 
 @router.get("")
@@ -111,7 +113,7 @@ async def ready(service: ServiceDep) -> JSONResponse:
 async def model_metadata(name: str, request: Request, service: ServiceDep, _: DetectorDep, version: str | None = None) -> dict[str, Any]:
     _check_model(service, name, version)
     config = await _config(request, service)
-    return {"name": name, "versions": [VERSION], "platform": "onnxruntime_onnx", "inputs": _io(config["input"]), "outputs": _io(config["output"])}
+    return {"name": name, "versions": [VERSION], "platform": "onnxruntime_onnx", "inputs": _io(config, "input"), "outputs": _io(config, "output")}
 
 
 @router.get("/models/{name}/ready", dependencies=_keyed)
