@@ -85,3 +85,15 @@ def test_duplicate_tokens_are_refused(small_export, synth_root: Path) -> None:
     frames = dataset_frames(Fisheye3DOD(synth_root, "val"))
     with pytest.raises(ValueError, match="appears twice"):
         detect_frames(small_export.onnx, [frames[0], frames[0]])
+
+
+def test_detect_ray_over_a_folder_of_camera_folders(ray_local, small_export, synth_root: Path, tmp_path: Path) -> None:
+    """--images DIR with one sub-folder per camera: frames named by their file stems, the same records as --data."""
+    dataset = Fisheye3DOD(synth_root, "val")
+    folder = dataset.image_paths(0)["fisheye_camera_front"].parent.parent  # <scene>/<vehicle>/ holds one folder per sensor
+    pred = tmp_path / "pred.json"
+    assert main(["detect", str(small_export.onnx), "--ray", "--images", str(folder), "--out", str(pred)]) == 0
+    results = load_results(pred)
+    assert list(results) == [e.frame_id for e in dataset.entries]
+    detector = Detector(small_export.onnx, threads=1)
+    _same_records(results[dataset.entries[0].frame_id], detector.detect(dataset.image_paths(0)).to_nuscenes())
