@@ -10,7 +10,8 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	# torch first, pinned: this CPU build is what the export extra is developed against
 	$(BIN)/pip install torch==2.13.0
-	$(BIN)/pip install -e '.[export,serve,dev]'
+	# ray and triton: the Ray Serve / Ray Data / Triton client paths the tests exercise
+	$(BIN)/pip install -e '.[export,serve,dev,ray,triton]'
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -23,7 +24,7 @@ test: $(STAMP)
 
 # Not part of the tests: speed and ratios on this machine (15-25 min on 2 cores)
 bench: $(STAMP)
-	$(BIN)/pip install -e '.[export,serve,dev,bench]'
+	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,bench]'
 	$(BIN)/python benchmarks/run_all.py
 
 clean:

@@ -4,7 +4,8 @@ The core (this package) needs numpy, onnxruntime, OpenCV, simplejpeg and pydanti
 rigs, the geometry tables the detectors are built on, and ``Detector``, which runs an exported
 model and returns ``Detections``. ``fisheye_infer.models`` and
 ``fisheye_infer.export`` need the ``[export]`` extra (torch, onnx); ``fisheye_infer.service``
-needs ``[serve]``.
+needs ``[serve]``; its Ray Serve deployment and ``fisheye_infer.batch`` (Ray Data) need ``[ray]``;
+``fisheye_infer.triton.TritonDetector`` needs ``[triton]``. Importing this package loads none of them.
 """
 
 from fisheye_infer._version import __version__

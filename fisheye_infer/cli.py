@@ -157,6 +157,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     configure_serve(sub.add_parser("serve", help="serve a model over HTTP and WebSocket", description="Serve a model over HTTP and WebSocket (needs the [serve] extra)."))
 
+    from fisheye_infer.triton.commands import configure_triton
+
+    configure_triton(sub.add_parser("triton", help="write a Triton model repository (config.pbtxt + model.onnx) for an exported file"))
+
     from fisheye_infer.bench import configure_bench
 
     configure_bench(sub.add_parser("bench", help="benchmark a model on this machine: latency per stage, throughput, peak RSS"))

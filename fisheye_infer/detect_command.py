@@ -2,6 +2,7 @@
 
     fisheye-infer detect model.onnx --images frame_dir/ --out result.json --viz result.png
     fisheye-infer detect --result result.json --images frame_dir/ --viz result.png   # draw a saved result
+    fisheye-infer detect model.onnx --ray --data ROOT --split val --out pred.json    # many frames with Ray Data (fisheye_infer.batch)
 
 The results file holds the model id, classes, the rig, and per frame the detections (the
 runtime's records), the cameras used and the stage timings, so it can be drawn later on its own.
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import cv2
 
+from fisheye_infer.batch import configure_ray_flags, run_ray
 from fisheye_infer.detections import Detections
 from fisheye_infer.errors import FrameError
 from fisheye_infer.nms import NmsConfig
@@ -35,6 +37,7 @@ def configure_detect(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--classes", help="comma-separated class names to keep")
     parser.add_argument("--nms", choices=("rotated", "circle"), help="optional NMS (the official output has none)")
     parser.add_argument("--threads", type=_positive_int, help="ONNX Runtime intra-op threads (default: all cores)")
+    configure_ray_flags(parser)
     parser.set_defaults(run=run_detect)
 
 
@@ -79,6 +82,10 @@ def _draw_saved(args: argparse.Namespace) -> int:
 
 
 def run_detect(args: argparse.Namespace) -> int:
+    if getattr(args, "ray", False):
+        return run_ray(args)
+    if getattr(args, "data", None):
+        raise FrameError("--data runs over a Fisheye3DOD split with --ray; without it, give --images")
     if args.result:
         if not args.viz:
             raise FrameError("--result needs --viz: drawing is all there is to do with a saved result")

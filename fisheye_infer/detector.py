@@ -9,6 +9,10 @@ in the model's post_center_range, no score threshold, no NMS. Thresholds, class 
 NMS are opt-in, per Detector or per call. One Detector may be shared by threads: ONNX Runtime
 sessions are safe to run concurrently and the Detector keeps no per-call state.
 
+``FrameDetector`` holds everything around the graph run (decode, checks, stacking,
+post-processing); ``Detector`` runs the graph with ONNX Runtime, ``TritonDetector``
+(``fisheye_infer.triton``) on a Triton server, and both return the same boxes.
+
 Options are checked where they enter, before any work, with an ``OptionError`` naming the option
 (a threshold of 2.0 or NaN would otherwise silently return no boxes). The file's metadata is
 checked against its graph at load: the box count against the outputs' static shapes, and the
@@ -34,7 +38,9 @@ from fisheye_infer.preprocess import Frame, load_frame, stack_frames
 from fisheye_infer.rig import Rig
 from fisheye_infer.session import create_session, map_ort_errors
 
-__all__ = ["Detector", "DetectorInfo", "check_score_threshold", "check_classes", "check_nms"]
+__all__ = ["Detector", "DetectorInfo", "FrameDetector", "check_classes", "check_interface", "check_nms", "check_output_shapes",
+           "check_score_threshold", "describe"]
+
 
 NMS_KINDS = ("rotated", "circle")
 
@@ -100,87 +106,93 @@ class DetectorInfo:
     meta: ArtifactMeta
 
 
-class Detector:
-    """Runs an exported fisheye detector. See the module docstring."""
+def check_interface(inputs: Mapping[str, Sequence[object]], outputs: Sequence[str], meta: ArtifactMeta, source: str) -> None:
+    """Refuse a graph (local or served) whose inputs and outputs are not the fisheye-infer interface.
 
-    def __init__(
-        self,
-        model_path: str | Path,
-        *,
-        threads: int | None = None,
-        providers: str | Sequence[str] | None = None,
-        score_threshold: float | None = None,
-        nms: NmsConfig | str | None = None,
-        warmup: bool = True,
-    ) -> None:
+    ``inputs`` maps input name -> shape with the batch axis first; the images input must be
+    ``(B, N, H, W, 3)`` for the metadata's cameras and image size.
+    """
+    if set(inputs) != {INPUT_IMAGES, INPUT_CAMERA_VALID} or list(outputs) != list(OUTPUTS):
+        raise ArtifactError(f"{source}: graph inputs {sorted(inputs)} / outputs {list(outputs)} are not the fisheye-infer interface")
+    shape = list(inputs[INPUT_IMAGES])
+    width, height = meta.image_size
+    if shape[1:] != [len(meta.cameras), height, width, 3]:
+        raise ArtifactError(f"{source}: images input is {shape}, metadata says (B, {len(meta.cameras)}, {height}, {width}, 3)")
+
+
+def check_output_shapes(outputs: Mapping[str, Sequence[object]], meta: ArtifactMeta, source: str) -> None:
+    """Refuse metadata that its graph's static output shapes (batch axis first) contradict."""
+    for name, shape in outputs.items():
+        boxes = shape[1] if len(shape) > 1 else None
+        if isinstance(boxes, int) and boxes > 0 and boxes != meta.num_boxes:
+            raise ArtifactError(f"{source}: num_boxes: metadata says {meta.num_boxes}, the graph's '{name}' output has {boxes}")
+        if name == "boxes" and shape and isinstance(shape[-1], int) and shape[-1] > 0 and shape[-1] != len(meta.box_layout):
+            raise ArtifactError(f"{source}: box_layout: metadata names {len(meta.box_layout)} values per box, the graph's 'boxes' output has {shape[-1]}")
+
+
+def describe(meta: ArtifactMeta, providers: Sequence[str]) -> DetectorInfo:
+    return DetectorInfo(
+        architecture=meta.architecture,
+        model_id=meta.model_id,
+        classes=meta.classes,
+        cameras=meta.cameras,
+        image_size=meta.image_size,
+        colour_order=meta.colour_order,
+        num_boxes=meta.num_boxes,
+        rig=meta.rig,
+        providers=tuple(providers),
+        meta=meta,
+    )
+
+
+class FrameDetector:
+    """Frames in, ``Detections`` out, around one graph run; subclasses say where the graph runs.
+
+    ``Detector`` runs it in-process with ONNX Runtime; ``fisheye_infer.triton.TritonDetector``
+    sends the same prepared tensors to a Triton (KServe v2) server. Decoding, validation,
+    stacking and post-processing live here once, so every runtime returns the same boxes.
+    """
+
+    info: DetectorInfo
+
+    def __init__(self, info: DetectorInfo, *, score_threshold: float | None = None, nms: NmsConfig | str | None = None) -> None:
+        self.info = info
         self.score_threshold = check_score_threshold(score_threshold)
         self.nms = check_nms(nms)
-        self.path = Path(model_path)
-        if not self.path.is_file():
-            raise ArtifactError(f"model {self.path}: no such file")
-        self._session = create_session(self.path, threads=threads, providers=providers)
-        meta = parse_meta(self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}")
-        self._check_graph(meta)
-        self.info = DetectorInfo(
-            architecture=meta.architecture,
-            model_id=meta.model_id,
-            classes=meta.classes,
-            cameras=meta.cameras,
-            image_size=meta.image_size,
-            colour_order=meta.colour_order,
-            num_boxes=meta.num_boxes,
-            rig=meta.rig,
-            providers=tuple(self._session.get_providers()),
-            meta=meta,
-        )
         self.ready = False
-        if warmup:
-            self.warmup()
-
-    def _check_graph(self, meta: ArtifactMeta) -> None:
-        inputs = {i.name: i for i in self._session.get_inputs()}
-        outputs = [o.name for o in self._session.get_outputs()]
-        if set(inputs) != {INPUT_IMAGES, INPUT_CAMERA_VALID} or outputs != list(OUTPUTS):
-            raise ArtifactError(f"model {self.path}: graph inputs {sorted(inputs)} / outputs {outputs} are not the fisheye-infer interface")
-        shape = inputs[INPUT_IMAGES].shape
-        width, height = meta.image_size
-        if list(shape[1:]) != [len(meta.cameras), height, width, 3]:
-            raise ArtifactError(f"model {self.path}: images input is {shape}, metadata says (B, {len(meta.cameras)}, {height}, {width}, 3)")
-        for output in self._session.get_outputs():
-            boxes = output.shape[1] if len(output.shape) > 1 else None
-            if isinstance(boxes, int) and boxes != meta.num_boxes:
-                raise ArtifactError(f"model {self.path}: num_boxes: metadata says {meta.num_boxes}, the graph's '{output.name}' output has {boxes}")
-            if output.name == "boxes" and isinstance(output.shape[-1], int) and output.shape[-1] != len(meta.box_layout):
-                raise ArtifactError(f"model {self.path}: box_layout: metadata names {len(meta.box_layout)} values per box, the graph's 'boxes' output has {output.shape[-1]}")
-
-    def _check_outputs(self, outputs: list[np.ndarray]) -> None:
-        """What only a run shows: the box count of dynamic shapes, and labels within the class list."""
-        boxes, _, labels, _ = outputs
-        if boxes.shape[1] != self.info.num_boxes:
-            raise ArtifactError(f"model {self.path}: num_boxes: metadata says {self.info.num_boxes}, the graph returned {boxes.shape[1]} boxes per frame")
-        if labels.size and (labels.min() < 0 or labels.max() >= len(self.info.classes)):
-            raise ArtifactError(f"model {self.path}: classes: metadata lists {len(self.info.classes)} ({', '.join(self.info.classes)}), "
-                                f"the graph returned label {int(labels.max() if labels.max() >= len(self.info.classes) else labels.min())}; "
-                                "the file's metadata does not match its graph")
 
     def warmup(self) -> None:
         """One run on a black frame, so the first real call does not pay for allocation."""
         width, height = self.info.image_size
         images = np.zeros((1, len(self.info.cameras), height, width, 3), np.uint8)
-        self._run(images, np.ones((1, len(self.info.cameras)), bool))
+        self._checked_run(images, np.ones((1, len(self.info.cameras)), bool))
         self.ready = True
 
     # -- running ---------------------------------------------------------------------------
 
     def _run(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
-        with map_ort_errors(f"model {self.path.name}"):
-            outputs = self._session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})
+        """The graph's outputs (boxes, scores, labels, valid) for ``(B, N, H, W, 3)`` uint8 and ``(B, N)`` bool."""
+        raise NotImplementedError
+
+    def _checked_run(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
+        outputs = self._run(images, valid)
         self._check_outputs(outputs)
         return outputs
 
+    def _check_outputs(self, outputs: list[np.ndarray]) -> None:
+        """What only a run shows: the box count of dynamic shapes, and labels within the class list."""
+        boxes, _, labels, _ = outputs
+        source = f"model {self.info.model_id}"
+        if boxes.shape[1] != self.info.num_boxes:
+            raise ArtifactError(f"{source}: num_boxes: metadata says {self.info.num_boxes}, the graph returned {boxes.shape[1]} boxes per frame")
+        if labels.size and (labels.min() < 0 or labels.max() >= len(self.info.classes)):
+            raise ArtifactError(f"{source}: classes: metadata lists {len(self.info.classes)} ({', '.join(self.info.classes)}), "
+                                f"the graph returned label {int(labels.max() if labels.max() >= len(self.info.classes) else labels.min())}; "
+                                "the file's metadata does not match its graph")
+
     def run_arrays(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
         """The raw graph outputs (boxes, scores, labels, valid) for a prepared batch."""
-        return self._run(np.ascontiguousarray(images, np.uint8), np.ascontiguousarray(valid, bool))
+        return self._checked_run(np.ascontiguousarray(images, np.uint8), np.ascontiguousarray(valid, bool))
 
     def detect(self, frame: Frame, *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | str | None = None) -> Detections:
         """Detections for one frame (mapping camera -> image, or a sequence in camera order)."""
@@ -206,7 +218,7 @@ class Detector:
         t1 = time.perf_counter()
         images, valid = stack_frames(loaded, self.info.image_size)
         t2 = time.perf_counter()
-        outputs = self._run(images, valid)
+        outputs = self._checked_run(images, valid)
         t3 = time.perf_counter()
         results = [self._postprocess(outputs, b, valid[b], score_threshold, classes, nms) for b in range(len(frames))]
         t4 = time.perf_counter()
@@ -224,3 +236,34 @@ class Detector:
             dets = dets.filter(min_score=threshold, classes=classes)
         config = nms if nms is not None else self.nms
         return dets.with_nms(config) if config is not None else dets
+
+
+class Detector(FrameDetector):
+    """Runs an exported fisheye detector in ONNX Runtime. See the module docstring."""
+
+    def __init__(
+        self,
+        model_path: str | Path,
+        *,
+        threads: int | None = None,
+        providers: str | Sequence[str] | None = None,
+        score_threshold: float | None = None,
+        nms: NmsConfig | str | None = None,
+        warmup: bool = True,
+    ) -> None:
+        check_score_threshold(score_threshold)  # bad options are named before the session is built
+        check_nms(nms)
+        self.path = Path(model_path)
+        if not self.path.is_file():
+            raise ArtifactError(f"model {self.path}: no such file")
+        self._session = create_session(self.path, threads=threads, providers=providers)
+        meta = parse_meta(self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}")
+        check_interface({i.name: i.shape for i in self._session.get_inputs()}, [o.name for o in self._session.get_outputs()], meta, f"model {self.path}")
+        check_output_shapes({o.name: o.shape for o in self._session.get_outputs()}, meta, f"model {self.path}")
+        super().__init__(describe(meta, self._session.get_providers()), score_threshold=score_threshold, nms=nms)
+        if warmup:
+            self.warmup()
+
+    def _run(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
+        with map_ort_errors(f"model {self.path.name}"):
+            return self._session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})

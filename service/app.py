@@ -26,7 +26,7 @@ from fisheye_infer.service.deps import require_api_key
 from fisheye_infer.service.errors import handle_fisheye_error
 from fisheye_infer.service.middleware import ServiceMiddleware
 from fisheye_infer.service.openapi import install_openapi
-from fisheye_infer.service.routers import detect, health, stream
+from fisheye_infer.service.routers import detect, health, kserve, stream
 from fisheye_infer.service.settings import ServiceSettings
 from fisheye_infer.service.state import Service
 
@@ -94,7 +94,7 @@ def create_app(settings: ServiceSettings, detector: Detector | None = None) -> F
     app.add_middleware(ServiceMiddleware, metrics=service.metrics, max_body_bytes=settings.max_body_bytes)
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["GET", "POST"], allow_headers=["Content-Type", "X-API-Key"])
-    for group in (health, detect, stream):
+    for group in (health, detect, stream, kserve):
         app.include_router(group.router)
     install_openapi(app, service)
     return app

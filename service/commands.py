@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fisheye_infer.service.ray_commands import configure_ray_serve, run_ray_serve
+
 __all__ = ["configure_serve", "run_serve"]
 
 NEEDS_SERVE = "fisheye-infer serve needs the serve extra: pip install 'fisheye-infer[serve]'"
@@ -42,6 +44,7 @@ def configure_serve(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--drain-timeout-s", type=float, help="on SIGTERM, longest wait for work in flight (default 30)")
     parser.add_argument("--cors-origins", help="comma-separated browser origins allowed to call the API")
     parser.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
+    configure_ray_serve(parser)
     parser.set_defaults(run=run_serve)
 
 
@@ -82,6 +85,8 @@ def run_serve(args: argparse.Namespace) -> int:
         problems = "; ".join(f"{'.'.join(str(x) for x in e['loc']) or 'settings'}: {e['msg']}" for e in exc.errors())
         print(f"fisheye-infer serve: error: {problems} (flags and FISHEYE_* variables)", file=sys.stderr)
         return 1
+    if args.ray:
+        return run_ray_serve(args, settings)
     _log_to_stderr(args.log_level)
     print(f"loading {settings.model_path} ...", file=sys.stderr)
     detector = Detector(settings.model_path, threads=settings.threads, warmup=settings.warmup)

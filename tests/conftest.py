@@ -121,3 +121,14 @@ def small_export(tmp_path_factory: pytest.TempPathFactory, small_bevdet_config) 
     make_checkpoint("fisheye-bevdet", seed=3, path=ckpt, config=small_bevdet_config, rig=small_rig)
     result = export(ckpt, folder / "small.onnx", config=small_bevdet_config, rig=small_rig, progress=lambda _: None)
     return Exported("fisheye-bevdet", ckpt, result.path, result)
+
+
+@pytest.fixture(scope="session")
+def ray_local():
+    """A local Ray for this session only: 2 CPUs, no dashboard, on 127.0.0.1; shut down at the end."""
+    ray = pytest.importorskip("ray", reason="needs the [ray] extra")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", configure_logging=False, log_to_driver=False)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()

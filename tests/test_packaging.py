@@ -31,7 +31,7 @@ def test_wheel_installs_one_namespace(wheel: Path) -> None:
     names = zipfile.ZipFile(wheel).namelist()
     top = {n.split("/")[0] for n in names}
     assert {t for t in top if not t.endswith(".dist-info")} == {"fisheye_infer"}
-    for sub in ("models", "export", "service", "geometry"):
+    for sub in ("models", "export", "service", "geometry", "triton"):
         assert f"fisheye_infer/{sub}/__init__.py" in names
     assert "fisheye_infer/data/rig-fisheye3dod/calib_results.txt" in names
     assert "fisheye_infer/models/manifests/fisheye_bevdet_keys.json" in names
@@ -41,7 +41,7 @@ BLOCK_HEAVY = """
 import importlib.abc, sys
 class Block(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name.split('.')[0] in {'torch', 'fastapi', 'uvicorn', 'starlette', 'onnx', 'matplotlib'}:
+        if name.split('.')[0] in {'torch', 'fastapi', 'uvicorn', 'starlette', 'onnx', 'matplotlib', 'ray', 'tritonclient', 'grpc'}:
             raise ImportError(f'{name} is not installed')
 sys.meta_path.insert(0, Block())
 """
@@ -50,6 +50,7 @@ sys.meta_path.insert(0, Block())
 def test_core_imports_without_torch_or_web_stack() -> None:
     code = BLOCK_HEAVY + (
         "import fisheye_infer, fisheye_infer.geometry, fisheye_infer.rig, fisheye_infer.camera_fit, fisheye_infer.viz, fisheye_infer.cli\n"
+        "import fisheye_infer.batch, fisheye_infer.triton, fisheye_infer.triton.repository\n"
         "r = fisheye_infer.default_rig(); print(len(r))\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -58,7 +59,7 @@ def test_core_imports_without_torch_or_web_stack() -> None:
 
 
 def test_import_loads_neither_torch_nor_fastapi() -> None:
-    code = "import sys, fisheye_infer; print(sorted(m for m in ('torch', 'fastapi', 'uvicorn', 'onnx') if m in sys.modules))"
+    code = "import sys, fisheye_infer; print(sorted(m for m in ('torch', 'fastapi', 'uvicorn', 'onnx', 'ray', 'tritonclient') if m in sys.modules))"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "[]"
 
@@ -86,3 +87,15 @@ def test_every_subcommand_has_help(command: str, capsys: pytest.CaptureFixture[s
         build_parser().parse_args([command, "--help"])
     assert exit_info.value.code == 0
     assert "usage: fisheye-infer " + command in capsys.readouterr().out
+
+
+def test_missing_ray_or_triton_extra_names_the_install_line(tmp_path: Path) -> None:
+    code = BLOCK_HEAVY + (
+        "from fisheye_infer.triton import TritonDetector\n"
+        "try:\n    TritonDetector('127.0.0.1:8000', 'm')\nexcept ImportError as exc:\n    print(exc)\n"
+        "from fisheye_infer.batch import detect_frames\n"
+        "try:\n    detect_frames('m.onnx', [])\nexcept ImportError as exc:\n    print(exc)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "pip install 'fisheye-infer[triton]'" in result.stdout and "pip install 'fisheye-infer[ray]'" in result.stdout

@@ -20,6 +20,7 @@ import numpy as np
 
 from fisheye_infer.eval.evaluate import evaluate_results, load_results, save_results
 from fisheye_infer.eval.metrics import EvalConfig, MetricsReport
+from fisheye_infer.progress import Progress
 from fisheye_infer.rig import Rig
 
 __all__ = ["configure_eval", "run_eval", "configure_synth", "run_synth"]
@@ -80,26 +81,6 @@ def _write_report(report: MetricsReport, out: str | Path) -> None:
     print(f"wrote {out} and {out.with_suffix('.md')}")
 
 
-class _Progress:
-    """A progress bar on stderr: redrawn in place on a terminal, one line per ``every`` frames otherwise."""
-
-    def __init__(self, total: int, every: int = 100, width: int = 30) -> None:
-        self.total, self.every, self.width = total, every, width
-        self.tty = sys.stderr.isatty()
-        self.t0 = time.perf_counter()
-
-    def update(self, done: int) -> None:
-        if not (self.tty or done % self.every == 0 or done == self.total):
-            return
-        elapsed = time.perf_counter() - self.t0
-        rate = done / elapsed if elapsed > 0 else 0.0
-        filled = self.width * done // max(self.total, 1)
-        eta = (self.total - done) / rate if rate > 0 else 0.0
-        line = f"  [{'#' * filled}{'.' * (self.width - filled)}] {done}/{self.total} frames, {rate:.1f} frames/s, {eta:.0f} s left"
-        end = "\n" if not self.tty or done == self.total else ""
-        print(("\r" if self.tty else "") + line, end=end, file=sys.stderr, flush=True)
-
-
 def _fail(message: str) -> int:
     print(f"fisheye-infer eval: error: {message}", file=sys.stderr)
     return 2
@@ -131,7 +112,7 @@ def run_eval(args: argparse.Namespace) -> int:
     cameras = [camera_name(c) for c in args.cameras] if args.cameras else list(detector.info.cameras)
     dataset = Fisheye3DOD(args.data, args.split, cameras=cameras, scenes=args.scenes, limit=args.limit, class_names=config.class_names)
     gt, pred = {}, {}
-    progress = _Progress(len(dataset))
+    progress = Progress(len(dataset))
     for i, frame in enumerate(dataset, start=1):
         if i == 1:
             _warn_if_rigs_differ(frame.rig, detector.info.rig)

@@ -261,16 +261,20 @@ class Fisheye3DOD:
         except RigError as exc:
             raise DatasetError(f"frame {entry.token}: {exc}") from exc
 
+    def image_paths(self, index: int) -> dict[str, Path]:
+        """Where sample ``index``'s images are (camera -> PNG), without reading or checking them."""
+        entry = self.entries[index]
+        folder = self.root / entry.scene / entry.vehicle
+        return {cam: folder / cam / f"{entry.frame_id}.png" for cam in (*self.cameras, *self.pinhole_cameras)}
+
     def __getitem__(self, index: int) -> Frame:
         entry = self.entries[index]
         seq = self._sequence(entry)
         folder = self.root / entry.scene / entry.vehicle
-        paths = {}
-        for cam in (*self.cameras, *self.pinhole_cameras):
-            path = folder / cam / f"{entry.frame_id}.png"
+        paths = self.image_paths(index)
+        for cam, path in paths.items():
             if not path.is_file():
                 raise DatasetError(f"frame {entry.token}: camera '{cam}': image {path} not found")
-            paths[cam] = path
         boxes, labels, ids = read_labels(folder / "label_3d" / f"{entry.frame_id}.json", self.class_names)
         return Frame(
             token=entry.token,

@@ -1,0 +1,160 @@
+"""The service on Ray Serve: the same FastAPI app on N replicas, one Detector each, batched with ``@serve.batch``.
+
+    fisheye-infer serve model.onnx --ray --replicas 2 --cpus-per-replica 1 [--max-batch-size 4] [--batch-wait-ms 10]
+    serve run fisheye_infer.service.ray_serve:app_builder model_path=/abs/model.onnx replicas=2
+
+Each replica is a ``FisheyeReplica``: ``serve.ingress`` wraps the app ``create_app`` builds, so
+the routes, limits, refusals, ``/healthz``, ``/readyz``, ``/metrics`` and ``/model`` are those of
+``fisheye-infer serve``. Only the model call differs. The app's inference queue hands each
+request's frames to ``BatchedDetector``, which submits them one by one to the replica's
+``@serve.batch`` method; frames of concurrent callers that arrive within ``batch_wait_ms`` run
+as one ``detect_batch`` of up to ``max_batch_size`` frames. How many ran together is counted
+in ``/metrics`` as ``fisheye_serve_batch_frames`` (the answer's ``batch_size`` counts the frames
+of the request itself). Ray's health check asks the replica whether its Detector is loaded and
+warmed, as ``/readyz`` does.
+
+The model path must exist on every node that runs a replica. ONNX Runtime gets
+``cpus_per_replica`` intra-op threads per replica (unless ``threads`` is set), so replicas
+sharing a machine do not oversubscribe its cores.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass
+from typing import Any, Awaitable, Callable, Sequence
+
+from prometheus_client import Histogram
+from ray import serve
+from ray.serve import Application
+
+from fisheye_infer.detections import Detections
+from fisheye_infer.detector import Detector
+from fisheye_infer.preprocess import Frame
+from fisheye_infer.service.app import create_app
+from fisheye_infer.service.settings import ServiceSettings
+
+__all__ = ["RayServeOptions", "BatchedDetector", "FisheyeReplica", "build_app", "app_builder"]
+
+
+@dataclass(frozen=True)
+class RayServeOptions:
+    """Replicas and batching.
+
+    | option | default | meaning |
+    |---|---|---|
+    | ``replicas`` | 1 | copies of the app, each with its own Detector |
+    | ``cpus_per_replica`` | 1.0 | CPUs Ray reserves per replica; also its ONNX Runtime threads |
+    | ``max_batch_size`` | 4 | most frames in one ``@serve.batch`` run |
+    | ``batch_wait_ms`` | 10 | how long the first frame of a batch waits for others |
+    """
+
+    replicas: int = 1
+    cpus_per_replica: float = 1.0
+    max_batch_size: int = 4
+    batch_wait_ms: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.replicas < 1:
+            raise ValueError(f"replicas: expected at least 1, got {self.replicas}")
+        if not self.cpus_per_replica > 0:
+            raise ValueError(f"cpus_per_replica: expected a positive number, got {self.cpus_per_replica}")
+        if not 1 <= self.max_batch_size <= 16:
+            raise ValueError(f"max_batch_size: expected 1..16, got {self.max_batch_size}")
+        if not 0 <= self.batch_wait_ms <= 1000:
+            raise ValueError(f"batch_wait_ms: expected 0..1000, got {self.batch_wait_ms}")
+
+    def replica_settings(self, settings: ServiceSettings) -> ServiceSettings:
+        """The app's settings inside a replica: one queue worker per frame a batch can hold, so that
+        that many requests can wait in ``@serve.batch`` together; the queue's own micro-batching off."""
+        threads = settings.threads or max(1, int(self.cpus_per_replica))
+        return settings.model_copy(update={"workers": max(settings.workers, self.max_batch_size), "microbatch_max_size": 1, "threads": threads})
+
+
+class BatchedDetector:
+    """What the app sees as its Detector inside a replica: ``detect_batch`` goes through ``@serve.batch``.
+
+    The app's queue workers call ``detect_batch`` from their threads; each frame is submitted to
+    the replica's event loop, where the batch method collects frames from all callers.
+    """
+
+    def __init__(self, detector: Detector, submit: Callable[[Frame], Awaitable[Detections]], loop: asyncio.AbstractEventLoop) -> None:
+        self._detector = detector
+        self._submit = submit
+        self._loop = loop
+        self.info = detector.info
+        self.score_threshold = detector.score_threshold
+        self.nms = detector.nms
+
+    @property
+    def ready(self) -> bool:
+        return self._detector.ready
+
+    def warmup(self) -> None:
+        self._detector.warmup()
+
+    def run_arrays(self, images: Any, valid: Any) -> list[Any]:
+        return self._detector.run_arrays(images, valid)
+
+    def detect_batch(self, frames: Sequence[Frame], **options: Any) -> list[Detections]:
+        if options:
+            raise TypeError(f"per-call options {sorted(options)} are applied by the service after the run")
+        futures = [asyncio.run_coroutine_threadsafe(self._submit(frame), self._loop) for frame in frames]
+        return [f.result() for f in futures]
+
+
+@serve.deployment(name="fisheye-infer")
+@serve.ingress()
+class FisheyeReplica:
+    """One replica: a Detector, the app around it, and the batch method. See the module docstring."""
+
+    def __init__(self, settings: ServiceSettings, options: RayServeOptions) -> None:
+        self.settings = options.replica_settings(settings)
+        self.detector = Detector(self.settings.model_path, threads=self.settings.threads, warmup=self.settings.warmup)
+        self._batched.set_max_batch_size(options.max_batch_size)
+        self._batched.set_batch_wait_timeout_s(options.batch_wait_ms / 1e3)
+        self._batch_frames: Histogram | None = None
+
+    async def __serve_build_asgi_app__(self) -> Any:
+        app = create_app(self.settings, BatchedDetector(self.detector, self._batched, asyncio.get_running_loop()))  # type: ignore[arg-type]
+        self._batch_frames = Histogram("fisheye_serve_batch_frames", "frames per @serve.batch run in this replica",
+                                       buckets=(1, 2, 3, 4, 6, 8, 12, 16), registry=app.state.service.metrics.registry)
+        return app
+
+    @serve.batch(max_batch_size=4, batch_wait_timeout_s=0.01)
+    async def _batched(self, frames: list[Frame]) -> list[Detections]:
+        if self._batch_frames is not None:
+            self._batch_frames.observe(len(frames))
+        return await asyncio.get_running_loop().run_in_executor(None, self.detector.detect_batch, frames)
+
+    def check_health(self) -> None:
+        """Ray restarts a replica whose Detector is not loaded and warmed (what ``/readyz`` reports)."""
+        if not self.detector.ready:
+            raise RuntimeError(f"model {self.settings.model_path}: not loaded and warmed")
+
+
+def build_app(settings: ServiceSettings, options: RayServeOptions | None = None) -> Application:
+    """The Ray Serve application: ``options.replicas`` replicas of the service for ``settings``."""
+    options = options or RayServeOptions()
+    settings = settings.model_copy(update={"model_path": settings.model_path.resolve()})  # replicas do not share the caller's cwd
+    # Ray routes at most this many requests to a replica at once; the app's own queue refuses
+    # beyond queue_size (503), as the plain service does. Two more leave room for health probes.
+    ongoing = options.replica_settings(settings).workers + settings.queue_size + 2
+    deployment = FisheyeReplica.options(
+        num_replicas=options.replicas,
+        ray_actor_options={"num_cpus": options.cpus_per_replica},
+        max_ongoing_requests=ongoing,
+        graceful_shutdown_timeout_s=settings.drain_timeout_s,
+    )
+    return deployment.bind(settings, options)
+
+
+def app_builder(args: dict[str, str]) -> Application:
+    """``serve run fisheye_infer.service.ray_serve:app_builder model_path=... replicas=2 ...``: the other
+    ``FISHEYE_*`` settings come from the environment, as for ``fisheye-infer serve``."""
+    fields = {"replicas": int, "cpus_per_replica": float, "max_batch_size": int, "batch_wait_ms": float}
+    unknown = sorted(set(args) - set(fields) - {"model_path"})
+    if unknown:
+        raise ValueError(f"arguments: unknown {unknown}; expected model_path and any of {', '.join(fields)}")
+    settings = ServiceSettings(**({"model_path": args["model_path"]} if "model_path" in args else {}))
+    return build_app(settings, RayServeOptions(**{k: cast(args[k]) for k, cast in fields.items() if k in args}))
