@@ -5,10 +5,11 @@
 
 Steps: read the checkpoint (weights-only), pick the architecture, build the plain-PyTorch model
 for the rig and load the checkpoint strictly (its stored geometry is checked against the rig),
-trace to ONNX with the geometry tables as named initializers, write the metadata, then run the
-file in ONNX Runtime against PyTorch on seeded synthetic frames (and the user's frames). The
-output file appears only when that parity check passes (or with ``force``); nothing is left
-behind otherwise.
+trace to ONNX with the geometry tables as named initializers (the ranking outputs the check
+reads are traced too, and dropped from the file), write the metadata, then run the file in ONNX
+Runtime against the PyTorch model in float64 on seeded synthetic frames (and the user's frames;
+see ``verify``). The output file appears only when that check passes (or with ``force``);
+nothing is left behind otherwise.
 """
 
 from __future__ import annotations
