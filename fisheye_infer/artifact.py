@@ -12,7 +12,7 @@ content does not match its recorded hash.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -31,6 +31,7 @@ __all__ = [
     "Normalisation",
     "ParityReport",
     "Quantization",
+    "inspection_session",
     "parse_meta",
     "read_meta",
 ]
@@ -152,8 +153,9 @@ def parse_meta(document: str | None, source: str = "model") -> ArtifactMeta:
         raise ArtifactError(f"{source}: invalid metadata: {fields}") from None
 
 
-def read_meta(path: str | Path) -> ArtifactMeta:
-    """Read the metadata of an ONNX file with ONNX Runtime (the core has no ``onnx`` dependency)."""
+def inspection_session(path: str | Path) -> Any:
+    """An unoptimised CPU ``onnxruntime.InferenceSession`` of ``path``: enough to read its metadata
+    and interface without the cost of graph optimisation."""
     import onnxruntime as ort
 
     path = Path(path)
@@ -162,7 +164,12 @@ def read_meta(path: str | Path) -> ArtifactMeta:
     options = ort.SessionOptions()
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     try:
-        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     except Exception as exc:  # ORT raises its own untyped errors for unreadable files
         raise ArtifactError(f"model {path}: ONNX Runtime cannot load it ({exc})") from exc
+
+
+def read_meta(path: str | Path) -> ArtifactMeta:
+    """Read the metadata of an ONNX file with ONNX Runtime (the core has no ``onnx`` dependency)."""
+    session = inspection_session(path)
     return parse_meta(session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {path}")

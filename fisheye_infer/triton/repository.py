@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from fisheye_infer.artifact import METADATA_KEY, parse_meta
+from fisheye_infer.artifact import METADATA_KEY, inspection_session, parse_meta
 from fisheye_infer.detector import check_interface
 from fisheye_infer.errors import ArtifactError, ExportError
 
@@ -122,18 +122,9 @@ def _io(items: list[Any], batched: bool, source: str) -> list[dict[str, Any]]:
 
 def model_config(model_path: str | Path, options: TritonOptions | None = None) -> dict[str, Any]:
     """The ``ModelConfig`` of ``model_path`` for the ONNX Runtime backend, as a JSON-form dict."""
-    import onnxruntime as ort
-
     options = options or TritonOptions()
     path = Path(model_path)
-    if not path.is_file():
-        raise ArtifactError(f"model {path}: no such file")
-    so = ort.SessionOptions()
-    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
-    try:
-        session = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
-    except Exception as exc:  # onnxruntime raises untyped errors for unreadable files
-        raise ArtifactError(f"model {path}: ONNX Runtime cannot load it ({exc})") from exc
+    session = inspection_session(path)
     document = session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
     meta = parse_meta(document, source=f"model {path}")
     check_interface({i.name: i.shape for i in session.get_inputs()}, [o.name for o in session.get_outputs()], meta, f"model {path}")
