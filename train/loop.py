@@ -2,16 +2,21 @@
 
 The optimiser is the official one (AdamW, weight decay 0.01, gradient norm clipped at 35; a
 linear warm-up from 1/3 of the rate over the first 500 steps, then cosine annealing to 2e-4 of
-it). The official momentum cycle is left out. Step ``s`` trains on frames ``s*B .. s*B+B-1`` of
-the training split, so a run is a pure function of its options: resuming from a checkpoint
-continues with exactly the frames the uninterrupted run would have seen.
+it). Three parts of the official recipe are left out: the momentum cycle, dropout (0.1 in the
+official decoder; the plain-PyTorch decoder has none) and the ImageNet-pretrained ResNet-18
+(``torchvision://resnet18``, not available offline; the backbone starts from seeded fan-in
+weights and the heatmap classifiers from the official prior bias -2.19).
+
+Step ``s`` trains on frames ``s*B .. s*B+B-1`` of the training split and the learning rate is a
+function of the step, so a run is a pure function of its options: resuming from a checkpoint
+continues with exactly the frames and rates the uninterrupted run would have used.
 
 A run folder holds::
 
     config.py        the model configuration as an mmdet3d-style config (for ``fisheye-infer export --config``)
     rig.json         the rig the model was trained for (for ``--rig``)
     model.pth        official-format checkpoint {'state_dict', 'meta'} of the latest step
-    checkpoint.pth   the same plus optimiser and schedule state, for ``--resume``
+    checkpoint.pth   the same plus the optimiser state, for ``--resume``
     log.jsonl        one line per step: losses, learning rate, seconds; validation lines at checkpoints
 """
 
