@@ -16,10 +16,12 @@ def configure_train(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="mmdet3d-style FisheyeBEVDet config to train (default: the compact configuration)")
     parser.add_argument("--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint.pth (config and rig from the folder)")
-    parser.add_argument("--steps", type=int, default=6000, help="total optimiser steps (default 6000; may grow on --resume)")
+    parser.add_argument("--steps", type=int, default=10000, help="total optimiser steps (default 10000; may grow on --resume)")
     parser.add_argument("--batch-size", type=int, default=2, help="frames per step (default 2)")
     parser.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of AdamW (default 2e-4)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the weights and of the training frames (default 0)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="PyTorch threads (default 1: on a shared machine two spin-waiting threads can be ten times slower)")
     parser.add_argument("--until", type=int, help="stop after this step (checkpointed) and continue later with --resume")
     parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
     parser.add_argument("--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)")
@@ -28,7 +30,7 @@ def configure_train(parser: argparse.ArgumentParser) -> None:
 
 def run_train(args: argparse.Namespace) -> int:
     try:
-        import torch  # noqa: F401
+        import torch
 
         from fisheye_infer.train.loop import Trainer, TrainOptions
     except ImportError as exc:
@@ -42,6 +44,8 @@ def run_train(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if args.until is not None and args.until < 1:
         raise ConfigError(f"--until: expected a step of at least 1, got {args.until}")
+    if args.threads < 1:
+        raise ConfigError(f"--threads: expected at least 1, got {args.threads}")
     if args.resume:
         if args.config or args.rig:
             raise ConfigError("--resume takes the configuration and rig from the run folder; leave out --config and --rig")
@@ -64,8 +68,13 @@ def run_train(args: argparse.Namespace) -> int:
             rig = compact_rig()
     options = TrainOptions(steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                            checkpoint_every=args.checkpoint_every, val_frames=args.val_frames)
-    trainer = Trainer(config, rig, out, options)
-    path = trainer.run(resume=args.resume, until=args.until)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(args.threads)
+    try:
+        trainer = Trainer(config, rig, out, options)
+        path = trainer.run(resume=args.resume, until=args.until)
+    finally:
+        torch.set_num_threads(previous)
     print(f"trained to step {trainer.step} of {options.steps}; wrote {path}")
     print(f"next: fisheye-infer export --ckpt {path} --config {out / 'config.py'} --rig {out / 'rig.json'} --out {out / 'model.onnx'}")
     return 0

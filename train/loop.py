@@ -59,7 +59,7 @@ class TrainOptions:
     new end from the step it resumes at); everything else is fixed.
     """
 
-    steps: int = 6000
+    steps: int = 10000
     batch_size: int = 2
     lr: float = 2e-4
     weight_decay: float = 0.01

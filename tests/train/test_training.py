@@ -82,6 +82,7 @@ def test_resume_continues_from_the_saved_step(resumed_run: tuple[Run, Run], stra
     (["--rig", "x.json"], "--rig needs --config"),
     (["--steps", "0"], "--steps: expected at least 1"),
     (["--until", "0"], "--until: expected a step of at least 1"),
+    (["--threads", "0"], "--threads: expected at least 1"),
 ])
 def test_bad_options_are_named(argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["train", "--out", str(tmp_path / "run"), *argv]) == 1
