@@ -3,9 +3,10 @@
 Same architecture as the official ``fisheye_bevdet.py`` (ResNet-18 + FPN, fisheye LSS, SECOND +
 SECONDFPN, TransFusion head) with sizes cut where the measured cost of a training step says so
 (README, "Training"): four 320 x 320 cameras (the shipped rig resized by 0.4, so the backbone sees
-0.16 of the official pixels), a 10 x 40 angular grid, 48 one-metre depth bins, the official
-96 m BEV square at 0.6 m cells (160 x 160, 80 x 80 at the head), and narrower neck, BEV encoder
-and head. The official full-size configuration stays the default everywhere else.
+0.16 of the official pixels), ResNet-18 at half width (``base_channels=32``, which also keeps the
+checkpoint under 15 MB), a 10 x 40 angular grid, 48 one-metre depth bins, the official 96 m BEV
+square at 0.6 m cells (160 x 160, 80 x 80 at the head), narrower neck, BEV encoder and head, and
+100 proposals. The official full-size configuration stays the default everywhere else.
 
 A trained checkpoint is exported like any other by passing the config file this module writes:
 
