@@ -149,6 +149,10 @@ def build_parser() -> argparse.ArgumentParser:
     configure_rebake(sub.add_parser("rebake", help="recompute an ONNX file's geometry tables for a new rig (no torch)"))
     configure_make_checkpoint(sub.add_parser("make-checkpoint", help="write a seeded random-weight checkpoint (demos and tests)"))
 
+    from fisheye_infer.train.commands import configure_train
+
+    configure_train(sub.add_parser("train", help="train a FisheyeBEVDet on synthetic frames (default: the compact model)"))
+
     from fisheye_infer.detect_command import configure_detect
 
     configure_detect(sub.add_parser("detect", help="run a model on frames; write results JSON and pictures"))

@@ -6,6 +6,8 @@ that falls towards the ground shows a checker-and-noise texture fading into haze
 a sky gradient. Pixels outside the lens's field of view are black, as in real fisheye frames.
 Because the pictures are made with the same camera model and extrinsics the detectors' geometry
 uses, they exercise the whole data path (reader, rig, projection, metric) without the dataset.
+An :class:`Appearance` changes the look (sun, ground texture, sky, haze, object colours);
+:func:`random_appearance` draws one per frame for training data.
 
     frames = synthesize(default_rig(), "data/synth", frames=4, seed=0)   # Fisheye3DOD layout
     Fisheye3DOD("data/synth", "val")                                   # reads the same rig and boxes
@@ -29,14 +31,16 @@ from fisheye_infer.errors import RigError
 from fisheye_infer.records import CLASSES
 from fisheye_infer.rig import Rig, RigCamera
 
-__all__ = ["CLASS_SIZES", "CLASS_COLOURS", "Scene", "SynthFrame", "random_scene", "Renderer", "synthesize", "resized_rig"]
+__all__ = ["CLASS_SIZES", "CLASS_COLOURS", "Scene", "SynthFrame", "Appearance", "random_appearance", "random_scene", "Renderer",
+           "synthesize", "resized_rig"]
 
 #: Typical (length, width, height) in metres per class.
 CLASS_SIZES = {"Car": (4.5, 1.9, 1.6), "Van": (5.0, 2.0, 2.1), "Truck": (7.5, 2.5, 3.2), "Bus": (11.0, 2.9, 3.3), "Pedestrian": (0.7, 0.7, 1.75), "Cyclist": (1.8, 0.7, 1.7)}
 #: BGR colour per class, far from the greys of the ground and the blues of the sky.
 CLASS_COLOURS = {"Car": (40, 40, 210), "Van": (0, 140, 255), "Truck": (0, 215, 235), "Bus": (210, 110, 20), "Pedestrian": (200, 40, 200), "Cyclist": (40, 190, 40)}
 _CLASS_WEIGHTS = (0.4, 0.15, 0.1, 0.05, 0.2, 0.1)
-_LIGHT = np.array([0.3, 0.5, 0.81], np.float32) / np.linalg.norm([0.3, 0.5, 0.81])
+_SUN = (0.3, 0.5, 0.81)
+_LIGHT = np.array(_SUN, np.float32) / np.linalg.norm(_SUN)
 _SKY_HORIZON = np.array([215, 205, 190], np.float32)
 _SKY_ZENITH = np.array([205, 140, 80], np.float32)
 _HAZE = np.array([200, 195, 185], np.float32)
@@ -55,20 +59,65 @@ class Scene:
     ground_z: float = -2.0
 
 
+@dataclass(frozen=True)
+class Appearance:
+    """How a scene looks: lighting, ground texture, sky and object colours. The defaults are the
+    renderer's standard look; :func:`random_appearance` varies every field for training data.
+
+    ``object_colours`` is one BGR colour per box of the scene (None: the class colours).
+    """
+
+    light: tuple[float, float, float] = _SUN  # towards the sun, any length
+    ambient: float = 0.35
+    ground_grey: float = 100.0
+    checker_contrast: float = 40.0
+    noise_contrast: float = 36.0
+    checker_size: float = 2.0
+    ground_tint: tuple[float, float, float] = (-6.0, 0.0, 6.0)
+    sky_horizon: tuple[float, float, float] = tuple(float(v) for v in _SKY_HORIZON)  # type: ignore[assignment]
+    sky_zenith: tuple[float, float, float] = tuple(float(v) for v in _SKY_ZENITH)  # type: ignore[assignment]
+    haze_distance: float = 90.0
+    object_colours: tuple[tuple[float, float, float], ...] | None = None
+
+
+def random_appearance(rng: np.random.Generator, scene: Scene, colour_jitter: float = 45.0) -> Appearance:
+    """A random look for ``scene``: sun direction and strength, ground brightness, texture scale and
+    tint, sky colours, haze, and each object's class colour shifted by up to ``colour_jitter`` per
+    channel and scaled in brightness (classes stay told apart by colour family and size)."""
+    elevation, azimuth = rng.uniform(0.25, 1.4), rng.uniform(-math.pi, math.pi)
+    light = (math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation))
+    colours = []
+    for label in scene.labels:
+        base = np.asarray(CLASS_COLOURS[CLASSES[int(label)]], np.float64)
+        colour = np.clip((base + rng.uniform(-colour_jitter, colour_jitter, 3)) * rng.uniform(0.75, 1.2), 0, 255)
+        colours.append(tuple(float(c) for c in colour))
+    return Appearance(
+        light=light, ambient=float(rng.uniform(0.2, 0.5)), ground_grey=float(rng.uniform(60, 150)),
+        checker_contrast=float(rng.uniform(0, 60)), noise_contrast=float(rng.uniform(10, 60)),
+        checker_size=float(rng.uniform(0.5, 4.0)), ground_tint=tuple(float(v) for v in rng.uniform(-20, 20, 3)),  # type: ignore[arg-type]
+        sky_horizon=tuple(float(v) for v in np.clip(_SKY_HORIZON + rng.uniform(-40, 30, 3), 0, 255)),  # type: ignore[arg-type]
+        sky_zenith=tuple(float(v) for v in np.clip(_SKY_ZENITH + rng.uniform(-40, 40, 3), 0, 255)),  # type: ignore[arg-type]
+        haze_distance=float(rng.uniform(50, 200)), object_colours=tuple(colours))
+
+
 def random_scene(
     rng: np.random.Generator,
     num_objects: tuple[int, int] = (6, 14),
     ground_z: float = -2.0,
     min_range: float = 4.0,
     max_range: float = 35.0,
+    size_jitter: float = 0.1,
 ) -> Scene:
     """Objects standing on the ground, not overlapping each other or the ego vehicle's footprint.
 
-    Distances are uniform in [min_range, max_range], so near objects are as common as far ones.
+    Distances are uniform in [min_range, max_range], so near objects are as common as far ones;
+    each size is the class's typical one scaled by a factor in [1 - size_jitter, 1 + size_jitter].
     """
     lo, hi = num_objects
     if not 0 <= lo <= hi or not 0 < min_range < max_range:
         raise ValueError(f"num_objects/min_range/max_range: expected 0 <= {lo} <= {hi} and 0 < {min_range} < {max_range}")
+    if not 0 <= size_jitter < 1:
+        raise ValueError(f"size_jitter: expected a fraction in [0, 1), got {size_jitter}")
     wanted = int(rng.integers(lo, hi + 1))
     sizes = np.array([CLASS_SIZES[c] for c in CLASSES])
     ground = float(_q(ground_z, 1 / 256))
@@ -78,7 +127,7 @@ def random_scene(
         if len(boxes) == wanted:
             break
         label = int(rng.choice(len(CLASSES), p=_CLASS_WEIGHTS))
-        lwh = sizes[label] * rng.uniform(0.9, 1.1, 3)
+        lwh = sizes[label] * rng.uniform(1 - size_jitter, 1 + size_jitter, 3)
         r = rng.uniform(min_range, max_range)
         phi = rng.uniform(-math.pi, math.pi)
         box = np.array([r * math.cos(phi), r * math.sin(phi), ground, *lwh, rng.uniform(-math.pi, math.pi)])
@@ -122,43 +171,51 @@ class Renderer:
             self._rays[model] = (np.ascontiguousarray(rays.T, np.float32), inside)
         return self._rays[model]
 
-    def render(self, rig: Rig, scene: Scene) -> dict[str, np.ndarray]:
+    def render(self, rig: Rig, scene: Scene, appearance: Appearance | None = None) -> dict[str, np.ndarray]:
         """One (H, W, 3) uint8 BGR picture per camera."""
-        return {cam.name: self.render_camera(cam, scene) for cam in rig.cameras}
+        return {cam.name: self.render_camera(cam, scene, appearance) for cam in rig.cameras}
 
-    def render_camera(self, camera: RigCamera, scene: Scene) -> np.ndarray:
+    def render_camera(self, camera: RigCamera, scene: Scene, appearance: Appearance | None = None) -> np.ndarray:
+        look = appearance or Appearance()
+        if look.object_colours is not None and len(look.object_colours) != len(scene.boxes):
+            raise ValueError(f"appearance: {len(look.object_colours)} object colours for {len(scene.boxes)} boxes")
         rays_cam, inside = self.camera_rays(camera.model)
         m = camera.matrix
         d = m[:3, :3].astype(np.float32) @ rays_cam  # 3 x N, lidar frame
         o = m[:3, 3].astype(np.float32)
-        colour, depth = self._background(o, d, scene.ground_z)
-        for box, label in zip(scene.boxes, scene.labels):
-            self._draw_box(o, d, box, CLASS_COLOURS[CLASSES[label]], colour, depth)
+        colour, depth = self._background(o, d, scene.ground_z, look)
+        light = np.array(look.light, np.float32) / np.linalg.norm(look.light)
+        for i, (box, label) in enumerate(zip(scene.boxes, scene.labels)):
+            bgr = CLASS_COLOURS[CLASSES[label]] if look.object_colours is None else look.object_colours[i]
+            self._draw_box(o, d, box, bgr, colour, depth, light, look.ambient)
         colour[:, ~inside] = 0
         model = camera.model
         return np.clip(colour, 0, 255).astype(np.uint8).T.reshape(model.height, model.width, 3)
 
-    def _background(self, o: np.ndarray, d: np.ndarray, ground_z: float) -> tuple[np.ndarray, np.ndarray]:
+    def _background(self, o: np.ndarray, d: np.ndarray, ground_z: float, look: Appearance) -> tuple[np.ndarray, np.ndarray]:
         """Sky gradient everywhere, then the textured ground where rays fall towards it; colour is (3, N)."""
         up = np.clip(d[2], 0, 1)
-        colour = _SKY_HORIZON[:, None] * (1 - up) + _SKY_ZENITH[:, None] * up
+        horizon, zenith = np.asarray(look.sky_horizon, np.float32), np.asarray(look.sky_zenith, np.float32)
+        colour = horizon[:, None] * (1 - up) + zenith[:, None] * up
         depth = np.full(d.shape[1], np.inf, np.float32)
         if o[2] <= ground_z:
             return colour, depth
         down = np.nonzero(d[2] < -1e-4)[0]
         t = (np.float32(ground_z) - o[2]) / d[2, down]
         px, py = o[0] + t * d[0, down], o[1] + t * d[1, down]
-        checker = (np.floor(px / 2).astype(np.int64) + np.floor(py / 2).astype(np.int64)) & 1
+        size = np.float32(look.checker_size)
+        checker = (np.floor(px / size).astype(np.int64) + np.floor(py / size).astype(np.int64)) & 1
         noise = _hash01(np.floor(px * 4), np.floor(py * 4), self.texture_seed) - 0.5
-        grey = 100 + 40 * checker + 36 * noise
-        fog = np.exp(-np.hypot(px - o[0], py - o[1]) / 90)
-        for ch, tint in enumerate((-6, 0, 6)):
+        grey = np.float32(look.ground_grey) + np.float32(look.checker_contrast) * checker + np.float32(look.noise_contrast) * noise
+        fog = np.exp(-np.hypot(px - o[0], py - o[1]) / np.float32(look.haze_distance))
+        for ch, tint in enumerate(np.asarray(look.ground_tint, np.float32)):
             colour[ch, down] = (grey + tint) * fog + _HAZE[ch] * (1 - fog)
         depth[down] = t
         return colour, depth
 
     @staticmethod
-    def _draw_box(o: np.ndarray, d: np.ndarray, box: np.ndarray, bgr: Sequence[int], colour: np.ndarray, depth: np.ndarray) -> None:
+    def _draw_box(o: np.ndarray, d: np.ndarray, box: np.ndarray, bgr: Sequence[float], colour: np.ndarray, depth: np.ndarray,
+                  light: np.ndarray = _LIGHT, ambient: float = 0.35) -> None:
         """Slab test against one oriented box, in place: nearer hits overwrite colour and depth.
 
         Only rays passing within the box's bounding sphere are tested.
@@ -188,7 +245,7 @@ class Renderer:
         rows = np.arange(len(cand))
         normal = np.zeros((len(cand), 3), np.float32)
         normal[rows, axis] = -np.sign(dl[rows, axis])
-        shade = 0.35 + 0.65 * np.clip((normal @ to_box) @ _LIGHT, 0, 1)  # normal back to the lidar frame
+        shade = ambient + (1 - ambient) * np.clip((normal @ to_box) @ light, 0, 1)  # normal back to the lidar frame
         local = ol + near[:, None] * dl
         edge = (np.abs(local) > half - 0.05).sum(axis=1) >= 2
         shade = np.where(edge, 0.3 * shade, shade)

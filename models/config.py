@@ -43,9 +43,14 @@ class ImageConfig:
 
 @dataclass(frozen=True)
 class BackboneConfig:
-    """mmdet ResNet + FPN; only FPN output 0 (stride 16) feeds the view transform."""
+    """mmdet ResNet + FPN; only FPN output 0 (stride 16) feeds the view transform.
+
+    ``base_channels`` is mmdet ResNet's width (stage i has base_channels * 2**i channels); the
+    official models use 64, the compact training configuration a narrower backbone.
+    """
 
     depth: int = 18
+    base_channels: int = 64
     strides: tuple[int, int, int, int] = (1, 2, 2, 2)
     dilations: tuple[int, int, int, int] = (1, 1, 2, 4)
     out_indices: tuple[int, ...] = (2, 3)
@@ -147,7 +152,11 @@ class BEVDetConfig:
     def validate(self) -> None:
         """Cross-field consistency; each message names both fields."""
         vt, enc, head, bb = self.view_transform, self.bev_encoder, self.head, self.backbone
+        stage_channels = tuple(bb.base_channels * 2 ** i for i in bb.out_indices)
         checks = [
+            (tuple(bb.neck_in_channels) == stage_channels,
+             f"backbone.neck_in_channels={tuple(bb.neck_in_channels)} != the channels of ResNet stages {tuple(bb.out_indices)} "
+             f"with base_channels={bb.base_channels}: {stage_channels}"),
             (bb.neck_out_channels == vt.in_channels,
              f"backbone.neck_out_channels={bb.neck_out_channels} != view_transform.in_channels={vt.in_channels}"),
             (vt.out_channels == enc.in_channels,
@@ -300,13 +309,13 @@ def _from_mmdet3d(cls: type[BEVDetConfig], cfg: Mapping[str, Any], source: str) 
         raise ConfigError(f"{source}: model.data_preprocessor.bgr_to_rgb=True is not supported "
                           "(the official models feed BGR with RGB-ordered statistics)")
     depth = bb.get("depth", 18)
-    backbone = BackboneConfig(depth=depth, strides=bb.get("strides", d.backbone.strides),
+    backbone = BackboneConfig(depth=depth, base_channels=int(bb.get("base_channels", 64)), strides=bb.get("strides", d.backbone.strides),
                               dilations=bb.get("dilations", d.backbone.dilations),
                               out_indices=bb.get("out_indices", d.backbone.out_indices),
                               neck_in_channels=neck.get("in_channels", d.backbone.neck_in_channels),
                               neck_out_channels=neck.get("out_channels", d.backbone.neck_out_channels),
                               neck_num_outs=neck.get("num_outs", d.backbone.neck_num_outs))
-    for key, want in (("base_channels", 64), ("in_channels", 3), ("num_stages", 4)):
+    for key, want in (("in_channels", 3), ("num_stages", 4)):
         if bb.get(key, want) != want:
             raise ConfigError(f"{source}: model.img_backbone.{key}={bb.get(key, want)} is not supported (expected {want})")
     view = ViewTransformConfig(

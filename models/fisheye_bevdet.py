@@ -140,7 +140,7 @@ class FisheyeBEVDet(nn.Module):
         self.register_buffer("mean", torch.tensor(img.mean, dtype=torch.float32), persistent=False)
         self.register_buffer("std", torch.tensor(img.std, dtype=torch.float32), persistent=False)
         bb, vt, enc, hd = cfg.backbone, cfg.view_transform, cfg.bev_encoder, cfg.head
-        self.img_backbone = ResNet(bb.depth, bb.strides, bb.dilations, bb.out_indices)
+        self.img_backbone = ResNet(bb.depth, bb.strides, bb.dilations, bb.out_indices, base_channels=bb.base_channels)
         self.img_neck = FPN(bb.neck_in_channels, bb.neck_out_channels, bb.neck_num_outs)
         self.view_transform = FisheyeLSS(vt, geometry)
         self.pts_backbone = SECOND(enc.in_channels, enc.out_channels, enc.layer_nums, enc.layer_strides, enc.bn_eps)
@@ -180,6 +180,12 @@ class FisheyeBEVDet(nn.Module):
         out = self.bbox_head(self.pts_neck(self.pts_backbone(bev)))
         out["bev"] = bev
         return out
+
+    def forward_raw(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The head's outputs before decoding (see ``TransFusionHead.forward_raw``): what training's losses read."""
+        self._check_images(images, camera_valid)
+        bev = self.extract_bev(images, camera_valid)
+        return self.bbox_head.forward_raw(self.pts_neck(self.pts_backbone(bev)))
 
     def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
                 return_extras: bool = False, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:

@@ -103,7 +103,7 @@ class FisheyeBEVDetCyl(FisheyeBEVDet):
         self.register_buffer("mean", torch.tensor(img.mean, dtype=torch.float32), persistent=False)
         self.register_buffer("std", torch.tensor(img.std, dtype=torch.float32), persistent=False)
         bb, vt, enc, hd = cfg.backbone, cfg.view_transform, cfg.bev_encoder, cfg.head
-        self.img_backbone = ResNet(bb.depth, bb.strides, bb.dilations, bb.out_indices)
+        self.img_backbone = ResNet(bb.depth, bb.strides, bb.dilations, bb.out_indices, base_channels=bb.base_channels)
         self.img_neck = FPN(bb.neck_in_channels, bb.neck_out_channels, bb.neck_num_outs)
         self.view_transform = CylindricalLSS(vt, geometry)
         self.pts_backbone = SECOND(enc.in_channels, enc.out_channels, enc.layer_nums, enc.layer_strides, enc.bn_eps)

@@ -1,4 +1,4 @@
-"""TransFusion head, test-time path only, with the Fisheye3DOD quirks kept and an export-safe graph.
+"""TransFusion head (its raw outputs for training, decoded boxes for inference), with the Fisheye3DOD quirks kept and an export-safe graph.
 
 Quirks reproduced on purpose (each changes the output of the official checkpoint):
 - local-max NMS uses max_pool2d with padding 0 and zero-fills the border, so classes that are
@@ -211,6 +211,20 @@ class TransFusionHead(nn.Module):
 
     def forward(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
         # bev: B x Cin x X x Y
+        raw = self.forward_raw(bev)
+        out = self.decode(raw, raw["peak"], raw["query_labels"])
+        out.update({k: raw[k] for k in ("top_indices", "top_scores", "query_labels", "dense_heatmap",
+                                         "rank_scores", "rank_indices")})
+        return out
+
+    def forward_raw(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Everything before decoding: what the losses need, and what ``decode`` turns into boxes.
+
+        ``center`` (B x 2 x P, BEV cells), ``height`` (B x 1 x P, gravity centre), ``dim``
+        (B x 3 x P, log l, w, h), ``rot`` (B x 2 x P, sin, cos), ``heatmap`` (B x K x P, class
+        logits), ``dense_heatmap`` (B x K x X x Y logits), ``query_labels`` / ``top_indices``
+        (B x P), ``peak`` (B x K x P, suppressed heatmap at the proposal cells).
+        """
         feat = self.shared_conv(bev)  # B x C x X x Y
         b, c = feat.shape[0], feat.shape[1]
         xy = self.bev_size[0] * self.bev_size[1]
@@ -235,10 +249,9 @@ class TransFusionHead(nn.Module):
             res["center"] = res["center"] + query_pos.transpose(1, 2)
             query_pos = res["center"].detach().transpose(1, 2)
         peak = heat.gather(2, cell.unsqueeze(1).expand(b, self.num_classes, self.num_proposals))  # B x K x P
-        out = self.decode(res, peak, cls)
-        out.update(top_indices=top_idx, top_scores=top_score, query_labels=cls, dense_heatmap=dense_heatmap,
-                   rank_scores=rank_scores, rank_indices=top_idx)
-        return out
+        res.update(peak=peak, top_indices=top_idx, top_scores=top_score, query_labels=cls,
+                   dense_heatmap=dense_heatmap, rank_scores=rank_scores, rank_indices=top_idx)
+        return res
 
     def decode(self, res: Mapping[str, torch.Tensor], peak: torch.Tensor,
                cls: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -1,0 +1,100 @@
+"""fisheye-infer train on tiny frames: the loss falls, checkpoints export, --resume continues the same run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from fisheye_infer.artifact import read_meta  # noqa: E402
+from fisheye_infer.cli import main  # noqa: E402
+from fisheye_infer.models import BEVDetConfig, create_model, load_checkpoint  # noqa: E402
+from fisheye_infer.rig import Rig  # noqa: E402
+from fisheye_infer.train.loop import lr_factor  # noqa: E402
+
+from typing import Any  # noqa: E402
+
+Run = Any
+
+
+def test_loss_falls_over_a_few_steps(straight_run: Run) -> None:
+    losses = straight_run.losses()
+    assert len(losses) == 4 and all(np.isfinite(losses))
+    assert max(losses[2:]) < 0.5 * losses[0], losses
+
+
+def test_log_has_every_term_and_a_validation_line_at_each_checkpoint(straight_run: Run) -> None:
+    rows = straight_run.log
+    train_rows = [r for r in rows if "split" not in r]
+    assert [r["step"] for r in train_rows] == [1, 2, 3, 4]
+    assert {"loss", "loss_heatmap", "loss_cls", "loss_bbox", "matched_iou", "lr", "seconds"} <= set(train_rows[0])
+    assert [r["step"] for r in rows if r.get("split") == "val"] == [2, 4]
+    assert [r["lr"] for r in train_rows] == pytest.approx([1e-3 * lr_factor(i, 4, 500) for i in range(4)])
+
+
+def test_learning_rate_warms_up_then_anneals() -> None:
+    assert lr_factor(0, 10_000, 500) == pytest.approx(1 / 3)
+    assert lr_factor(250, 10**9, 500) == pytest.approx(2 / 3)
+    assert lr_factor(500, 10**9, 500) == pytest.approx(1.0)
+    assert lr_factor(5_000, 10_000, 500) == pytest.approx(0.5, abs=1e-3)
+    assert lr_factor(10_000, 10_000, 500) == pytest.approx(2e-4)
+
+
+def test_checkpoint_is_official_format_for_its_config(straight_run: Run) -> None:
+    state_dict, meta = load_checkpoint(straight_run.folder / "model.pth")
+    config = BEVDetConfig.from_mmdet3d_config(straight_run.folder / "config.py")
+    model = create_model("fisheye-bevdet", config, Rig.load(straight_run.folder / "rig.json"))
+    expected = model.official_keys()
+    assert list(state_dict) == list(expected)
+    assert all(tuple(v.shape) == expected[k][0] and v.dtype == expected[k][1] for k, v in state_dict.items())
+    assert meta["step"] == 4 and meta["synthetic"] is False and meta["config"] == config.to_dict()
+
+
+def test_trained_checkpoint_round_trips_through_export(straight_run: Run, capsys: pytest.CaptureFixture[str]) -> None:
+    folder = straight_run.folder
+    out = folder / "model.onnx"
+    argv = ["export", "--ckpt", str(folder / "model.pth"), "--config", str(folder / "config.py"),
+            "--rig", str(folder / "rig.json"), "--out", str(out), "--frames", "1"]
+    assert main(argv) == 0, capsys.readouterr().err
+    meta = read_meta(out)
+    assert meta.parity is not None and meta.parity.passed
+    assert meta.image_size == (160, 160) and meta.num_boxes == 50 and meta.rig == Rig.load(folder / "rig.json")
+
+
+def test_resume_continues_from_the_saved_step(resumed_run: tuple[Run, Run], straight_run: Run) -> None:
+    first, resumed = resumed_run
+    assert [r["step"] for r in resumed.log if "split" not in r] == [1, 2, 3, 4]
+    assert resumed.losses()[:2] == first.losses()
+    # same frames, same optimiser state: the resumed run is the uninterrupted one
+    np.testing.assert_allclose(resumed.losses(), straight_run.losses(), rtol=1e-4)
+    a, meta = load_checkpoint(resumed.folder / "model.pth")
+    b, _ = load_checkpoint(straight_run.folder / "model.pth")
+    assert meta["step"] == 4
+    for key in a:
+        torch.testing.assert_close(a[key], b[key], rtol=1e-4, atol=1e-5, msg=key)
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--resume"], "has no config.py and rig.json"),
+    (["--rig", "x.json"], "--rig needs --config"),
+    (["--steps", "0"], "--steps: expected at least 1"),
+    (["--until", "0"], "--until: expected a step of at least 1"),
+    (["--threads", "0"], "--threads: expected at least 1"),
+])
+def test_bad_options_are_named(argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["train", "--out", str(tmp_path / "run"), *argv]) == 1
+    assert message in capsys.readouterr().err
+
+
+def test_a_finished_folder_is_not_overwritten(straight_run: Run, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["train", "--out", str(straight_run.folder)]) == 1
+    assert "pass --resume" in capsys.readouterr().err
+
+
+def test_resume_with_other_options_is_refused(resumed_run: tuple[Run, Run], capsys: pytest.CaptureFixture[str]) -> None:
+    _, resumed = resumed_run
+    assert main(["train", "--out", str(resumed.folder), "--resume", "--steps", "5", "--batch-size", "2"]) == 1
+    assert "batch_size: saved 1, given 2" in capsys.readouterr().err

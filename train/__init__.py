@@ -1,0 +1,10 @@
+"""fisheye_infer.train: training FisheyeBEVDet on synthetic frames (needs the [export] extra).
+
+    targets.py   Gaussian heatmap target and box code of the TransFusion head
+    assign.py    3D IoU and the Hungarian assignment of proposals to ground truth
+    losses.py    the official heatmap, classification and box losses
+    data.py      seeded, randomised synthetic frames with Fisheye3DOD ground-truth records
+    compact.py   the compact configuration and its mmdet3d-style config file
+    loop.py      optimiser, schedule, checkpoints, --resume, progress and log
+    commands.py  ``fisheye-infer train``
+"""

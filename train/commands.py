@@ -1,0 +1,80 @@
+"""Command-line wiring of ``fisheye-infer train`` (torch is imported only when the command runs)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+__all__ = ["configure_train", "run_train"]
+
+_NEEDS_EXPORT = "this command needs the export extra: pip install 'fisheye-infer[export]' (install torch==2.13.0 first)"
+
+
+def configure_train(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, help="run folder: config.py, rig.json, model.pth, checkpoint.pth, log.jsonl")
+    parser.add_argument("--config", help="mmdet3d-style FisheyeBEVDet config to train (default: the compact configuration)")
+    parser.add_argument("--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)")
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint.pth (config and rig from the folder)")
+    parser.add_argument("--steps", type=int, default=10000, help="total optimiser steps (default 10000; may grow on --resume)")
+    parser.add_argument("--batch-size", type=int, default=2, help="frames per step (default 2)")
+    parser.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of AdamW (default 2e-4)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the weights and of the training frames (default 0)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="PyTorch threads (default 1: on a shared machine two spin-waiting threads can be ten times slower)")
+    parser.add_argument("--until", type=int, help="stop after this step (checkpointed) and continue later with --resume")
+    parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
+    parser.add_argument("--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)")
+    parser.set_defaults(run=run_train)
+
+
+def run_train(args: argparse.Namespace) -> int:
+    try:
+        import torch
+
+        from fisheye_infer.train.loop import Trainer, TrainOptions
+    except ImportError as exc:
+        print(f"{_NEEDS_EXPORT} ({exc})", file=sys.stderr)
+        return 1
+    from fisheye_infer.errors import ConfigError
+    from fisheye_infer.models import BEVDetConfig
+    from fisheye_infer.rig import Rig
+    from fisheye_infer.train.compact import compact_bevdet_config, compact_rig
+
+    out = Path(args.out)
+    if args.until is not None and args.until < 1:
+        raise ConfigError(f"--until: expected a step of at least 1, got {args.until}")
+    if args.threads < 1:
+        raise ConfigError(f"--threads: expected at least 1, got {args.threads}")
+    if args.resume:
+        if args.config or args.rig:
+            raise ConfigError("--resume takes the configuration and rig from the run folder; leave out --config and --rig")
+        if not (out / "config.py").is_file() or not (out / "rig.json").is_file():
+            raise ConfigError(f"--resume: {out} has no config.py and rig.json; is it a run folder?")
+        config, rig = BEVDetConfig.from_mmdet3d_config(out / "config.py"), Rig.load(out / "rig.json")
+    else:
+        if (out / "checkpoint.pth").exists():
+            raise ConfigError(f"--out {out} already holds a run; pass --resume to continue it, or choose another folder")
+        if args.rig and not args.config:
+            raise ConfigError("--rig needs --config (the compact configuration comes with its own rig)")
+        config = BEVDetConfig.from_mmdet3d_config(args.config) if args.config else compact_bevdet_config()
+        if args.rig:
+            from fisheye_infer.rig import resolve_rig
+
+            rig = resolve_rig(args.rig)
+        elif args.config:
+            raise ConfigError("--config needs --rig: the rig whose cameras give the configuration's image size")
+        else:
+            rig = compact_rig()
+    options = TrainOptions(steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
+                           checkpoint_every=args.checkpoint_every, val_frames=args.val_frames)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(args.threads)
+    try:
+        trainer = Trainer(config, rig, out, options)
+        path = trainer.run(resume=args.resume, until=args.until)
+    finally:
+        torch.set_num_threads(previous)
+    print(f"trained to step {trainer.step} of {options.steps}; wrote {path}")
+    print(f"next: fisheye-infer export --ckpt {path} --config {out / 'config.py'} --rig {out / 'rig.json'} --out {out / 'model.onnx'}")
+    return 0

@@ -1,0 +1,260 @@
+"""The training loop: seeded frames, AdamW with the official schedule, checkpoints and resumption.
+
+The optimiser is the official one (AdamW, weight decay 0.01, gradient norm clipped at 35; a
+linear warm-up from 1/3 of the rate over the first 500 steps, then cosine annealing to 2e-4 of
+it). Three parts of the official recipe are left out: the momentum cycle, dropout (0.1 in the
+official decoder; the plain-PyTorch decoder has none) and the ImageNet-pretrained ResNet-18
+(``torchvision://resnet18``, not available offline; the backbone starts from seeded fan-in
+weights and the heatmap classifiers from the official prior bias -2.19).
+
+Step ``s`` trains on frames ``s*B .. s*B+B-1`` of the training split and the learning rate is a
+function of the step, so a run is a pure function of its options: resuming from a checkpoint
+continues with exactly the frames and rates the uninterrupted run would have used.
+
+A run folder holds::
+
+    config.py        the model configuration as an mmdet3d-style config (for ``fisheye-infer export --config``)
+    rig.json         the rig the model was trained for (for ``--rig``)
+    model.pth        official-format checkpoint {'state_dict', 'meta'} of the latest step
+    checkpoint.pth   the same plus the optimiser state, for ``--resume``
+    log.jsonl        one line per step: losses, learning rate, seconds; validation lines at checkpoints
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from torch import nn
+
+from fisheye_infer.errors import CheckpointError, ConfigError
+from fisheye_infer.rig import Rig
+
+from .compact import write_config
+from .data import SyntheticFrames, collate
+from .losses import LossConfig, TransFusionLoss
+from .targets import HeadGrid
+
+__all__ = ["TrainOptions", "Trainer", "init_for_training", "lr_factor", "HEATMAP_PRIOR"]
+
+ARCH = "fisheye-bevdet"
+#: Initial bias of both heatmap classifiers (the official init: sigmoid(-2.19) = 0.1).
+HEATMAP_PRIOR = -2.19
+TERMS = ("loss", "loss_heatmap", "loss_cls", "loss_bbox", "matched_iou")
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    """What a run is made of; all of it is stored in the checkpoint and must match on ``--resume``.
+
+    ``steps`` may grow on resume (a run can be continued further; the cosine then stretches to the
+    new end from the step it resumes at); everything else is fixed.
+    """
+
+    steps: int = 10000
+    batch_size: int = 2
+    lr: float = 2e-4
+    weight_decay: float = 0.01
+    grad_clip: float = 35.0
+    warmup_steps: int = 500
+    seed: int = 0
+    checkpoint_every: int = 100
+    val_frames: int = 4
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "checkpoint_every"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"--{name.replace('_', '-')}: expected at least 1, got {getattr(self, name)}")
+        if not self.lr > 0:
+            raise ConfigError(f"--lr: expected a positive learning rate, got {self.lr}")
+        if self.val_frames < 0 or self.warmup_steps < 0:
+            raise ConfigError(f"--val-frames / warm-up steps: expected 0 or more, got {self.val_frames} / {self.warmup_steps}")
+
+
+def lr_factor(step: int, total: int, warmup: int, start: float = 1 / 3, floor: float = 2e-4) -> float:
+    """Learning-rate multiplier at ``step`` (0-based): linear warm-up from ``start``, times a cosine from 1 to ``floor``."""
+    warm = start + (1 - start) * min(step, warmup) / warmup if warmup else 1.0
+    progress = min(step / max(total, 1), 1.0)
+    return warm * (floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress)))
+
+
+def init_for_training(model: nn.Module, seed: int) -> None:
+    """Seeded fan-in weights (the synthetic-checkpoint initialiser) and the official heatmap prior bias."""
+    from fisheye_infer.models.synthetic import init_weights
+
+    init_weights(model, seed)
+    head = model.bbox_head  # type: ignore[attr-defined]
+    with torch.no_grad():
+        head.heatmap_head[-1].bias.fill_(HEATMAP_PRIOR)
+        for pred in head.prediction_heads:
+            pred.heatmap[-1].bias.fill_(HEATMAP_PRIOR)
+
+
+def _atomic_save(obj: Any, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+class Trainer:
+    """Trains a FisheyeBEVDet of ``config`` for ``rig`` in the run folder ``out``.
+
+        Trainer(compact_bevdet_config(), compact_rig(), "runs/compact", TrainOptions()).run()
+    """
+
+    def __init__(self, config: Any, rig: Rig, out: str | Path, options: TrainOptions = TrainOptions(),
+                 loss: LossConfig = LossConfig()) -> None:
+        from fisheye_infer.models import create_model
+
+        self.config, self.rig, self.out, self.options = config, rig, Path(out), options
+        rig.require(rig.names, (config.image.width, config.image.height))
+        torch.manual_seed(options.seed)
+        self.model = create_model(ARCH, config, rig)
+        init_for_training(self.model, options.seed)
+        grid = HeadGrid.from_head(config.head)
+        bev_range = (*grid.pc_range, grid.pc_range[0] + grid.span[0], grid.pc_range[1] + grid.span[1])
+        self.train_frames = SyntheticFrames(rig, "train", options.seed, bev_range=bev_range)
+        self.val_frames = SyntheticFrames(rig, "val", options.seed, bev_range=bev_range)
+        self.loss = TransFusionLoss(self.model.bbox_head, grid, loss)
+        self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
+        self.step = 0
+
+    # -- checkpoints ------------------------------------------------------------------------
+
+    def _meta(self) -> dict[str, Any]:
+        return {"arch": ARCH, "synthetic": False, "step": self.step, "config": self.config.to_dict(),
+                "train_options": dataclasses.asdict(self.options), "rig": self.rig.name, "rig_hash": self.rig.hash}
+
+    def save(self) -> Path:
+        """Write ``model.pth`` (official format) and ``checkpoint.pth`` (plus optimiser state) for the current step."""
+        state = {k: v.detach().clone().contiguous() for k, v in self.model.official_state_dict().items()}
+        meta = self._meta()
+        _atomic_save({"state_dict": state, "meta": meta, "optimizer": self.optimizer.state_dict()}, self.out / "checkpoint.pth")
+        _atomic_save({"state_dict": state, "meta": meta}, self.out / "model.pth")
+        return self.out / "model.pth"
+
+    def resume(self) -> int:
+        """Load ``checkpoint.pth`` of this run folder; refuse one made with other options or another configuration."""
+        from fisheye_infer.models import load_official_state_dict
+
+        path = self.out / "checkpoint.pth"
+        if not path.is_file():
+            raise CheckpointError(f"--resume: {path} does not exist (start the run without --resume)")
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        meta = ckpt.get("meta", {})
+        if meta.get("config") != self.config.to_dict():
+            raise CheckpointError(f"--resume: {path} was trained with another model configuration")
+        if meta.get("rig_hash") != self.rig.hash:
+            raise CheckpointError(f"--resume: {path} was trained for rig {meta.get('rig')!r} ({meta.get('rig_hash')}), "
+                                  f"not {self.rig.name!r} ({self.rig.hash})")
+        saved = dict(meta.get("train_options", {}))
+        mine = dataclasses.asdict(self.options)
+        differ = [f"{k}: saved {saved.get(k)!r}, given {v!r}" for k, v in mine.items() if k != "steps" and saved.get(k) != v]
+        if differ:
+            raise CheckpointError(f"--resume: {path} was made with other options ({'; '.join(differ)})")
+        load_official_state_dict(self.model, ckpt["state_dict"], geometry="rig", context=str(path))
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self.step = int(meta["step"])
+        return self.step
+
+    # -- training ---------------------------------------------------------------------------
+
+    def _batch(self, step: int) -> tuple[torch.Tensor, list[np.ndarray], list[np.ndarray]]:
+        b = self.options.batch_size
+        images, boxes, labels = collate([self.train_frames[step * b + i] for i in range(b)])
+        return torch.from_numpy(images), boxes, labels
+
+    def train_step(self) -> dict[str, float]:
+        """One optimiser step on the next batch; returns the loss terms, the learning rate and the seconds it took."""
+        start, cpu = time.perf_counter(), time.process_time()
+        images, boxes, labels = self._batch(self.step)
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.options.lr * lr_factor(self.step, self.options.steps, self.options.warmup_steps)
+        self.model.train()
+        terms = self.loss(self.model.forward_raw(images), boxes, labels)
+        self.optimizer.zero_grad(set_to_none=True)
+        terms["loss"].backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.options.grad_clip)
+        self.optimizer.step()
+        self.step += 1
+        row = {k: float(terms[k].detach()) for k in TERMS}
+        row.update(step=self.step, lr=self.optimizer.param_groups[0]["lr"], grad_norm=float(grad_norm),
+                   seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu)
+        return row
+
+    @torch.no_grad()
+    def validate(self) -> dict[str, float]:
+        """Mean loss terms on the first ``val_frames`` validation frames, with the model in inference mode."""
+        self.model.eval()
+        sums = dict.fromkeys(TERMS, 0.0)
+        for i in range(self.options.val_frames):
+            sample = self.val_frames[i]
+            terms = self.loss(self.model.forward_raw(torch.from_numpy(sample.images[None])), [sample.boxes], [sample.labels])
+            for k in TERMS:
+                sums[k] += float(terms[k]) / self.options.val_frames
+        return sums
+
+    def run(self, resume: bool = False, until: int | None = None, progress: Callable[[str], None] | None = None) -> Path:
+        """Train up to ``options.steps`` (or stop after step ``until``, to go on later with ``resume``),
+        checkpointing every ``checkpoint_every`` steps and where it stops; returns ``model.pth``."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        if resume:
+            self.resume()
+        else:
+            write_config(self.config, self.out / "config.py")
+            self.rig.save(self.out / "rig.json")
+            (self.out / "log.jsonl").write_text("")
+        stop = self.options.steps if until is None else min(int(until), self.options.steps)
+        bar = ProgressBar(self.options.steps, self.step, progress)
+        with (self.out / "log.jsonl").open("a") as log:
+            while self.step < stop:
+                row = self.train_step()
+                log.write(json.dumps(row) + "\n")
+                log.flush()
+                bar.update(row)
+                if self.step % self.options.checkpoint_every == 0 or self.step == stop:
+                    if self.options.val_frames:
+                        val = {"step": self.step, "split": "val", **self.validate()}
+                        log.write(json.dumps(val) + "\n")
+                        bar.note(f"step {self.step}: validation loss {val['loss']:.3f} (matched IoU {val['matched_iou']:.2f})")
+                    bar.note(f"step {self.step}: wrote {self.save()}")
+        bar.close()
+        return self.out / "model.pth"
+
+
+class ProgressBar:
+    """One redrawn status line: step, bar, smoothed loss terms, seconds per step and time left."""
+
+    WIDTH = 24
+
+    def __init__(self, total: int, done: int, write: Callable[[str], None] | None) -> None:
+        import sys
+
+        self.total, self.done, self.mean = total, done, {}  # type: ignore[var-annotated]
+        self.write = write or (lambda text: (sys.stderr.write(text), sys.stderr.flush()))
+        self.seconds: float | None = None
+
+    def update(self, row: dict[str, float]) -> None:
+        self.done = int(row["step"])
+        for k in TERMS:
+            self.mean[k] = row[k] if k not in self.mean else 0.9 * self.mean[k] + 0.1 * row[k]
+        self.seconds = row["seconds"] if self.seconds is None else 0.9 * self.seconds + 0.1 * row["seconds"]
+        filled = int(self.WIDTH * self.done / self.total)
+        left = (self.total - self.done) * self.seconds
+        self.write(f"\r{self.done}/{self.total} [{'#' * filled}{'.' * (self.WIDTH - filled)}] loss {self.mean['loss']:.3f} "
+                   f"(heatmap {self.mean['loss_heatmap']:.3f} cls {self.mean['loss_cls']:.3f} bbox {self.mean['loss_bbox']:.3f}, "
+                   f"IoU {self.mean['matched_iou']:.2f}) {self.seconds:.1f} s/step, {left / 60:.0f} min left ")
+
+    def note(self, text: str) -> None:
+        self.write(f"\n{text}\n")
+
+    def close(self) -> None:
+        self.write("\n")
