@@ -26,8 +26,8 @@ import torch
 from fisheye_infer.models import BEVDetConfig
 from fisheye_infer.rig import Rig, default_rig
 from fisheye_infer.synth import resized_rig
-from fisheye_infer.train.compact import COMPACT_SECTIONS, compact_bevdet_config, compact_rig
-from fisheye_infer.train.loop import Trainer, TrainOptions
+from fisheye_infer.models.training.compact import COMPACT_SECTIONS, compact_bevdet_config, compact_rig
+from fisheye_infer.models.training.loop import Trainer, TrainOptions
 
 BUDGET_S = 3 * 3600
 

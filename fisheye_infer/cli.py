@@ -149,7 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     configure_rebake(sub.add_parser("rebake", help="recompute an ONNX file's geometry tables for a new rig (no torch)"))
     configure_make_checkpoint(sub.add_parser("make-checkpoint", help="write a seeded random-weight checkpoint (demos and tests)"))
 
-    from fisheye_infer.train.commands import configure_train
+    from fisheye_infer.train_command import configure_train
 
     configure_train(sub.add_parser("train", help="train a FisheyeBEVDet on synthetic frames (default: the compact model)"))
 

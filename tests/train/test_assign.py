@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fisheye_infer.train.assign import AssignerConfig, bev_l1_cost, focal_cost, hungarian_assign, iou_3d
+from fisheye_infer.models.training.assign import AssignerConfig, bev_l1_cost, focal_cost, hungarian_assign, iou_3d
 
 CUBE = np.array([0.0, 0.0, 0.0, 2.0, 2.0, 2.0, 0.0])  # x, y, z_bottom, l, w, h, yaw
 

@@ -8,7 +8,7 @@ torch = pytest.importorskip("torch")
 
 from fisheye_infer.errors import ConfigError  # noqa: E402
 from fisheye_infer.models import BEVDetConfig, create_model  # noqa: E402
-from fisheye_infer.train.compact import compact_bevdet_config, compact_rig, write_config  # noqa: E402
+from fisheye_infer.models.training.compact import compact_bevdet_config, compact_rig, write_config  # noqa: E402
 
 SHIP_LIMIT_BYTES = 20_000_000
 

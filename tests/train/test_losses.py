@@ -6,7 +6,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from fisheye_infer.train.losses import gaussian_focal_loss, sigmoid_focal_loss  # noqa: E402
+from fisheye_infer.models.training.losses import gaussian_focal_loss, sigmoid_focal_loss  # noqa: E402
 
 
 def test_gaussian_focal_loss_rewards_the_target_shape() -> None:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from fisheye_infer.train.targets import HeadGrid, draw_gaussian, encode_boxes, gaussian_2d, gaussian_radius, heatmap_target
+from fisheye_infer.models.training.targets import HeadGrid, draw_gaussian, encode_boxes, gaussian_2d, gaussian_radius, heatmap_target
 
 #: 20 x 20 cells of 1 m from (-10, -10): cell (i, j) covers x in [i - 10, i - 9), y in [j - 10, j - 9).
 GRID = HeadGrid(bev_size=(20, 20), cell=(1.0, 1.0), pc_range=(-10.0, -10.0))

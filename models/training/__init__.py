@@ -1,4 +1,4 @@
-"""fisheye_infer.train: training FisheyeBEVDet on synthetic frames (needs the [export] extra).
+"""fisheye_infer.models.training: training FisheyeBEVDet on synthetic frames (needs the [export] extra).
 
     targets.py   Gaussian heatmap target and box code of the TransFusion head
     assign.py    3D IoU and the Hungarian assignment of proposals to ground truth
@@ -6,5 +6,6 @@
     data.py      seeded, randomised synthetic frames with Fisheye3DOD ground-truth records
     compact.py   the compact configuration and its mmdet3d-style config file
     loop.py      optimiser, schedule, checkpoints, --resume, progress and log
-    commands.py  ``fisheye-infer train``
+
+``fisheye-infer train`` is ``fisheye_infer.train_command`` (torch-free until it runs).
 """

@@ -32,14 +32,14 @@ def run_train(args: argparse.Namespace) -> int:
     try:
         import torch
 
-        from fisheye_infer.train.loop import Trainer, TrainOptions
+        from fisheye_infer.models.training.loop import Trainer, TrainOptions
     except ImportError as exc:
         print(f"{_NEEDS_EXPORT} ({exc})", file=sys.stderr)
         return 1
     from fisheye_infer.errors import ConfigError
     from fisheye_infer.models import BEVDetConfig
     from fisheye_infer.rig import Rig
-    from fisheye_infer.train.compact import compact_bevdet_config, compact_rig
+    from fisheye_infer.models.training.compact import compact_bevdet_config, compact_rig
 
     out = Path(args.out)
     if args.until is not None and args.until < 1:
