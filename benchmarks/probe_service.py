@@ -17,7 +17,6 @@ import argparse
 import base64
 import contextlib
 import gzip
-import http.client
 import json
 import socket
 import statistics
