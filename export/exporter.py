@@ -20,7 +20,7 @@ import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 import numpy as np
 import onnx
@@ -34,13 +34,16 @@ from fisheye_infer.preprocess import frames_from_paths, prepare_batch
 from fisheye_infer.rig import Rig, resolve_rig
 from fisheye_infer.synth import Renderer, random_scene
 
-from .architectures import get_arch, infer_architecture
+from .architectures import ArchSpec, get_arch, infer_architecture
 from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata, without_outputs
 from .trace import OPSET, trace_to_onnx
 from .quantize import MIN_TOP_MATCHED, FrameReader, int8_parity, int8_path_for, quantize, quantized_scope
 from .verify import verify
 
-__all__ = ["ExportResult", "Int8Result", "export", "export_int8", "verification_frames", "file_sha256"]
+if TYPE_CHECKING:
+    from fisheye_infer.models import GeometryReport
+
+__all__ = ["ExportResult", "Int8Result", "OpenedCheckpoint", "export", "export_int8", "open_checkpoint", "verification_frames", "file_sha256"]
 
 #: Calibration frames are rendered from seeds offset by this, so they never coincide with the
 #: verification frames (seeds 0, 1, ...) the int8 file is judged on.
@@ -165,6 +168,64 @@ def _tool_versions() -> dict[str, str]:
     return {"fisheye_infer": __version__, "torch": torch.__version__, "onnx": onnx.__version__, "onnxruntime": ort.__version__, "opset": str(OPSET), "python": platform.python_version()}
 
 
+@dataclass(frozen=True)
+class OpenedCheckpoint:
+    """A checkpoint file in its plain-PyTorch model, built for a rig, strictly loaded, in eval mode."""
+
+    name: str
+    spec: ArchSpec
+    model: torch.nn.Module
+    rig: Rig
+    geometry: GeometryReport
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) of the camera images the model takes."""
+        return self.spec.image_size(self.model)
+
+
+def open_checkpoint(
+    ckpt: str | Path,
+    *,
+    arch: str | None = None,
+    config: str | Path | object | None = None,
+    rig: str | Path | Rig | None = None,
+    geometry: str = "verify",
+    allow_pickle: bool = False,
+    progress: Callable[[str, Rig], None] | None = None,
+) -> OpenedCheckpoint:
+    """Read ``ckpt`` (weights only), pick its architecture, build the model for the rig, load strictly.
+
+    The arguments mean what they mean for ``export``; the model is what export traces, and what
+    a PyTorch-side evaluation (``TorchDetector``) runs.
+    """
+    from fisheye_infer.models import create_model, get_model_entry, load_checkpoint, load_official_state_dict
+
+    ckpt = Path(ckpt)
+    state_dict, _ = load_checkpoint(ckpt, allow_pickle=allow_pickle)
+    name = _architecture(state_dict, arch, ckpt)
+    spec = get_arch(name)
+    cfg = spec.read_config(Path(config)) if isinstance(config, (str, Path)) else config
+    the_rig = rig if isinstance(rig, Rig) else resolve_rig(rig)
+    if progress is not None:
+        progress(name, the_rig)
+    model = create_model(name, cfg, the_rig)
+    width, height = spec.image_size(model)
+    try:  # before the checkpoint's geometry is compared, which would blame the calibration instead
+        the_rig.require(the_rig.names, (width, height))
+    except RigError as exc:
+        raise ExportError(f"rig {the_rig.name!r} does not fit the {name} configuration: {exc}") from exc
+    try:
+        report = load_official_state_dict(model, state_dict, geometry=geometry, ignore=get_model_entry(name).ignored_keys,
+                                          context=f"{name} checkpoint {ckpt.name}")
+    except CheckpointError as exc:
+        if "does not fit the model" not in str(exc):
+            raise
+        source = f"--config {config}" if isinstance(config, (str, Path)) else "the configuration given" if config is not None else f"the official {name} configuration"
+        raise CheckpointError(f"{exc}\n(model built from {source}; pass the config the checkpoint was trained with)") from None
+    return OpenedCheckpoint(name, spec, model.eval(), the_rig, report)
+
+
 def export(
     ckpt: str | Path,
     out: str | Path,
@@ -190,8 +251,6 @@ def export(
     ``int8``: once the fp32 file is written, also write ``export_int8``'s file next to it
     (``model.onnx`` -> ``model.int8.onnx``); ``out`` always stays the verified fp32 file.
     """
-    from fisheye_infer.models import create_model, get_model_entry, load_checkpoint, load_official_state_dict
-
     start = time.perf_counter()
     out = Path(out)
     ckpt = Path(ckpt)
@@ -204,28 +263,10 @@ def export(
     if calib_images is not None and not Path(calib_images).exists():
         raise ExportError(f"--calib-images {calib_images}: no such file or folder")
     progress(f"[1/5] reading {ckpt}")
-    state_dict, _ = load_checkpoint(ckpt, allow_pickle=allow_pickle)
-    name = _architecture(state_dict, arch, ckpt)
-    spec = get_arch(name)
-    cfg = spec.read_config(Path(config)) if isinstance(config, (str, Path)) else config
-    the_rig = rig if isinstance(rig, Rig) else resolve_rig(rig)
-
-    progress(f"[2/5] building {name} for rig {the_rig.name!r} ({the_rig.hash}) and loading the checkpoint strictly")
-    model = create_model(name, cfg, the_rig)
-    width, height = spec.image_size(model)
-    try:  # before the checkpoint's geometry is compared, which would blame the calibration instead
-        the_rig.require(the_rig.names, (width, height))
-    except RigError as exc:
-        raise ExportError(f"rig {the_rig.name!r} does not fit the {name} configuration: {exc}") from exc
-    try:
-        report = load_official_state_dict(model, state_dict, geometry=geometry, ignore=get_model_entry(name).ignored_keys,
-                                          context=f"{name} checkpoint {ckpt.name}")
-    except CheckpointError as exc:
-        if "does not fit the model" not in str(exc):
-            raise
-        source = f"--config {config}" if isinstance(config, (str, Path)) else "the configuration given" if config is not None else f"the official {name} configuration"
-        raise CheckpointError(f"{exc}\n(model built from {source}; pass the config the checkpoint was trained with)") from None
-    model.eval()
+    loaded = open_checkpoint(ckpt, arch=arch, config=config, rig=rig, geometry=geometry, allow_pickle=allow_pickle,
+                        progress=lambda name, r: progress(f"[2/5] building {name} for rig {r.name!r} ({r.hash}) and loading the checkpoint strictly"))
+    name, spec, model, the_rig, report = loaded.name, loaded.spec, loaded.model, loaded.rig, loaded.geometry
+    width, height = loaded.image_size
     progress(f"      geometry tables from the {report.source}")
 
     progress("[3/5] tracing to ONNX (geometry as named initializers)")

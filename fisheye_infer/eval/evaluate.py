@@ -14,9 +14,10 @@ frames where nothing was detected.
 from __future__ import annotations
 
 import json
+import sys
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -24,8 +25,14 @@ from fisheye_infer.errors import FrameError
 from fisheye_infer.eval.algo import accumulate_thresholds, calc_ap, calc_tp
 from fisheye_infer.eval.boxes import EvalBoxes
 from fisheye_infer.eval.metrics import TP_METRICS, ClassMetrics, EvalConfig, MetricsReport, Summary
+from fisheye_infer.progress import Progress
+from fisheye_infer.rig import Rig
 
-__all__ = ["evaluate", "evaluate_results", "summarise", "load_results", "save_results", "breakdown_label"]
+if TYPE_CHECKING:
+    from fisheye_infer.detector import FrameDetector
+    from fisheye_infer.eval.dataset import Fisheye3DOD
+
+__all__ = ["evaluate", "evaluate_results", "summarise", "detect_dataset", "load_results", "save_results", "breakdown_label"]
 
 Results = Mapping[str, Sequence[Mapping[str, Any]]]
 
@@ -105,6 +112,39 @@ def evaluate_results(gt: Results, pred: Results, config: EvalConfig | None = Non
     gt_boxes = EvalBoxes.from_records(gt, config.class_names, tokens, ground_truth=True)
     pred_boxes = EvalBoxes.from_records(pred, config.class_names, tokens)
     return evaluate(gt_boxes, pred_boxes, config)
+
+
+def detect_dataset(detector: FrameDetector, dataset: Fisheye3DOD, progress: bool = True) -> tuple[dict[str, list[dict[str, Any]]], dict[str, list[dict[str, Any]]]]:
+    """Run ``detector`` on every frame of ``dataset``: (ground truth, predictions) by sample token.
+
+    Predictions are the detector's unthresholded output, as the official numbers are computed;
+    cameras the dataset leaves out reach the detector as missing (its degraded mode). Any
+    ``FrameDetector`` serves (ONNX Runtime, Triton, the PyTorch model), so their metrics compare.
+    """
+    gt, pred = {}, {}
+    bar = Progress(len(dataset)) if progress else None
+    for i, frame in enumerate(dataset, start=1):
+        if i == 1:
+            _warn_if_rigs_differ(frame.rig, detector.info.rig)
+        pred[frame.token] = detector.detect(dict(frame.image_paths)).to_nuscenes()
+        gt[frame.token] = frame.gt_records()
+        if bar is not None:
+            bar.update(i)
+    return gt, pred
+
+
+def _warn_if_rigs_differ(data_rig: Rig, model_rig: Rig, tolerance: float = 0.01) -> None:
+    """The model's geometry is baked for its own rig; say so when the data were recorded with another one."""
+    worst = 0.0
+    for cam in data_rig.cameras:
+        if cam.name in model_rig.names:
+            worst = max(worst, float(np.abs(cam.matrix - model_rig.camera(cam.name).matrix).max()))
+    if worst > tolerance:
+        print(
+            f"warning: the data's cam2lidar differs from the rig baked into the model by up to {worst:.3f}; "
+            "results reflect that mismatch (re-bake the model for this rig with `fisheye-infer rebake`)",
+            file=sys.stderr,
+        )
 
 
 def load_results(path: str | Path) -> dict[str, list[dict[str, Any]]]:

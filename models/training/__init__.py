@@ -3,9 +3,10 @@
     targets.py   Gaussian heatmap target and box code of the TransFusion head
     assign.py    3D IoU and the Hungarian assignment of proposals to ground truth
     losses.py    the official heatmap, classification and box losses
-    data.py      seeded, randomised synthetic frames with Fisheye3DOD ground-truth records
     compact.py   the compact configuration and its mmdet3d-style config file
     loop.py      optimiser, schedule, checkpoints, --resume, progress and log
 
-``fisheye-infer train`` is ``fisheye_infer.train_command`` (torch-free until it runs).
+The frames come from ``fisheye_infer.synth_splits`` (seeded, randomised and torch-free, so a
+held-out set is written and evaluated without torch). ``fisheye-infer train`` is
+``fisheye_infer.train_command`` (torch-free until it runs).
 """

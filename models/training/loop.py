@@ -37,18 +37,23 @@ from torch import nn
 
 from fisheye_infer.errors import CheckpointError, ConfigError
 from fisheye_infer.rig import Rig
+from fisheye_infer.synth_splits import Sample, SyntheticFrames
 
 from .compact import write_config
-from .data import SyntheticFrames, collate
 from .losses import LossConfig, TransFusionLoss
 from .targets import HeadGrid
 
-__all__ = ["TrainOptions", "Trainer", "init_for_training", "lr_factor", "HEATMAP_PRIOR"]
+__all__ = ["TrainOptions", "Trainer", "collate", "init_for_training", "lr_factor", "HEATMAP_PRIOR"]
 
 ARCH = "fisheye-bevdet"
 #: Initial bias of both heatmap classifiers (the official init: sigmoid(-2.19) = 0.1).
 HEATMAP_PRIOR = -2.19
 TERMS = ("loss", "loss_heatmap", "loss_cls", "loss_bbox", "matched_iou")
+
+
+def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+    """Samples -> images B x N x H x W x 3 uint8, and per-frame boxes and labels."""
+    return (np.stack([s.images for s in samples]), [s.boxes for s in samples], [s.labels for s in samples])
 
 
 @dataclass(frozen=True)

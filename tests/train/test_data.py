@@ -8,7 +8,7 @@ import pytest
 from fisheye_infer.records import GT_SCORE, records_to_arrays
 from fisheye_infer.rig import default_rig
 from fisheye_infer.synth import resized_rig
-from fisheye_infer.models.training.data import SyntheticFrames
+from fisheye_infer.synth_splits import SyntheticFrames
 
 RIG = resized_rig(default_rig(), 0.1)  # 80 x 80 pictures: the content matters here, not the detail
 

@@ -1,4 +1,4 @@
-"""Training and validation frames, rendered on the fly from seeds with domain randomisation.
+"""The randomised synthetic streams training and evaluation draw from, and their files on disk.
 
 Frame ``i`` of a split is fully determined by ``(split, seed, i)``: the scene (object count, classes,
 sizes, yaw, placements, hence occlusions), its look (sun, ground texture and tint, sky, haze,
@@ -8,20 +8,27 @@ object colours, texture seed) and so its pictures. The two splits draw from sepa
 Labels travel as Fisheye3DOD ground-truth records (the evaluator's format) and are turned into
 the head's arrays with the same conversion the evaluator uses; boxes whose centre lies outside
 the head's BEV range are dropped (the official ``ObjectRangeFilter``).
+
+``write_split`` puts frames of a stream on disk in the Fisheye3DOD layout, so that a held-out set
+is evaluated by ``fisheye-infer eval`` like any recorded data:
+
+    write_split(SyntheticFrames(rig, "val"), "data/heldout", range(200))
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from pathlib import Path
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from fisheye_infer.carla import CarlaPose
 from fisheye_infer.records import GT_SCORE, boxes_to_records, records_to_arrays
 from fisheye_infer.rig import Rig
 from fisheye_infer.synth import Renderer, random_appearance, random_scene
 
-__all__ = ["Sample", "SyntheticFrames", "SPLITS", "collate"]
+__all__ = ["Sample", "SyntheticFrames", "SPLITS", "write_split"]
 
 #: Tag of each split in its seed sequences.
 SPLITS = {"train": 0x7472, "val": 0x76616C}
@@ -79,6 +86,26 @@ class SyntheticFrames:
         return Sample(int(index), images, records, boxes, labels)
 
 
-def collate(samples: Sequence[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
-    """Samples -> images B x N x H x W x 3 uint8, and per-frame boxes and labels."""
-    return (np.stack([s.images for s in samples]), [s.boxes for s in samples], [s.labels for s in samples])
+
+def write_split(frames: SyntheticFrames, root: str | Path, indices: Iterable[int], split: str | None = None) -> list[str]:
+    """Write frames ``indices`` of a stream under ``root`` in the Fisheye3DOD layout; returns their tokens.
+
+    One sequence per stream and seed (``synth-Town00-Randomised<split>-seed<seed>/ego0``), frame id
+    = stream index, so a token names the frame it came from. The ego pose is level, which makes
+    the written poses give back the rig's cam2lidar (to ~1e-15); ``split`` names the split file
+    (default: the stream's own name).
+    """
+    from fisheye_infer.eval.writer import Fisheye3DODWriter
+
+    scene = f"synth-Town00-Randomised{frames.split.capitalize()}-seed{frames.seed}"
+    writer = Fisheye3DODWriter(root, scene, split=split or frames.split)
+    tokens = []
+    for index in indices:
+        sample = frames[index]
+        frame_id = f"{index:08d}"
+        lidar = CarlaPose(x=100.0, y=-50.0, z=2.0, pitch=0.0, yaw=0.0, roll=0.0)
+        images = dict(zip(frames.rig.names, sample.images))
+        writer.write_frame(frame_id, frames.rig, images, sample.boxes, sample.labels, lidar)
+        tokens.append(f"{scene}.{writer.vehicle}.{frame_id}")
+    writer.close()
+    return tokens
