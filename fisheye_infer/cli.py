@@ -53,11 +53,14 @@ def _rig_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Score threshold of the demo's picture and counts: the shipped model's boxes above it.
+DEMO_SCORE_THRESHOLD = 0.3
+
+
 def _demo(args: argparse.Namespace) -> int:
-    """The main job on embedded defaults: the shipped rig and its geometry, a seeded random-weight
-    FisheyeBEVDet exported to a verified ONNX file, and detection on the bundled sample frame."""
+    """The main job on embedded defaults: the shipped rig and its geometry, the shipped trained
+    compact FisheyeBEVDet exported to a verified ONNX file, and detection on its held-out frame."""
     import json
-    from importlib import resources
 
     from fisheye_infer.geometry import BevGrid, build_pooling_plan, depth_bins, frustum_to_lidar, spherical_frustum, spherical_grid
     from fisheye_infer.rig import default_rig
@@ -79,25 +82,45 @@ def _demo(args: argparse.Namespace) -> int:
 
     try:
         from fisheye_infer.export.exporter import export
-        from fisheye_infer.models import make_checkpoint
+        from fisheye_infer.models.pretrained import COMPACT_BEVDET as shipped
     except ImportError as exc:
         print(f"skipping export and detection: the [export] extra is not installed ({exc})")
         return 0
-    ckpt, onnx_path = out / "fisheye_bevdet_random.pth", out / "fisheye_bevdet_random.onnx"
-    print("\nexport: FisheyeBEVDet with SEEDED RANDOM WEIGHTS (its boxes mean nothing; pass a trained checkpoint to `fisheye-infer export --ckpt` for real detections)")
-    make_checkpoint("fisheye-bevdet", seed=0, path=ckpt)
-    print(export(ckpt, onnx_path).summary())
+    onnx_path = out / f"{shipped.name}.onnx"
+    print(f"\nexport: the shipped {shipped.name}, trained on randomised synthetic frames (model card: {shipped.card})")
+    print(export(shipped.checkpoint, onnx_path, config=shipped.config, rig=shipped.rig, verify_images=shipped.heldout_frame).summary())
 
     from fisheye_infer.detect_command import run_detect
 
-    sample = resources.files("fisheye_infer") / "data" / "sample_frame"
-    with resources.as_file(sample) as folder:
-        detect_args = argparse.Namespace(model=str(onnx_path), images=[str(folder)], result=None, out=str(out / "result.json"),
-                                         viz=str(out / "result.png"), score_threshold=None, classes=None, nms=None, threads=None)
-        run_detect(detect_args)
-    frames = json.loads((out / "result.json").read_text())["frames"]
-    print(f"\ndemo done: {len(frames[0]['detections'])} boxes on the bundled synthetic frame; see {out}/result.png")
+    detect_args = argparse.Namespace(model=str(onnx_path), images=[str(shipped.heldout_frame)], result=None, out=str(out / "result.json"),
+                                     viz=str(out / "result.png"), score_threshold=DEMO_SCORE_THRESHOLD, classes=None, nms=None, threads=None)
+    run_detect(detect_args)
+    detections = json.loads((out / "result.json").read_text())["frames"][0]["detections"]
+    labels = json.loads((shipped.heldout_frame / "labels.json").read_text())["records"]
+    found, extra = _match_labels(detections, labels)
+    print(f"\ndemo done: on the held-out frame, {found} of {len(labels)} labelled objects found (same class, centre within "
+          f"{MATCH_RADIUS_M:g} m, score >= {DEMO_SCORE_THRESHOLD}); {extra} box(es) on no object; see {out}/result.png")
     return 0
+
+
+#: Centre distance within which a detection finds a labelled object (the metric's 2 m threshold).
+MATCH_RADIUS_M = 2.0
+
+
+def _match_labels(detections: list[dict], records: list[dict]) -> tuple[int, int]:
+    """(labelled objects found, detections left over): greedy by score, same class, bird's-eye centres."""
+    used = [False] * len(records)
+    found = 0
+    for det in sorted(detections, key=lambda d: -d["score"]):
+        best, best_d = -1, MATCH_RADIUS_M
+        for i, rec in enumerate(records):
+            d = ((det["x"] - rec["translation"][0]) ** 2 + (det["y"] - rec["translation"][1]) ** 2) ** 0.5
+            if not used[i] and rec["detection_name"] == det["class_name"] and d <= best_d:
+                best, best_d = i, d
+        if best >= 0:
+            used[best] = True
+            found += 1
+    return found, len(detections) - found
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -28,7 +28,7 @@ from fisheye_infer.records import GT_SCORE, boxes_to_records, records_to_arrays
 from fisheye_infer.rig import Rig
 from fisheye_infer.synth import Renderer, random_appearance, random_scene
 
-__all__ = ["Sample", "SyntheticFrames", "SPLITS", "write_split"]
+__all__ = ["Sample", "SyntheticFrames", "SPLITS", "write_split", "write_frame_folder"]
 
 #: Tag of each split in its seed sequences.
 SPLITS = {"train": 0x7472, "val": 0x76616C}
@@ -109,3 +109,20 @@ def write_split(frames: SyntheticFrames, root: str | Path, indices: Iterable[int
         tokens.append(f"{scene}.{writer.vehicle}.{frame_id}")
     writer.close()
     return tokens
+
+
+def write_frame_folder(frames: SyntheticFrames, index: int, folder: str | Path) -> Path:
+    """One frame as ``fisheye-infer detect --images FOLDER`` reads it: ``<camera>.png`` per camera,
+    plus ``labels.json`` (``{"token", "records"}``: its ground-truth records)."""
+    import json
+
+    import cv2
+
+    sample = frames[index]
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, image in zip(frames.rig.names, sample.images):
+        cv2.imwrite(str(folder / f"{name}.png"), image)
+    token = f"{frames.split}-seed{frames.seed}-{index:08d}"
+    (folder / "labels.json").write_text(json.dumps({"token": token, "records": list(sample.records)}, indent=1) + "\n")
+    return folder

@@ -135,3 +135,39 @@ def test_synth_objects_argument_is_checked() -> None:
     configure_synth(parser)
     with pytest.raises(SystemExit):
         parser.parse_args(["--out", "x", "--objects", "9,3"])
+
+
+def test_synth_stream_writes_the_training_commands_validation_frames(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import cv2
+    import numpy as np
+
+    from fisheye_infer.records import records_to_arrays
+    from fisheye_infer.rig import default_rig
+    from fisheye_infer.synth import resized_rig
+    from fisheye_infer.synth_splits import SyntheticFrames
+
+    rig = resized_rig(default_rig(), 0.1)
+    rig.save(tmp_path / "rig.json")
+    root = tmp_path / "heldout"
+    assert _run(configure_synth, ["--stream", "val", "--rig", str(tmp_path / "rig.json"), "--first", "5", "--frames", "2", "--out", str(root)]) == 0
+    assert "--split val" in capsys.readouterr().out
+    data, stream = Fisheye3DOD(root, "val"), SyntheticFrames(rig, "val")
+    assert [f.token.rsplit(".", 1)[1] for f in data] == ["00000005", "00000006"]
+    for frame, index in zip(data, (5, 6)):
+        sample = stream[index]
+        for camera, image in zip(rig.names, sample.images):
+            np.testing.assert_array_equal(cv2.imread(str(dict(frame.image_paths)[camera])), image)
+        boxes, _, labels = records_to_arrays(frame.gt_records())
+        np.testing.assert_allclose(boxes, sample.boxes, atol=1e-9)
+        np.testing.assert_array_equal(labels, sample.labels)
+        assert np.abs(frame.rig.cam2lidar() - rig.cam2lidar()).max() < 1e-12
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--stream", "val", "--objects", "2,3"], "--objects belong(s) to the plain scenes"),
+    (["--stream", "val", "--first", "-1"], "--first must be at least 0"),
+    (["--first", "3"], "--first needs --stream"),
+])
+def test_synth_stream_options_are_checked(argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert _run(configure_synth, [*argv, "--scale", "0.1", "--out", str(tmp_path)]) == 2
+    assert message in capsys.readouterr().err
