@@ -17,7 +17,7 @@ import onnx
 
 from fisheye_infer.artifact import METADATA_KEY, ArtifactMeta, parse_meta
 from fisheye_infer.errors import ArtifactError, RigError
-from fisheye_infer.geometry.tables import tables_for
+from fisheye_infer.geometry.kinds import tables_for
 from fisheye_infer.rig import Rig, resolve_rig
 
 from .graph import REBAKE_WEIGHTS_KEY, decode_arrays, get_metadata, replace_initializers, save_model, set_metadata
@@ -43,7 +43,8 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
     tables = tables_for(new_rig, meta.geometry, weights)
     if set(tables) != set(meta.geometry_initializers):
-        raise ArtifactError(f"model {model_path}: its geometry initializers {sorted(meta.geometry_initializers)} differ from those its parameters define {sorted(tables)}")
+        raise ArtifactError(f"model {model_path}: its geometry initializers {sorted(meta.geometry_initializers)} differ from those "
+                            f"its parameters define {sorted(tables)}")
     replace_initializers(proto, tables)
     model_id = f"{meta.architecture}-{new_rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
     new_meta = meta.model_copy(update={"rig": new_rig, "rig_hash": new_rig.hash, "model_id": model_id, "geometry_source": "rig", "parity": None})

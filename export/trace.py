@@ -4,9 +4,9 @@ The model is traced with ``torch.onnx.export(dynamo=True)`` and every ``geom.*``
 a graph input. The batch axis is symbolic, and so is the row count K_b of every pooling bucket:
 the resulting graph contains no constant derived from a table's size, which is what lets
 ``rebake`` give the same graph any rig's tables. Afterwards the table inputs become named
-initializers. The tracer sees example buckets of at least two rows (a bucket may be empty or
-hold one cell for a given rig, and torch.export specialises sizes 0 and 1); the padding rows
-point at the zero depth slot and no cell reads them.
+initializers. The tracer sees example buckets of at least two rows (a bucket may hold one row for
+a given rig, and torch.export specialises sizes 0 and 1): the extra rows repeat the bucket's last
+row, and no cell reads them.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import contextlib
 import io
 import logging
 import warnings
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 import onnx
@@ -25,13 +25,14 @@ from torch.export import Dim
 
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS
 from fisheye_infer.errors import ExportError
+from fisheye_infer.geometry.tables import POOL_PIXELS, POOL_POINTS
 
 from .graph import check_standard_ops, inputs_to_initializers, rename_values, strip_shape_info
 
 __all__ = ["OPSET", "trace_to_onnx"]
 
 OPSET = 18
-_BUCKET_PREFIXES = ("geom.pool.points.", "geom.pool.pixels.")
+_BUCKET_PREFIXES = (POOL_POINTS, POOL_PIXELS)
 
 
 class _Graph(nn.Module):
@@ -48,13 +49,13 @@ class _Graph(nn.Module):
         return tuple(out[k] for k in OUTPUTS + RANKING_OUTPUTS)
 
 
-def _example_tables(tables: Mapping[str, np.ndarray], num_points: int) -> dict[str, torch.Tensor]:
+def _example_tables(tables: Mapping[str, np.ndarray]) -> dict[str, torch.Tensor]:
     examples = {}
     for name, value in tables.items():
         t = torch.from_numpy(np.ascontiguousarray(value))
         if name.startswith(_BUCKET_PREFIXES) and t.shape[0] < 2:
-            fill = num_points if name.startswith("geom.pool.points.") else 0
-            t = torch.cat([t, torch.full((2, t.shape[1]), fill, dtype=t.dtype)])
+            extra = t[-1:].expand(2, -1) if t.shape[0] else torch.zeros((2, t.shape[1]), dtype=t.dtype)
+            t = torch.cat([t, extra])
         examples[name] = t
     return examples
 
@@ -73,14 +74,11 @@ def _dynamic_shapes(names: list[str]) -> tuple:
     return {"images": {0: batch}, "camera_valid": {0: batch}, "tables": tuple(table_shapes)}
 
 
-def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], num_points: int, image_hw: tuple[int, int], num_cameras: int) -> onnx.ModelProto:
+def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], image_hw: tuple[int, int], num_cameras: int) -> onnx.ModelProto:
     """ONNX model of ``model`` with ``tables`` as initializers named ``geom.*``; its outputs are
-    ``OUTPUTS`` then ``RANKING_OUTPUTS`` (``graph.without_outputs`` makes the file to write).
-
-    ``num_points`` is the zero slot the pooling buckets pad with (N*D*H*W for LSS, unused otherwise).
-    """
+    ``OUTPUTS`` then ``RANKING_OUTPUTS`` (``graph.without_outputs`` makes the file to write)."""
     names = list(tables)
-    examples = _example_tables(tables, num_points)
+    examples = _example_tables(tables)
     h, w = image_hw
     images = torch.zeros((2, num_cameras, h, w, 3), dtype=torch.uint8)
     valid = torch.ones((2, num_cameras), dtype=torch.bool)

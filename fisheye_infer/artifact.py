@@ -12,12 +12,12 @@ content does not match its recorded hash.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from fisheye_infer.errors import ArtifactError
-from fisheye_infer.geometry.tables import GeometryParams
+from fisheye_infer.geometry.kinds import GeometryParams
 from fisheye_infer.rig import Rig
 
 __all__ = [
@@ -36,7 +36,7 @@ __all__ = [
     "read_meta",
 ]
 
-ARTIFACT_SCHEMA_VERSION = 1
+ARTIFACT_SCHEMA_VERSION: Final = 1
 METADATA_KEY = "fisheye_infer"
 INPUT_IMAGES = "images"  # uint8 (B, N, H, W, 3) in the colour order below
 INPUT_CAMERA_VALID = "camera_valid"  # bool (B, N): False zeroes that camera's features
@@ -124,7 +124,7 @@ class ArtifactMeta(_Model):
     parity: ParityReport | None = None
     quantization: Quantization | None = None
 
-    def check(self) -> "ArtifactMeta":
+    def check(self) -> ArtifactMeta:
         """Consistency a reader can verify: the rig matches its hash, cameras and image size."""
         if self.rig.hash != self.rig_hash:
             raise ArtifactError(f"rig_hash: metadata says {self.rig_hash}, the embedded rig hashes to {self.rig.hash}; the file was altered")

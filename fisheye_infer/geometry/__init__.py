@@ -1,9 +1,15 @@
-"""Pure numpy geometry tables: arrays in, arrays out, float64 inside, float32 out.
+"""Pure numpy geometry: arrays in, arrays out, float64 inside, float32 out.
 
 One source of truth for the sampling grids, frustums, BEV pooling plans and PETR position
-coordinates that the PyTorch models, the exporter and the runtime share.
+coordinates that the PyTorch models, the exporter and the runtime share. The building blocks are
+``grids``, ``frustum``, ``pooling`` and the coordinate functions of ``petr``; one module per
+parameter kind (``lss``, ``cyl_lss``, ``petr``, ``cyl_petr``) turns a rig into a geometry object,
+whose ``tables()`` are the ``geom.*`` tables named and laid out in ``tables``; ``kinds`` picks the
+geometry object of a parameter kind.
 """
 
+from fisheye_infer.geometry.cyl_lss import CylLSSGeometry, CylLSSParams
+from fisheye_infer.geometry.cyl_petr import CylPETRGeometry, CylPETRParams
 from fisheye_infer.geometry.frustum import cylindrical_frustum, depth_bins, frustum_to_lidar, linspace_depth_bins, spherical_frustum
 from fisheye_infer.geometry.grids import (
     cylindrical_grid,
@@ -15,11 +21,23 @@ from fisheye_infer.geometry.grids import (
     spherical_directions,
     spherical_grid,
 )
-from fisheye_infer.geometry.petr import lid_depths, position_coords
+from fisheye_infer.geometry.kinds import Geometry, GeometryParams, geometry_from_rig, tables_for
+from fisheye_infer.geometry.lss import LSSGeometry, LSSParams
+from fisheye_infer.geometry.petr import PETRGeometry, PETRParams, lid_depths, position_coords
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan, pool_bev, pool_bev_reference
 
 __all__ = [
     "BevGrid",
+    "CylLSSGeometry",
+    "CylLSSParams",
+    "CylPETRGeometry",
+    "CylPETRParams",
+    "Geometry",
+    "GeometryParams",
+    "LSSGeometry",
+    "LSSParams",
+    "PETRGeometry",
+    "PETRParams",
     "PoolingPlan",
     "build_pooling_plan",
     "cylindrical_frustum",
@@ -28,6 +46,7 @@ __all__ = [
     "cylindrical_remap",
     "depth_bins",
     "frustum_to_lidar",
+    "geometry_from_rig",
     "invalid_mask",
     "lid_depths",
     "linspace_depth_bins",
@@ -39,4 +58,5 @@ __all__ = [
     "spherical_directions",
     "spherical_frustum",
     "spherical_grid",
+    "tables_for",
 ]

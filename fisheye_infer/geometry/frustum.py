@@ -40,7 +40,8 @@ def _lift(depths: np.ndarray, rays: np.ndarray) -> np.ndarray:
     return (d[:, None, None, None] * rays[None]).astype(np.float32)
 
 
-def spherical_frustum(depths: np.ndarray, out_hw: tuple[int, int] = (25, 100), azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE, elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
+def spherical_frustum(depths: np.ndarray, out_hw: tuple[int, int] = (25, 100), azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
+                      elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
     """(D, H, W, 3) float32 points in the camera (OpenCV) frame: depth x unit ray."""
     return _lift(depths, spherical_directions(out_hw, azimuth_range, elevation_range))
 

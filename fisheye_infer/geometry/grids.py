@@ -47,7 +47,8 @@ def angular_axes(out_hw: tuple[int, int], azimuth_range: tuple[float, float], el
     return np.linspace(*elevation_range, h), np.linspace(*azimuth_range, w)
 
 
-def spherical_directions(out_hw: tuple[int, int], azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE, elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
+def spherical_directions(out_hw: tuple[int, int], azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
+                         elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
     """Unit rays (H, W, 3) in the camera frame: (cos el sin az, sin el, cos el cos az).
 
     Row 0 looks up (the camera's y axis points down), column 0 looks left.
@@ -80,7 +81,8 @@ def _grid_from_rays(camera: OCamModel, rays: np.ndarray) -> np.ndarray:
     return normalise_pixels(uv, camera).reshape(*shape, 2).astype(np.float32)
 
 
-def spherical_grid(camera: OCamModel, out_hw: tuple[int, int] = (25, 100), azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE, elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
+def spherical_grid(camera: OCamModel, out_hw: tuple[int, int] = (25, 100), azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
+                   elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
     """Equirectangular grid (H, W, 2) float32 for ``grid_sample(align_corners=True)``.
 
     Rays outside the lens's fov take the OCam sentinel pixel (-1, -1), i.e. g = -1 - 2/W, as the
@@ -94,7 +96,8 @@ def cylindrical_grid(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: 
     return _grid_from_rays(camera, cylindrical_directions(out_hw, azimuth_range, height_range))
 
 
-def cylindrical_remap(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def cylindrical_remap(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float],
+                      height_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """Pixel maps (map_x, map_y), each (H, W) float32, for ``cv2.remap`` of a whole fisheye image.
 
     This is the image-level cylindrical rectification of the cylindrical baselines.

@@ -1,18 +1,30 @@
-"""PETR's 3D position coordinates: the input of its position encoder, for a fixed rig.
+"""FisheyePETR's geometry: the warp grid, the key mask and the key position embedding.
 
 FisheyePETR embeds each key (camera, row, column of the angular grid) by the lidar-frame
 points of its ray at 64 linear-increasing depths (LID), normalised by ``position_range`` and
-mapped through a clamped inverse sigmoid. None of this depends on the image, so for a fixed
-rig the whole table is a constant.
+mapped through a clamped inverse sigmoid (:func:`position_coords`), passed through the head's
+position encoder, plus the sine encoding of the key mask through ``adapt_pos3d``
+(:func:`key_position_embedding`). None of this depends on the image, so for a fixed rig and
+fixed weights the whole table is a constant.
+
+    geometry = PETRGeometry.from_rig(rig, params)
+    geometry.tables(weights)     # {"geom.grid", "geom.petr.key_pos", "geom.petr.key_mask"}
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+from typing import Literal, Protocol
+
 import numpy as np
 
-from fisheye_infer.geometry.grids import DEFAULT_AZIMUTH_RANGE, DEFAULT_ELEVATION_RANGE, spherical_directions
+from fisheye_infer.errors import ConfigError
+from fisheye_infer.geometry.grids import DEFAULT_AZIMUTH_RANGE, DEFAULT_ELEVATION_RANGE, invalid_mask, spherical_directions, spherical_grid
+from fisheye_infer.geometry.tables import GRID, Params, grid_table, key_tables
+from fisheye_infer.rig import Rig
 
-__all__ = ["DEFAULT_POSITION_RANGE", "lid_depths", "inverse_sigmoid", "position_coords", "sine_frequencies", "sine_position_encoding"]
+__all__ = ["DEFAULT_POSITION_RANGE", "PETRParams", "PETRGeometry", "lid_depths", "inverse_sigmoid", "position_coords",
+           "sine_frequencies", "sine_position_encoding", "KeyParams", "key_coords", "key_position_embedding", "check_tables"]
 
 #: x_min, y_min, z_min, x_max, y_max, z_max in metres (lidar frame).
 DEFAULT_POSITION_RANGE = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0)
@@ -96,3 +108,136 @@ def sine_position_encoding(mask: np.ndarray, num_feats: int = 128, temperature: 
     dim_t = sine_frequencies(num_feats, temperature)
     pe = np.concatenate([_blocked_sin_cos(v, dim_t) for v in (n, y, x)], axis=-1)  # N x H x W x 3F
     return pe.transpose(0, 3, 1, 2).astype(np.float32)
+
+
+class KeyParams(Protocol):
+    """What the key embedding reads from a PETR parameter kind (spherical or cylindrical)."""
+
+    @property
+    def feature_size(self) -> tuple[int, int]: ...
+    @property
+    def azimuth_range(self) -> tuple[float, float]: ...
+    @property
+    def elevation_range(self) -> tuple[float, float]: ...
+    @property
+    def depth_num(self) -> int: ...
+    @property
+    def depth_start(self) -> float: ...
+    @property
+    def position_range(self) -> tuple[float, float, float, float, float, float]: ...
+    @property
+    def num_feats(self) -> int: ...
+    @property
+    def temperature(self) -> float: ...
+    def directions(self) -> np.ndarray | None: ...
+
+
+class PETRParams(Params):
+    kind: Literal["petr"] = "petr"
+    depth_num: int
+    depth_start: float
+    position_range: tuple[float, float, float, float, float, float]
+    num_feats: int = 128
+    temperature: float = 10000.0
+
+    def directions(self) -> np.ndarray | None:
+        """(H, W, 3) rays of the keys; ``None``: the equirectangular rays of the ranges."""
+        return None
+
+
+def _conv_mlp(x: np.ndarray, w1: np.ndarray, b1: np.ndarray, w2: np.ndarray, b2: np.ndarray) -> np.ndarray:
+    """Conv1x1 -> ReLU -> Conv1x1 over (N, Cin, H, W), in float64, as matrix products."""
+    hidden = np.maximum(np.einsum("oc,nchw->nohw", w1.reshape(w1.shape[0], -1), x) + b1[None, :, None, None], 0.0)
+    return np.einsum("oc,nchw->nohw", w2.reshape(w2.shape[0], -1), hidden) + b2[None, :, None, None]
+
+
+def key_coords(cam2lidar: np.ndarray, params: KeyParams) -> np.ndarray:
+    """(N, 3 * depth_num, H, W) float32 inputs of the position encoder for extrinsics (N, 4, 4)."""
+    depths = lid_depths(params.depth_num, params.depth_start, params.position_range[3])
+    t = np.asarray(cam2lidar, dtype=np.float64).reshape(-1, 4, 4)
+    directions = params.directions()
+    if directions is None:
+        return position_coords(t, params.feature_size, params.azimuth_range, params.elevation_range, depths, params.position_range)
+    return position_coords(t, params.feature_size, depths=depths, position_range=params.position_range, directions=directions)
+
+
+def key_position_embedding(coords: np.ndarray, mask: np.ndarray, weights: dict[str, np.ndarray], params: KeyParams) -> np.ndarray:
+    """(1, N*H*W, C) key embedding: position_encoder(coords) + adapt_pos3d(sine(mask)).
+
+    ``weights`` holds ``position_encoder.{0,2}.{weight,bias}`` and ``adapt_pos3d.{0,2}.{weight,bias}``.
+    """
+    n = coords.shape[0]
+    key_mask = np.broadcast_to(np.asarray(mask) != 0, (n, *mask.shape[-2:]))
+    sine = sine_position_encoding(key_mask, params.num_feats, params.temperature)
+    w = {k: np.asarray(v, np.float64) for k, v in weights.items()}
+    mlp = lambda x, name: _conv_mlp(x.astype(np.float64), *(w[f"{name}.{i}.{k}"] for i in (0, 2) for k in ("weight", "bias")))
+    pe = mlp(coords, "position_encoder")
+    pe = pe + mlp(sine, "adapt_pos3d")
+    return pe.transpose(0, 2, 3, 1).reshape(1, -1, pe.shape[1]).astype(np.float32)
+
+
+def check_tables(tables: dict[str, tuple[int, ...]], arrays: dict[str, np.ndarray]) -> None:
+    """Raise ``ConfigError`` naming the table whose shape is not the expected one, or that is not finite."""
+    for name, shape in tables.items():
+        value = arrays[name]
+        if tuple(np.shape(value)) != tuple(shape):
+            raise ConfigError(f"geometry {name}: expected shape {tuple(shape)}, got {tuple(np.shape(value))}")
+        if not np.all(np.isfinite(value)):
+            raise ConfigError(f"geometry {name}: contains NaN or infinite values")
+
+
+@dataclass(frozen=True)
+class PETRGeometry:
+    """grid (H, W, 2) float32 for grid_sample(align_corners=True); unvalid_area (H, W) float32,
+    a key is masked where it is not exactly 0; cam2lidar (N, 4, 4) in the model's camera order."""
+
+    params: PETRParams
+    grid: np.ndarray
+    unvalid_area: np.ndarray
+    cam2lidar: np.ndarray
+    source: str = "rig"  # where grid and mask came from: "rig" or "checkpoint"
+
+    @classmethod
+    def from_rig(cls, rig: Rig, params: PETRParams) -> PETRGeometry:
+        """Grid and mask from the rig's one shared intrinsic model, extrinsics in rig order.
+
+        The official model was trained with one intrinsic model for all cameras (one grid,
+        one mask), so a rig whose cameras differ is refused by ``Rig.shared_model``.
+        """
+        camera = rig.shared_model()
+        grid = spherical_grid(camera, params.feature_size, params.azimuth_range, params.elevation_range)
+        return cls(params=params, grid=grid, unvalid_area=invalid_mask(camera, grid), cam2lidar=rig.cam2lidar())
+
+    def with_tables(self, *, grid: np.ndarray | None = None, unvalid_area: np.ndarray | None = None,
+                    source: str = "checkpoint") -> PETRGeometry:
+        """Same extrinsics with the warp grid and/or mask replaced (e.g. by a checkpoint's tables)."""
+        new_grid = self.grid if grid is None else np.asarray(grid, dtype=np.float32)
+        new_mask = self.unvalid_area if unvalid_area is None else np.asarray(unvalid_area, dtype=np.float32)
+        return replace(self, grid=new_grid, unvalid_area=new_mask.reshape(new_grid.shape[:2]), source=source)
+
+    def check(self, num_cameras: int) -> None:
+        """Raise ``ConfigError`` naming the table whose shape does not fit the parameters and camera count."""
+        fh, fw = self.params.feature_size
+        mask = self.unvalid_area.reshape(fh, fw) if np.shape(self.unvalid_area) == (1, 1, fh, fw) else self.unvalid_area
+        check_tables({"grid": (fh, fw, 2), "unvalid_area": (fh, fw), "cam2lidar": (num_cameras, 4, 4)},
+                     {"grid": self.grid, "unvalid_area": mask, "cam2lidar": self.cam2lidar})
+
+    def key_mask(self) -> np.ndarray:
+        """(N, H, W) bool: keys attention ignores (the sampled lens validity is not exactly 1.0)."""
+        mask = np.asarray(self.unvalid_area, np.float32).reshape(self.params.feature_size) != 0
+        return np.broadcast_to(mask, (len(self.cam2lidar), *self.params.feature_size))
+
+    def coords(self, cam2lidar: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3 * depth_num, H, W) float32 position-encoder inputs; ``cam2lidar`` overrides the rig's."""
+        return key_coords(self.cam2lidar if cam2lidar is None else cam2lidar, self.params)
+
+    def key_pos(self, weights: dict[str, np.ndarray], coords: np.ndarray | None = None) -> np.ndarray:
+        """(1, N*H*W, C) float32 key embedding with ``weights`` (see :func:`key_position_embedding`)."""
+        mask = np.asarray(self.unvalid_area, np.float32).reshape(self.params.feature_size)
+        return key_position_embedding(self.coords() if coords is None else coords, mask, weights, self.params)
+
+    def tables(self, weights: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+        """Every ``geom.*`` table of the graph; the key embedding needs the position-encoder weights."""
+        if weights is None:
+            raise ConfigError("weights: FisheyePETR's tables need the position_encoder and adapt_pos3d weights")
+        return {**grid_table(GRID, self.grid), **key_tables(self.key_pos(weights), self.key_mask())}

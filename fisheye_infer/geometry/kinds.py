@@ -1,0 +1,48 @@
+"""The four parameter kinds and their geometry objects: the one path from a rig to the tables.
+
+    geometry = geometry_from_rig(rig, params)      # LSSGeometry, CylLSSGeometry, PETRGeometry or CylPETRGeometry
+    tables = tables_for(rig, params, weights)      # what the model holds and re-baking writes
+
+The PyTorch models build their geometry here and turn ``geometry.tables(...)`` into buffers;
+the exporter bakes the same tables, and ``rebake`` recomputes them for another rig.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fisheye_infer.errors import ConfigError
+from fisheye_infer.geometry.cyl_lss import CylLSSGeometry, CylLSSParams
+from fisheye_infer.geometry.cyl_petr import CylPETRGeometry, CylPETRParams
+from fisheye_infer.geometry.lss import LSSGeometry, LSSParams
+from fisheye_infer.geometry.petr import PETRGeometry, PETRParams
+from fisheye_infer.rig import Rig
+
+__all__ = ["GeometryParams", "Geometry", "GEOMETRY_KINDS", "geometry_from_rig", "tables_for"]
+
+GeometryParams = LSSParams | PETRParams | CylLSSParams | CylPETRParams
+Geometry = LSSGeometry | PETRGeometry | CylLSSGeometry | CylPETRGeometry
+
+#: parameter kind -> its geometry class
+GEOMETRY_KINDS: dict[str, type[LSSGeometry] | type[PETRGeometry] | type[CylLSSGeometry] | type[CylPETRGeometry]] = {
+    "lss": LSSGeometry,
+    "petr": PETRGeometry,
+    "cyl_lss": CylLSSGeometry,
+    "cyl_petr": CylPETRGeometry,
+}
+
+
+def geometry_from_rig(rig: Rig, params: GeometryParams) -> Geometry:
+    """The geometry object of ``params``' kind for ``rig``."""
+    kind = getattr(params, "kind", type(params).__name__)
+    if kind not in GEOMETRY_KINDS:
+        raise ConfigError(f"geometry: no tables for parameters of kind {kind!r} (known: {', '.join(GEOMETRY_KINDS)})")
+    return GEOMETRY_KINDS[kind].from_rig(rig, params)  # type: ignore[arg-type]
+
+
+def tables_for(rig: Rig, params: GeometryParams, weights: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """The ``geom.*`` tables of a graph described by ``params``, for ``rig`` (what re-baking computes).
+
+    The PETR kinds need the position-encoder weights (``weights``); a missing one is a ``ConfigError``.
+    """
+    return geometry_from_rig(rig, params).tables(weights)

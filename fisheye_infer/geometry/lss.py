@@ -1,0 +1,81 @@
+"""FisheyeBEVDet's geometry: the equirectangular warp grid, the frustum and the BEV pooling plan.
+
+    params = LSSParams(feature_size=(25, 100), azimuth_range=..., elevation_range=..., dbound=..., xbound=..., ...)
+    geometry = LSSGeometry.from_rig(rig, params)          # the rig's tables
+    geometry.with_tables(grid=stored_grid)                 # a checkpoint's stored tables instead
+    geometry.tables()                                      # {"geom.grid": ..., "geom.pool.*": ...}
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+
+from fisheye_infer.geometry.frustum import depth_bins, frustum_to_lidar, spherical_frustum
+from fisheye_infer.geometry.grids import invalid_mask, spherical_grid
+from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
+from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, GRID, Params, grid_table, pool_tables
+from fisheye_infer.rig import Rig
+
+__all__ = ["LSSParams", "LSSGeometry"]
+
+
+class LSSParams(Params):
+    kind: Literal["lss"] = "lss"
+    dbound: tuple[float, float, float]
+    xbound: tuple[float, float, float]
+    ybound: tuple[float, float, float]
+    zbound: tuple[float, float, float]
+    bucket_sizes: tuple[int, ...] = DEFAULT_BUCKET_SIZES
+
+    @property
+    def bev_grid(self) -> BevGrid:
+        return BevGrid(self.xbound, self.ybound, self.zbound)
+
+    def frustum(self) -> np.ndarray:
+        """(D, H, W, 3) float32 camera-frame points: the ``arange`` depths along the equirectangular rays."""
+        return spherical_frustum(depth_bins(self.dbound), self.feature_size, self.azimuth_range, self.elevation_range)
+
+
+@dataclass(frozen=True)
+class LSSGeometry:
+    """Geometry tables of the fisheye LSS transform for one rig and configuration."""
+
+    params: LSSParams
+    grid: np.ndarray  # H x W x 2 float32, grid_sample coordinates (shared by all cameras)
+    frustum: np.ndarray  # D x H x W x 3 float32, camera frame, radial depth
+    cam2lidar: np.ndarray  # N x 4 x 4 float64
+    plan: PoolingPlan
+    valid_fov_mask: np.ndarray  # 1 x 1 x H x W float32, sampled lens validity (unused by the forward)
+    source: str = "rig"  # where grid/frustum came from: "rig" or "checkpoint"
+
+    @classmethod
+    def from_rig(cls, rig: Rig, params: LSSParams) -> LSSGeometry:
+        """The rig's tables: its one shared camera model and its extrinsics, in rig order."""
+        camera = rig.shared_model()
+        grid = np.ascontiguousarray(spherical_grid(camera, params.feature_size, params.azimuth_range, params.elevation_range), np.float32)
+        frustum = np.ascontiguousarray(params.frustum(), np.float32)
+        cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
+        plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), params.bev_grid, params.bucket_sizes)
+        valid = (np.float32(1.0) - invalid_mask(camera, grid))[None, None].astype(np.float32)
+        return cls(params=params, grid=grid, frustum=frustum, cam2lidar=cam2lidar, plan=plan, valid_fov_mask=valid)
+
+    @property
+    def bev_grid(self) -> BevGrid:
+        return self.params.bev_grid
+
+    def with_tables(self, *, grid: np.ndarray | None = None, frustum: np.ndarray | None = None,
+                    source: str = "checkpoint") -> LSSGeometry:
+        """Same rig with replaced grid and/or frustum; the pooling plan is rebuilt only if the frustum changed."""
+        new_grid = self.grid if grid is None else np.ascontiguousarray(grid, dtype=np.float32)
+        new_frustum = self.frustum if frustum is None else np.ascontiguousarray(frustum, dtype=np.float32)
+        plan = self.plan
+        if not np.array_equal(new_frustum, self.frustum):
+            plan = build_pooling_plan(frustum_to_lidar(new_frustum, self.cam2lidar), self.bev_grid, self.plan.bucket_sizes)
+        return replace(self, grid=new_grid, frustum=new_frustum, plan=plan, source=source)
+
+    def tables(self, weights: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+        """The named ``geom.*`` tables of the graph (no weights needed)."""
+        return {**grid_table(GRID, self.grid), **pool_tables(self.plan)}
