@@ -21,14 +21,15 @@ __all__ = ["rectify", "check_rig_image_size"]
 
 
 def rectify(images: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
-    """uint8 (or float) B x N x H x W x 3 fisheye images -> float32 B x N x 3 x Hc x Wc raw pixels.
+    """uint8 (or float) B x N x H x W x 3 fisheye images -> B x N x 3 x Hc x Wc raw pixels, in the grid's dtype.
 
     ``grid`` is 1 x Hc x Wc x 2, shared by the cameras (one intrinsic model), so the cameras are
     stacked along channels and sampled with one grid per sample: channels are sampled
-    independently, the numbers are those of a per-camera GridSample.
+    independently, the numbers are those of a per-camera GridSample. The grid is float32, or
+    float64 in the export check's float64 reference model.
     """
     b, n, h, w, c = images.shape
-    x = images.to(torch.float32).permute(0, 1, 4, 2, 3).reshape(b, n * c, h, w)  # B x 3N x H x W
+    x = images.to(grid.dtype).permute(0, 1, 4, 2, 3).reshape(b, n * c, h, w)  # B x 3N x H x W
     out = F.grid_sample(x, grid.expand(b, -1, -1, -1), mode="bilinear", padding_mode="zeros", align_corners=True)
     return out.reshape(b, n, c, grid.shape[1], grid.shape[2])  # B x N x 3 x Hc x Wc
 
