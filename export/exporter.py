@@ -18,9 +18,10 @@ import hashlib
 import os
 import platform
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import onnx
@@ -34,16 +35,16 @@ from fisheye_infer.preprocess import frames_from_paths, prepare_batch
 from fisheye_infer.rig import Rig, resolve_rig
 from fisheye_infer.synth import Renderer, random_scene
 
-from .architectures import ArchSpec, get_arch, infer_architecture
 from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata, without_outputs
-from .trace import OPSET, trace_to_onnx
 from .quantize import MIN_TOP_MATCHED, FrameReader, int8_parity, int8_path_for, quantize, quantized_scope
+from .trace import OPSET, trace_to_onnx
 from .verify import verify
 
 if TYPE_CHECKING:
-    from fisheye_infer.models import GeometryReport
+    from fisheye_infer.models import GeometryReport, ModelEntry
 
-__all__ = ["ExportResult", "Int8Result", "OpenedCheckpoint", "export", "export_int8", "open_checkpoint", "verification_frames", "file_sha256"]
+__all__ = ["ExportResult", "Int8Result", "OpenedCheckpoint", "export", "export_int8", "infer_architecture", "open_checkpoint",
+           "verification_frames", "file_sha256"]
 
 #: Calibration frames are rendered from seeds offset by this, so they never coincide with the
 #: verification frames (seeds 0, 1, ...) the int8 file is judged on.
@@ -62,10 +63,9 @@ class Int8Result:
 
     def summary(self) -> str:
         p, q = self.parity, self.meta.quantization
-        assert q is not None
+        how = f"{q.mode}, {q.scope}, calibrated on {q.calibration_frames} frame(s)" if q is not None else "not quantized"
         return "\n".join([
-            f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {q.mode}, {q.scope}, "
-            f"calibrated on {q.calibration_frames} frame(s))",
+            f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
             f"int8 vs the fp32 ONNX file on {p.frames} frames: {p.top_matched_fraction:.1%} of the top-50 boxes matched within "
             f"{p.tolerance_box_m:g} m with the same label (need {MIN_TOP_MATCHED:.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
         ])
@@ -84,8 +84,10 @@ class ExportResult:
     def summary(self) -> str:
         p = self.parity
         lines = [
-            f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; initializers {self.initializer_bytes / 1e6:.1f} MB, of which geometry tables {self.geometry_bytes / 1e6:.1f} MB)",
-            f"model {self.meta.model_id}: {self.meta.architecture}, {len(self.meta.cameras)} cameras at {self.meta.image_size[0]}x{self.meta.image_size[1]}, {self.meta.num_boxes} boxes, rig {self.meta.rig_hash}",
+            f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; initializers "
+            f"{self.initializer_bytes / 1e6:.1f} MB, of which geometry tables {self.geometry_bytes / 1e6:.1f} MB)",
+            f"model {self.meta.model_id}: {self.meta.architecture}, {len(self.meta.cameras)} cameras at "
+            f"{self.meta.image_size[0]}x{self.meta.image_size[1]}, {self.meta.num_boxes} boxes, rig {self.meta.rig_hash}",
             f"parity vs PyTorch float64 on {p.frames} frames at {', '.join(map(str, p.threads))} thread(s) "
             f"(PyTorch float32 itself: dense {_f32(p, 0)}, box {_f32(p, 1)} m, score {_f32(p, 2)}):",
             f"  scores before ranking max |diff| {p.max_rank_score_abs_diff or 0.0:.2e} (tol {p.tolerance_rank_score or p.tolerance_score:.1e}); "
@@ -143,11 +145,27 @@ def verification_frames(rig: Rig, count: int, seed: int = 0, images: str | Path 
     return batch
 
 
+def infer_architecture(state_dict: Mapping[str, object]) -> str:
+    """The registered architecture whose signature keys the checkpoint holds; refuse ambiguity."""
+    from fisheye_infer.models import list_models, matching_architectures
+
+    matches = matching_architectures(state_dict)
+    if len(matches) == 1:
+        return matches[0]
+    if not matches:
+        sample = ", ".join(list(state_dict)[:5])
+        raise ExportError(f"cannot tell the architecture from the checkpoint's keys (first keys: {sample}); pass --arch ({', '.join(list_models())})")
+    raise ExportError(f"the checkpoint fits several architectures ({', '.join(matches)}); pass --arch")
+
+
 def _architecture(state_dict: Mapping[str, object], arch: str | None, ckpt: Path) -> str:
     """``arch`` if given and not contradicted by the checkpoint's keys, else the one the keys name."""
+    from fisheye_infer.models import list_models
+
     if arch is None:
         return infer_architecture(state_dict)
-    get_arch(arch)
+    if arch not in list_models():
+        raise ExportError(f"architecture {arch!r} cannot be exported (known: {', '.join(list_models())})")
     try:
         found = infer_architecture(state_dict)
     except ExportError:  # keys of no known architecture: strict loading names what is wrong
@@ -165,7 +183,8 @@ def _initializer_bytes(model: onnx.ModelProto) -> int:
 
 
 def _tool_versions() -> dict[str, str]:
-    return {"fisheye_infer": __version__, "torch": torch.__version__, "onnx": onnx.__version__, "onnxruntime": ort.__version__, "opset": str(OPSET), "python": platform.python_version()}
+    return {"fisheye_infer": __version__, "torch": torch.__version__, "onnx": onnx.__version__, "onnxruntime": ort.__version__,
+            "opset": str(OPSET), "python": platform.python_version()}
 
 
 @dataclass(frozen=True)
@@ -173,7 +192,7 @@ class OpenedCheckpoint:
     """A checkpoint file in its plain-PyTorch model, built for a rig, strictly loaded, in eval mode."""
 
     name: str
-    spec: ArchSpec
+    entry: ModelEntry
     model: torch.nn.Module
     rig: Rig
     geometry: GeometryReport
@@ -181,7 +200,7 @@ class OpenedCheckpoint:
     @property
     def image_size(self) -> tuple[int, int]:
         """(width, height) of the camera images the model takes."""
-        return self.spec.image_size(self.model)
+        return self.model.config.preprocess.image_size  # type: ignore[no-any-return]
 
 
 def open_checkpoint(
@@ -204,26 +223,29 @@ def open_checkpoint(
     ckpt = Path(ckpt)
     state_dict, _ = load_checkpoint(ckpt, allow_pickle=allow_pickle)
     name = _architecture(state_dict, arch, ckpt)
-    spec = get_arch(name)
-    cfg = spec.read_config(Path(config)) if isinstance(config, (str, Path)) else config
+    entry = get_model_entry(name)
+    cfg = entry.config_cls.from_mmdet3d_config(Path(config)) if isinstance(config, (str, Path)) else config
     the_rig = rig if isinstance(rig, Rig) else resolve_rig(rig)
     if progress is not None:
         progress(name, the_rig)
     model = create_model(name, cfg, the_rig)
-    width, height = spec.image_size(model)
+    width, height = model.config.preprocess.image_size
     try:  # before the checkpoint's geometry is compared, which would blame the calibration instead
         the_rig.require(the_rig.names, (width, height))
     except RigError as exc:
         raise ExportError(f"rig {the_rig.name!r} does not fit the {name} configuration: {exc}") from exc
     try:
-        report = load_official_state_dict(model, state_dict, geometry=geometry, ignore=get_model_entry(name).ignored_keys,
+        report = load_official_state_dict(model, state_dict, geometry=geometry, ignore=entry.ignored_keys,
                                           context=f"{name} checkpoint {ckpt.name}")
     except CheckpointError as exc:
         if "does not fit the model" not in str(exc):
             raise
-        source = f"--config {config}" if isinstance(config, (str, Path)) else "the configuration given" if config is not None else f"the official {name} configuration"
+        if isinstance(config, (str, Path)):
+            source = f"--config {config}"
+        else:
+            source = "the configuration given" if config is not None else f"the official {name} configuration"
         raise CheckpointError(f"{exc}\n(model built from {source}; pass the config the checkpoint was trained with)") from None
-    return OpenedCheckpoint(name, spec, model.eval(), the_rig, report)
+    return OpenedCheckpoint(name, entry, model.eval(), the_rig, report)
 
 
 def export(
@@ -265,26 +287,27 @@ def export(
     progress(f"[1/5] reading {ckpt}")
     loaded = open_checkpoint(ckpt, arch=arch, config=config, rig=rig, geometry=geometry, allow_pickle=allow_pickle,
                         progress=lambda name, r: progress(f"[2/5] building {name} for rig {r.name!r} ({r.hash}) and loading the checkpoint strictly"))
-    name, spec, model, the_rig, report = loaded.name, loaded.spec, loaded.model, loaded.rig, loaded.geometry
-    width, height = loaded.image_size
+    name, entry, model, the_rig, report = loaded.name, loaded.entry, loaded.model, loaded.rig, loaded.geometry
+    pre = model.config.preprocess
+    width, height = pre.image_size
     progress(f"      geometry tables from the {report.source}")
 
     progress("[3/5] tracing to ONNX (geometry as named initializers)")
     tables = {k: v.detach().cpu().numpy() for k, v in model.geometry_tables().items()}
-    proto = without_outputs(trace_to_onnx(model, tables, spec.num_points(model), (height, width), len(the_rig)), RANKING_OUTPUTS)
+    proto = without_outputs(trace_to_onnx(model, tables, (height, width), len(the_rig)), RANKING_OUTPUTS)
 
-    mean, std = spec.normalisation(model)
     rig_hash = the_rig.hash
     ckpt_sha = file_sha256(ckpt)
     meta = ArtifactMeta(
         architecture=name,
         model_id=f"{name}-{rig_hash[:8]}-{ckpt_sha[:8]}",
-        classes=spec.classes(model),
+        classes=pre.classes,
         cameras=tuple(the_rig.names),
         image_size=(width, height),
-        normalisation=Normalisation(mean=mean, std=std),
-        num_boxes=spec.num_boxes(model),
-        score_semantics=spec.score_semantics,
+        colour_order=pre.colour_order,
+        normalisation=Normalisation(mean=pre.mean, std=pre.std),
+        num_boxes=model.config.num_boxes,
+        score_semantics=entry.score_semantics,
         rig=the_rig,
         rig_hash=rig_hash,
         geometry=model.geometry_params(),
@@ -293,7 +316,7 @@ def export(
         checkpoint_sha256=ckpt_sha,
         tools=_tool_versions(),
     )
-    weights = spec.rebake_weights(model)
+    weights = model.table_weights()
     extra = {REBAKE_WEIGHTS_KEY: encode_arrays(weights)} if weights else {}
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
@@ -323,7 +346,8 @@ def export(
         result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes,
                               result.initializer_bytes, result.geometry_bytes, quant)
         if not quant.parity.passed and not force:
-            raise ParityError(f"the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written (use --force to keep it)\n{result.summary()}")
+            raise ParityError("the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written "
+                              f"(use --force to keep it)\n{result.summary()}")
     return result
 
 

@@ -30,9 +30,9 @@ from __future__ import annotations
 
 import copy
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import onnx
@@ -41,6 +41,8 @@ import torch
 from torch import nn
 
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ParityReport
+from fisheye_infer.boxes import box_diff
+from fisheye_infer.errors import ExportError
 from fisheye_infer.models.ranking import TopK, replay_ranking
 
 from .graph import save_model, with_outputs
@@ -100,13 +102,6 @@ class RunDiff:
         return (self.errors.rank_score <= tol.rank_score and self.selection_valid and self.mismatched(tol) == 0)
 
 
-def _box_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Max abs difference per box pair, yaw compared on the circle (+pi == -pi)."""
-    d = np.abs(a.astype(np.float64) - b.astype(np.float64))
-    d[..., 6] = np.minimum(d[..., 6], np.abs(2 * np.pi - d[..., 6]))
-    return d.max(axis=-1)
-
-
 @torch.no_grad()
 def run_torch(model: nn.Module, images: np.ndarray, valid: np.ndarray) -> Outputs:
     """PyTorch's outputs and ranking outputs."""
@@ -152,7 +147,8 @@ class _Head:
         d = torch.from_numpy(np.ascontiguousarray(dense[None])).to(dtype)
         with replay_ranking(self.module, d, torch.from_numpy(np.ascontiguousarray(indices[None], np.int64))) as step:
             out = self.module(*args, **kwargs)
-        assert step.own_dense is not None
+        if step.own_dense is None:
+            raise ExportError("the parity check's replay of the ranking produced no dense scores")
         return _Exact({k: out[k].cpu().numpy() for k in PROBE}, step.own_dense.cpu().numpy()[0], step.problem)
 
 
@@ -185,7 +181,7 @@ class Reference:
             single = self.single.replay(frame, dense, indices).out
             self.float32_errors.update(Errors(
                 float(np.abs(self.float32[frame]["rank_scores"][0].astype(np.float64) - exact.own_dense).max()),
-                float(_box_diff(exact.out["boxes"][0], single["boxes"][0]).max()),
+                float(box_diff(exact.out["boxes"][0], single["boxes"][0]).max()),
                 float(np.abs(exact.out["scores"][0] - single["scores"][0].astype(np.float64)).max())))
         return self._cache[key]
 
@@ -197,7 +193,7 @@ class Reference:
         if exact.problem:
             diff.selection_valid = False
             diff.notes.append(f"frame {frame}: the graph's choice is not a top-k of its own scores: {exact.problem}")
-        box = _box_diff(exact.out["boxes"][0], got["boxes"][row])
+        box = box_diff(exact.out["boxes"][0], got["boxes"][row])
         score = np.abs(exact.out["scores"][0] - got["scores"][row].astype(np.float64))
         labels = exact.out["labels"][0] == got["labels"][row]
         valid = exact.out["valid"][0] == got["valid"][row]

@@ -1,17 +1,19 @@
 """fisheye_infer.models: the PyTorch detectors, official checkpoint loading and synthetic checkpoints."""
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import torch
 from torch import nn
 
+from .bevdet_config import BEVDetConfig
 from .checkpoint import GeometryReport, check_keys, load_checkpoint, load_official_state_dict
-from .config import BEVDetConfig
+from .config import ModelConfig, Preprocessing
 from .cyl_config import BEVDetCylConfig, CylPETRConfig
 from .mmconfig import read_mmdet3d_config
 from .petr_config import PETRConfig
-from .registry import create_model, get_model_entry, list_models, register_model
+from .registry import ModelEntry, create_model, get_model_entry, list_models, matching_architectures, register_model
 from .synthetic import calibrated_checkpoint, make_checkpoint
 
 __all__ = [
@@ -19,12 +21,16 @@ __all__ = [
     "BEVDetCylConfig",
     "CylPETRConfig",
     "GeometryReport",
+    "ModelConfig",
+    "ModelEntry",
     "PETRConfig",
+    "Preprocessing",
     "check_keys",
     "calibrated_checkpoint",
     "create_model",
     "get_model_entry",
     "list_models",
+    "matching_architectures",
     "load_checkpoint",
     "load_model",
     "load_official_state_dict",

@@ -8,7 +8,7 @@ written here with the exact parameter names mmdet stores (``layerX.Y.conv1``, ``
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F

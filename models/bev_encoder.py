@@ -7,7 +7,7 @@ activation, so eps is a constructor argument with the official default.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
 from torch import nn

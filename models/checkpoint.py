@@ -6,9 +6,10 @@
   and therefore warns.
 - :func:`check_keys` compares a state dict with what a model expects and reports *every* missing,
   unexpected, mis-shaped or wrongly typed key in one :class:`CheckpointError`.
-- :func:`load_official_state_dict` is the whole procedure for a model implementing
-  :class:`OfficialCheckpointModel`: check keys, load weights strictly, then reconcile the geometry
-  tables stored in the checkpoint (frustum, sampling grids) with the ones recomputed from the rig.
+- :func:`load_official_state_dict` is the whole procedure for a registered model (see
+  :class:`OfficialCheckpointModel`): check keys, map them with the architecture's registered
+  ``checkpoint_filter``, load weights strictly, then reconcile the geometry tables stored in the
+  checkpoint (frustum, sampling grids) with the ones recomputed from the rig.
 - :class:`TableCheck` / :func:`decide_geometry` implement the geometry policy:
   ``"verify"`` (default) uses the stored tables when they agree with the recomputation within
   float rounding and raises otherwise; ``"checkpoint"`` and ``"rig"`` force a source and warn
@@ -19,9 +20,10 @@ from __future__ import annotations
 
 import pickle
 import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -185,9 +187,6 @@ class OfficialCheckpointModel(Protocol):
     def official_keys(self) -> dict[str, KeySpec]:
         """Every key of the official checkpoint, with shape and dtype, in official names."""
 
-    def checkpoint_filter_fn(self, state_dict: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """Official names -> this model's state dict (geometry keys removed)."""
-
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
         """Compare stored geometry with the recomputation and adopt one of them per ``policy``."""
 
@@ -205,7 +204,9 @@ def load_official_state_dict(model: OfficialCheckpointModel, state_dict: Mapping
     expected = model.official_keys()
     sd = {k: _as_scalar(v) if k in expected and len(expected[k][0]) == 0 else v for k, v in state_dict.items() if k not in present}
     check_keys(expected, sd, context=context)
-    weights = model.checkpoint_filter_fn(sd)
+    from .registry import entry_of
+
+    weights = entry_of(model).checkpoint_filter(sd)  # type: ignore[arg-type]
     result = model.load_state_dict(weights, strict=True)  # type: ignore[attr-defined]
     if getattr(result, "missing_keys", None) or getattr(result, "unexpected_keys", None):
         raise CheckpointError(f"{context}: internal key map incomplete: {result}")

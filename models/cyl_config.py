@@ -1,9 +1,12 @@
 """Configurations of the cylindrical baselines, ``fisheye_to_cyl_bevdet.py`` and ``fisheye_to_cyl_petr.py``.
 
-Both rectify the raw fisheye images onto a cylinder (400 x 800 by default) before the backbone,
-then lift the stride-16 features without a feature warp. The cylinder is described by the
-official ``horizontal_range`` (azimuth) and ``vertical_range`` (elevation; the cylinder's heights
-are their tangents), stored here as ``azimuth_range`` / ``elevation_range``.
+Both rectify the raw fisheye images onto a cylinder (400 x 800 by default, the ``cylinder``
+section) before the backbone, then lift the stride-16 features without a feature warp. Each
+extends its parent configuration: ``image`` stays the raw fisheye input (what the model takes),
+the view transform or head section gains the cylinder's ranges, and the readers override only
+the hook that reads that section. The cylinder is described by the official
+``horizontal_range`` (azimuth) and ``vertical_range`` (elevation; the cylinder's heights are
+their tangents), stored as ``azimuth_range`` / ``elevation_range``.
 
 Degrees as radians: the released configs write ``horizontal_range=[-110, 110]`` and
 ``vertical_range=[-45, 45]``, in degrees, and the official code applies ``sin``/``tan`` to them as
@@ -15,21 +18,22 @@ A config that writes ``math.radians(110)`` / ``math.radians(45)`` gets the inten
 
 from __future__ import annotations
 
-import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from fisheye_infer.errors import ConfigError
+from fisheye_infer.geometry.cyl_lss import CylLSSParams
+from fisheye_infer.geometry.cyl_petr import CylPETRParams
 
-from .config import (FISHEYE3DOD_CLASSES, BackboneConfig, BEVDetConfig, BEVEncoderConfig, HeadConfig, ImageConfig,
-                     ViewTransformConfig, _build)
-from .mmconfig import read_mmdet3d_config
-from .petr_config import PETRConfig
+from .bevdet_config import BEVDetConfig, ViewTransformConfig, view_transform_fields
+from .config import BackboneConfig, CylinderConfig, feature_size_of
+from .mmconfig import Section
+from .petr_config import PETRConfig, PETRHeadConfig, head_fields
 
-__all__ = ["RELEASED_HORIZONTAL_RANGE", "RELEASED_VERTICAL_RANGE", "CylinderConfig", "CylViewTransformConfig",
-           "BEVDetCylConfig", "CylPETRConfig", "feature_size_of"]
+__all__ = ["RELEASED_HORIZONTAL_RANGE", "RELEASED_VERTICAL_RANGE", "CylViewTransformConfig", "BEVDetCylConfig",
+           "CylPETRHeadConfig", "CylPETRConfig"]
 
 #: The released configs' ranges, which their code uses as radians (see the module docstring).
 RELEASED_HORIZONTAL_RANGE = (-110.0, 110.0)
@@ -38,30 +42,6 @@ _PIPELINE_STEP = "MultiViewFisheyeCylindricalProjection"
 # The constructors' own defaults, used when a config leaves a range out.
 _DEFAULT_HORIZONTAL = (-math.radians(110.0), math.radians(110.0))
 _DEFAULT_VERTICAL = (-math.radians(45.0), math.radians(45.0))
-
-
-def feature_size_of(image_hw: tuple[int, int], backbone: BackboneConfig | None = None) -> tuple[int, int]:
-    """(H, W) of FPN level 0 for an (H, W) image: every stride-2 stage maps n to ceil(n / 2).
-
-    The stem conv, the max pool and each stage's first conv all have padding (k - 1) / 2 (times the
-    dilation), so a stride s maps n to (n - 1) // s + 1.
-    """
-    bb = backbone or BackboneConfig()
-    strides = (2, 2, *bb.strides[: bb.out_indices[0] + 1])
-    out = []
-    for n in image_hw:
-        for s in strides:
-            n = (n - 1) // s + 1
-        out.append(n)
-    return (out[0], out[1])
-
-
-@dataclass(frozen=True)
-class CylinderConfig:
-    """Size of the rectified cylindrical images (the pipeline's ``image_size=(W, H)``, here H x W)."""
-
-    height: int = 400
-    width: int = 800
 
 
 @dataclass(frozen=True)
@@ -85,208 +65,150 @@ class CylViewTransformConfig(ViewTransformConfig):
 
 
 @dataclass(frozen=True)
-class BEVDetCylConfig:
+class BEVDetCylConfig(BEVDetConfig):
     """FisheyeBEVDet on cylindrical images: ``image`` is the raw fisheye input (what the model takes),
     ``cylinder`` the rectified images the backbone sees; the other sections are FisheyeBEVDet's."""
 
-    image: ImageConfig = field(default_factory=ImageConfig)
-    cylinder: CylinderConfig = field(default_factory=CylinderConfig)
-    backbone: BackboneConfig = field(default_factory=BackboneConfig)
     view_transform: CylViewTransformConfig = field(default_factory=CylViewTransformConfig)
-    bev_encoder: BEVEncoderConfig = field(default_factory=BEVEncoderConfig)
-    head: HeadConfig = field(default_factory=HeadConfig)
-    class_names: tuple[str, ...] = FISHEYE3DOD_CLASSES
-
-    def __post_init__(self) -> None:
-        self.validate()
-
-    @property
-    def network(self) -> BEVDetConfig:
-        """The FisheyeBEVDet configuration of the network after rectification (validated on creation)."""
-        image = dataclasses.replace(self.image, height=self.cylinder.height, width=self.cylinder.width)
-        return BEVDetConfig(image=image, backbone=self.backbone, view_transform=self.view_transform,
-                            bev_encoder=self.bev_encoder, head=self.head, class_names=self.class_names)
+    cylinder: CylinderConfig = field(default_factory=CylinderConfig)
 
     def validate(self) -> None:
         """FisheyeBEVDet's cross-field checks, plus the cylinder, feature map and depth bins agreeing."""
         if not isinstance(self.view_transform, CylViewTransformConfig):
             raise ConfigError(f"view_transform: expected a CylViewTransformConfig, got {type(self.view_transform).__name__}")
-        _check_cylinder((self.cylinder.height, self.cylinder.width), "cylinder.height/width")
-        network = self.network  # BEVDetConfig validates the shared sections, naming the fields
-        expected = feature_size_of((network.image.height, network.image.width), self.backbone)
+        check_cylinder((self.cylinder.height, self.cylinder.width), "cylinder.height/width")
+        super().validate()
+        expected = feature_size_of((self.cylinder.height, self.cylinder.width), self.backbone)
         if tuple(self.view_transform.feature_size) != expected:
             raise ConfigError(f"view_transform.feature_size={tuple(self.view_transform.feature_size)} but a "
                               f"{self.cylinder.height}x{self.cylinder.width} cylinder (cylinder.height/width) gives "
                               f"stride-16 features of {expected[0]}x{expected[1]}")
         if self.view_transform.num_depth_bins < 1:
             raise ConfigError(f"view_transform.dbound={self.view_transform.dbound} gives no depth bin")
-        _check_ranges(self.view_transform.azimuth_range, self.view_transform.elevation_range,
-                      "view_transform.azimuth_range", "view_transform.elevation_range")
+        check_ranges(self.view_transform.azimuth_range, self.view_transform.elevation_range,
+                     "view_transform.azimuth_range", "view_transform.elevation_range")
 
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "BEVDetCylConfig":
-        """Inverse of ``to_dict``; unknown fields are refused by name."""
-        sections = {"image": ImageConfig, "cylinder": CylinderConfig, "backbone": BackboneConfig,
-                    "view_transform": CylViewTransformConfig, "bev_encoder": BEVEncoderConfig, "head": HeadConfig}
-        parts: dict[str, Any] = {}
-        for key, value in data.items():
-            if key in sections:
-                parts[key] = _build(sections[key], value, key)
-            elif key == "class_names":
-                parts[key] = tuple(value)
-            else:
-                raise ConfigError(f"BEVDetCylConfig: unknown field '{key}'")
-        return cls(**parts)
-
-    def replace(self, **sections: Any) -> "BEVDetCylConfig":
-        """Copy with whole sections or per-section field dicts replaced: ``cfg.replace(cylinder={'height': 64})``."""
-        updates: dict[str, Any] = {}
-        for name, value in sections.items():
-            if name not in {f.name for f in dataclasses.fields(self)}:
-                raise ConfigError(f"BEVDetCylConfig: unknown section '{name}'")
-            current = getattr(self, name)
-            updates[name] = dataclasses.replace(current, **value) if isinstance(value, Mapping) else value
-        return dataclasses.replace(self, **updates)
+    def geometry_params(self) -> Any:
+        vt = self.view_transform
+        return CylLSSParams(feature_size=tuple(vt.feature_size), azimuth_range=tuple(vt.azimuth_range),
+                            elevation_range=tuple(vt.elevation_range), image_size=(self.cylinder.height, self.cylinder.width),
+                            dbound=tuple(vt.dbound), xbound=tuple(vt.xbound), ybound=tuple(vt.ybound), zbound=tuple(vt.zbound))
 
     @classmethod
-    def from_mmdet3d_config(cls, path: str | Path) -> "BEVDetCylConfig":
-        """Read an official ``fisheye_to_cyl_bevdet.py``-style config (parsed, never executed)."""
-        return cls.from_mmdet3d_dict(read_mmdet3d_config(path), source=str(path))
+    def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
+        """The raw fisheye size is not in the file (Fisheye3DOD: 800 x 800; the model refuses a rig whose camera differs)."""
+        return d.image.height, d.image.width
 
     @classmethod
-    def from_mmdet3d_dict(cls, cfg: Mapping[str, Any], source: str = "<config>") -> "BEVDetCylConfig":
-        """The official namespace -> configuration; ranges are taken as radians exactly as written.
+    def _read_view_transform(cls, vt: Section, cfg: Mapping[str, Any], d: BEVDetConfig) -> dict[str, Any]:
+        """``view_transform`` (a ``CylindricalLSSTransform``) and ``cylinder``; ranges are taken as radians exactly as written.
 
         The pipeline's rectification and the view transform each carry the ranges and the image
         size; they must agree (the frustum has to describe the rays the images were resampled on).
         """
-        model = _mapping(cfg.get("model"), "model", source)
-        vt = _mapping(model.get("view_transform"), "model.view_transform", source)
-        if vt.get("type") != "CylindricalLSSTransform":
-            raise ConfigError(f"{source}: model.view_transform.type is {vt.get('type')!r}; "
-                              "fisheye-bevdet-cyl needs 'CylindricalLSSTransform'")
-        size_vt = _pair(vt["image_size"], "model.view_transform.image_size", source, int) if "image_size" in vt else None
-        hr, vr = _ranges(vt, "model.view_transform", source)
-        size, hr, vr = _agree_with_pipeline(cfg, size_vt, hr, vr, "model.view_transform", source)
-        # The shared sections are FisheyeBEVDet's: read them with its reader, the view transform
-        # restated in its terms. The raw fisheye size is not in the file (Fisheye3DOD: 800 x 800;
-        # the model refuses a rig whose camera differs).
-        as_fisheye = {k: v for k, v in vt.items() if k not in ("horizontal_range", "vertical_range")}
-        as_fisheye.update(type="FisheyeLSSTransform", azimuth_range=hr, elevation_range=vr)
-        base = BEVDetConfig.from_mmdet3d_dict({**cfg, "model": {**model, "view_transform": as_fisheye}}, source)
-        raw = dataclasses.replace(base.image, height=ImageConfig.height, width=ImageConfig.width)
-        view = CylViewTransformConfig(**dataclasses.asdict(base.view_transform))
-        cylinder = CylinderConfig(*size) if size is not None else CylinderConfig()
-        return cls(image=raw, cylinder=cylinder, backbone=base.backbone, view_transform=view,
-                   bev_encoder=base.bev_encoder, head=base.head, class_names=base.class_names)
+        vt.type_is("CylindricalLSSTransform", required=True)
+        size = vt.numbers("image_size", 2, int) if "image_size" in vt else None
+        size, hr, vr = _agree_with_pipeline(cfg, size, *_ranges(vt), vt)
+        view = CylViewTransformConfig(**view_transform_fields(vt, d.view_transform), azimuth_range=hr, elevation_range=vr)
+        return {"view_transform": view, "cylinder": CylinderConfig(*size) if size is not None else CylinderConfig()}
 
 
 @dataclass(frozen=True)
-class CylPETRConfig(PETRConfig):
-    """FisheyePETR hyper-parameters for ``CylindricalPETRHead`` on rectified images.
-
-    ``image_size`` is the raw fisheye input, ``cylinder_size`` (H, W) the rectified images and
-    ``feature_size`` their stride-16 features (the keys). ``azimuth_range`` / ``elevation_range`` are
-    the official ``horizontal_range`` / ``vertical_range`` as the code reads them (radians; the
-    defaults are the released numbers). ``dbound`` and ``cam_fov`` play no part: this head stores
-    no frustum and has no lens mask.
-    """
+class CylPETRHeadConfig(PETRHeadConfig):
+    """``CylindricalPETRHead``: ``feature_size`` is the stride-16 features of the rectified images (the
+    keys); ``azimuth_range`` / ``elevation_range`` the official ``horizontal_range`` / ``vertical_range`` as
+    the code reads them (radians; the defaults are the released numbers). ``dbound`` and ``cam_fov``
+    play no part: this head stores no frustum and has no lens mask."""
 
     feature_size: tuple[int, int] = (25, 50)
     azimuth_range: tuple[float, float] = RELEASED_HORIZONTAL_RANGE
     elevation_range: tuple[float, float] = RELEASED_VERTICAL_RANGE
-    cylinder_size: tuple[int, int] = (400, 800)
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _check_cylinder(self.cylinder_size, "cylinder_size")
-        expected = feature_size_of(self.cylinder_size, BackboneConfig(strides=self.strides, out_indices=self.out_indices))
-        if tuple(self.feature_size) != expected:
-            raise ConfigError(f"feature_size={tuple(self.feature_size)} but cylinder_size={tuple(self.cylinder_size)} "
+
+@dataclass(frozen=True)
+class CylPETRConfig(PETRConfig):
+    """FisheyePETR hyper-parameters for ``CylindricalPETRHead`` on rectified images: ``image`` is the raw
+    fisheye input, ``cylinder`` the rectified images, ``head.feature_size`` their stride-16 features."""
+
+    head: CylPETRHeadConfig = field(default_factory=CylPETRHeadConfig)
+    cylinder: CylinderConfig = field(default_factory=CylinderConfig)
+
+    def validate(self) -> None:
+        super().validate()
+        size = (self.cylinder.height, self.cylinder.width)
+        check_cylinder(size, "cylinder.height/width")
+        expected = feature_size_of(size, self.backbone)
+        if tuple(self.head.feature_size) != expected:
+            raise ConfigError(f"head.feature_size={tuple(self.head.feature_size)} but cylinder.height/width={size} "
                               f"gives stride-16 features of {expected[0]}x{expected[1]}")
-        _check_ranges(self.azimuth_range, self.elevation_range, "azimuth_range", "elevation_range")
+        check_ranges(self.head.azimuth_range, self.head.elevation_range, "head.azimuth_range", "head.elevation_range")
+
+    def geometry_params(self) -> Any:
+        h = self.head
+        return CylPETRParams(feature_size=tuple(h.feature_size), azimuth_range=tuple(h.azimuth_range),
+                             elevation_range=tuple(h.elevation_range), image_size=(self.cylinder.height, self.cylinder.width),
+                             depth_num=h.depth_num, depth_start=h.depth_start, position_range=tuple(h.position_range),
+                             num_feats=h.embed_dims // 2, temperature=h.pe_temperature)
 
     @classmethod
-    def from_mmdet3d_dict(cls, cfg: Mapping[str, Any], source: str = "<dict>") -> "CylPETRConfig":
-        """The official namespace -> configuration; ranges are taken as radians exactly as written.
+    def _read_head(cls, head: Section, cfg: Mapping[str, Any], d: PETRConfig) -> dict[str, Any]:
+        """``head`` (a ``CylindricalPETRHead``) and ``cylinder``; ranges are taken as radians exactly as written.
 
         The head's ranges and the pipeline's must agree (the keys' rays have to be those the images
         were resampled on; the head's swapped unpacking is part of the head, not of the ranges).
         """
-        model = _mapping(cfg.get("model"), "model", source)
-        head = _mapping(model.get("pts_bbox_head"), "model.pts_bbox_head", source)
-        if head.get("type") != "CylindricalPETRHead":
-            raise ConfigError(f"{source}: model.pts_bbox_head.type is {head.get('type')!r}; "
-                              "fisheye-petr-cyl needs 'CylindricalPETRHead'")
-        hr, vr = _ranges(head, "model.pts_bbox_head", source)
-        size, hr, vr = _agree_with_pipeline(cfg, None, hr, vr, "model.pts_bbox_head", source)
-        # Everything else is FisheyePETR's: read it with its reader, the head restated in its terms.
-        as_fisheye = {k: v for k, v in head.items() if k not in ("horizontal_range", "vertical_range")}
-        as_fisheye.update(type="FisheyePETRHead", azimuth_range=hr, elevation_range=vr)
-        size = size or cls.cylinder_size
-        base = PETRConfig.from_mmdet3d_dict({**cfg, "model": {**model, "pts_bbox_head": as_fisheye}}, source)
-        values = {f.name: getattr(base, f.name) for f in dataclasses.fields(PETRConfig)}
-        values.update(cylinder_size=size, feature_size=feature_size_of(size, BackboneConfig(
-            strides=base.strides, out_indices=base.out_indices)))
-        return cls(**values)
+        head.type_is("CylindricalPETRHead", required=True)
+        size, hr, vr = _agree_with_pipeline(cfg, None, *_ranges(head), head)
+        cylinder = CylinderConfig(*size) if size is not None else CylinderConfig()
+        model = Section(cfg.get("model"), "model", head.source)
+        bb = model.sub("img_backbone", required=False)
+        backbone = BackboneConfig(strides=tuple(int(s) for s in bb.get("strides", d.backbone.strides)),
+                                  out_indices=tuple(int(i) for i in bb.get("out_indices", d.backbone.out_indices)))
+        fields = head_fields(head, d.head)
+        fields.update(azimuth_range=hr, elevation_range=vr, feature_size=feature_size_of((cylinder.height, cylinder.width), backbone))
+        return {"head": CylPETRHeadConfig(**fields), "cylinder": cylinder}
 
 
-# -- reading the official namespace -----------------------------------------------------------
+# -- checks and the official namespace ----------------------------------------------------------
 
 
-def _mapping(value: Any, where: str, source: str) -> Mapping[str, Any]:
-    if not isinstance(value, Mapping):
-        raise ConfigError(f"{source}: expected a dict at '{where}', got {type(value).__name__}")
-    return value
-
-
-def _pair(value: Any, where: str, source: str, kind: type = float) -> tuple[Any, Any]:
-    try:
-        a, b = (kind(v) for v in value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{source}: '{where}' must be two numbers, got {value!r}") from None
-    return (a, b)
-
-
-def _ranges(section: Mapping[str, Any], where: str, source: str) -> tuple[tuple[float, float], tuple[float, float]]:
-    """A section's (horizontal_range, vertical_range); absent ones take the constructors' defaults."""
-    hr = _pair(section["horizontal_range"], f"{where}.horizontal_range", source) if "horizontal_range" in section else _DEFAULT_HORIZONTAL
-    vr = _pair(section["vertical_range"], f"{where}.vertical_range", source) if "vertical_range" in section else _DEFAULT_VERTICAL
-    return hr, vr
-
-
-def _agree_with_pipeline(cfg: Mapping[str, Any], size: tuple[int, int] | None, hr: tuple[float, float],
-                         vr: tuple[float, float], where: str, source: str
-                         ) -> tuple[tuple[int, int] | None, tuple[float, float], tuple[float, float]]:
-    """Check the test pipeline's rectification step against the model's values; returns (H, W), ranges."""
-    steps = [s for s in cfg.get("test_pipeline") or [] if isinstance(s, Mapping) and s.get("type") == _PIPELINE_STEP]
-    if not steps:
-        return size, hr, vr
-    step, at = steps[0], f"test_pipeline.{_PIPELINE_STEP}"
-    p_hr, p_vr = _ranges(step, at, source)
-    for name, ours, theirs in (("horizontal_range", hr, p_hr), ("vertical_range", vr, p_vr)):
-        if not all(math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12) for a, b in zip(ours, theirs)):
-            raise ConfigError(f"{source}: {at}.{name}={theirs} differs from {where}.{name}={ours}; the images "
-                              "and the 3D rays would describe different cylinders")
-    if "image_size" in step:
-        w, h = _pair(step["image_size"], f"{at}.image_size", source, int)  # the pipeline writes (W, H)
-        if size is not None and size != (h, w):
-            raise ConfigError(f"{source}: {at}.image_size=(W={w}, H={h}) differs from {where}.image_size={size} (H, W)")
-        size = (h, w)
-    return size, hr, vr
-
-
-def _check_cylinder(size: tuple[int, int], name: str) -> None:
+def check_cylinder(size: tuple[int, int], name: str) -> None:
     if len(size) != 2 or min(size) < 2:
         raise ConfigError(f"{name}: expected two sizes of at least 2 pixels, got {tuple(size)}")
 
 
-def _check_ranges(az: tuple[float, float], el: tuple[float, float], az_name: str, el_name: str) -> None:
+def check_ranges(az: tuple[float, float], el: tuple[float, float], az_name: str, el_name: str) -> None:
     values = (*az, *el)
     if len(az) != 2 or len(el) != 2 or not all(math.isfinite(v) for v in values):
         raise ConfigError(f"{az_name}, {el_name}: expected two finite numbers each, got {tuple(az)}, {tuple(el)}")
     if az[0] == az[1] or math.tan(el[0]) == math.tan(el[1]):
         raise ConfigError(f"{az_name}={tuple(az)}, {el_name}={tuple(el)}: the cylinder has no width or height")
+
+
+def _ranges(section: Section) -> tuple[tuple[float, float], tuple[float, float]]:
+    """A section's (horizontal_range, vertical_range); absent ones take the constructors' defaults."""
+    hr = section.numbers("horizontal_range", 2) if "horizontal_range" in section else _DEFAULT_HORIZONTAL
+    vr = section.numbers("vertical_range", 2) if "vertical_range" in section else _DEFAULT_VERTICAL
+    return hr, vr  # type: ignore[return-value]
+
+
+def _agree_with_pipeline(cfg: Mapping[str, Any], size: tuple[int, ...] | None, hr: tuple[float, float],
+                         vr: tuple[float, float], model_section: Section
+                         ) -> tuple[tuple[int, int] | None, tuple[float, float], tuple[float, float]]:
+    """Check the test pipeline's rectification step against the model's values; returns (H, W), ranges."""
+    steps = [s for s in cfg.get("test_pipeline") or [] if isinstance(s, Mapping) and s.get("type") == _PIPELINE_STEP]
+    if not steps:
+        return size, hr, vr  # type: ignore[return-value]
+    step = Section(steps[0], f"test_pipeline.{_PIPELINE_STEP}", model_section.source)
+    p_hr, p_vr = _ranges(step)
+    for name, ours, theirs in (("horizontal_range", hr, p_hr), ("vertical_range", vr, p_vr)):
+        if not all(math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12) for a, b in zip(ours, theirs)):
+            raise ConfigError(f"{step.source}: {step.where(name)}={theirs} differs from {model_section.where(name)}={ours}; the images "
+                              "and the 3D rays would describe different cylinders")
+    if "image_size" in step:
+        w, h = step.numbers("image_size", 2, int)  # the pipeline writes (W, H)
+        if size is not None and tuple(size) != (h, w):
+            raise ConfigError(f"{step.source}: {step.where('image_size')}=(W={w}, H={h}) differs from "
+                              f"{model_section.where('image_size')}={tuple(size)} (H, W)")
+        size = (h, w)
+    return size, hr, vr  # type: ignore[return-value]

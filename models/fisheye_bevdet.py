@@ -11,26 +11,28 @@ preprocessor does). Output: fixed-size tensors (boxes, scores, labels, valid) in
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
 from fisheye_infer.artifact import OUTPUTS, RANKING_OUTPUTS
-from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
-from fisheye_infer.geometry.tables import LSSParams
+from fisheye_infer.errors import CheckpointError
+from fisheye_infer.geometry.cyl_lss import CylLSSGeometry
+from fisheye_infer.geometry.lss import LSSGeometry
+from fisheye_infer.geometry.pooling import BevGrid
 
 from .backbone import FPN, ResNet
+from .base import FisheyeDetector
 from .bev_encoder import SECOND, SECONDFPN
+from .bevdet_config import BEVDetConfig, ViewTransformConfig
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
-from .config import BEVDetConfig
 from .registry import register_model
-from .synthetic import batchnorm_statistics, synthetic_images, temper_attention
-from .transfusion import TransFusionHead
-from .view_transform import FisheyeLSS, LSSGeometry
+from .transfusion import SCORE_SEMANTICS, TransFusionHead
+from .view_transform import FisheyeLSS
 
-__all__ = ["FisheyeBEVDet", "checkpoint_filter_fn", "GEOMETRY_KEYS", "IGNORED_KEYS"]
+__all__ = ["FisheyeBEVDet", "checkpoint_filter_fn", "bev_grid_checks", "GEOMETRY_KEYS", "IGNORED_KEYS", "SIGNATURE_KEYS"]
 
 _VT = "view_transform."
 #: Official checkpoint keys holding geometry tables (not weights of this model).
@@ -40,6 +42,8 @@ GEOMETRY_KEYS = tuple(_VT + k for k in ("frustum", "sphere_grid_3d", "dx", "bx",
 #: which dispatches to ``FisheyeLSSTransform.init_layer`` (depthnet only), so the base class's
 #: ``proj_x`` is never built. Should a checkpoint still carry them, they are dropped with a warning.
 IGNORED_KEYS = (_VT + "proj_x.weight", _VT + "proj_x.bias")
+#: Keys every FisheyeBEVDet-family checkpoint holds; the spherical one also ``sphere_grid_2d``.
+SIGNATURE_KEYS = (_VT + "depthnet.weight", "bbox_head.heatmap_head.1.weight")
 GRID_ATOL = 1e-5  # normalised grid units (~0.004 px on an 800 px image)
 FRUSTUM_RTOL, FRUSTUM_ATOL = 0.0, 5e-5  # float32 linspace/trig of the official code: up to 7.6e-6 m at 48 m
 BEV_ATOL = 1e-6
@@ -51,98 +55,36 @@ def checkpoint_filter_fn(state_dict: Mapping[str, torch.Tensor]) -> dict[str, to
     return {k: v for k, v in state_dict.items() if k not in drop}
 
 
-CALIBRATION_FRAMES = 2
-HEATMAP_PRIOR_LOGIT = -2.19
-CALIBRATION_MAX_SIDE = 320  # backbone statistics barely depend on image size; keeps calibration fast
+def bev_grid_checks(state_dict: Mapping[str, torch.Tensor], bev: BevGrid) -> tuple[TableCheck, ...]:
+    """dx, bx, nx must equal the configuration's grid whatever the policy: they size the BEV tensor."""
+    hard = (TableCheck(_VT + "dx", as_numpy(state_dict[_VT + "dx"]), bev.dx, atol=BEV_ATOL),
+            TableCheck(_VT + "bx", as_numpy(state_dict[_VT + "bx"]), bev.bx, atol=BEV_ATOL),
+            TableCheck(_VT + "nx", as_numpy(state_dict[_VT + "nx"]), np.array(bev.nx)))
+    bad = [c for c in hard if not c.agrees]
+    if bad:
+        raise CheckpointError("the checkpoint's BEV grid differs from the configuration's (xbound/ybound/zbound): "
+                              + "; ".join(c.describe() for c in bad))
+    return hard
 
 
-def calibrate(model: nn.Module, seed: int) -> None:
-    """Collect BatchNorm statistics on seeded synthetic frames (image side capped for speed).
-
-    The whole network is fully convolutional up to the angular grid, so smaller frames still
-    exercise the full BEV grid and head with realistic statistics.
-    """
-    cfg: BEVDetConfig = model.config  # type: ignore[assignment]
-    scale = min(1.0, CALIBRATION_MAX_SIDE / max(cfg.image.height, cfg.image.width))
-    h = max(32, int(round(cfg.image.height * scale / 32)) * 32)
-    w = max(32, int(round(cfg.image.width * scale / 32)) * 32)
-    n = len(model.camera_names)  # type: ignore[arg-type]
-    frames = [synthetic_images(seed * 1000 + i, 1, n, h, w) for i in range(CALIBRATION_FRAMES)]
-    with batchnorm_statistics(model):
-        for frame in frames:
-            model.predict(frame)
-    temper_attention(model, lambda: model.predict(frames[0]))
-    _shape_box_heads(model, frames[0])
-    # Heatmap logits: affine-map so the median cell sits at the official prior (-2.19, p = 0.1) and
-    # the largest at about +0.8 (p = 0.69): peaks stay far from sigmoid saturation, where float32
-    # would round neighbouring scores to the same value and create ties at the top-k boundary.
-    with torch.no_grad():
-        logits = model.predict(frames[0])["dense_heatmap"]
-        median, top = logits.median(), logits.max()
-        scale = 3.0 / float(max(top - median, 1e-3))
-        final = model.bbox_head.heatmap_head[1]  # type: ignore[index]
-        final.weight.mul_(scale)
-        final.bias.mul_(scale).add_(HEATMAP_PRIOR_LOGIT - scale * float(median))
-
-
-#: Target (mean, std) of the raw regression outputs of a trained head: centre offsets in cells,
-#: gravity-centre height (m), log box sizes (l, w, h of a car-sized box), and sin/cos of yaw with
-#: a norm near 1 (atan2 of a near-zero vector turns float32 rounding into large yaw errors; a
-#: trained head predicts unit vectors, a random one does not unless told).
-BOX_HEAD_TARGETS = {"center": ((0.0, 0.0), 0.3), "height": ((-0.8,), 0.4), "dim": ((1.4, 0.65, 0.45), 0.25), "rot": ((0.7, 0.7), 0.1)}
-
-
-@torch.no_grad()
-def _shape_box_heads(model: nn.Module, frame: torch.Tensor) -> None:
-    """Affine-map each regression head's last layer so its outputs have a trained head's range.
-
-    Random heads predict log-sizes of +-4 (boxes of 50 m): exp() then multiplies float32
-    rounding by the box size, which a trained model never does.
-    """
-    head = model.bbox_head.prediction_heads[0]  # type: ignore[index]
-    outputs = {}
-    hooks = [getattr(head, name)[-1].register_forward_hook(lambda m, i, o, name=name: outputs.__setitem__(name, o))
-             for name in BOX_HEAD_TARGETS]
-    try:
-        model.predict(frame)
-    finally:
-        for h in hooks:
-            h.remove()
-    for name, (means, std) in BOX_HEAD_TARGETS.items():
-        final = getattr(head, name)[-1]
-        out = outputs[name]  # B x C x P
-        mu, sigma = out.mean(dim=(0, 2)), out.std(dim=(0, 2)).clamp(min=1e-6)
-        gain = std / sigma
-        final.weight.mul_(gain[:, None, None])
-        final.bias.copy_((final.bias - mu) * gain + torch.tensor(means, dtype=final.bias.dtype))
-
-
-@register_model("fisheye-bevdet", config_cls=BEVDetConfig, manifest="fisheye_bevdet_keys.json",
-                calibrate=calibrate, ignored_keys=IGNORED_KEYS)
-class FisheyeBEVDet(nn.Module):
+@register_model("fisheye-bevdet", manifest="fisheye_bevdet_keys.json", checkpoint_filter=checkpoint_filter_fn,
+                signature_keys=(*SIGNATURE_KEYS, _VT + "sphere_grid_2d"), ignored_keys=IGNORED_KEYS, score_semantics=SCORE_SEMANTICS)
+class FisheyeBEVDet(FisheyeDetector):
     """Camera-only BEV detector: ResNet-18 + FPN, fisheye LSS, SECOND + SECONDFPN, TransFusion head."""
 
-    def __init__(self, config: BEVDetConfig | None = None, rig: Any = None, geometry: LSSGeometry | None = None) -> None:
-        super().__init__()
-        self.config = cfg = config or BEVDetConfig()
-        if geometry is None:
-            if rig is None:
-                from fisheye_infer.rig import default_rig
+    config_cls = BEVDetConfig
+    config: BEVDetConfig
 
-                rig = default_rig()
-            if len(rig) != len(cfg.image.camera_names):
-                raise ConfigError(f"the rig has {len(rig)} cameras ({', '.join(rig.names)}); the configuration "
-                                  f"expects {len(cfg.image.camera_names)} ({', '.join(cfg.image.camera_names)})")
-            geometry = LSSGeometry.from_rig(rig, cfg.view_transform)
-        self.camera_names = tuple(rig.names) if rig is not None else tuple(cfg.image.camera_names)
-        self.rig_geometry = geometry  # recomputed tables; the reference for checkpoint comparison
+    def __init__(self, config: BEVDetConfig | None = None, rig: Any = None, geometry: LSSGeometry | CylLSSGeometry | None = None) -> None:
+        super().__init__(config, rig, geometry)
+        cfg, geometry = self.config, self.rig_geometry  # type: ignore[assignment]
         img = cfg.image
         self.register_buffer("mean", torch.tensor(img.mean, dtype=torch.float32), persistent=False)
         self.register_buffer("std", torch.tensor(img.std, dtype=torch.float32), persistent=False)
         bb, vt, enc, hd = cfg.backbone, cfg.view_transform, cfg.bev_encoder, cfg.head
         self.img_backbone = ResNet(bb.depth, bb.strides, bb.dilations, bb.out_indices, base_channels=bb.base_channels)
         self.img_neck = FPN(bb.neck_in_channels, bb.neck_out_channels, bb.neck_num_outs)
-        self.view_transform = FisheyeLSS(vt, geometry)
+        self.view_transform = self._build_view_transform(vt, geometry)
         self.pts_backbone = SECOND(enc.in_channels, enc.out_channels, enc.layer_nums, enc.layer_strides, enc.bn_eps)
         self.pts_neck = SECONDFPN(enc.fpn_in_channels, enc.fpn_out_channels, enc.upsample_strides,
                                   enc.use_conv_for_no_stride, enc.bn_eps)
@@ -152,6 +94,10 @@ class FisheyeBEVDet(nn.Module):
             dict(hd.common_heads), hd.head_conv, hd.bev_size, hd.out_size_factor, hd.voxel_size,
             hd.pc_range, hd.post_center_range)
         self.eval()
+
+    def _build_view_transform(self, cfg: ViewTransformConfig, geometry: Any) -> FisheyeLSS:
+        """The view transform module (the cylindrical baseline builds its own)."""
+        return FisheyeLSS(cfg, geometry)
 
     # -- forward --------------------------------------------------------------------------
 
@@ -217,25 +163,9 @@ class FisheyeBEVDet(nn.Module):
         out = self.bbox_head(self.pts_neck(self.pts_backbone(bev)))
         return {k: out[k] for k in OUTPUTS + RANKING_OUTPUTS}
 
-    def _check_images(self, images: torch.Tensor, camera_valid: torch.Tensor | None) -> None:
-        n = len(self.camera_names)
-        h, w = self.config.image.height, self.config.image.width
-        if images.dim() != 5 or tuple(images.shape[1:]) != (n, h, w, 3):
-            raise FrameError(f"images: expected (B, {n}, {h}, {w}, 3) BGR, got {tuple(images.shape)}")
-        if camera_valid is not None and tuple(camera_valid.shape) != (images.shape[0], n):
-            raise FrameError(f"camera_valid: expected ({images.shape[0]}, {n}), got {tuple(camera_valid.shape)}")
-
     def geometry_tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables the exported graph holds as named initializers."""
         return self.view_transform.tables()
-
-    def geometry_params(self) -> LSSParams:
-        """The parameters that define the geometry tables (what a re-baked file recomputes them from)."""
-        vt = self.config.view_transform
-        return LSSParams(feature_size=tuple(vt.feature_size), azimuth_range=tuple(vt.azimuth_range),
-                         elevation_range=tuple(vt.elevation_range), dbound=tuple(vt.dbound), xbound=tuple(vt.xbound),
-                         ybound=tuple(vt.ybound), zbound=tuple(vt.zbound),
-                         bucket_sizes=tuple(self.view_transform.geometry.plan.bucket_sizes))
 
     # -- official checkpoint ----------------------------------------------------------------
 
@@ -257,9 +187,6 @@ class FisheyeBEVDet(nn.Module):
             out[key] = (tuple(value.shape), value.dtype)
         return out
 
-    def checkpoint_filter_fn(self, state_dict: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return checkpoint_filter_fn(state_dict)
-
     def official_geometry_state(self) -> dict[str, torch.Tensor]:
         """The geometry tables in official form, as an official checkpoint stores them."""
         g = self.view_transform.geometry
@@ -272,23 +199,10 @@ class FisheyeBEVDet(nn.Module):
                 _VT + "nx": torch.tensor(g.bev_grid.nx, dtype=torch.int64),
                 _VT + "valid_fov_mask": t(g.valid_fov_mask.copy()), _VT + "sphere_grid_2d": t(g.grid.copy())}
 
-    def official_state_dict(self) -> dict[str, torch.Tensor]:
-        """This model's weights and geometry under the official names, in official order."""
-        weights = self.state_dict()
-        geometry = self.official_geometry_state()
-        return {k: (geometry[k] if k in geometry else weights[k]).detach().clone() for k in self.official_keys()}
-
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
         """Compare the stored tables with the rig's and install the ones ``policy`` selects."""
-        ref = self.rig_geometry
-        bev = ref.bev_grid
-        hard = [TableCheck(_VT + "dx", as_numpy(state_dict[_VT + "dx"]), bev.dx, atol=BEV_ATOL),
-                TableCheck(_VT + "bx", as_numpy(state_dict[_VT + "bx"]), bev.bx, atol=BEV_ATOL),
-                TableCheck(_VT + "nx", as_numpy(state_dict[_VT + "nx"]), np.array(bev.nx))]
-        bad = [c for c in hard if not c.agrees]
-        if bad:
-            raise CheckpointError("the checkpoint's BEV grid differs from the configuration's (xbound/ybound/zbound): "
-                                  + "; ".join(c.describe() for c in bad))
+        ref: LSSGeometry = self.rig_geometry  # type: ignore[assignment]
+        hard = bev_grid_checks(state_dict, ref.bev_grid)
         grid2d = as_numpy(state_dict[_VT + "sphere_grid_2d"])
         grid3d = as_numpy(state_dict[_VT + "sphere_grid_3d"])
         frustum = as_numpy(state_dict[_VT + "frustum"])
@@ -300,9 +214,9 @@ class FisheyeBEVDet(nn.Module):
         source = decide_geometry(checks, policy, context="FisheyeBEVDet checkpoint")
         geometry = ref.with_tables(grid=grid2d, frustum=frustum) if source == "checkpoint" else ref
         self.set_geometry(geometry)
-        return GeometryReport(source, checks + tuple(hard))
+        return GeometryReport(source, checks + hard)
 
-    def set_geometry(self, geometry: LSSGeometry) -> None:
+    def set_geometry(self, geometry: LSSGeometry | CylLSSGeometry) -> None:
         """Install other geometry tables (same configuration), keeping the device of the weights."""
         device = self.view_transform.depthnet.weight.device
         self.view_transform.set_geometry(geometry)

@@ -14,26 +14,25 @@ compared with the rig's recomputation and installed through ``apply_checkpoint_g
 from __future__ import annotations
 
 import re
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
-from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
+from fisheye_infer.errors import CheckpointError
+from fisheye_infer.geometry.cyl_petr import CylPETRGeometry
 from fisheye_infer.geometry.frustum import depth_bins, spherical_frustum
+from fisheye_infer.geometry.petr import PETRGeometry
 
 from .backbone import FPN, ResNet
+from .base import FisheyeDetector
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
-from fisheye_infer.geometry.tables import PETRParams
-
 from .petr_config import PETRConfig
-from .petr_geometry import PETRGeometry
-from .petr_head import FisheyePETRHead
+from .petr_head import SCORE_SEMANTICS, FisheyePETRHead
 from .registry import register_model
-from .synthetic import batchnorm_statistics, synthetic_images, temper_attention
 
-__all__ = ["FisheyePETR", "checkpoint_filter_fn", "rename_official_keys", "calibrate", "GEOMETRY_KEYS"]
+__all__ = ["FisheyePETR", "checkpoint_filter_fn", "rename_official_keys", "GEOMETRY_KEYS", "SIGNATURE_KEYS"]
 
 _HEAD = "pts_bbox_head."
 #: Official checkpoint keys holding geometry tables (not weights of this model), in official order.
@@ -42,6 +41,8 @@ GRID_ATOL = 1e-5  # normalised grid units (~0.004 px on an 800 px image)
 MASK_ATOL = 5e-3  # sampled validity; a 1e-5 grid shift moves a lens-edge sample by at most ~4e-3
 # float32 trig on float32 linspace angles (official) vs float64: up to ~1e-5 m at 48 m; a range change is >> 1e-3
 FRUSTUM_RTOL, FRUSTUM_ATOL = 1e-6, 5e-5
+#: Keys every FisheyePETR-family checkpoint holds; the spherical one also ``sphere_grid_2d``.
+SIGNATURE_KEYS = (_HEAD + "position_encoder.0.weight", _HEAD + "query_embedding.0.weight")
 _PRE_V2_RENAMES = ((".self_attn.", ".attentions.0."), (".multihead_attn.", ".attentions.1."),
                    (".decoder.norm.", ".decoder.post_norm."))
 
@@ -71,45 +72,9 @@ def checkpoint_filter_fn(state_dict: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in rename_official_keys(state_dict).items() if k not in GEOMETRY_KEYS}
 
 
-CALIBRATION_FRAMES = 2
-CALIBRATION_MAX_SIDE = 320  # the head samples P3 through a normalised grid: any resolution exercises it
-CLS_PRIOR_LOGIT = -4.595  # official cls bias init, bias_init_with_prob(0.01)
-
-
-def calibrate(model: nn.Module, seed: int) -> None:
-    """Make seeded random weights behave like a trained model's, for synthetic checkpoints.
-
-    Reference points get the official init U(0, 1) (so boxes spread over the range instead of
-    collapsing to its corners), BatchNorm statistics are collected on synthetic frames, and the
-    last cls layer is affine-mapped so the median logit sits at the official prior and the top
-    at prior + 3 (no sigmoid saturation, hence no score ties at the top-k boundary). The cls
-    branch reads post-normed decoder features, so unit-variance features stand in for them.
-    """
-    cfg: PETRConfig = model.config  # type: ignore[assignment]
-    head: FisheyePETRHead = model.pts_bbox_head  # type: ignore[assignment]
-    gen = torch.Generator().manual_seed(int(seed) + 101)
-    with torch.no_grad():
-        head.reference_points.weight.copy_(torch.rand(head.reference_points.weight.shape, generator=gen))
-        head.query_pos.copy_(head.query_positions())
-    scale = min(1.0, CALIBRATION_MAX_SIDE / max(cfg.image_size))
-    h, w = (max(32, int(round(s * scale / 32)) * 32) for s in cfg.image_size)
-    frames = [synthetic_images(int(seed) * 1000 + i, 1, cfg.num_cameras, h, w) for i in range(CALIBRATION_FRAMES)]
-    with batchnorm_statistics(model):
-        for frame in frames:
-            model.forward_features(frame)  # type: ignore[operator]
-    temper_attention(model, lambda: head.forward_decoder(model.forward_features(frames[0])))  # type: ignore[operator]
-    with torch.no_grad():
-        feats = head.transformer.decoder.post_norm(torch.randn(cfg.num_query, cfg.embed_dims, generator=gen))
-        cls, _ = head.predict(feats)
-        median, top = cls.median(), cls.max()
-        gain = 3.0 / float(max(top - median, 1e-3))
-        final = head.cls_branches[-1][-1]
-        final.weight.mul_(gain)
-        final.bias.mul_(gain).add_(CLS_PRIOR_LOGIT - gain * float(median))
-
-
-@register_model("fisheye-petr", config_cls=PETRConfig, manifest="fisheye_petr_keys.json", calibrate=calibrate)
-class FisheyePETR(nn.Module):
+@register_model("fisheye-petr", manifest="fisheye_petr_keys.json", checkpoint_filter=checkpoint_filter_fn,
+                signature_keys=(*SIGNATURE_KEYS, _HEAD + "sphere_grid_2d"), score_semantics=SCORE_SEMANTICS)
+class FisheyePETR(FisheyeDetector):
     """Normalisation -> ResNet-18 -> FPN (P3 only) -> FisheyePETRHead -> NMS-free decoding.
 
     Missing cameras: ``camera_valid[b, n] = False`` zeroes that camera's warped features and
@@ -122,34 +87,30 @@ class FisheyePETR(nn.Module):
     with the RGB-ordered ImageNet statistics applied to BGR channels (``mean[0]`` to blue).
     """
 
-    def __init__(self, config: PETRConfig | None = None, rig: Any = None,
-                 geometry: PETRGeometry | None = None) -> None:
-        super().__init__()
-        self.config = cfg = config or PETRConfig()
-        if geometry is None:
-            if rig is None:
-                from fisheye_infer.rig import default_rig
+    config_cls = PETRConfig
+    config: PETRConfig
 
-                rig = default_rig()
-            if len(rig) != cfg.num_cameras:
-                raise ConfigError(f"the rig has {len(rig)} cameras ({', '.join(rig.names)}); the configuration "
-                                  f"expects {cfg.num_cameras} ({', '.join(cfg.camera_names)})")
-            geometry = PETRGeometry.from_rig(rig, cfg)
-        self.camera_names = tuple(rig.names) if rig is not None else cfg.camera_names
-        self.rig_geometry = geometry  # recomputed tables; the reference for checkpoint comparison
-        self.pts_bbox_head = FisheyePETRHead(cfg, geometry)
-        self.img_backbone = ResNet(cfg.depth, cfg.strides, cfg.dilations, cfg.out_indices)
-        self.img_neck = FPN(cfg.neck_in_channels, cfg.neck_out_channels, cfg.neck_num_outs)
-        self.register_buffer("pixel_mean", torch.tensor(cfg.mean).reshape(1, 1, 3, 1, 1), persistent=False)
-        self.register_buffer("pixel_std", torch.tensor(cfg.std).reshape(1, 1, 3, 1, 1), persistent=False)
+    def __init__(self, config: PETRConfig | None = None, rig: Any = None,
+                 geometry: PETRGeometry | CylPETRGeometry | None = None) -> None:
+        super().__init__(config, rig, geometry)
+        cfg, bb = self.config, self.config.backbone
+        self.pts_bbox_head = self._build_head(cfg, self.rig_geometry)
+        self.img_backbone = ResNet(bb.depth, bb.strides, bb.dilations, bb.out_indices, base_channels=bb.base_channels)
+        self.img_neck = FPN(bb.neck_in_channels, bb.neck_out_channels, bb.neck_num_outs)
+        self.register_buffer("pixel_mean", torch.tensor(cfg.image.mean).reshape(1, 1, 3, 1, 1), persistent=False)
+        self.register_buffer("pixel_std", torch.tensor(cfg.image.std).reshape(1, 1, 3, 1, 1), persistent=False)
         self.eval()
+
+    def _build_head(self, cfg: PETRConfig, geometry: Any) -> FisheyePETRHead:
+        """The detection head (the cylindrical baseline builds its own)."""
+        return FisheyePETRHead(cfg, geometry)
 
     # -- forward --------------------------------------------------------------------------
 
     def normalize(self, images: torch.Tensor) -> torch.Tensor:
         """uint8 B x N x H x W x 3 (BGR) -> float B x N x 3 x H x W, normalised as in training."""
         x = images.to(torch.float32).permute(0, 1, 4, 2, 3)
-        if self.config.channel_order == "RGB":
+        if self.config.image.bgr_to_rgb:
             x = x[:, :, [2, 1, 0]]
         return (x - self.pixel_mean) / self.pixel_std
 
@@ -169,33 +130,26 @@ class FisheyePETR(nn.Module):
         ``cam2lidar`` (B, N, 4, 4) recomputes the 3D position embedding per frame (untraceable);
         ``tables`` replaces the installed geometry tables (the exporter passes them as graph inputs).
         """
-        self._check_inputs(images, camera_valid)
+        self._check_images(images, camera_valid)
         return self.pts_bbox_head(self.forward_features(images), camera_valid, cam2lidar, tables)
 
     def geometry_tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables the exported graph holds as named initializers."""
         return self.pts_bbox_head.tables()
 
-    def geometry_params(self) -> PETRParams:
-        """The parameters that define the geometry tables (what a re-baked file recomputes them from)."""
-        return self.pts_bbox_head.params()
+    def table_weights(self) -> dict[str, np.ndarray]:
+        """The position encoder's and adapt_pos3d's weights: the key embedding table needs them."""
+        return self.pts_bbox_head.embedding_weights()
 
-    def _check_inputs(self, images: torch.Tensor, camera_valid: torch.Tensor | None) -> None:
-        n, (h, w) = self.config.num_cameras, self.config.image_size
-        if images.dim() != 5 or tuple(images.shape[1:]) != (n, h, w, 3):
-            raise FrameError(f"images: expected (B, {n}, {h}, {w}, 3) BGR, got {tuple(images.shape)}")
-        if camera_valid is not None and tuple(camera_valid.shape) != (images.shape[0], n):
-            raise FrameError(f"camera_valid: expected ({images.shape[0]}, {n}), got {tuple(camera_valid.shape)}")
-
-    def set_geometry(self, geometry: PETRGeometry) -> None:
+    def set_geometry(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
         """Install other geometry tables (same configuration) and refresh the cached embeddings."""
         self.pts_bbox_head.set_geometry(geometry)
 
     # -- official checkpoint ----------------------------------------------------------------
 
     def official_geometry_specs(self) -> dict[str, KeySpec]:
-        fh, fw = self.config.feature_size
-        d, f32 = self.config.num_frustum_depths, torch.float32
+        fh, fw = self.config.head.feature_size
+        d, f32 = self.config.head.num_frustum_depths, torch.float32
         return {GEOMETRY_KEYS[0]: ((d, fh, fw, 3), f32), GEOMETRY_KEYS[1]: ((d, fh, fw, 3), f32),
                 GEOMETRY_KEYS[2]: ((fh, fw, 2), f32), GEOMETRY_KEYS[3]: ((1, 1, fh, fw), f32)}
 
@@ -208,11 +162,8 @@ class FisheyePETR(nn.Module):
                 out.update(self.official_geometry_specs())
         return out
 
-    def checkpoint_filter_fn(self, state_dict: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return checkpoint_filter_fn(state_dict)
-
     def _official_tables(self, geometry: PETRGeometry) -> dict[str, np.ndarray]:
-        cfg = self.config
+        cfg = self.config.head
         frustum = spherical_frustum(depth_bins(cfg.dbound), cfg.feature_size, cfg.azimuth_range, cfg.elevation_range)
         grid = np.asarray(geometry.grid, dtype=np.float32)
         # world2cam depends only on the ray direction, so every depth slice holds the same grid.
@@ -221,11 +172,9 @@ class FisheyePETR(nn.Module):
         mask = np.asarray(geometry.unvalid_area, dtype=np.float32).reshape(1, 1, *grid.shape[:2])
         return dict(zip(GEOMETRY_KEYS, (frustum, np.ascontiguousarray(grid3d), grid, mask)))
 
-    def official_state_dict(self) -> dict[str, torch.Tensor]:
-        """This model's weights and geometry under the official names, in official order."""
-        weights = self.state_dict()
-        tables = {k: torch.from_numpy(np.array(v)) for k, v in self._official_tables(self.pts_bbox_head.geometry).items()}
-        return {k: (tables[k] if k in tables else weights[k]).detach().clone() for k in self.official_keys()}
+    def official_geometry_state(self) -> dict[str, torch.Tensor]:
+        """The geometry tables in official form, as an official checkpoint stores them."""
+        return {k: torch.from_numpy(np.array(v)) for k, v in self._official_tables(self.pts_bbox_head.geometry).items()}
 
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
         """Compare the stored grid, mask and frustum with the rig's and install what ``policy`` selects.
@@ -239,7 +188,7 @@ class FisheyePETR(nn.Module):
         if not np.array_equal(grid3d[0, ..., :2], grid2d):
             raise CheckpointError(f"{GEOMETRY_KEYS[2]} is not {GEOMETRY_KEYS[1]}[0, ..., :2]; the checkpoint's "
                                   "geometry tables are inconsistent")
-        ref = self.rig_geometry
+        ref: PETRGeometry = self.rig_geometry  # type: ignore[assignment]
         tables = self._official_tables(ref)
         checks = (TableCheck(GEOMETRY_KEYS[2], grid2d, tables[GEOMETRY_KEYS[2]], atol=GRID_ATOL),
                   TableCheck(GEOMETRY_KEYS[3], stored[GEOMETRY_KEYS[3]], tables[GEOMETRY_KEYS[3]], atol=MASK_ATOL),

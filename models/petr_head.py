@@ -27,16 +27,19 @@ import torch.nn.functional as F
 from torch import nn
 
 from fisheye_infer.errors import CheckpointError, ConfigError
-from fisheye_infer.geometry.petr import lid_depths, position_coords
-from fisheye_infer.geometry.tables import PETRParams, petr_key_pos
+from fisheye_infer.geometry.cyl_petr import CylPETRGeometry
+from fisheye_infer.geometry.petr import PETRGeometry
+from fisheye_infer.geometry.tables import GRID, IMAGE_GRID, PETR_KEY_MASK, PETR_KEY_POS
 
 from .petr_config import PETRConfig
 from .petr_embedding import inverse_sigmoid, pos2posemb3d
-from .petr_geometry import PETRGeometry
 from .petr_transformer import PETRTransformer, key_padding_bias
 from .ranking import TopK
 
-__all__ = ["FisheyePETRHead", "decode_predictions"]
+__all__ = ["FisheyePETRHead", "CylindricalPETRHead", "decode_predictions", "SCORE_SEMANTICS"]
+
+#: What the scores of a PETR head mean (recorded in an exported file's metadata).
+SCORE_SEMANTICS = "sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time"
 
 
 def _conv_mlp(c_in: int, c_hidden: int, c_out: int) -> nn.Sequential:
@@ -59,20 +62,21 @@ class FisheyePETRHead(nn.Module):
     differ is refused with ``CheckpointError`` naming the first differing key.
     """
 
-    def __init__(self, cfg: PETRConfig, geometry: PETRGeometry) -> None:
+    def __init__(self, config: PETRConfig, geometry: PETRGeometry | CylPETRGeometry) -> None:
         super().__init__()
-        self.cfg = cfg
+        self.config = config
+        self.cfg = cfg = config.head
         c, (fh, fw) = cfg.embed_dims, cfg.feature_size
         # code_weights (all 1.0, a training constant) is the only checkpoint tensor kept as state;
         # the official geometry tensors are installed by set_geometry (see fisheye_petr.py).
         self.register_buffer("code_weights", torch.ones(cfg.code_size))
-        self.input_proj = nn.Conv2d(cfg.neck_out_channels, c, 1)
+        self.input_proj = nn.Conv2d(config.backbone.neck_out_channels, c, 1)
         cls_layers: list[nn.Module] = []
         reg_layers: list[nn.Module] = []
         for _ in range(cfg.num_reg_fcs):
             cls_layers += [nn.Linear(c, c), nn.LayerNorm(c), nn.ReLU()]
             reg_layers += [nn.Linear(c, c), nn.ReLU()]
-        cls_branch = nn.Sequential(*cls_layers, nn.Linear(c, cfg.num_classes))
+        cls_branch = nn.Sequential(*cls_layers, nn.Linear(c, config.num_classes))
         reg_branch = nn.Sequential(*reg_layers, nn.Linear(c, cfg.code_size))
         self.cls_branches = nn.ModuleList([cls_branch] * cfg.num_layers)
         self.reg_branches = nn.ModuleList([reg_branch] * cfg.num_layers)
@@ -85,8 +89,8 @@ class FisheyePETRHead(nn.Module):
         self.transformer = PETRTransformer(cfg.num_layers, c, cfg.num_heads, cfg.ffn_dims)
 
         # Calibration-derived tables and the cached embeddings: buffers, but not state-dict keys.
-        n = cfg.num_cameras
-        self.register_buffer("sphere_grid_2d", torch.zeros(fh, fw, 2), persistent=False)
+        n = config.num_cameras
+        self._register_grid(geometry)
         self.register_buffer("unvalid_area", torch.zeros(1, 1, fh, fw), persistent=False)
         self.register_buffer("coords3d", torch.zeros(n, 3 * cfg.depth_num, fh, fw), persistent=False)
         self.register_buffer("key_pos", torch.zeros(1, n * fh * fw, c), persistent=False)
@@ -97,25 +101,30 @@ class FisheyePETRHead(nn.Module):
         self.set_geometry(geometry)
 
     # ------------------------------------------------------------------ geometry and caches
-    def set_geometry(self, geometry: PETRGeometry) -> None:
+    def _register_grid(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
+        """The buffer of the warp grid (``geom.grid``), filled by ``set_geometry``."""
+        fh, fw = self.cfg.feature_size
+        self.register_buffer("sphere_grid_2d", torch.zeros(fh, fw, 2), persistent=False)
+
+    def _install_grid(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
+        self.sphere_grid_2d.copy_(_f32(geometry.grid).to(self.code_weights.device))  # type: ignore[union-attr]
+
+    def set_geometry(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
         """Install a rig's tables (warp grid, key mask, cam2lidar) and recompute the cached embeddings."""
-        geometry.check(self.cfg)
+        if tuple(geometry.params.feature_size) != tuple(self.cfg.feature_size):
+            raise ConfigError(f"geometry feature_size {tuple(geometry.params.feature_size)} differs from the configuration's "
+                              f"head.feature_size {tuple(self.cfg.feature_size)}")
+        geometry.check(self.config.num_cameras)
         current = getattr(self, "geometry", None)
         if current is not None and current is not geometry and _same_tables(current, geometry):
             self.geometry = geometry  # same numbers (e.g. a checkpoint storing the rig's tables)
             return
         self.geometry = geometry
         device = self.code_weights.device
-        self.sphere_grid_2d.copy_(_f32(geometry.grid).to(device))
+        self._install_grid(geometry)
         self.unvalid_area.copy_(_f32(geometry.unvalid_area).reshape(self.unvalid_area.shape).to(device))
-        self.coords3d.copy_(_f32(self._coords(geometry.cam2lidar)).to(device))
+        self.coords3d.copy_(_f32(geometry.coords()).to(device))
         self.refresh_embeddings()
-
-    def _coords(self, cam2lidar: np.ndarray) -> np.ndarray:
-        cfg = self.cfg
-        depths = lid_depths(cfg.depth_num, cfg.depth_start, cfg.position_range[3])
-        return position_coords(np.asarray(cam2lidar, dtype=np.float64).reshape(-1, 4, 4), cfg.feature_size,
-                               cfg.azimuth_range, cfg.elevation_range, depths, cfg.position_range)
 
     @torch.no_grad()
     def refresh_embeddings(self) -> None:
@@ -127,16 +136,8 @@ class FisheyePETRHead(nn.Module):
 
     def key_mask(self) -> torch.Tensor:
         """(1, N, H, W) bool: True where the sampled lens validity is not exactly 1.0."""
-        n = self.cfg.num_cameras
+        n = self.config.num_cameras
         return (self.unvalid_area != 0).expand(1, n, *self.unvalid_area.shape[-2:])
-
-    def params(self) -> PETRParams:
-        """The parameters of this head's geometry tables (as an exported file records them)."""
-        cfg = self.cfg
-        return PETRParams(feature_size=tuple(cfg.feature_size), azimuth_range=tuple(cfg.azimuth_range),
-                          elevation_range=tuple(cfg.elevation_range), depth_num=cfg.depth_num,
-                          depth_start=cfg.depth_start, position_range=tuple(cfg.position_range),
-                          num_feats=cfg.embed_dims // 2, temperature=cfg.pe_temperature)
 
     def embedding_weights(self) -> dict[str, np.ndarray]:
         """The weights the key embedding needs, by name (what re-baking for a new rig needs)."""
@@ -146,29 +147,26 @@ class FisheyePETRHead(nn.Module):
     def position_embedding(self, cam2lidar: Any = None) -> torch.Tensor:
         """Key positional embedding PE3D + adapt_pos3d(sine PE), (1|B, N, C, H, W).
 
-        Computed by :func:`fisheye_infer.geometry.tables.petr_key_pos` from this head's weights,
-        the one definition an exported file's ``geom.petr.key_pos`` also comes from. Without
-        ``cam2lidar`` the rig's constant coordinates are used; with a (B, N, 4, 4) array the
-        coordinates are recomputed per frame (parity path).
+        Computed by the geometry's ``key_pos`` from this head's weights, the one definition an
+        exported file's ``geom.petr.key_pos`` also comes from. Without ``cam2lidar`` the rig's
+        constant coordinates are used; with a (B, N, 4, 4) array the coordinates are recomputed
+        per frame (parity path).
         """
-        cfg = self.cfg
-        n, (fh, fw), c = cfg.num_cameras, cfg.feature_size, cfg.embed_dims
+        n, (fh, fw), c = self.config.num_cameras, self.cfg.feature_size, self.cfg.embed_dims
         if cam2lidar is None:
             coords = [self.coords3d.cpu().numpy()]
         else:
             mats = cam2lidar.detach().cpu().numpy() if torch.is_tensor(cam2lidar) else np.asarray(cam2lidar)
             if mats.ndim != 4 or mats.shape[1:] != (n, 4, 4):
                 raise ConfigError(f"cam2lidar: expected (B, {n}, 4, 4), got {tuple(mats.shape)}")
-            coords = [self._coords(m) for m in mats]
-        mask = self.unvalid_area[0, 0].cpu().numpy()
-        weights, params = self.embedding_weights(), self.params()
-        pe = np.stack([petr_key_pos(x, mask, weights, params).reshape(n, fh, fw, c) for x in coords])
+            coords = [self.geometry.coords(m) for m in mats]
+        weights = self.embedding_weights()
+        pe = np.stack([self.geometry.key_pos(weights, x).reshape(n, fh, fw, c) for x in coords])
         return _f32(pe).permute(0, 1, 4, 2, 3).to(self.coords3d.device)  # B x N x C x H x W
 
     def tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables an exported graph holds as named initializers."""
-        return {"geom.grid": self.sphere_grid_2d.unsqueeze(0), "geom.petr.key_pos": self.key_pos,
-                "geom.petr.key_mask": self.key_mask_flat}
+        return {GRID: self.sphere_grid_2d.unsqueeze(0), PETR_KEY_POS: self.key_pos, PETR_KEY_MASK: self.key_mask_flat}
 
     def query_positions(self) -> torch.Tensor:
         """(Q, C): query_embedding(pos2posemb3d(raw reference points))."""
@@ -184,7 +182,7 @@ class FisheyePETRHead(nn.Module):
         """
         b, n, c, h, w = p3.shape
         fh, fw = self.cfg.feature_size
-        grid = (tables or self.tables())["geom.grid"].expand(b, fh, fw, 2)
+        grid = (tables or self.tables())[GRID].expand(b, fh, fw, 2)
         x = F.grid_sample(p3.reshape(b, n * c, h, w), grid, mode="bilinear", padding_mode="zeros",
                           align_corners=True)
         return x.reshape(b, n, c, fh, fw)
@@ -201,7 +199,7 @@ class FisheyePETRHead(nn.Module):
         c, (fh, fw) = self.cfg.embed_dims, self.cfg.feature_size
         tables = tables or self.tables()
         x = self.warp(p3, tables)
-        mask = tables["geom.petr.key_mask"].reshape(1, n, fh * fw)  # 1 x N x HW
+        mask = tables[PETR_KEY_MASK].reshape(1, n, fh * fw)  # 1 x N x HW
         if camera_valid is not None:
             keep = camera_valid.to(torch.bool)[:, :, None, None, None]
             x = torch.where(keep, x, torch.zeros_like(x))
@@ -210,7 +208,7 @@ class FisheyePETRHead(nn.Module):
         x = self.input_proj(x.reshape(b * n, c_in, fh, fw))
         memory = x.reshape(b, n, c, fh, fw).permute(0, 1, 3, 4, 2).reshape(b, n * fh * fw, c)
         if cam2lidar is None:
-            key_pos, query_pos = tables["geom.petr.key_pos"], self.query_pos
+            key_pos, query_pos = tables[PETR_KEY_POS], self.query_pos
         else:
             key_pos = self.position_embedding(cam2lidar).permute(0, 1, 3, 4, 2).reshape(-1, n * fh * fw, c)
             query_pos = self.query_positions()
@@ -237,6 +235,37 @@ class FisheyePETRHead(nn.Module):
         """P3 (B, N, C, h, w) -> decoded detections (see ``decode_predictions``)."""
         cls, preds = self.predict(self.forward_decoder(p3, camera_valid, cam2lidar, tables=tables))
         return decode_predictions(cls, preds, self.select, self.cfg.post_center_range)
+
+
+class CylindricalPETRHead(FisheyePETRHead):
+    """The official ``CylindricalPETRHead`` at test time; module names and order are FisheyePETRHead's.
+
+    No feature warp: the images were rectified before the backbone, so P3 (25 x 50) is the key
+    grid; the head holds the image rectification grid ``geom.image_grid`` instead, so ``tables()``
+    lists every table of the graph. No key mask, and the key rays lie on the cylinder
+    (:class:`~fisheye_infer.geometry.cyl_petr.CylPETRGeometry`). State-dict keys are
+    FisheyePETRHead's minus the four geometry tensors.
+    """
+
+    def _register_grid(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
+        hc, wc = geometry.params.image_size  # type: ignore[union-attr]
+        self.register_buffer("image_grid", torch.zeros(1, hc, wc, 2), persistent=False)  # 1 x Hc x Wc x 2
+
+    def _install_grid(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
+        grid = torch.from_numpy(np.ascontiguousarray(geometry.image_grid, dtype=np.float32))[None]  # type: ignore[union-attr]
+        self.register_buffer("image_grid", grid.to(self.code_weights.device), persistent=False)
+
+    def tables(self) -> dict[str, torch.Tensor]:
+        """The ``geom.*`` tables an exported graph holds as named initializers."""
+        return {IMAGE_GRID: self.image_grid, PETR_KEY_POS: self.key_pos, PETR_KEY_MASK: self.key_mask_flat}
+
+    def warp(self, p3: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """No feature warp: B x N x C x H x W features of the rectified images are the keys."""
+        fh, fw = self.cfg.feature_size
+        if tuple(p3.shape[-2:]) != (fh, fw):
+            raise ConfigError(f"image features are {tuple(p3.shape[-2:])}, the keys need ({fh}, {fw}): "
+                              "the rectified images do not have the configured cylinder size")
+        return p3
 
 
 def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, select: TopK,
@@ -271,9 +300,10 @@ def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, select: TopK,
             "rank_scores": rank_scores, "rank_indices": idx}
 
 
-def _same_tables(a: PETRGeometry, b: PETRGeometry) -> bool:
-    return all(np.array_equal(np.asarray(getattr(a, k), np.float64).ravel(), np.asarray(getattr(b, k), np.float64).ravel())
-               for k in ("grid", "unvalid_area", "cam2lidar"))
+def _same_tables(a: PETRGeometry | CylPETRGeometry, b: PETRGeometry | CylPETRGeometry) -> bool:
+    keys = ("grid", "unvalid_area", "cam2lidar") if isinstance(b, PETRGeometry) else ("image_grid", "cam2lidar")
+    return type(a) is type(b) and all(np.array_equal(np.asarray(getattr(a, k), np.float64).ravel(),
+                                                     np.asarray(getattr(b, k), np.float64).ravel()) for k in keys)
 
 
 def _check_shared_branches(module: FisheyePETRHead, state_dict: dict[str, Any], prefix: str,

@@ -20,7 +20,7 @@ before suppression, and ``rank_indices`` (B, K); only the checked graph keeps th
 from __future__ import annotations
 
 import contextlib
-from typing import Iterator
+from collections.abc import Iterator
 
 import torch
 from torch import nn

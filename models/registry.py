@@ -1,71 +1,82 @@
-"""Model registry: architecture name -> builder, configuration class, key manifest and hooks.
+"""The architecture table: one entry per registered detector, everything the package knows about it.
 
-Each detector module registers itself with :func:`register_model`; :func:`create_model` builds an
-eval-mode model for a configuration and a rig. The registry also carries what the synthetic
-checkpoint generator needs per architecture (the manifest file and an optional calibration hook),
-so a new architecture only has to register to get strict loading and synthetic checkpoints.
+    @register_model("fisheye-bevdet", manifest="fisheye_bevdet_keys.json", checkpoint_filter=checkpoint_filter_fn,
+                    signature_keys=(...), score_semantics=SCORE_SEMANTICS)
+    class FisheyeBEVDet(FisheyeDetector):
+        config_cls = BEVDetConfig
+
+An entry holds the model class and its configuration class (whose ``preprocess`` record, box
+count and geometry parameters describe a built model), the official key manifest, the keys that
+identify a checkpoint of it (``signature_keys`` present, ``absent_keys`` absent), the function
+that maps official keys to the model's (``checkpoint_filter``), the keys loading drops, and what
+its scores mean. :func:`create_model` builds an eval-mode model, :func:`list_models` names the
+registered architectures (the CLI's ``--arch`` choices), :func:`matching_architectures` tells
+them apart by a checkpoint's keys. Registering an architecture signs it up for strict loading,
+synthetic checkpoints, export and the tests parametrized over ``list_models()``.
 """
 
 from __future__ import annotations
 
 import importlib
 import json
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from importlib import resources
-from typing import Any, Callable
+from typing import Any, TypeVar
 
 from torch import nn
 
 from fisheye_infer.errors import ConfigError
 
-__all__ = ["ModelEntry", "register_model", "set_calibration", "create_model", "list_models", "get_model_entry",
-           "read_manifest"]
+__all__ = ["ModelEntry", "register_model", "create_model", "list_models", "get_model_entry", "entry_of",
+           "matching_architectures", "read_manifest"]
 
 # Detector modules imported on first use of the registry; a missing one is skipped.
 _BUILTIN_MODULES = ("fisheye_bevdet", "fisheye_petr", "fisheye_bevdet_cyl", "fisheye_petr_cyl")
 
+M = TypeVar("M", bound=type[nn.Module])
+StateDict = Mapping[str, Any]
+
 
 @dataclass(frozen=True)
 class ModelEntry:
-    """One registered architecture.
-
-    ``builder(config, rig, **kwargs)`` returns the model. ``calibrate(model, seed)`` (optional)
-    runs seeded forward passes with BatchNorm layers collecting statistics; the synthetic
-    checkpoint generator calls it. ``ignored_keys`` are official keys that loading drops with a warning.
-    """
+    """One registered architecture (see the module docstring)."""
 
     name: str
-    builder: Callable[..., nn.Module]
+    builder: type[nn.Module]
     config_cls: type
     manifest: str
-    calibrate: Callable[[nn.Module, int], None] | None = None
-    ignored_keys: tuple[str, ...] = ()
-    extras: dict[str, Any] = field(default_factory=dict)
+    signature_keys: tuple[str, ...]
+    absent_keys: tuple[str, ...]
+    checkpoint_filter: Callable[[StateDict], dict[str, Any]]
+    ignored_keys: tuple[str, ...]
+    score_semantics: str
+
+    def matches(self, state_dict: StateDict) -> bool:
+        """Whether a checkpoint's keys are this architecture's."""
+        return all(k in state_dict for k in self.signature_keys) and not any(k in state_dict for k in self.absent_keys)
 
 
 _REGISTRY: dict[str, ModelEntry] = {}
 _loaded = False
 
 
-def register_model(name: str, *, config_cls: type, manifest: str, calibrate: Callable[[nn.Module, int], None] | None = None,
-                   ignored_keys: tuple[str, ...] = (), **extras: Any) -> Callable[[Callable[..., nn.Module]], Callable[..., nn.Module]]:
-    """Decorator registering a model class or factory under ``name``."""
+def register_model(name: str, *, manifest: str, signature_keys: tuple[str, ...], checkpoint_filter: Callable[[StateDict], dict[str, Any]],
+                   score_semantics: str, absent_keys: tuple[str, ...] = (), ignored_keys: tuple[str, ...] = ()) -> Callable[[M], M]:
+    """Class decorator registering a detector (a class with a ``config_cls``) under ``name``."""
 
-    def wrap(builder: Callable[..., nn.Module]) -> Callable[..., nn.Module]:
+    def wrap(builder: M) -> M:
         existing = _REGISTRY.get(name)
-        if existing is not None and existing.builder is not builder and getattr(existing.builder, "__qualname__", None) != getattr(builder, "__qualname__", None):
+        if existing is not None and existing.builder is not builder and existing.builder.__qualname__ != builder.__qualname__:
             raise ConfigError(f"model '{name}' is already registered by {existing.builder!r}")
-        _REGISTRY[name] = ModelEntry(name, builder, config_cls, manifest, calibrate, tuple(ignored_keys), dict(extras))
+        config_cls = getattr(builder, "config_cls", None)
+        if not isinstance(config_cls, type):
+            raise ConfigError(f"model '{name}': {builder.__qualname__} has no config_cls")
+        _REGISTRY[name] = ModelEntry(name, builder, config_cls, manifest, tuple(signature_keys), tuple(absent_keys), checkpoint_filter,
+                                     tuple(ignored_keys), score_semantics)
         return builder
 
     return wrap
-
-
-def set_calibration(name: str, calibrate: Callable[[nn.Module, int], None]) -> None:
-    """Attach a calibration hook to an already registered model (e.g. from a separate module)."""
-    entry = get_model_entry(name)
-    _REGISTRY[name] = ModelEntry(entry.name, entry.builder, entry.config_cls, entry.manifest, calibrate,
-                                 entry.ignored_keys, entry.extras)
 
 
 def _load_builtin() -> None:
@@ -95,13 +106,27 @@ def get_model_entry(name: str) -> ModelEntry:
     return _REGISTRY[name]
 
 
+def entry_of(model: nn.Module) -> ModelEntry:
+    """The entry a model instance was built from (by its class)."""
+    _load_builtin()
+    for entry in _REGISTRY.values():
+        if type(model) is entry.builder:
+            return entry
+    raise ConfigError(f"{type(model).__name__} is not a registered model (registered: {', '.join(sorted(_REGISTRY))})")
+
+
 def create_model(name: str, config: Any = None, rig: Any = None, **kwargs: Any) -> nn.Module:
     """Build ``name`` for ``config`` (default: the official configuration) and ``rig`` (default rig), in eval mode."""
     entry = get_model_entry(name)
-    if config is not None and not isinstance(config, entry.config_cls):
+    if config is not None and type(config) is not entry.config_cls:
         raise ConfigError(f"model '{name}' needs a {entry.config_cls.__name__}, got {type(config).__name__}")
     model = entry.builder(config, rig, **kwargs)
     return model.eval()
+
+
+def matching_architectures(state_dict: StateDict) -> list[str]:
+    """The registered architectures whose signature keys a checkpoint holds (and none of whose absent keys)."""
+    return [name for name in list_models() if _REGISTRY[name].matches(state_dict)]
 
 
 def read_manifest(name_or_file: str) -> list[dict[str, Any]]:

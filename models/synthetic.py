@@ -2,14 +2,14 @@
 
 ``make_checkpoint(arch, seed)`` builds the registered model, gives it fan-in scaled weights and
 small biases, then calibrates every BatchNorm's running statistics by running the model with BN
-layers in statistics-collection mode on seeded synthetic frames (the architecture's
-``calibrate`` hook from the registry), so activations stay O(1) at inference. The result is an
+layers in statistics-collection mode on seeded synthetic frames (:func:`calibrate`, per model
+family), so activations stay O(1) at inference. The result is an
 mmengine-style ``{'state_dict', 'meta'}`` dict with every official key (geometry tables included,
 computed from the rig, so they agree with a recomputation) in official order, shape and dtype.
 
-A model taking part implements ``official_state_dict()`` (official names, weights and geometry)
-and registers a ``calibrate(model, seed)`` hook; :func:`batchnorm_statistics` and
-:func:`synthetic_images` are the building blocks for such hooks.
+A model taking part implements ``official_state_dict()`` (official names, weights and geometry);
+:func:`batchnorm_statistics`, :func:`temper_attention` and :func:`synthetic_images` are the
+building blocks of the calibrations.
 """
 
 from __future__ import annotations
@@ -18,20 +18,23 @@ import contextlib
 import math
 import re
 import zlib
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any
 
 import numpy as np
-
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from fisheye_infer.errors import CheckpointError
 
-from .registry import create_model, get_model_entry, read_manifest
+from .fisheye_bevdet import FisheyeBEVDet
+from .fisheye_petr import FisheyePETR
+from .registry import create_model, read_manifest
 
-__all__ = ["make_checkpoint", "calibrated_checkpoint", "init_weights", "batchnorm_statistics", "synthetic_images", "manifest_specs"]
+__all__ = ["make_checkpoint", "calibrated_checkpoint", "calibrate", "init_weights", "batchnorm_statistics", "synthetic_images",
+           "manifest_specs"]
 
 _BN = (nn.BatchNorm1d, nn.BatchNorm2d)
 _DTYPES = {"float32": torch.float32, "int64": torch.int64}
@@ -148,6 +151,119 @@ def synthetic_images(seed: int, batch: int, cameras: int, height: int, width: in
     return img.permute(0, 2, 3, 1).reshape(batch, cameras, height, width, 3).contiguous()
 
 
+# -- making seeded random weights behave like trained ones ------------------------------------------
+
+CALIBRATION_FRAMES = 2
+#: Backbone statistics barely depend on image size, and both heads sample P3 through normalised
+#: grids, so calibration runs on frames of at most this side (the networks are fully convolutional
+#: up to the grid).
+CALIBRATION_MAX_SIDE = 320
+HEATMAP_PRIOR_LOGIT = -2.19
+CLS_PRIOR_LOGIT = -4.595  # official cls bias init, bias_init_with_prob(0.01)
+
+
+def calibrate(model: nn.Module, seed: int) -> None:
+    """The calibration of ``model``'s family (a FisheyeBEVDet or a FisheyePETR, cylindrical or not); other models keep their weights."""
+    if isinstance(model, FisheyeBEVDet):
+        calibrate_bevdet(model, seed)
+    elif isinstance(model, FisheyePETR):
+        calibrate_petr(model, seed)
+
+
+def calibrate_bevdet(model: FisheyeBEVDet, seed: int) -> None:
+    """Collect BatchNorm statistics on seeded synthetic frames (image side capped for speed).
+
+    The whole network is fully convolutional up to the angular grid, so smaller frames still
+    exercise the full BEV grid and head with realistic statistics.
+    """
+    cfg = model.config
+    scale = min(1.0, CALIBRATION_MAX_SIDE / max(cfg.image.height, cfg.image.width))
+    h = max(32, int(round(cfg.image.height * scale / 32)) * 32)
+    w = max(32, int(round(cfg.image.width * scale / 32)) * 32)
+    n = len(model.camera_names)
+    frames = [synthetic_images(seed * 1000 + i, 1, n, h, w) for i in range(CALIBRATION_FRAMES)]
+    with batchnorm_statistics(model):
+        for frame in frames:
+            model.predict(frame)
+    temper_attention(model, lambda: model.predict(frames[0]))
+    _shape_box_heads(model, frames[0])
+    # Heatmap logits: affine-map so the median cell sits at the official prior (-2.19, p = 0.1) and
+    # the largest at about +0.8 (p = 0.69): peaks stay far from sigmoid saturation, where float32
+    # would round neighbouring scores to the same value and create ties at the top-k boundary.
+    with torch.no_grad():
+        logits = model.predict(frames[0])["dense_heatmap"]
+        median, top = logits.median(), logits.max()
+        scale = 3.0 / float(max(top - median, 1e-3))
+        final = model.bbox_head.heatmap_head[1]
+        final.weight.mul_(scale)
+        final.bias.mul_(scale).add_(HEATMAP_PRIOR_LOGIT - scale * float(median))
+
+
+#: Target (mean, std) of the raw regression outputs of a trained head: centre offsets in cells,
+#: gravity-centre height (m), log box sizes (l, w, h of a car-sized box), and sin/cos of yaw with
+#: a norm near 1 (atan2 of a near-zero vector turns float32 rounding into large yaw errors; a
+#: trained head predicts unit vectors, a random one does not unless told).
+BOX_HEAD_TARGETS = {"center": ((0.0, 0.0), 0.3), "height": ((-0.8,), 0.4), "dim": ((1.4, 0.65, 0.45), 0.25), "rot": ((0.7, 0.7), 0.1)}
+
+
+@torch.no_grad()
+def _shape_box_heads(model: FisheyeBEVDet, frame: torch.Tensor) -> None:
+    """Affine-map each regression head's last layer so its outputs have a trained head's range.
+
+    Random heads predict log-sizes of +-4 (boxes of 50 m): exp() then multiplies float32
+    rounding by the box size, which a trained model never does.
+    """
+    head = model.bbox_head.prediction_heads[0]
+    outputs = {}
+    hooks = [getattr(head, name)[-1].register_forward_hook(lambda m, i, o, name=name: outputs.__setitem__(name, o))
+             for name in BOX_HEAD_TARGETS]
+    try:
+        model.predict(frame)
+    finally:
+        for h in hooks:
+            h.remove()
+    for name, (means, std) in BOX_HEAD_TARGETS.items():
+        final = getattr(head, name)[-1]
+        out = outputs[name]  # B x C x P
+        mu, sigma = out.mean(dim=(0, 2)), out.std(dim=(0, 2)).clamp(min=1e-6)
+        gain = std / sigma
+        final.weight.mul_(gain[:, None, None])
+        final.bias.copy_((final.bias - mu) * gain + torch.tensor(means, dtype=final.bias.dtype))
+
+
+def calibrate_petr(model: FisheyePETR, seed: int) -> None:
+    """Make seeded random weights behave like a trained model's, for synthetic checkpoints.
+
+    Reference points get the official init U(0, 1) (so boxes spread over the range instead of
+    collapsing to its corners), BatchNorm statistics are collected on synthetic frames, and the
+    last cls layer is affine-mapped so the median logit sits at the official prior and the top
+    at prior + 3 (no sigmoid saturation, hence no score ties at the top-k boundary). The cls
+    branch reads post-normed decoder features, so unit-variance features stand in for them.
+    """
+    cfg = model.config
+    head = model.pts_bbox_head
+    gen = torch.Generator().manual_seed(int(seed) + 101)
+    with torch.no_grad():
+        head.reference_points.weight.copy_(torch.rand(head.reference_points.weight.shape, generator=gen))
+        head.query_pos.copy_(head.query_positions())
+    image_size = (cfg.image.height, cfg.image.width)
+    scale = min(1.0, CALIBRATION_MAX_SIDE / max(image_size))
+    h, w = (max(32, int(round(s * scale / 32)) * 32) for s in image_size)
+    frames = [synthetic_images(int(seed) * 1000 + i, 1, cfg.num_cameras, h, w) for i in range(CALIBRATION_FRAMES)]
+    with batchnorm_statistics(model):
+        for frame in frames:
+            model.forward_features(frame)
+    temper_attention(model, lambda: head.forward_decoder(model.forward_features(frames[0])))
+    with torch.no_grad():
+        feats = head.transformer.decoder.post_norm(torch.randn(cfg.head.num_query, cfg.head.embed_dims, generator=gen))
+        cls, _ = head.predict(feats)
+        median, top = cls.median(), cls.max()
+        gain = 3.0 / float(max(top - median, 1e-3))
+        final = head.cls_branches[-1][-1]
+        final.weight.mul_(gain)
+        final.bias.mul_(gain).add_(CLS_PRIOR_LOGIT - gain * float(median))
+
+
 def manifest_specs(arch: str) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
     """Certain keys of an architecture's manifest (uncertain ones excluded), with shape and dtype."""
     return {e["key"]: (tuple(e["shape"]), _DTYPES[e["dtype"]]) for e in read_manifest(arch) if not e.get("uncertain")}
@@ -170,13 +286,11 @@ def make_checkpoint(arch: str, seed: int = 0, path: str | Path | None = None, *,
     With the default configuration the keys, shapes and dtypes are checked against the
     architecture's manifest. If ``path`` is given the checkpoint is also saved there.
     """
-    entry = get_model_entry(arch)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(int(seed))
         model = create_model(arch, config, rig)
         init_weights(model, seed)
-        if entry.calibrate is not None:
-            entry.calibrate(model, seed)
+        calibrate(model, seed)
         model.eval()
         state_dict = {k: v.detach().clone().contiguous() for k, v in model.official_state_dict().items()}  # type: ignore[operator]
     if config is None:
@@ -196,9 +310,7 @@ def _keyed_tensor(key: str, shape: tuple[int, ...], dtype: str, seed: int) -> np
     (variance 1 / fan_in) keep activations of order one; 1-D weights near 1, 1-D biases near 0."""
     rng = np.random.default_rng([seed, zlib.crc32(key.encode())])
     leaf = key.rsplit(".", 1)[-1]
-    if "int" in dtype:
-        x = np.zeros(shape)
-    elif leaf == "running_mean":
+    if "int" in dtype or leaf == "running_mean":
         x = np.zeros(shape)
     elif leaf == "running_var":
         x = np.ones(shape)

@@ -17,7 +17,7 @@ Export notes: top-k uses ``torch.topk`` (ONNX TopK) rather than argsort; the one
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -25,7 +25,10 @@ from torch import nn
 
 from .ranking import TopK
 
-__all__ = ["TransFusionHead", "SeparateHead", "TransFusionDecoderLayer", "PositionEncodingLearned"]
+__all__ = ["TransFusionHead", "SeparateHead", "TransFusionDecoderLayer", "PositionEncodingLearned", "SCORE_SEMANTICS"]
+
+#: What the scores of a TransFusion head mean (recorded in an exported file's metadata).
+SCORE_SEMANTICS = "sigmoid(class logit) x the proposal's heatmap peak (TransFusion); no threshold, no NMS, as the official test time"
 
 DEFAULT_COMMON_HEADS: dict[str, tuple[int, int]] = {"center": (2, 2), "height": (1, 2), "dim": (3, 2), "rot": (2, 2)}
 

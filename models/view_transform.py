@@ -1,7 +1,8 @@
 """Fisheye LSS view transform: warp to an angular grid, predict depth and context, pool into BEV.
 
-All geometry comes from :mod:`fisheye_infer.geometry` (numpy, one source of truth); this module
-only holds the tables as non-persistent buffers and does the tensor work:
+All geometry comes from :mod:`fisheye_infer.geometry` (numpy, one source of truth: an
+``LSSGeometry`` or, for the cylindrical baseline, a ``CylLSSGeometry``); this module only holds
+its tables as non-persistent buffers and does the tensor work:
 
 1. ``warp``: ``grid_sample`` of the stride-16 features with the constant equirectangular grid
    (bilinear, zeros, ``align_corners=True`` although the grid is normalised with divisor W,
@@ -17,69 +18,21 @@ them with the recomputation and installs the chosen tables through :meth:`Fishey
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Any
-
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.geometry.frustum import depth_bins, frustum_to_lidar, spherical_frustum
-from fisheye_infer.geometry.grids import invalid_mask, spherical_grid
-from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan, voxelise
-from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, lss_tables_from
+from fisheye_infer.geometry.cyl_lss import CylLSSGeometry
+from fisheye_infer.geometry.frustum import frustum_to_lidar
+from fisheye_infer.geometry.lss import LSSGeometry
+from fisheye_infer.geometry.pooling import BevGrid, voxelise
+from fisheye_infer.geometry.tables import GRID, POOL_CELL_ROWS, POOL_COUNTS, pool_pixels, pool_points
 
-from .config import ViewTransformConfig
+from .bevdet_config import ViewTransformConfig
 
-__all__ = ["LSSGeometry", "FisheyeLSS", "pool_reference_torch"]
-
-
-@dataclass(frozen=True)
-class LSSGeometry:
-    """Geometry tables of the fisheye LSS transform for one rig and configuration."""
-
-    grid: np.ndarray  # H x W x 2 float32, grid_sample coordinates (shared by all cameras)
-    frustum: np.ndarray  # D x H x W x 3 float32, camera frame, radial depth
-    cam2lidar: np.ndarray  # N x 4 x 4 float64
-    bev_grid: BevGrid
-    plan: PoolingPlan
-    valid_fov_mask: np.ndarray  # 1 x 1 x H x W float32, sampled lens validity (unused by the forward)
-    source: str = "rig"  # where grid/frustum came from: "rig" or "checkpoint"
-
-    @classmethod
-    def from_rig(cls, rig: Any, cfg: ViewTransformConfig, *, grid: np.ndarray | None = None,
-                 frustum: np.ndarray | None = None, source: str = "rig") -> "LSSGeometry":
-        """Compute the tables from ``rig`` (shared camera model + extrinsics); ``grid``/``frustum`` override."""
-        camera = rig.shared_model()
-        if grid is None:
-            grid = spherical_grid(camera, tuple(cfg.feature_size), tuple(cfg.azimuth_range), tuple(cfg.elevation_range))
-        if frustum is None:
-            frustum = spherical_frustum(depth_bins(tuple(cfg.dbound)), tuple(cfg.feature_size),
-                                        tuple(cfg.azimuth_range), tuple(cfg.elevation_range))
-        grid = np.ascontiguousarray(grid, dtype=np.float32)
-        frustum = np.ascontiguousarray(frustum, dtype=np.float32)
-        bev_grid = BevGrid(tuple(cfg.xbound), tuple(cfg.ybound), tuple(cfg.zbound))
-        cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
-        plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), bev_grid, DEFAULT_BUCKET_SIZES)
-        valid = (np.float32(1.0) - invalid_mask(camera, grid))[None, None].astype(np.float32)
-        return cls(grid=grid, frustum=frustum, cam2lidar=cam2lidar, bev_grid=bev_grid, plan=plan,
-                   valid_fov_mask=valid, source=source)
-
-    def with_tables(self, *, grid: np.ndarray | None = None, frustum: np.ndarray | None = None,
-                    source: str = "checkpoint") -> "LSSGeometry":
-        """Same rig with replaced grid and/or frustum; the pooling plan is rebuilt only if the frustum changed."""
-        new_grid = self.grid if grid is None else np.ascontiguousarray(grid, dtype=np.float32)
-        new_frustum = self.frustum if frustum is None else np.ascontiguousarray(frustum, dtype=np.float32)
-        plan = self.plan
-        if not np.array_equal(new_frustum, self.frustum):
-            plan = build_pooling_plan(frustum_to_lidar(new_frustum, self.cam2lidar), self.bev_grid, self.plan.bucket_sizes)
-        return replace(self, grid=new_grid, frustum=new_frustum, plan=plan, source=source)
-
-    def tables(self) -> dict[str, np.ndarray]:
-        """The named ``geom.*`` tables an exported graph holds (layout: fisheye_infer.geometry.tables)."""
-        return lss_tables_from(self.grid, self.plan)
+__all__ = ["FisheyeLSS", "CylindricalLSS", "pool_reference_torch"]
 
 
 def _buffer_name(table: str) -> str:
@@ -109,7 +62,7 @@ def pool_reference_torch(depth: torch.Tensor, ctx: torch.Tensor, points_lidar: n
 class FisheyeLSS(nn.Module):
     """Lift-splat with a constant equirectangular grid and a constant pooling plan."""
 
-    def __init__(self, cfg: ViewTransformConfig, geometry: LSSGeometry) -> None:
+    def __init__(self, cfg: ViewTransformConfig, geometry: LSSGeometry | CylLSSGeometry) -> None:
         super().__init__()
         self.cfg = cfg
         self.in_channels, self.out_channels = cfg.in_channels, cfg.out_channels
@@ -121,14 +74,9 @@ class FisheyeLSS(nn.Module):
 
     # -- geometry -----------------------------------------------------------------------
 
-    def set_geometry(self, geometry: LSSGeometry) -> None:
+    def set_geometry(self, geometry: LSSGeometry | CylLSSGeometry) -> None:
         """Install geometry tables as non-persistent buffers (they are not checkpoint keys of this model)."""
-        h, w = self.cfg.feature_size
-        d = self.num_depth
-        if geometry.grid.shape != (h, w, 2):
-            raise ConfigError(f"view transform grid is {geometry.grid.shape}, configuration needs ({h}, {w}, 2)")
-        if geometry.frustum.shape != (d, h, w, 3):
-            raise ConfigError(f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)")
+        self._check_geometry(geometry)
         if tuple(geometry.plan.grid_xy) != self.cfg.bev_shape:
             raise ConfigError(f"pooling plan grid {geometry.plan.grid_xy} differs from the configuration's {self.cfg.bev_shape}")
         for name in self._table_names:
@@ -139,6 +87,15 @@ class FisheyeLSS(nn.Module):
         self._table_names = tuple(tables)
         self._num_buckets = len(geometry.plan.bucket_points)
         self.geometry = geometry
+
+    def _check_geometry(self, geometry: LSSGeometry | CylLSSGeometry) -> None:
+        """Refuse tables whose shapes do not fit the configuration, naming the table."""
+        h, w = self.cfg.feature_size
+        d = self.num_depth
+        if not isinstance(geometry, LSSGeometry) or geometry.grid.shape != (h, w, 2):
+            raise ConfigError(f"view transform grid is {getattr(geometry, 'grid', np.empty(0)).shape}, configuration needs ({h}, {w}, 2)")
+        if geometry.frustum.shape != (d, h, w, 3):
+            raise ConfigError(f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)")
 
     def tables(self) -> dict[str, torch.Tensor]:
         """The installed ``geom.*`` tables as tensors (the buffers), by their graph names."""
@@ -152,7 +109,7 @@ class FisheyeLSS(nn.Module):
 
     def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """M x C x Hf x Wf -> M x C x H x W, bilinear, zero padding, align_corners=True."""
-        grid = (tables or self.tables())["geom.grid"].expand(feat.shape[0], -1, -1, -1)
+        grid = (tables or self.tables())[GRID].expand(feat.shape[0], -1, -1, -1)
         return F.grid_sample(feat, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
 
     def depth_context(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -177,15 +134,15 @@ class FisheyeLSS(nn.Module):
         ctx_flat = ctx.reshape(b, -1, c)  # B x NHW x C
         rows = []
         for i in range(self._num_buckets):
-            pts = tables[f"geom.pool.points.{i}"]  # K x L
-            pix = tables[f"geom.pool.pixels.{i}"]  # K x L
+            pts = tables[pool_points(i)]  # K x L
+            pix = tables[pool_pixels(i)]  # K x L
             k, l = pts.shape
             w = depth_flat.index_select(1, pts.reshape(-1)).reshape(b, k, 1, l)
             f = ctx_flat.index_select(1, pix.reshape(-1)).reshape(b, k, l, c)
             rows.append(torch.matmul(w, f).reshape(b, k, c))
         rows.append(ctx_flat.new_zeros(b, 1, c))  # row for empty cells
         table = torch.cat(rows, dim=1)  # B x (sum K + 1) x C
-        bev = table.index_select(1, tables["geom.pool.cell_rows"]) / tables["geom.pool.counts"]  # B x XY x C, counts >= 1
+        bev = table.index_select(1, tables[POOL_CELL_ROWS]) / tables[POOL_COUNTS]  # B x XY x C, counts >= 1
         return bev.reshape(b, x_cells, y_cells, c).permute(0, 3, 1, 2)
 
     def lift(self, feat: torch.Tensor, camera_valid: torch.Tensor | None,
@@ -231,3 +188,30 @@ class FisheyeLSS(nn.Module):
             points = frustum_to_lidar(self.geometry.frustum, mats[i].astype(np.float64))
             out.append(pool_reference_torch(depth[i], ctx[i], points, self.geometry.bev_grid))
         return torch.stack(out)
+
+
+class CylindricalLSS(FisheyeLSS):
+    """Lift-splat on cylinder-aligned features with a constant pooling plan (``geom.pool.*``).
+
+    :class:`FisheyeLSS` with the warp removed: the images were rectified onto the cylinder before
+    the backbone, so the stride-16 features already sit on the cylinder grid. Built as
+    ``CylindricalLSS(cfg: CylViewTransformConfig, geometry: CylLSSGeometry)``; it also keeps
+    ``geom.image_grid`` among its tables (read by the model before the backbone), so the model's
+    ``geometry_tables()`` is this module's ``tables()``, as for FisheyeBEVDet.
+    """
+
+    def _check_geometry(self, geometry: LSSGeometry | CylLSSGeometry) -> None:
+        h, w = self.cfg.feature_size
+        d = self.num_depth
+        if geometry.frustum.shape != (d, h, w, 3):
+            raise ConfigError(f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)")
+        if not isinstance(geometry, CylLSSGeometry) or geometry.image_grid.ndim != 3 or geometry.image_grid.shape[-1] != 2:
+            raise ConfigError(f"image rectification grid is {getattr(geometry, 'image_grid', np.empty(0)).shape}, expected (H, W, 2)")
+
+    def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """No feature warp: M x C x H x W features of the rectified images are already on the cylinder."""
+        h, w = self.cfg.feature_size
+        if tuple(feat.shape[-2:]) != (h, w):
+            raise ConfigError(f"image features are {tuple(feat.shape[-2:])}, the cylindrical frustum needs ({h}, {w}): "
+                              "the rectified images do not have the configured cylinder size")
+        return feat

@@ -20,3 +20,22 @@ def small_bevdet_config():
 
     sections = dict(SMALL_BEV_SECTIONS, view_transform={**SMALL_BEV_SECTIONS["view_transform"], "feature_size": (8, 32)})
     return BEVDetConfig().replace(image={"height": 160, "width": 160}, **sections)
+
+
+def small_configs() -> dict:
+    """A reduced configuration and the rig it runs on, by registered architecture: every stage of the
+    official graph at a fraction of the cost. An architecture missing here is tested at full size."""
+    from fisheye_infer.models import BEVDetCylConfig, CylPETRConfig, PETRConfig
+    from fisheye_infer.rig import default_rig
+    from fisheye_infer.synth import resized_rig
+
+    small_head = {"num_query": 40, "max_num": 30, "embed_dims": 64, "num_heads": 4, "ffn_dims": 128, "num_layers": 2}
+    cyl_sections = dict(SMALL_BEV_SECTIONS, view_transform={**SMALL_BEV_SECTIONS["view_transform"], "feature_size": (3, 6)})
+    return {
+        "fisheye-bevdet": (small_bevdet_config(), resized_rig(default_rig(), 0.2)),
+        "fisheye-bevdet-cyl": (BEVDetCylConfig().replace(cylinder={"height": 48, "width": 96}, **cyl_sections), default_rig()),
+        "fisheye-petr": (PETRConfig().replace(image={"height": 64, "width": 64}, head={"feature_size": (5, 21), **small_head}),
+                         resized_rig(default_rig(), 0.08)),
+        "fisheye-petr-cyl": (CylPETRConfig().replace(cylinder={"height": 48, "width": 96}, head={"feature_size": (3, 6), **small_head}),
+                             default_rig()),
+    }

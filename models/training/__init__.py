@@ -8,5 +8,5 @@
 
 The frames come from ``fisheye_infer.synth_splits`` (seeded, randomised and torch-free, so a
 held-out set is written and evaluated without torch). ``fisheye-infer train`` is
-``fisheye_infer.train_command`` (torch-free until it runs).
+``fisheye_infer.commands.train`` (torch-free until it runs).
 """

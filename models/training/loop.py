@@ -27,9 +27,10 @@ import json
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -116,7 +117,7 @@ class Trainer:
     """
 
     def __init__(self, config: Any, rig: Rig, out: str | Path, options: TrainOptions = TrainOptions(),
-                 loss: LossConfig = LossConfig()) -> None:
+                 loss: LossConfig = LossConfig()) -> None:  # noqa: B008 (frozen dataclasses)
         from fisheye_infer.models import create_model
 
         self.config, self.rig, self.out, self.options = config, rig, Path(out), options

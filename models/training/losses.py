@@ -12,8 +12,8 @@ returned ``matched_iou`` is the mean 3D IoU of the matches (a progress figure, n
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 import torch

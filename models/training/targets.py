@@ -30,7 +30,7 @@ class HeadGrid:
     pc_range: tuple[float, float]
 
     @classmethod
-    def from_head(cls, head: object) -> "HeadGrid":
+    def from_head(cls, head: object) -> HeadGrid:
         """From a ``HeadConfig``: a cell is out_size_factor x voxel_size metres."""
         osf = float(head.out_size_factor)  # type: ignore[attr-defined]
         vx, vy = head.voxel_size  # type: ignore[attr-defined]

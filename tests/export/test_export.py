@@ -16,8 +16,7 @@ torch = pytest.importorskip("torch")
 from fisheye_infer.artifact import METADATA_KEY, OUTPUTS, read_meta
 from fisheye_infer.errors import ArtifactError, CheckpointError, ExportError, ParityError
 from fisheye_infer.export import exporter as exporter_module
-from fisheye_infer.export.architectures import infer_architecture
-from fisheye_infer.export.exporter import export, verification_frames
+from fisheye_infer.export.exporter import export, infer_architecture, verification_frames
 from fisheye_infer.export.graph import get_metadata
 from fisheye_infer.export.verify import FLOOR_BOX_M, FLOOR_SCORE, PROBE, SLACK, Reference, checked_graph, compare_run, run_onnx, verify
 from fisheye_infer.models import load_model

@@ -13,13 +13,13 @@ import torch
 
 from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
 from fisheye_infer.geometry import BevGrid, build_pooling_plan, frustum_to_lidar, pool_bev_reference, spherical_directions
-from fisheye_infer.models import (BEVDetConfig, create_model, list_models, load_checkpoint, load_model,
-                                  make_checkpoint, read_mmdet3d_config)
-from fisheye_infer.models.config import ViewTransformConfig
+from fisheye_infer.geometry.lss import LSSGeometry, LSSParams
+from fisheye_infer.models import BEVDetConfig, create_model, list_models, load_checkpoint, load_model, make_checkpoint, read_mmdet3d_config
+from fisheye_infer.models.bevdet_config import ViewTransformConfig
 from fisheye_infer.models.fisheye_bevdet import GEOMETRY_KEYS, checkpoint_filter_fn
 from fisheye_infer.models.synthetic import init_weights, manifest_specs, synthetic_images
 from fisheye_infer.models.transfusion import TransFusionDecoderLayer, TransFusionHead
-from fisheye_infer.models.view_transform import FisheyeLSS, LSSGeometry
+from fisheye_infer.models.view_transform import FisheyeLSS
 from fisheye_infer.rig import default_rig
 
 DATA = Path(__file__).parent / "data"
@@ -300,8 +300,10 @@ def test_trunc_voxelisation_through_the_plan() -> None:
                       dtype=np.float32).reshape(1, 1, 1, 6, 3)
     bev_grid = BevGrid(cfg.xbound, cfg.ybound, cfg.zbound)
     plan = build_pooling_plan(points, bev_grid)
-    geometry = LSSGeometry(grid=np.zeros((1, 6, 2), np.float32), frustum=points[0], cam2lidar=np.eye(4)[None],
-                           bev_grid=bev_grid, plan=plan, valid_fov_mask=np.ones((1, 1, 1, 6), np.float32))
+    params = LSSParams(feature_size=cfg.feature_size, azimuth_range=cfg.azimuth_range, elevation_range=cfg.elevation_range,
+                       dbound=cfg.dbound, xbound=cfg.xbound, ybound=cfg.ybound, zbound=cfg.zbound)
+    geometry = LSSGeometry(params=params, grid=np.zeros((1, 6, 2), np.float32), frustum=points[0], cam2lidar=np.eye(4)[None],
+                           plan=plan, valid_fov_mask=np.ones((1, 1, 1, 6), np.float32))
     lss = FisheyeLSS(cfg, geometry)
     depth = torch.arange(1.0, 7.0).reshape(1, 1, 1, 1, 6)
     ctx = torch.tensor([[1.0, -1.0], [3.0, 5.0], [7.0, 7.0], [9.0, 9.0], [2.0, 4.0], [8.0, 8.0]]).reshape(1, 1, 1, 6, 2)

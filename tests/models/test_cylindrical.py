@@ -6,7 +6,6 @@ Most tests use reduced configurations (48 x 96 cylinders); each model runs one f
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 
@@ -15,20 +14,21 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from small_configs import SMALL_BEV_SECTIONS  # noqa: E402
 
 from fisheye_infer.errors import CheckpointError, ConfigError
+from fisheye_infer.geometry.cyl_lss import CylLSSParams, cyl_image_grid
+from fisheye_infer.geometry.cyl_petr import CylPETRParams, cyl_petr_directions
 from fisheye_infer.geometry.grids import cylindrical_directions, cylindrical_remap, remap_grid
+from fisheye_infer.geometry.kinds import tables_for
 from fisheye_infer.geometry.petr import lid_depths, position_coords
-from fisheye_infer.geometry.tables import (DEFAULT_BUCKET_SIZES, CylLSSParams, CylPETRParams, cyl_image_grid,
-                                           cyl_lss_frustum, cyl_petr_directions, tables_for)
-from fisheye_infer.models import create_model, list_models, load_model, make_checkpoint
+from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES
+from fisheye_infer.models import create_model, get_model_entry, list_models, load_model, make_checkpoint
 from fisheye_infer.models.cyl_config import BEVDetCylConfig, CylPETRConfig, CylViewTransformConfig
 from fisheye_infer.models.fisheye_bevdet_cyl import FRUSTUM_ATOL, GEOMETRY_KEYS
 from fisheye_infer.models.synthetic import manifest_specs
 from fisheye_infer.rig import Rig
 from fisheye_infer.synth import Renderer, random_scene
-
-from small_configs import SMALL_BEV_SECTIONS  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 BEVDET, PETR = "fisheye-bevdet-cyl", "fisheye-petr-cyl"
@@ -40,8 +40,8 @@ SMALL_BEVDET = BEVDetCylConfig().replace(
     cylinder={"height": 48, "width": 96},
     **dict(SMALL_BEV_SECTIONS, view_transform={**SMALL_BEV_SECTIONS["view_transform"], "feature_size": (3, 6)}),
 )
-SMALL_PETR = dataclasses.replace(CylPETRConfig(), cylinder_size=(48, 96), feature_size=(3, 6), num_query=40,
-                                 max_num=30, embed_dims=64, num_heads=4, ffn_dims=128, num_layers=2)
+SMALL_PETR = CylPETRConfig().replace(cylinder={"height": 48, "width": 96}, head={
+    "feature_size": (3, 6), "num_query": 40, "max_num": 30, "embed_dims": 64, "num_heads": 4, "ffn_dims": 128, "num_layers": 2})
 
 
 def _images(seed: int, batch: int = 1) -> torch.Tensor:
@@ -157,10 +157,10 @@ def test_released_configs_are_read_as_written() -> None:
     bevdet = BEVDetCylConfig.from_mmdet3d_config(DATA / "fisheye_to_cyl_bevdet.py")
     petr = CylPETRConfig.from_mmdet3d_config(DATA / "fisheye_to_cyl_petr.py")
     assert bevdet == BEVDetCylConfig() and petr == CylPETRConfig()
-    assert bevdet.view_transform.azimuth_range == petr.azimuth_range == (-110.0, 110.0)
-    assert bevdet.view_transform.elevation_range == petr.elevation_range == (-45.0, 45.0)
-    assert (bevdet.cylinder.height, bevdet.cylinder.width) == petr.cylinder_size == (400, 800)
-    assert bevdet.view_transform.feature_size == petr.feature_size == (25, 50)
+    assert bevdet.view_transform.azimuth_range == petr.head.azimuth_range == (-110.0, 110.0)
+    assert bevdet.view_transform.elevation_range == petr.head.elevation_range == (-45.0, 45.0)
+    assert bevdet.cylinder == petr.cylinder and (petr.cylinder.height, petr.cylinder.width) == (400, 800)
+    assert bevdet.view_transform.feature_size == petr.head.feature_size == (25, 50)
     assert BEVDetCylConfig.from_dict(bevdet.to_dict()) == bevdet
     assert CylPETRConfig.from_dict(petr.to_dict()) == petr
 
@@ -174,7 +174,7 @@ def test_radians_in_the_config_give_the_corrected_geometry(tmp_path: Path, name:
         "[-45, 45]", "[-math.radians(45), math.radians(45)]").replace("(-45, 45)", "(-math.radians(45), math.radians(45))")
     (tmp_path / name).write_text("import math\n" + fixed)
     cfg = reader.from_mmdet3d_config(tmp_path / name)
-    section = cfg.view_transform if reader is BEVDetCylConfig else cfg
+    section = cfg.view_transform if reader is BEVDetCylConfig else cfg.head
     assert section.azimuth_range == pytest.approx(CORRECTED["azimuth_range"])
     assert section.elevation_range == pytest.approx(CORRECTED["elevation_range"])
     # Only the model's copy corrected: images and rays would disagree, which is refused.
@@ -191,7 +191,7 @@ def test_released_image_grid_steps_radians_per_column(rig: Rig, full_bevdet) -> 
     params = full_bevdet.geometry_params()
     assert params.image_size == (400, 800)
     assert params.height_range == pytest.approx((-TAN45, TAN45), abs=1e-7)
-    assert 220.0 / 799 == pytest.approx(0.2753, abs=1e-4)
+    assert pytest.approx(0.2753, abs=1e-4) == 220.0 / 799
     assert math.tan(45.0) == pytest.approx(TAN45, abs=1e-7)
     phi = -110.0 + np.arange(800) * (220.0 / 799)
     y = -math.tan(45.0) + np.arange(400) * (2 * math.tan(45.0) / 399)
@@ -213,7 +213,7 @@ def test_released_frustum(full_bevdet) -> None:  # noqa: ANN001
     np.testing.assert_allclose(frustum[:, 0, :, 1] / d[:, None], -TAN45, rtol=1e-6)
     phi = np.arctan2(frustum[1, 0, :, 0], frustum[1, 0, :, 2])
     np.testing.assert_allclose(np.remainder(phi - np.linspace(-110, 110, 50) + np.pi, 2 * np.pi) - np.pi, 0, atol=1e-5)
-    corrected = cyl_lss_frustum(full_bevdet.geometry_params().model_copy(update=CORRECTED))
+    corrected = full_bevdet.geometry_params().model_copy(update=CORRECTED).frustum()
     assert np.abs(corrected - frustum).max() > 10.0  # metres: the two geometries are far apart
 
 
@@ -281,7 +281,7 @@ def test_official_keys_match_manifest(arch: str, count: int, full_bevdet, full_p
 def test_strict_load_of_synthetic_checkpoint(arch: str, small_ckpts, small_models) -> None:  # noqa: ANN001
     sd, model = small_ckpts[arch], small_models[arch]
     weights = model.state_dict()
-    for key, value in model.checkpoint_filter_fn(sd).items():
+    for key, value in get_model_entry(arch).checkpoint_filter(sd).items():
         assert torch.equal(weights[key], value), key
     config = SMALL_BEVDET if arch == BEVDET else SMALL_PETR
     _, report = load_model(arch, sd, config=config)
@@ -352,8 +352,7 @@ def test_geometry_table_names(full_bevdet, full_petr) -> None:  # noqa: ANN001
 @pytest.mark.parametrize("arch", [BEVDET, PETR])
 def test_tables_are_those_of_the_numpy_definition(arch: str, small_models, rig: Rig) -> None:  # noqa: ANN001
     model = small_models[arch]
-    weights = model.pts_bbox_head.embedding_weights() if arch == PETR else None
-    expected = tables_for(rig, model.geometry_params(), weights)
+    expected = tables_for(rig, model.geometry_params(), model.table_weights())
     tables = model.geometry_tables()
     assert set(tables) == set(expected)
     for name, value in expected.items():
@@ -398,10 +397,10 @@ def test_tables_of_another_rig_with_other_bucket_sizes(small_models, rig: Rig) -
 def test_inconsistent_configurations_are_refused() -> None:
     with pytest.raises(ConfigError, match="view_transform.feature_size"):
         BEVDetCylConfig().replace(cylinder={"height": 200})
-    with pytest.raises(ConfigError, match="cylinder_size"):
-        dataclasses.replace(CylPETRConfig(), cylinder_size=(200, 800))
+    with pytest.raises(ConfigError, match="cylinder.height/width"):
+        CylPETRConfig().replace(cylinder={"height": 200})
     with pytest.raises(ConfigError, match="elevation_range"):
-        CylPETRConfig(elevation_range=(0.3, 0.3))
+        CylPETRConfig().replace(head={"elevation_range": (0.3, 0.3)})
     with pytest.raises(ConfigError, match="image.height/width"):
         create_model(BEVDET, BEVDetCylConfig().replace(image={"height": 640, "width": 640}))
     with pytest.raises(ConfigError, match="CylindricalLSSTransform"):

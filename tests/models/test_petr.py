@@ -15,20 +15,20 @@ import torch
 import torch.nn.functional as F
 
 from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
-from fisheye_infer.geometry.petr import lid_depths, position_coords, sine_position_encoding
+from fisheye_infer.geometry.petr import PETRGeometry, lid_depths, position_coords, sine_position_encoding
 from fisheye_infer.models import load_model
 from fisheye_infer.models.checkpoint import GeometryReport, load_official_state_dict
-from fisheye_infer.models.fisheye_petr import FisheyePETR, GEOMETRY_KEYS, checkpoint_filter_fn, rename_official_keys
+from fisheye_infer.models.fisheye_petr import GEOMETRY_KEYS, FisheyePETR, checkpoint_filter_fn, rename_official_keys
 from fisheye_infer.models.petr_config import PETRConfig
 from fisheye_infer.models.petr_embedding import inverse_sigmoid, pos2posemb3d
-from fisheye_infer.models.petr_geometry import PETRGeometry
 from fisheye_infer.models.petr_head import decode_predictions
-from fisheye_infer.models.ranking import TopK
 from fisheye_infer.models.petr_transformer import MultiheadAttention, PETRTransformerDecoder, key_padding_bias
+from fisheye_infer.models.ranking import TopK
 from fisheye_infer.models.registry import create_model, list_models, read_manifest
 from fisheye_infer.models.synthetic import make_checkpoint, synthetic_images
+from fisheye_infer.rig import default_rig
 
-SMALL = dataclasses.replace(PETRConfig(), image_size=(64, 64), feature_size=(5, 21), num_query=40, max_num=30)
+SMALL = PETRConfig().replace(image={"height": 64, "width": 64}, head={"feature_size": (5, 21), "num_query": 40, "max_num": 30})
 LOGIT_MAX = math.log(1 / 1e-5)  # 11.5129
 
 
@@ -196,7 +196,7 @@ def test_full_size_forward(full_petr: tuple[FisheyePETR, GeometryReport]) -> Non
     assert boxes.shape == (1, 300, 7) and scores.shape == labels.shape == valid.shape == (1, 300)
     assert labels.dtype == torch.int64 and valid.dtype == torch.bool
     assert torch.isfinite(boxes).all() and bool(valid.all())
-    assert bool((scores[0, :-1] >= scores[0, 1:]).all()) and 0 < float(scores.min()) and float(scores.max()) < 1
+    assert bool((scores[0, :-1] >= scores[0, 1:]).all()) and float(scores.min()) > 0 and float(scores.max()) < 1
     assert int(labels.min()) >= 0 and int(labels.max()) < 6
     b = boxes[0]
     assert float(b[:, :2].abs().max()) <= 48.0  # centres inside point_cloud_range (lidar frame)
@@ -335,7 +335,7 @@ def test_lid_depths() -> None:
 
 
 def _identity_geometry() -> PETRGeometry:
-    g = PETRGeometry.default(SMALL)
+    g = PETRGeometry.from_rig(default_rig(), SMALL.geometry_params())
     return dataclasses.replace(g, cam2lidar=np.repeat(np.eye(4)[None], 4, axis=0))
 
 
@@ -466,7 +466,7 @@ def test_reference_points_raw_for_queries_clamped_for_boxes(small_ckpt: dict[str
         q_clamped = head.query_embedding(pos2posemb3d(raw.clamp(0, 1)[None]))[0]
         torch.testing.assert_close(head.query_pos[0], q_raw)
         assert not torch.allclose(head.query_pos[0], q_clamped, atol=1e-3)
-        o = torch.randn(1, SMALL.num_query, 256, generator=torch.Generator().manual_seed(2))
+        o = torch.randn(1, SMALL.head.num_query, 256, generator=torch.Generator().manual_seed(2))
         _, preds = head.predict(o)
         reg = head.reg_branches[0](o)[0, 0]
     expected = [torch.sigmoid(reg[0] + LOGIT_MAX) * 96 - 48, torch.sigmoid(reg[1] - LOGIT_MAX) * 96 - 48,
@@ -512,9 +512,10 @@ def test_yaw_from_sin_cos(yaw: float) -> None:
 
 def test_config_defaults_are_official() -> None:
     c = PETRConfig()
-    assert c.classes == ("Car", "Van", "Truck", "Bus", "Pedestrian", "Cyclist")
-    assert c.image_size == (800, 800) and c.channel_order == "BGR"
-    assert c.mean == (123.675, 116.28, 103.53) and c.std == (58.395, 57.12, 57.375)
+    assert c.class_names == ("Car", "Van", "Truck", "Bus", "Pedestrian", "Cyclist")
+    assert c.preprocess.image_size == (800, 800) and c.preprocess.colour_order == "BGR" and not c.image.bgr_to_rgb
+    assert c.image.mean == (123.675, 116.28, 103.53) and c.image.std == (58.395, 57.12, 57.375)
+    c, top = c.head, c
     assert c.feature_size == (25, 100) and c.azimuth_range == (-math.radians(110), math.radians(110))
     assert c.elevation_range == (-math.pi / 4, math.pi / 4)
     assert (c.depth_num, c.depth_start, c.lid) == (64, 0.5, True)
@@ -522,7 +523,7 @@ def test_config_defaults_are_official() -> None:
     assert c.point_cloud_range == (-48, -48, -5, 48, 48, 5)
     assert (c.num_query, c.embed_dims, c.num_heads, c.num_layers, c.ffn_dims) == (900, 256, 8, 6, 2048)
     assert (c.max_num, c.code_size, c.num_frustum_depths) == (300, 8, 96)
-    assert PETRConfig.from_dict(c.to_dict()) == c
+    assert PETRConfig.from_dict(top.to_dict()) == top
 
 
 _CONFIG = """
@@ -560,7 +561,7 @@ def test_from_mmdet3d_config(tmp_path) -> None:  # noqa: ANN001
     path.write_text(_CONFIG.replace("HEAD_TYPE", "FisheyePETRHead").replace("NUM_QUERY", "900"))
     assert PETRConfig.from_mmdet3d_config(path) == PETRConfig()
     path.write_text(_CONFIG.replace("HEAD_TYPE", "FisheyePETRHead").replace("NUM_QUERY", "600"))
-    assert PETRConfig.from_mmdet3d_config(path).num_query == 600
+    assert PETRConfig.from_mmdet3d_config(path).head.num_query == 600
     path.write_text(_CONFIG.replace("HEAD_TYPE", "CylindricalPETRHead").replace("NUM_QUERY", "900"))
     with pytest.raises(ConfigError, match="CylindricalPETRHead"):
         PETRConfig.from_mmdet3d_config(path)
@@ -568,7 +569,7 @@ def test_from_mmdet3d_config(tmp_path) -> None:  # noqa: ANN001
 
 def test_unsupported_settings_are_refused() -> None:
     with pytest.raises(ConfigError, match="lid"):
-        PETRConfig(lid=False)
+        PETRConfig().replace(head={"lid": False})
     with pytest.raises(ConfigError, match="max_num"):
-        PETRConfig(num_query=10, max_num=300)
-    assert PETRConfig(num_query=50, max_num=300).max_num == 300  # 50 * 6 = 300 candidates is enough
+        PETRConfig().replace(head={"num_query": 10, "max_num": 300})
+    assert PETRConfig().replace(head={"num_query": 50, "max_num": 300}).head.max_num == 300  # 50 * 6 = 300 candidates is enough

@@ -57,6 +57,5 @@ def test_replay_refuses_the_wrong_shapes() -> None:
         head(SCORES)
     with replay_ranking(head, torch.zeros(1, 4), torch.tensor([[0, 1, 2]])), pytest.raises(ValueError, match="replayed scores"):
         head(SCORES)
-    with pytest.raises(ValueError, match="exactly one"):
-        with replay_ranking(nn.Linear(2, 2), SCORES, torch.tensor([[0]])):
-            pass
+    with pytest.raises(ValueError, match="exactly one"), replay_ranking(nn.Linear(2, 2), SCORES, torch.tensor([[0]])):
+        pass
