@@ -11,8 +11,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -51,19 +52,19 @@ def torch_eager(arch: str, ckpt: Path, images: np.ndarray, threads: int, repeat:
 def torch_compile(arch: str, ckpt: Path, threads: int, repeat: int, timeout_s: float = 600) -> dict[str, Any]:
     """torch.compile (inductor) in a child process with a time limit: compiling can take minutes."""
     code = (
-        "import sys, time, json, numpy as np, torch; sys.path.insert(0, %r)\n"
+        f"import sys, time, json, numpy as np, torch; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
         "from compare import load_torch_model, timed\n"
-        "torch.set_num_threads(%d)\n"
-        "m = load_torch_model(%r, __import__('pathlib').Path(%r))\n"
+        f"torch.set_num_threads({threads:d})\n"
+        f"m = load_torch_model({arch!r}, __import__('pathlib').Path({str(ckpt)!r}))\n"
         "from fisheye_infer.artifact import read_meta\n"
         "c = torch.compile(m)\n"
         "x = torch.from_numpy(np.random.default_rng(0).integers(0, 255, (1, 4, 800, 800, 3), dtype=np.uint8)); v = torch.ones((1, 4), dtype=torch.bool)\n"
         "t0 = time.perf_counter()\n"
         "with torch.inference_mode():\n"
         "    c(x, v); compile_s = time.perf_counter() - t0\n"
-        "    ts = timed(lambda: c(x, v), %d)\n"
+        f"    ts = timed(lambda: c(x, v), {repeat:d})\n"
         "print(json.dumps({'compile_s': compile_s, 'ms': ts}))\n"
-    ) % (str(Path(__file__).parent), threads, arch, str(ckpt), repeat)
+    )
     try:
         done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout_s)
     except subprocess.TimeoutExpired:
@@ -94,7 +95,6 @@ def openvino(onnx_path: Path, images: np.ndarray, threads: int, repeat: int) -> 
 
 
 def _matmul_model(kind: str, n: int) -> bytes:
-    import onnx
     from onnx import TensorProto, helper
 
     if kind == "fp32":
@@ -129,7 +129,7 @@ def gemm_peak(threads: int, n: int = 2048, repeat: int = 5) -> dict[str, float]:
     for kind, feeds in (("fp32", {"a": a, "b": b}),
                         ("int8", {"a": rng.integers(0, 255, (n, n), dtype=np.uint8), "b": rng.integers(-127, 127, (n, n), dtype=np.int8)})):
         sess = ort.InferenceSession(_matmul_model(kind, n), session_options(threads), providers=["CPUExecutionProvider"])
-        out[f"ort_{kind}"] = flop / np.median(timed(lambda: sess.run(None, feeds), repeat)) / 1e6
+        out[f"ort_{kind}"] = flop / np.median(timed(lambda sess=sess, feeds=feeds: sess.run(None, feeds), repeat)) / 1e6
     return out
 
 
@@ -142,10 +142,10 @@ def count_flops(onnx_path: Path) -> dict[str, float]:
     import onnx
     import onnxruntime as ort
 
-    from fisheye_infer.export.quantize import _name_nodes
+    from fisheye_infer.graph_stages import name_nodes
 
     model = onnx.load(str(onnx_path))
-    _name_nodes(model)
+    name_nodes(model)
     inits = {i.name: list(i.dims) for i in model.graph.initializer}
     ops = [n for n in model.graph.node if n.op_type in ("Conv", "ConvTranspose", "MatMul", "Gemm")]
     wanted = list(dict.fromkeys([n.output[0] for n in ops] + [n.input[0] for n in ops if n.input[0] not in inits]))

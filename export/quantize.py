@@ -23,23 +23,26 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Iterator, Sequence
 
 import numpy as np
 import onnx
 from onnx import numpy_helper
 from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType, quantize_static
 
+from fisheye_infer import graph_stages
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, ParityReport
-from fisheye_infer.errors import ExportError
+from fisheye_infer.boxes import box_diff
+from fisheye_infer.errors import ArtifactError, ExportError
+from fisheye_infer.geometry.tables import PREFIX as GEOMETRY_PREFIX
+from fisheye_infer.graph_stages import name_nodes
 
 from .graph import check_standard_ops, save_model
 from .verify import run_onnx
 
 __all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "FrameReader", "image_region", "int8_parity", "int8_path_for", "quantize", "quantized_scope", "top_matched"]
 
-GEOMETRY_PREFIX = "geom."
 #: QuantizeLinear / DequantizeLinear: what a QDQ model adds, and what must stay inside the region.
 QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
 
@@ -78,54 +81,22 @@ class FrameReader(CalibrationDataReader):
         return len(self.frames)
 
 
-def _name_nodes(model: onnx.ModelProto) -> None:
-    """Give every node a unique name: ``nodes_to_quantize`` selects by name."""
-    seen: set[str] = set()
-    for i, node in enumerate(model.graph.node):
-        if not node.name or node.name in seen:
-            node.name = f"{node.op_type}_{i}"
-        seen.add(node.name)
-
-
-def _locate(model: onnx.ModelProto) -> tuple[list[str], list[str]]:
-    """(region node names in graph order, region values read outside the region)."""
-    graph = model.graph
-    geometry = {i.name for i in graph.initializer if i.name.startswith(GEOMETRY_PREFIX)}
-    tainted = set(geometry) | {INPUT_CAMERA_VALID}  # values that must not feed the region
-    from_images = {INPUT_IMAGES}
-    producer: dict[str, onnx.NodeProto] = {}
-    for node in graph.node:  # ONNX graphs are topologically sorted
-        for out in node.output:
-            producer[out] = node
-        ins = [n for n in node.input if n]
-        if any(n in tainted for n in ins):
-            tainted.update(node.output)
-        elif any(n in from_images for n in ins):
-            from_images.update(node.output)
-    anchors = [n for n in graph.node if n.op_type == "GridSample" and n.input[0] in from_images and n.input[0] not in tainted]
-    if not anchors:
-        raise ExportError("int8: the graph has no GridSample sampling the image features; cannot locate the backbone and neck to quantize")
-    region: set[str] = set()
-    stack = [a.input[0] for a in anchors]
-    while stack:
-        value = stack.pop()
-        node = producer.get(value)
-        if node is None or node.name in region or value in tainted:
-            continue
-        region.add(node.name)
-        stack.extend(n for n in node.input if n)
-    made = {o for n in graph.node if n.name in region for o in n.output}
-    read_outside = {i for n in graph.node if n.name not in region for i in n.input} | {o.name for o in graph.output}
-    return [n.name for n in graph.node if n.name in region], sorted(made & read_outside)
-
-
 def image_region(model: onnx.ModelProto) -> list[str]:
-    """Names of the nodes that make up the image trunk (normalisation, backbone, neck), in graph order.
+    """Names of the image trunk's nodes (see ``fisheye_infer.graph_stages.image_region``); a graph without
+    the GridSample that anchors it cannot be quantized (``ExportError``)."""
+    try:
+        return graph_stages.image_region(model)
+    except ArtifactError as exc:
+        raise ExportError(f"int8: {exc}") from None
 
-    Every node needs a name (``_name_nodes``). Raises ``ExportError`` when the graph has no
-    GridSample fed by the images, the anchor of the region in both architectures.
-    """
-    return _locate(model)[0]
+
+def _boundary(model: onnx.ModelProto, region: Sequence[str]) -> list[str]:
+    """The region's values that the rest of the graph (or its outputs) reads, sorted."""
+    names = set(region)
+    graph = model.graph
+    made = {o for n in graph.node if n.name in names for o in n.output}
+    read_outside = {i for n in graph.node if n.name not in names for i in n.input} | {o.name for o in graph.output}
+    return sorted(made & read_outside)
 
 
 def quantized_scope(model: onnx.ModelProto) -> str:
@@ -201,8 +172,9 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: CalibrationDataRead
     if src.resolve() == out.resolve():
         raise ExportError(f"int8: output {out} is the input file; the input is never modified")
     model = onnx.load(str(src))
-    _name_nodes(model)
-    region, boundary = _locate(model)
+    name_nodes(model)
+    region = image_region(model)
+    boundary = _boundary(model, region)
     before = _geometry_bytes(model)
     with tempfile.TemporaryDirectory(prefix="fisheye-int8-") as tmp:
         trunk_path = save_model(_trunk(model, region, boundary), Path(tmp) / "trunk.onnx")
@@ -261,7 +233,7 @@ def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray]
     rb, rs, rl, rv = reference
     cb, cs, cl, cv = candidate
     matched = considered = 0
-    box_diff = score_diff = 0.0
+    box_err = score_diff = 0.0
     for f in range(len(rb)):
         order = [i for i in np.argsort(-rs[f], kind="stable") if rv[f][i]][:top_k]
         pool = np.flatnonzero(cv[f])
@@ -275,11 +247,9 @@ def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray]
                 j = int(np.argmin(dist))
                 used[j] = True
                 matched += 1
-                d = np.abs(cb[f][pool[j]].astype(np.float64) - rb[f][i])
-                d[6] = min(d[6], abs(2 * np.pi - d[6]))
-                box_diff = max(box_diff, float(d.max()))
+                box_err = max(box_err, float(box_diff(cb[f][pool[j]], rb[f][i])))
                 score_diff = max(score_diff, abs(float(cs[f][pool[j]]) - float(rs[f][i])))
-    return matched, considered, box_diff, score_diff
+    return matched, considered, box_err, score_diff
 
 
 def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray, threads: int = 2,

@@ -27,9 +27,10 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -200,69 +201,3 @@ def detect_frames(
         seconds,
         options,
     )
-
-
-# -- fisheye-infer detect --ray ------------------------------------------------------------------------
-
-
-def configure_ray_flags(parser: Any) -> None:
-    """The ``--ray`` group of ``fisheye-infer detect``."""
-    group = parser.add_argument_group("batch inference with Ray Data (--ray; needs the [ray] extra)")
-    group.add_argument("--ray", action="store_true", help="run over many frames with Ray Data; --out is then one results file for 'eval --results'")
-    group.add_argument("--data", help="Fisheye3DOD-layout root to run over (with --split); or give --images with one sub-folder per camera")
-    group.add_argument("--split", default="val", help="split file in ImageSets-2hz (default: val)")
-    group.add_argument("--batch-size", type=int, default=2, help="frames per detect_batch call (default 2)")
-    group.add_argument("--concurrency", type=int, default=1, help="Detector actors, each with its own session (default 1)")
-    group.add_argument("--cpus-per-actor", type=float, default=1.0, help="CPUs Ray reserves per actor (default 1); also its threads unless --threads")
-
-
-def run_ray(args: Any) -> int:
-    """``fisheye-infer detect MODEL --ray (--data ROOT | --images DIR) --out pred.json``."""
-    import sys
-
-    from fisheye_infer.errors import ConfigError, FrameError
-    from fisheye_infer.progress import Progress
-
-    refused = [flag for flag, value in (("--result", args.result), ("--viz", args.viz), ("--score-threshold", args.score_threshold),
-                                        ("--classes", args.classes), ("--nms", args.nms)) if value]
-    if refused:
-        raise ConfigError(f"--ray writes the official unthresholded output for evaluation; {', '.join(refused)} cannot be combined with it")
-    if not args.model or not args.out or bool(args.data) == bool(args.images):
-        raise ConfigError("--ray needs a MODEL, --out and exactly one of --data ROOT or --images")
-    try:
-        options = BatchOptions(batch_size=args.batch_size, concurrency=args.concurrency, cpus_per_actor=args.cpus_per_actor, threads=args.threads)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    try:
-        import ray
-    except ImportError as exc:
-        print(f"{NEEDS_RAY} ({exc})", file=sys.stderr)
-        return 1
-    from fisheye_infer.artifact import read_meta
-
-    cameras = read_meta(args.model).cameras
-    if args.data:
-        from fisheye_infer.eval.dataset import Fisheye3DOD
-
-        frames = dataset_frames(Fisheye3DOD(args.data, args.split, cameras=cameras))
-        source = {"data": str(args.data), "split": args.split}
-    else:
-        from fisheye_infer.preprocess import frames_from_paths
-
-        frames = [(name, files) for name, files in frames_from_paths(args.images, cameras)]
-        source = {"images": [str(p) for p in args.images]}
-    if not frames:
-        raise FrameError("no frames to run")
-    if not ray.is_initialized():
-        ray.init(include_dashboard=False, configure_logging=False)  # RAY_ADDRESS, when set, joins that cluster
-    print(f"running {len(frames)} frame(s) on {options.concurrency} actor(s), batches of {options.batch_size}", file=sys.stderr)
-    bar = Progress(len(frames), every=max(1, len(frames) // 20))
-    result = detect_frames(args.model, frames, options, progress=lambda done, _: bar.update(done))
-    path = result.save(args.out, {"model": str(args.model), **source})
-    print(f"wrote {path}: {len(result.results)} frame(s) in {result.seconds:.1f} s ({result.frames_per_second:.2f} frames/s)")
-    for token, reason in result.failed.items():
-        print(f"failed: {token}: {reason}", file=sys.stderr)
-    if result.failed:
-        print(f"{len(result.failed)} frame(s) failed; they are listed under meta.failed in {path}", file=sys.stderr)
-        return 1
-    return 0

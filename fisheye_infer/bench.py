@@ -1,12 +1,13 @@
-"""``fisheye-infer bench MODEL.onnx``: how fast an exported model runs on this machine, stage by stage.
+"""How fast an exported model runs on this machine, stage by stage (``fisheye-infer bench``).
 
-    fisheye-infer bench model.onnx --threads 1,2 --batch 1,2,4 --repeat 10 --out bench.json
+    result = bench_model("model.onnx", threads=(1, 2), batches=(1, 2, 4))   # fisheye-infer bench model.onnx --out bench.json
+    print(format_table(result))
 
 For every thread count and batch size: warm-up, then ``repeat`` timed calls of
 ``Detector.detect_batch`` on PNG-encoded synthetic renders of the model's own rig, split into
 decode (PNG bytes -> arrays), preprocessing, inference and post-processing, with median and
 p90 of each and the throughput. Inference is further split into backbone+neck, view transform
-and head by running the graph cut into stage models (``fisheye_infer.bench_stages``; needs
+and head by running the graph cut into stage models (``fisheye_infer.graph_stages``; needs
 ``onnx``). Peak RSS is measured in a fresh process per thread count, as a service would see it.
 Nothing here asserts a speed: the numbers are for people, and ``benchmarks/run_all.py``
 compares them with PyTorch, OpenVINO, the machine's GEMM throughput and the issue's targets.
@@ -14,21 +15,21 @@ compares them with PyTorch, OpenVINO, the machine's GEMM throughput and the issu
 
 from __future__ import annotations
 
-import argparse
-import json
+import contextlib
 import os
 import platform
 import resource
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
 
-__all__ = ["configure_bench", "run_bench", "bench_model", "png_frame", "stats", "peak_rss_mb"]
+__all__ = ["bench_model", "format_table", "png_frame", "stats", "peak_rss_mb"]
 
 
 def stats(values: Sequence[float]) -> dict[str, float]:
@@ -58,13 +59,13 @@ def _e2e(detector: Any, frames: list[dict[str, bytes]], repeat: int, warmup: int
         for key in ("decode", "preprocess", "inference", "postprocess"):
             parts[key].append(results[0].timings_ms[key])
         parts["total"].append(total)
-    out = {k: stats(v) for k, v in parts.items()}
+    out: dict[str, Any] = {k: stats(v) for k, v in parts.items()}
     out["fps"] = len(frames) * 1e3 / out["total"]["median"]
     return out
 
 
 def _graph_stages(path: Path, frame: dict[str, bytes], detector: Any, threads: int, repeat: int) -> dict[str, Any]:
-    from fisheye_infer.bench_stages import time_stages
+    from fisheye_infer.graph_stages import time_stages
     from fisheye_infer.preprocess import load_frame, stack_frames
     from fisheye_infer.session import session_options
 
@@ -109,10 +110,8 @@ def machine() -> dict[str, Any]:
     import onnxruntime as ort
 
     flags = ""
-    try:
+    with contextlib.suppress(OSError, IndexError):  # not Linux, or no flags line
         flags = Path("/proc/cpuinfo").read_text().split("flags", 1)[1].split("\n", 1)[0]
-    except (OSError, IndexError):
-        pass
     return {"cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
             "onnxruntime": ort.__version__, "avx512": "avx512f" in flags, "vnni": "avx512_vnni" in flags or "avx_vnni" in flags}
 
@@ -158,54 +157,10 @@ def format_table(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _ints(text: str) -> list[int]:
-    try:
-        values = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
-    if not values or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
-    return values
-
-
-def configure_bench(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("model", help="an ONNX file written by fisheye-infer export (fp32 or int8)")
-    parser.add_argument("--threads", type=_ints, default=[1, 2], help="intra-op thread counts (default 1,2)")
-    parser.add_argument("--batch", type=_ints, default=[1, 2, 4], help="batch sizes (default 1,2,4)")
-    parser.add_argument("--repeat", type=int, default=10, help="timed calls per setting after warm-up (default 10)")
-    parser.add_argument("--warmup", type=int, default=2, help="untimed calls first (default 2)")
-    parser.add_argument("--no-stages", action="store_true", help="skip the per-stage split of the graph (needs onnx)")
-    parser.add_argument("--no-rss", action="store_true", help="skip the peak-RSS measurement in a fresh process")
-    parser.add_argument("--out", help="write the figures as JSON here")
-    parser.set_defaults(run=run_bench)
-
-
-def run_bench(args: argparse.Namespace) -> int:
-    from fisheye_infer.errors import ArtifactError
-
-    if not Path(args.model).is_file():
-        raise ArtifactError(f"model {args.model}: no such file")
-    stages = not args.no_stages
-    if stages:
-        try:
-            import onnx  # noqa: F401
-        except ImportError:
-            print("bench: no onnx package, skipping the per-stage split (pip install onnx)", file=sys.stderr)
-            stages = False
-    result = bench_model(args.model, args.threads, args.batch, max(1, args.repeat), max(0, args.warmup), stages, not args.no_rss,
-                         progress=lambda s: print(s, file=sys.stderr))
-    print(format_table(result))
-    if args.out:
-        Path(args.out).write_text(json.dumps(result, indent=2))
-        print(f"wrote {args.out}")
-    return 0
-
-
 if __name__ == "__main__":
     if len(sys.argv) == 5 and sys.argv[1] == "--rss-child":
         _rss_child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
     else:
-        parser = argparse.ArgumentParser(prog="python -m fisheye_infer.bench")
-        configure_bench(parser)
-        arguments = parser.parse_args()
-        sys.exit(arguments.run(arguments))
+        from fisheye_infer.cli import main
+
+        sys.exit(main(["bench", *sys.argv[1:]]))

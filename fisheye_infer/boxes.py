@@ -10,7 +10,7 @@ import numpy as np
 
 from fisheye_infer.rig import Rig
 
-__all__ = ["BOX_EDGES", "check_boxes", "corners", "bev_corners", "centres", "project_boxes"]
+__all__ = ["BOX_EDGES", "check_boxes", "corners", "bev_corners", "centres", "box_diff", "project_boxes"]
 
 #: Corner index pairs of the 12 box edges; corners 0-3 are the bottom face, 4-7 the top,
 #: 0 = front-left, 1 = front-right, 2 = rear-right, 3 = rear-left (in the box's own frame).
@@ -23,6 +23,14 @@ def check_boxes(boxes: np.ndarray, name: str = "boxes") -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != 7:
         raise ValueError(f"{name}: expected shape (K, 7) as x, y, z_bottom, l, w, h, yaw; got {arr.shape}")
     return arr
+
+
+def box_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Largest absolute difference of each pair of boxes (..., 7) -> (...,), in float64; yaw is
+    compared on the circle (+pi and -pi are the same angle)."""
+    d = np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64))
+    d[..., 6] = np.minimum(d[..., 6], np.abs(2 * np.pi - d[..., 6]))
+    return d.max(axis=-1)
 
 
 def bev_corners(boxes: np.ndarray) -> np.ndarray:
@@ -71,7 +79,7 @@ def project_boxes(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> di
         valid = valid.reshape(len(samples), len(BOX_EDGES), samples_per_edge)
         per_box = []
         for k in range(len(samples)):
-            lines = []
+            lines: list[np.ndarray] = []
             for e in range(len(BOX_EDGES)):
                 runs = np.split(np.arange(samples_per_edge), np.flatnonzero(np.diff(valid[k, e].astype(np.int8)) != 0) + 1)
                 lines.extend(uv[k, e, run] for run in runs if len(run) > 1 and valid[k, e, run[0]])

@@ -7,9 +7,9 @@ Modules: ``settings`` (ServiceSettings), ``app`` (create_app), ``server`` (uvico
 graceful drain), ``state`` (what one app owns), ``queue`` (bounded inference queue,
 micro-batching), ``intake`` (request checks before decoding), ``pipeline``, ``schemas``,
 ``errors`` (status codes), ``metrics``, ``middleware``, ``openapi``, ``protocol`` (the
-``/stream`` frame format, importable without the web stack), ``commands`` (the CLI),
-``routers/`` (detect, stream, health, kserve: the KServe v2 protocol), and ``ray_serve`` /
-``ray_commands`` (the same app on Ray Serve, ``fisheye-infer serve --ray``; the ``[ray]`` extra).
+``/stream`` frame format, importable without the web stack), ``routers/`` (detect, stream,
+health, kserve: the KServe v2 protocol), and ``ray_serve`` (the same app on Ray Serve, the
+``[ray]`` extra). The command, ``fisheye-infer serve [--ray]``, is ``fisheye_infer.commands.serve``.
 
 Importing this package loads nothing heavy: the names below are resolved on first use.
 """

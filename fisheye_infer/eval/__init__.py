@@ -7,7 +7,8 @@
         dets = detector.detect(frame.image_paths)   # frame.rig, frame.gt_boxes, frame.gt_records()
 
 ``algo`` holds the vectorised metric functions (nuScenes names), ``metrics`` the config and
-report types, ``evaluate`` the orchestration, ``dataset`` the reader and ``writer`` its inverse.
+report types, ``evaluate`` the orchestration, ``dataset`` the reader and ``writer`` its inverse,
+``synthetic`` boxes without images. The commands are ``fisheye_infer.commands.eval``/``synth``.
 """
 
 from fisheye_infer.eval.algo import accumulate, calc_ap, calc_tp, center_distance, scale_iou, yaw_diff

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from fisheye_infer.bench_stages import STAGES
 from fisheye_infer.cli import main
+from fisheye_infer.graph_stages import STAGES
 
 
 def test_bench_writes_every_figure(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -37,7 +37,7 @@ def test_bench_refuses_bad_options(small_export, capsys: pytest.CaptureFixture[s
 
 def test_peak_rss_is_the_childs_own_not_its_parents() -> None:
     """A parent holding 1.5 GB starts the child that reports; the child's figure must not include it."""
-    parent = textwrap.dedent(f"""
+    parent = textwrap.dedent("""
         import subprocess, sys
         import numpy as np
         held = np.ones(1_500_000_000 // 8)  # touched: resident in the parent

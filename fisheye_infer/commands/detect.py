@@ -12,22 +12,21 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import cv2
+from fisheye_infer.commands.common import positive_int
+from fisheye_infer.errors import ConfigError, FrameError, OptionError
 
-from fisheye_infer.batch import configure_ray_flags, run_ray
-from fisheye_infer.detections import Detections
-from fisheye_infer.errors import FrameError
-from fisheye_infer.nms import NmsConfig
-from fisheye_infer.preprocess import frames_from_paths
-from fisheye_infer.rig import Rig
-from fisheye_infer.viz import draw_detections, save_png
+if TYPE_CHECKING:
+    from fisheye_infer.detections import Detections
+    from fisheye_infer.rig import Rig
 
-__all__ = ["configure_detect", "run_detect"]
+__all__ = ["configure", "run"]
 
 
-def configure_detect(parser: argparse.ArgumentParser) -> None:
+def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", nargs="?", help="ONNX file written by fisheye-infer export")
     parser.add_argument("--images", nargs="+", help="a folder (camera-named images, or one sub-folder per camera) or one file per camera in model order")
     parser.add_argument("--result", help="draw this saved results file instead of running a model")
@@ -36,16 +35,9 @@ def configure_detect(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--score-threshold", type=float, help="drop boxes below this score (default: keep all, as the official output)")
     parser.add_argument("--classes", help="comma-separated class names to keep")
     parser.add_argument("--nms", choices=("rotated", "circle"), help="optional NMS (the official output has none)")
-    parser.add_argument("--threads", type=_positive_int, help="ONNX Runtime intra-op threads (default: all cores)")
-    configure_ray_flags(parser)
-    parser.set_defaults(run=run_detect)
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
-    return value
+    parser.add_argument("--threads", type=positive_int, help="ONNX Runtime intra-op threads (default: all cores)")
+    _configure_ray(parser)
+    parser.set_defaults(run=run)
 
 
 def _viz_paths(viz: Path, names: list[str]) -> list[Path]:
@@ -53,12 +45,20 @@ def _viz_paths(viz: Path, names: list[str]) -> list[Path]:
 
 
 def _draw(viz: str, rig: Rig, frames: list[tuple[str, dict]], results: list[Detections]) -> None:
+    import cv2
+
+    from fisheye_infer.viz import draw_detections, save_png
+
     for path, (_, files), dets in zip(_viz_paths(Path(viz), [n for n, _ in frames]), frames, results):
         images = {c: cv2.imread(str(p)) for c, p in files.items()} if files else None
         print(f"wrote {save_png(path, draw_detections(dets, rig, images))}")
 
 
 def _draw_saved(args: argparse.Namespace) -> int:
+    from fisheye_infer.detections import Detections
+    from fisheye_infer.preprocess import frames_from_paths
+    from fisheye_infer.rig import Rig
+
     try:
         doc = json.loads(Path(args.result).read_text())
     except (OSError, json.JSONDecodeError) as exc:
@@ -81,9 +81,9 @@ def _draw_saved(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_detect(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     if getattr(args, "ray", False):
-        return run_ray(args)
+        return _run_ray(args)
     if getattr(args, "data", None):
         raise FrameError("--data runs over a Fisheye3DOD split with --ray; without it, give --images")
     if args.result:
@@ -93,6 +93,8 @@ def run_detect(args: argparse.Namespace) -> int:
     if not args.model or not args.images:
         raise FrameError("give a model and --images (or --result and --viz to draw a saved result)")
     from fisheye_infer.detector import Detector
+    from fisheye_infer.nms import NmsConfig
+    from fisheye_infer.preprocess import frames_from_paths
 
     nms = NmsConfig(kind=args.nms) if args.nms else None
     detector = Detector(args.model, threads=args.threads, score_threshold=args.score_threshold, nms=nms)
@@ -100,7 +102,7 @@ def run_detect(args: argparse.Namespace) -> int:
     classes = [c.strip() for c in args.classes.split(",") if c.strip()] if args.classes else None
     unknown = sorted(set(classes or ()) - set(detector.info.classes))
     if unknown:
-        raise FrameError(f"--classes: unknown {unknown}; the model's classes are {', '.join(detector.info.classes)}")
+        raise OptionError(f"--classes: unknown {unknown}; the model's classes are {', '.join(detector.info.classes)}")
     results = [detector.detect(files, classes=classes) for _, files in frames]
     doc = {
         "model_id": detector.info.model_id,
@@ -118,4 +120,68 @@ def run_detect(args: argparse.Namespace) -> int:
         print(f"wrote {args.out}")
     if args.viz:
         _draw(args.viz, detector.info.rig, frames, results)
+    return 0
+
+
+# -- --ray: many frames with Ray Data (fisheye_infer.batch) ------------------------------------------
+
+
+def _configure_ray(parser: argparse.ArgumentParser) -> None:
+    """The ``--ray`` group of ``fisheye-infer detect``."""
+    group = parser.add_argument_group("batch inference with Ray Data (--ray; needs the [ray] extra)")
+    group.add_argument("--ray", action="store_true", help="run over many frames with Ray Data; --out is then one results file for 'eval --results'")
+    group.add_argument("--data", help="Fisheye3DOD-layout root to run over (with --split); or give --images with one sub-folder per camera")
+    group.add_argument("--split", default="val", help="split file in ImageSets-2hz (default: val)")
+    group.add_argument("--batch-size", type=int, default=2, help="frames per detect_batch call (default 2)")
+    group.add_argument("--concurrency", type=int, default=1, help="Detector actors, each with its own session (default 1)")
+    group.add_argument("--cpus-per-actor", type=float, default=1.0, help="CPUs Ray reserves per actor (default 1); also its threads unless --threads")
+
+
+def _run_ray(args: argparse.Namespace) -> int:
+    """``fisheye-infer detect MODEL --ray (--data ROOT | --images DIR) --out pred.json``."""
+    from fisheye_infer.batch import NEEDS_RAY, BatchOptions, dataset_frames, detect_frames
+    from fisheye_infer.progress import Progress
+
+    refused = [flag for flag, value in (("--result", args.result), ("--viz", args.viz), ("--score-threshold", args.score_threshold),
+                                        ("--classes", args.classes), ("--nms", args.nms)) if value]
+    if refused:
+        raise ConfigError(f"--ray writes the official unthresholded output for evaluation; {', '.join(refused)} cannot be combined with it")
+    if not args.model or not args.out or bool(args.data) == bool(args.images):
+        raise ConfigError("--ray needs a MODEL, --out and exactly one of --data ROOT or --images")
+    try:
+        options = BatchOptions(batch_size=args.batch_size, concurrency=args.concurrency, cpus_per_actor=args.cpus_per_actor, threads=args.threads)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    try:
+        import ray
+    except ImportError as exc:
+        print(f"{NEEDS_RAY} ({exc})", file=sys.stderr)
+        return 1
+    from fisheye_infer.artifact import read_meta
+
+    cameras = read_meta(args.model).cameras
+    if args.data:
+        from fisheye_infer.eval.dataset import Fisheye3DOD
+
+        frames = dataset_frames(Fisheye3DOD(args.data, args.split, cameras=cameras))
+        source = {"data": str(args.data), "split": args.split}
+    else:
+        from fisheye_infer.preprocess import frames_from_paths
+
+        frames = [(name, files) for name, files in frames_from_paths(args.images, cameras)]
+        source = {"images": [str(p) for p in args.images]}
+    if not frames:
+        raise FrameError("no frames to run")
+    if not ray.is_initialized():
+        ray.init(include_dashboard=False, configure_logging=False)  # RAY_ADDRESS, when set, joins that cluster
+    print(f"running {len(frames)} frame(s) on {options.concurrency} actor(s), batches of {options.batch_size}", file=sys.stderr)
+    bar = Progress(len(frames), every=max(1, len(frames) // 20))
+    result = detect_frames(args.model, frames, options, progress=lambda done, _: bar.update(done))
+    path = result.save(args.out, {"model": str(args.model), **source})
+    print(f"wrote {path}: {len(result.results)} frame(s) in {result.seconds:.1f} s ({result.frames_per_second:.2f} frames/s)")
+    for token, reason in result.failed.items():
+        print(f"failed: {token}: {reason}", file=sys.stderr)
+    if result.failed:
+        print(f"{len(result.failed)} frame(s) failed; they are listed under meta.failed in {path}", file=sys.stderr)
+        return 1
     return 0

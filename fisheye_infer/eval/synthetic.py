@@ -1,26 +1,21 @@
-"""How long the metric takes on a full-size evaluation, with synthetic boxes.
+"""Synthetic ground truth and predictions for the metric, without images (tests and ``benchmarks/metric_speed.py``).
 
-    python -m fisheye_infer.eval.bench --frames 10000 --gt 20 --pred 200
+    gt, pred = synthetic_boxes(frames=100, gt_per_frame=20, pred_per_frame=200)
+    report = evaluate(gt, pred, EvalConfig())
 
 Ground truth is drawn uniformly in a 50 m disc; predictions are noisy copies of most ground-truth
-boxes (some with the wrong class) plus random false positives, up to ``--pred`` per frame, as a
-detector that emits a fixed number of proposals does. Timed separately: the metric on arrays,
-the conversion of in-memory records, and the whole path from records.
+boxes (some with the wrong class) plus random false positives, up to ``pred_per_frame`` per frame,
+as a detector that emits a fixed number of proposals does.
 """
 
 from __future__ import annotations
 
-import argparse
-import time
-
 import numpy as np
 
 from fisheye_infer.eval.boxes import EvalBoxes
-from fisheye_infer.eval.evaluate import evaluate
-from fisheye_infer.eval.metrics import EvalConfig
 from fisheye_infer.records import CLASSES
 
-__all__ = ["synthetic_boxes", "main"]
+__all__ = ["synthetic_boxes", "to_results"]
 
 _SIZES = np.array([[4.5, 1.9, 1.6], [5.0, 2.0, 2.1], [8.0, 2.5, 3.2], [11.0, 2.9, 3.4], [0.7, 0.7, 1.75], [1.8, 0.7, 1.7]])
 
@@ -66,37 +61,9 @@ def synthetic_boxes(frames: int, gt_per_frame: int, pred_per_frame: int, seed: i
 def to_results(boxes: EvalBoxes) -> dict[str, list[dict]]:
     """``EvalBoxes`` back to ``{token: [record, ...]}``."""
     half = boxes.yaw / 2
-    rows = zip(boxes.sample.tolist(), boxes.translation.tolist(), boxes.size.tolist(), np.cos(half).tolist(), np.sin(half).tolist(), boxes.label.tolist(), boxes.score.tolist())
+    rows = zip(boxes.sample.tolist(), boxes.translation.tolist(), boxes.size.tolist(), np.cos(half).tolist(), np.sin(half).tolist(),
+               boxes.label.tolist(), boxes.score.tolist())
     out: dict[str, list[dict]] = {t: [] for t in boxes.tokens}
     for s, t, size, w, z, lab, score in rows:
         out[boxes.tokens[s]].append({"translation": t, "size": size, "rotation": [w, 0.0, 0.0, z], "detection_name": CLASSES[lab], "detection_score": score})
     return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=10_000)
-    parser.add_argument("--gt", type=int, default=20, help="ground-truth boxes per frame")
-    parser.add_argument("--pred", type=int, default=200, help="predictions per frame")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    gt, pred = synthetic_boxes(args.frames, args.gt, args.pred, args.seed)
-    print(f"{args.frames} frames, {len(gt):,} ground-truth boxes, {len(pred):,} predictions")
-    t0 = time.perf_counter()
-    report = evaluate(gt, pred, EvalConfig())
-    t1 = time.perf_counter()
-    print(f"metric from arrays (main + 0-30 m breakdown): {t1 - t0:.2f} s   FDS {report.FDS:.4f}  mAP {report.mAP:.4f}")
-    gt_res, pred_res = to_results(gt), to_results(pred)
-    t2 = time.perf_counter()
-    tokens = list(pred_res)
-    gt_boxes = EvalBoxes.from_records(gt_res, tokens=tokens, ground_truth=True)
-    pred_boxes = EvalBoxes.from_records(pred_res, tokens=tokens)
-    t3 = time.perf_counter()
-    again = evaluate(gt_boxes, pred_boxes, EvalConfig())
-    t4 = time.perf_counter()
-    print(f"records -> arrays: {t3 - t2:.2f} s   whole path from records: {t4 - t2:.2f} s   FDS {again.FDS:.4f}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,17 +1,19 @@
-"""Command-line wiring of ``fisheye-infer train`` (torch is imported only when the command runs)."""
+"""``fisheye-infer train``: train a FisheyeBEVDet on synthetic frames (torch is imported only when the command runs).
+
+    fisheye-infer train --out runs/compact [--until 1000] [--resume]
+"""
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-__all__ = ["configure_train", "run_train"]
+from fisheye_infer.commands.common import NEEDS_EXPORT, missing_extra
 
-_NEEDS_EXPORT = "this command needs the export extra: pip install 'fisheye-infer[export]' (install torch==2.13.0 first)"
+__all__ = ["configure", "run"]
 
 
-def configure_train(parser: argparse.ArgumentParser) -> None:
+def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="run folder: config.py, rig.json, model.pth, checkpoint.pth, log.jsonl")
     parser.add_argument("--config", help="mmdet3d-style FisheyeBEVDet config to train (default: the compact configuration)")
     parser.add_argument("--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)")
@@ -25,21 +27,20 @@ def configure_train(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--until", type=int, help="stop after this step (checkpointed) and continue later with --resume")
     parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
     parser.add_argument("--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)")
-    parser.set_defaults(run=run_train)
+    parser.set_defaults(run=run)
 
 
-def run_train(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     try:
         import torch
 
         from fisheye_infer.models.training.loop import Trainer, TrainOptions
     except ImportError as exc:
-        print(f"{_NEEDS_EXPORT} ({exc})", file=sys.stderr)
-        return 1
+        return missing_extra(NEEDS_EXPORT, exc)
     from fisheye_infer.errors import ConfigError
     from fisheye_infer.models import BEVDetConfig
-    from fisheye_infer.rig import Rig
     from fisheye_infer.models.training.compact import compact_bevdet_config, compact_rig
+    from fisheye_infer.rig import Rig
 
     out = Path(args.out)
     if args.until is not None and args.until < 1:

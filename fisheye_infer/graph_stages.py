@@ -1,4 +1,7 @@
-"""Split an exported graph into its stages and time each one: backbone+neck, view transform, head.
+"""The stages of an exported graph, found by position: backbone+neck, view transform, head.
+
+    region = image_region(onnx.load("model.onnx"))     # the image trunk's node names (what int8 quantizes)
+    times = time_stages("model.onnx", feeds, options)   # each stage timed as a model of its own (bench)
 
 ORT's profiler reports nodes of the *optimised* graph, whose names and fusions change with the
 ORT version and the CPU (NCHWc reorders, fused Conv+Relu); attributing them back is fragile.
@@ -16,21 +19,21 @@ Needs the ``onnx`` package (the ``export`` extra).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import onnx
 import onnxruntime as ort
 
+from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES
 from fisheye_infer.errors import ArtifactError
+from fisheye_infer.geometry.tables import POOL_PREFIX, PREFIX
 
-__all__ = ["STAGES", "Stage", "split_stages", "time_stages"]
+__all__ = ["STAGES", "Stage", "name_nodes", "image_region", "split_stages", "time_stages"]
 
 STAGES = ("backbone_neck", "view_transform", "head")
-_GEOM = "geom."
-_POOL = "geom.pool."
 
 
 @dataclass(frozen=True)
@@ -42,13 +45,56 @@ class Stage:
     nodes: int
 
 
-def _assign(model: onnx.ModelProto) -> dict[str, str]:
-    """node name -> stage name (every node named; see ``export.quantize._name_nodes``)."""
-    from fisheye_infer.export.quantize import image_region
+def name_nodes(model: onnx.ModelProto) -> None:
+    """Give every node a unique name: ``nodes_to_quantize`` selects by name."""
+    seen: set[str] = set()
+    for i, node in enumerate(model.graph.node):
+        if not node.name or node.name in seen:
+            node.name = f"{node.op_type}_{i}"
+        seen.add(node.name)
 
+
+def image_region(model: onnx.ModelProto) -> list[str]:
+    """Names of the nodes that make up the image trunk (normalisation, backbone, neck), in graph order.
+
+    A node belongs to it when it is an ancestor of a GridSample's sampled input and none of its
+    inputs derive from ``camera_valid`` or from a ``geom.*`` table. Every node needs a name
+    (``name_nodes``). Raises ``ArtifactError`` when the graph has no GridSample fed by the images,
+    the anchor of the region in both architectures.
+    """
+    graph = model.graph
+    geometry = {i.name for i in graph.initializer if i.name.startswith(PREFIX)}
+    tainted = set(geometry) | {INPUT_CAMERA_VALID}  # values that must not feed the region
+    from_images = {INPUT_IMAGES}
+    producer: dict[str, onnx.NodeProto] = {}
+    for node in graph.node:  # ONNX graphs are topologically sorted
+        for out in node.output:
+            producer[out] = node
+        ins = [n for n in node.input if n]
+        if any(n in tainted for n in ins):
+            tainted.update(node.output)
+        elif any(n in from_images for n in ins):
+            from_images.update(node.output)
+    anchors = [n for n in graph.node if n.op_type == "GridSample" and n.input[0] in from_images and n.input[0] not in tainted]
+    if not anchors:
+        raise ArtifactError("the graph has no GridSample sampling the image features; cannot locate the image backbone and neck")
+    region: set[str] = set()
+    stack = [a.input[0] for a in anchors]
+    while stack:
+        value = stack.pop()
+        node = producer.get(value)
+        if node is None or node.name in region or value in tainted:
+            continue
+        region.add(node.name)
+        stack.extend(n for n in node.input if n)
+    return [n.name for n in graph.node if n.name in region]
+
+
+def _assign(model: onnx.ModelProto) -> dict[str, str]:
+    """node name -> stage name (every node named; see ``name_nodes``)."""
     graph = model.graph
     trunk = set(image_region(model))
-    pool_readers = [n for n in graph.node if any(i.startswith(_POOL) for i in n.input)]
+    pool_readers = [n for n in graph.node if any(i.startswith(POOL_PREFIX) for i in n.input)]
     anchors = pool_readers[-1:] or [n for n in graph.node if n.op_type == "GridSample"]
     producer = {o: n for n in graph.node for o in n.output}
     view: set[str] = set()
@@ -64,11 +110,9 @@ def _assign(model: onnx.ModelProto) -> dict[str, str]:
 
 def split_stages(model: onnx.ModelProto) -> list[Stage]:
     """The three stage models; inputs and outputs are the values crossing each cut."""
-    from fisheye_infer.export.quantize import _name_nodes
-
     model_copy = onnx.ModelProto()
     model_copy.CopyFrom(model)
-    _name_nodes(model_copy)
+    name_nodes(model_copy)
     graph = model_copy.graph
     stage_of = _assign(model_copy)
     produced_in = {o: stage_of[n.name] for n in graph.node for o in n.output}

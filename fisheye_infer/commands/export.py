@@ -1,0 +1,50 @@
+"""``fisheye-infer export``: a checkpoint to one self-contained, verified ONNX file (and an int8 one).
+
+    fisheye-infer export --ckpt fisheye_bevdet.pth --config fisheye_bevdet.py --rig rig.yaml --out model.onnx [--int8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from fisheye_infer.commands.common import NEEDS_EXPORT, ArchChoices, missing_extra
+
+__all__ = ["configure", "run"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--ckpt", required=True, help="official mmdet3d checkpoint (.pth) or one written by make-checkpoint")
+    parser.add_argument("--out", required=True, help="ONNX file to write")
+    parser.add_argument("--arch", choices=ArchChoices(), metavar="ARCH",
+                        help="architecture, one of %(choices)s (default: from the checkpoint's keys)")
+    parser.add_argument("--config", help="the official config file the checkpoint was trained with (read, never executed)")
+    parser.add_argument("--rig", default="default", help="rig file, folder with calib_results.txt + lidar2cam.json, or 'default'")
+    parser.add_argument("--geometry", choices=("verify", "checkpoint", "rig"), default="verify",
+                        help="tables stored in the checkpoint vs recomputed for the rig: verify they agree (default), or choose")
+    parser.add_argument("--verify-images", help="folder with your own frames to add to the parity check")
+    parser.add_argument("--frames", type=int, default=2, help="seeded synthetic frames for the parity check (default 2)")
+    parser.add_argument("--force", action="store_true", help="keep the file even when parity fails")
+    parser.add_argument("--allow-pickle", action="store_true", help="load a checkpoint that needs pickle (only from a source you trust)")
+    int8 = parser.add_argument_group("int8", "static QDQ quantization of the image backbone and neck (geometry, pooling and heads stay float32)")
+    int8.add_argument("--int8", action="store_true",
+                      help="after the fp32 file is verified, also write an int8 file next to it: --out model.onnx -> model.int8.onnx "
+                           "(--out stays the fp32 file); written when >= 95%% of the fp32 top-50 boxes are found again (or with --force)")
+    int8.add_argument("--calib-images", help="folder with your own frames for calibration, read like --verify-images")
+    int8.add_argument("--calib-frames", type=int, default=8, help="seeded synthetic calibration frames of the rig (default 8)")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        from fisheye_infer.export.exporter import export
+    except ImportError as exc:
+        return missing_extra(NEEDS_EXPORT, exc)
+    if (args.calib_images is not None or args.calib_frames != 8) and not args.int8:
+        print("fisheye-infer export: error: --calib-images/--calib-frames need --int8", file=sys.stderr)
+        return 2
+    result = export(args.ckpt, args.out, arch=args.arch, config=args.config, rig=args.rig, geometry=args.geometry,
+                    verify_images=args.verify_images, frames=args.frames, force=args.force, allow_pickle=args.allow_pickle,
+                    int8=args.int8, calib_images=args.calib_images, calib_frames=args.calib_frames)
+    print(result.summary())
+    return 0

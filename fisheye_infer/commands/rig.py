@@ -1,0 +1,86 @@
+"""``fisheye-infer rig show|plot|grid|convert``: look at a camera rig, or write one from calibration files."""
+
+from __future__ import annotations
+
+import argparse
+
+from fisheye_infer.commands.common import RIG_HELP
+
+__all__ = ["configure"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    actions = parser.add_subparsers(dest="rig_command", metavar="ACTION", required=True)
+    show = actions.add_parser("show", help="print the rig's cameras, poses and hash")
+    show.add_argument("rig", nargs="?", default="default", help=RIG_HELP)
+    show.set_defaults(run=run_show)
+    plot = actions.add_parser("plot", help="draw the cameras and their fields of view from above")
+    plot.add_argument("rig", nargs="?", default="default", help=RIG_HELP)
+    plot.add_argument("--out", required=True, help="PNG to write")
+    plot.set_defaults(run=run_plot)
+    grid = actions.add_parser("grid", help="draw where the equirectangular sampling grid reads a fisheye image")
+    grid.add_argument("rig", nargs="?", default="default", help=RIG_HELP)
+    grid.add_argument("--camera", help="camera name (default: the first)")
+    grid.add_argument("--rows", type=int, default=25)
+    grid.add_argument("--cols", type=int, default=100)
+    grid.add_argument("--out", required=True, help="PNG to write")
+    grid.set_defaults(run=run_grid)
+    convert = actions.add_parser("convert", help="write a rig file from an OCam file and extrinsics")
+    convert.add_argument("--calib", required=True, help="OCam calib_results.txt shared by the cameras")
+    source = convert.add_mutually_exclusive_group(required=True)
+    source.add_argument("--extrinsics", help='lidar2cam.json: {"cameras": {name: 4x4}}')
+    source.add_argument("--sensor-metadata", help="Fisheye3DOD <scene>/<vehicle> folder with <camera>/sensor_metadata.txt")
+    convert.add_argument("--cameras", help="comma-separated camera order (sensor metadata only)")
+    convert.add_argument("--frame", help="frame id (sensor metadata only; default: first common frame)")
+    convert.add_argument("--convention", choices=("compat", "exact"), default="compat",
+                         help="CARLA pose conversion (default: compat, as the checkpoints were trained)")
+    convert.add_argument("--fov", type=float, default=220.0, help="lens field of view in degrees (default 220)")
+    convert.add_argument("--out", required=True, help="rig file to write (.json or .yaml)")
+    convert.set_defaults(run=run_convert)
+
+
+def run_show(args: argparse.Namespace) -> int:
+    from fisheye_infer.rig import resolve_rig
+
+    print(resolve_rig(args.rig).describe())
+    return 0
+
+
+def run_plot(args: argparse.Namespace) -> int:
+    from fisheye_infer.rig import resolve_rig
+    from fisheye_infer.viz import draw_rig, save_png
+
+    print(f"wrote {save_png(args.out, draw_rig(resolve_rig(args.rig)))}")
+    return 0
+
+
+def run_grid(args: argparse.Namespace) -> int:
+    from fisheye_infer.camera import OCamModel
+    from fisheye_infer.errors import RigError
+    from fisheye_infer.geometry.grids import spherical_grid
+    from fisheye_infer.rig import resolve_rig
+    from fisheye_infer.viz import draw_sampling_grid, save_png
+
+    rig = resolve_rig(args.rig)
+    camera = rig.camera(args.camera) if args.camera else rig.cameras[0]
+    if not isinstance(camera.model, OCamModel):
+        raise RigError(f"camera '{camera.name}': the sampling grid is drawn for OCam models, this camera has a "
+                       f"{type(camera.model).__name__} model")
+    grid = spherical_grid(camera.model, (args.rows, args.cols))
+    print(f"wrote {save_png(args.out, draw_sampling_grid(camera.model, grid))}")
+    return 0
+
+
+def run_convert(args: argparse.Namespace) -> int:
+    from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig
+
+    if args.extrinsics:
+        rig = Rig.from_ocam_extrinsics(args.calib, args.extrinsics, fov=args.fov)
+    else:
+        cameras = args.cameras.split(",") if args.cameras else FISHEYE3DOD_CAMERAS
+        rig = Rig.from_sensor_metadata(args.sensor_metadata, args.calib, cameras=cameras, frame_id=args.frame, convention=args.convention,
+                                       fov=args.fov)
+    rig.save(args.out)
+    print(rig.describe())
+    print(f"wrote {args.out}")
+    return 0
