@@ -11,8 +11,9 @@ Boxes are (K, 7) ``x, y, z_bottom, l, w, h, yaw`` in the lidar frame.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from fisheye_infer.boxes import check_boxes
 from fisheye_infer.boxes import corners as box_corners
 from fisheye_infer.errors import FrameError
 from fisheye_infer.nms import NmsConfig, apply_nms
+from fisheye_infer.options import check_classes
 
 __all__ = ["Detections"]
 
@@ -47,13 +49,13 @@ class Detections:
             raise ValueError(f"labels: expected values in [0, {len(self.class_names)}), got {self.labels.min()}..{self.labels.max()}")
 
     @classmethod
-    def empty(cls, class_names: Sequence[str]) -> "Detections":
+    def empty(cls, class_names: Sequence[str]) -> Detections:
         return cls(np.zeros((0, 7), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64), tuple(class_names))
 
     def __len__(self) -> int:
         return len(self.boxes)
 
-    def __getitem__(self, index: Any) -> "Detections":
+    def __getitem__(self, index: Any) -> Detections:
         """Select by integer array, slice or boolean mask; returns a new ``Detections``."""
         if isinstance(index, (int, np.integer)):
             index = [index]
@@ -66,22 +68,22 @@ class Detections:
 
     # -- filters ------------------------------------------------------------------------
 
-    def filter(self, min_score: float | None = None, classes: Iterable[str] | None = None, max_range: float | None = None) -> "Detections":
-        """Boxes with score >= ``min_score``, of the given classes, centre within ``max_range`` m (BEV)."""
+    def filter(self, min_score: float | None = None, classes: Iterable[str] | None = None, max_range: float | None = None) -> Detections:
+        """Boxes with score >= ``min_score``, of the given classes, centre within ``max_range`` m (BEV).
+
+        Class names the model does not have are an ``OptionError`` naming them.
+        """
         keep = np.ones(len(self), dtype=bool)
         if min_score is not None:
             keep &= self.scores >= min_score
-        if classes is not None:
-            wanted = list(classes)
-            unknown = set(wanted) - set(self.class_names)
-            if unknown:
-                raise ValueError(f"classes: unknown {sorted(unknown)}; the model's classes are {', '.join(self.class_names)}")
+        wanted = check_classes(classes, self.class_names)
+        if wanted is not None:
             keep &= np.isin(self.labels, [self.class_names.index(c) for c in wanted])
         if max_range is not None:
             keep &= np.hypot(self.boxes[:, 0], self.boxes[:, 1]) <= max_range
         return self[keep]
 
-    def with_nms(self, config: NmsConfig) -> "Detections":
+    def with_nms(self, config: NmsConfig) -> Detections:
         return self[apply_nms(self.boxes, self.scores, self.labels, config, self.class_names)]
 
     # -- geometry and exports -----------------------------------------------------------
@@ -114,7 +116,7 @@ class Detections:
         return json.dumps(doc, **kwargs)
 
     @classmethod
-    def from_json(cls, text: str, class_names: Sequence[str]) -> "Detections":
+    def from_json(cls, text: str, class_names: Sequence[str]) -> Detections:
         """Read back what ``to_json`` wrote (e.g. to draw a saved result); a bad row is named."""
         try:
             doc = json.loads(text)

@@ -21,73 +21,23 @@ class list against the labels the graph returns (at warm-up, and on every run).
 
 from __future__ import annotations
 
-import math
-import numbers
 import time
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, METADATA_KEY, OUTPUTS, ArtifactMeta, parse_meta
 from fisheye_infer.detections import Detections
-from fisheye_infer.errors import ArtifactError, FrameError, OptionError
+from fisheye_infer.errors import ArtifactError, FrameError
 from fisheye_infer.nms import NmsConfig
+from fisheye_infer.options import check_classes, check_nms, check_score_threshold
 from fisheye_infer.preprocess import Frame, load_frame, stack_frames
 from fisheye_infer.rig import Rig
 from fisheye_infer.session import create_session, map_ort_errors
 
-__all__ = ["Detector", "DetectorInfo", "FrameDetector", "check_classes", "check_interface", "check_nms", "check_output_shapes",
-           "check_score_threshold", "describe"]
-
-
-NMS_KINDS = ("rotated", "circle")
-
-
-def _shown(value: object, limit: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def check_score_threshold(value: object) -> float | None:
-    """``None`` or a real number in [0, 1] (NaN refused), as a float."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise OptionError(f"score_threshold: expected a number in [0, 1], got {type(value).__name__} {_shown(value)}")
-    number = float(value)
-    if math.isnan(number) or not 0.0 <= number <= 1.0:
-        raise OptionError(f"score_threshold: expected a number in [0, 1], got {number}")
-    return number
-
-
-def check_classes(value: object, known: Sequence[str]) -> tuple[str, ...] | None:
-    """``None`` or class names of this model; a bare string is refused rather than split into letters."""
-    if value is None:
-        return None
-    if isinstance(value, (str, bytes)):
-        raise OptionError(f"classes: got the single string {_shown(value)}; pass a list of class names, e.g. [{_shown(value)}]")
-    if isinstance(value, Mapping) or not isinstance(value, Iterable):
-        raise OptionError(f"classes: expected a list of class names, got {type(value).__name__}")
-    names = tuple(value)
-    wrong = [name for name in names if not isinstance(name, str)]
-    if wrong:
-        raise OptionError(f"classes: expected class names (strings), got {type(wrong[0]).__name__} {_shown(wrong[0])}")
-    unknown = sorted(set(names) - set(known))
-    if unknown:
-        shown = ", ".join(_shown(name) for name in unknown[:20]) + (f" and {len(unknown) - 20} more" if len(unknown) > 20 else "")
-        raise OptionError(f"classes: unknown {shown}; the model's classes are {', '.join(known)}")
-    return names
-
-
-def check_nms(value: object) -> NmsConfig | None:
-    """``None``, an ``NmsConfig``, or the name of a kind (``"rotated"``/``"circle"``) with its defaults."""
-    if value is None or isinstance(value, NmsConfig):
-        return value
-    if isinstance(value, str) and value in NMS_KINDS:
-        return NmsConfig(kind=value)  # type: ignore[arg-type]
-    raise OptionError(f"nms: expected an NmsConfig or one of {', '.join(repr(k) for k in NMS_KINDS)}, got {type(value).__name__} {_shown(value)}")
+__all__ = ["Detector", "DetectorInfo", "FrameDetector", "check_interface", "check_output_shapes", "describe"]
 
 
 @dataclass(frozen=True)
@@ -194,11 +144,13 @@ class FrameDetector:
         """The raw graph outputs (boxes, scores, labels, valid) for a prepared batch."""
         return self._checked_run(np.ascontiguousarray(images, np.uint8), np.ascontiguousarray(valid, bool))
 
-    def detect(self, frame: Frame, *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | str | None = None) -> Detections:
+    def detect(self, frame: Frame, *, score_threshold: float | None = None, classes: Iterable[str] | None = None,
+               nms: NmsConfig | str | None = None) -> Detections:
         """Detections for one frame (mapping camera -> image, or a sequence in camera order)."""
         return self.detect_batch([frame], score_threshold=score_threshold, classes=classes, nms=nms)[0]
 
-    def detect_batch(self, frames: Iterable[Frame], *, score_threshold: float | None = None, classes: Iterable[str] | None = None, nms: NmsConfig | str | None = None) -> list[Detections]:
+    def detect_batch(self, frames: Iterable[Frame], *, score_threshold: float | None = None, classes: Iterable[str] | None = None,
+                     nms: NmsConfig | str | None = None) -> list[Detections]:
         """Detections for several frames (a list, or any iterable such as a generator), run as one batch."""
         score_threshold = check_score_threshold(score_threshold)
         classes = check_classes(classes, self.info.classes)
@@ -227,7 +179,8 @@ class FrameDetector:
             r.timings_ms.update(timings)
         return results
 
-    def _postprocess(self, outputs: list[np.ndarray], b: int, valid_cameras: np.ndarray, score_threshold: float | None, classes: Iterable[str] | None, nms: NmsConfig | None) -> Detections:
+    def _postprocess(self, outputs: list[np.ndarray], b: int, valid_cameras: np.ndarray, score_threshold: float | None,
+                     classes: Iterable[str] | None, nms: NmsConfig | None) -> Detections:
         boxes, scores, labels, keep = (o[b] for o in outputs)
         used = tuple(c for c, ok in zip(self.info.cameras, valid_cameras) if ok)
         dets = Detections(boxes[keep], scores[keep], labels[keep].astype(np.int64), self.info.classes, used, {}, self.info.model_id)

@@ -1,20 +1,26 @@
 """One exception tree for everything fisheye-infer raises on purpose.
 
     FisheyeInferError
-     ├── CameraModelError   a calibration file or camera parameter is malformed
-     ├── RigError           a rig is incomplete or inconsistent (camera, field named)
-     ├── ConfigError        a model configuration cannot be read or is refused
+     ├── CameraModelError   a calibration file or camera parameter is malformed       (ValueError)
+     ├── RigError           a rig is incomplete or inconsistent (camera, field named) (ValueError)
+     ├── ConfigError        a model configuration or geometry parameters are refused  (ValueError)
      ├── CheckpointError    a checkpoint does not fit the model (keys named)
      ├── ExportError        an export cannot be carried out
      │    └── ParityError   the exported graph disagrees with PyTorch beyond tolerance
-     ├── ArtifactError      an ONNX file lacks or has wrong fisheye-infer metadata
-     ├── FrameError         an input frame is unusable (camera and field named)
- ├── OptionError        a Detector or detect option has the wrong type or is out of range
-     ├── DatasetError       a Fisheye3DOD folder is missing or malformed (what is missing named)
+     ├── ArtifactError      an ONNX file lacks or has wrong fisheye-infer metadata or graph
+     ├── FrameError         an input frame is unusable (camera and field named)       (ValueError)
+     ├── OptionError        a detect option has the wrong type or is out of range     (ValueError)
+     ├── DatasetError       a Fisheye3DOD folder is missing or malformed              (ValueError)
      └── InferenceError     ONNX Runtime failed while running a valid frame
 
 Messages name the camera or field and say what was expected and what was received,
-so a user can act on them without reading a traceback.
+so a user can act on them without reading a traceback. The errors about a value the caller
+passed are also ``ValueError`` subclasses. Foreign exceptions are translated where they enter (ONNX
+Runtime's in ``session.map_ort_errors``, torch's and onnx's in the exporter), and the tree is
+mapped once per front end: ``fisheye_infer.cli.main`` prints the message and exits 1,
+``fisheye_infer.service.errors.error_response`` gives each class its HTTP status. A plain
+``ValueError`` or ``TypeError`` from a building block (a numpy array of the wrong shape passed to
+a geometry function) is a programming error, not a refusal of user input.
 """
 
 from __future__ import annotations
