@@ -27,8 +27,8 @@ import base64
 import binascii
 import re
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 from pydantic import ValidationError
@@ -64,8 +64,13 @@ class FrameSpec:
     max_batch_frames: int
 
     @classmethod
-    def of(cls, info: DetectorInfo, max_batch_frames: int) -> "FrameSpec":
+    def of(cls, info: DetectorInfo, max_batch_frames: int) -> FrameSpec:
         return cls(info.cameras, info.image_size, info.classes, max_batch_frames)
+
+    def check_frame_count(self, count: int) -> None:
+        """At most ``max_batch_frames`` frames in one request (422 beyond)."""
+        if count > self.max_batch_frames:
+            raise RequestInvalid(f"frames: got {count}, at most max_batch_frames={self.max_batch_frames} per request", field="frames")
 
 
 # -- options ------------------------------------------------------------------------------------
@@ -128,7 +133,8 @@ def _check_image(data: bytes, label: str, spec: FrameSpec, declared: str | None 
     size = encoded_image_size(data)
     width, height = spec.image_size
     if size is None:
-        raise RequestInvalid(f"camera '{label}': image header is truncated or unreadable (no width and height found), expected a {width}x{height} image", field=label)
+        raise RequestInvalid(f"camera '{label}': image header is truncated or unreadable (no width and height found), "
+                             f"expected a {width}x{height} image", field=label)
     if size != (width, height):
         raise RequestInvalid(f"camera '{label}': image is {size[0]}x{size[1]}, model expects {width}x{height}", field=label)
 
@@ -157,8 +163,7 @@ def _in_frame(index: int, exc: FisheyeInferError) -> FisheyeInferError:
 
 
 def check_frames(frames: list[EncodedFrame], spec: FrameSpec, options: DetectOptions, types: list[dict[str, str | None]] | None = None) -> None:
-    if len(frames) > spec.max_batch_frames:
-        raise RequestInvalid(f"frames: got {len(frames)}, at most max_batch_frames={spec.max_batch_frames} per request", field="frames")
+    spec.check_frame_count(len(frames))
     for i, frame in enumerate(frames):
         try:
             check_frame(frame, spec, options, types[i] if types else None)
@@ -291,8 +296,7 @@ async def _multipart(request: Request, spec: FrameSpec, batch: bool) -> tuple[li
         for _, upload in files:
             await upload.close()
     count = max(frames, default=-1) + 1
-    if count > spec.max_batch_frames:
-        raise RequestInvalid(f"frames: got {count}, at most max_batch_frames={spec.max_batch_frames} per request", field="frames")
+    spec.check_frame_count(count)
     gaps = [i for i in range(count) if i not in frames]
     if gaps:
         raise RequestInvalid(f"frame {gaps[0]}: no image parts, expected frames numbered 0..{count - 1} without gaps", field=str(gaps[0]))
@@ -314,8 +318,7 @@ async def _json(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[En
         raise _invalid(exc, body=body) from None
     options = _check_classes(DetectOptions.model_validate(doc.model_dump(include=set(OPTION_FIELDS))), spec)
     raw = [f.images for f in doc.frames] if isinstance(doc, BatchJsonRequest) else [doc.images]
-    if len(raw) > spec.max_batch_frames:
-        raise RequestInvalid(f"frames: got {len(raw)}, at most max_batch_frames={spec.max_batch_frames} per request", field="frames")
+    spec.check_frame_count(len(raw))
     return [{camera: _b64(text, camera) for camera, text in images.items()} for images in raw], options
 
 
