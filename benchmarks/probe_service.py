@@ -25,9 +25,9 @@ import threading
 import time
 import urllib.error
 import urllib.request
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import httpx
@@ -111,7 +111,7 @@ def probes(url: str, port: int, pngs: dict[str, bytes], jpegs: dict[str, bytes])
                 try:
                     sock.sendall(bytes([byte]))
                     answer = sock.recv(65536)
-                except socket.timeout:
+                except TimeoutError:
                     continue
                 except (ConnectionResetError, BrokenPipeError):
                     return "reset"
@@ -132,7 +132,8 @@ def probes(url: str, port: int, pngs: dict[str, bytes], jpegs: dict[str, bytes])
         "10 kB camera name": lambda: post(files=files + [("x" * 10000, ("a.png", pngs[front], "image/png"))], headers=key),
         "gzip body": lambda: post(content=gzip.compress(body), headers={**multipart, "Content-Encoding": "gzip"}),
         "unterminated multipart": lambda: post(content=body[:-200], headers=multipart),
-        "5000-digit JSON integer": lambda: post(content=b'{"images": {}, "score_threshold": ' + b"9" * 5000 + b"}", headers={"Content-Type": "application/json", **key}),
+        "5000-digit JSON integer": lambda: post(content=b'{"images": {}, "score_threshold": ' + b"9" * 5000 + b"}",
+                                                headers={"Content-Type": "application/json", **key}),
         "100k unknown classes, JSON": lambda: (lambda r: f"{r.status_code} ({len(r.content)} bytes answered)")(httpx.post(
             url + "/detect", json={"images": {c: base64.b64encode(b).decode() for c, b in pngs.items()}, "classes": [f"c{i}" for i in range(100_000)]},
             headers=key, timeout=30)),

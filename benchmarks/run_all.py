@@ -17,14 +17,15 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from compare import count_flops, gemm_peak, openvino, service_overhead, timed, torch_compile, torch_eager  # noqa: E402
+from compare import count_flops, gemm_peak, openvino, service_overhead, timed, torch_compile  # noqa: E402
 
 ART = Path(__file__).parent / "artifacts"
 TARGETS = {"fisheye-bevdet": 2.3, "fisheye-petr": 1.8}
@@ -59,10 +60,10 @@ def alternate(fns: dict[str, Callable[[], object]], rounds: int) -> dict[str, fl
 def measure(arch: str, args: argparse.Namespace) -> dict[str, Any]:
     import torch
 
+    from fisheye_infer.artifact import read_meta
     from fisheye_infer.bench import bench_model
     from fisheye_infer.detector import Detector
     from fisheye_infer.export.exporter import verification_frames
-    from fisheye_infer.artifact import read_meta
 
     progress = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
     ckpt, fp32, int8 = build(arch, progress)
@@ -99,7 +100,6 @@ def measure(arch: str, args: argparse.Namespace) -> dict[str, Any]:
     out["int8_parity"] = read_meta(int8).parity.model_dump()
     jpeg = {name: cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes() for name, image in zip(meta.cameras, frame)}
     out["service"] = service_overhead(fp32, jpeg, frame, t, args.repeat) if args.service else {"error": "skipped (--no-service)"}
-    del model
     return out
 
 
@@ -125,8 +125,10 @@ def report(results: dict[str, Any]) -> str:
         share = _ratio(st.get("view_transform", {}).get("median"), total_stages)
         bound = r["flops_g"]["total"] / max(v for k, v in gemm.items() if k.endswith("fp32")) * 1e3  # the best fp32 GEMM measured
         rss = r["bench_fp32"]["peak_rss_mb"].get(str(results["ratio_threads"]))
-        lines.append(f"| {arch} | {r['flops_g']['total']:.0f} | {fp32:.0f} | {int8:.0f} | {eager:.0f} | {f'{comp_ms:.0f}' if comp_ms else r['torch_compile'].get('error', '-')} | "
-                     f"{f'{ov_ms:.0f}' if ov_ms else r['openvino'].get('error')} | {f'{share:.1%}' if share else '-'} | {bound:.0f} | {f'{rss:.0f}' if rss else '-'} |")
+        compiled = f"{comp_ms:.0f}" if comp_ms else r["torch_compile"].get("error", "-")
+        openvino_ms = f"{ov_ms:.0f}" if ov_ms else r["openvino"].get("error")
+        lines.append(f"| {arch} | {r['flops_g']['total']:.0f} | {fp32:.0f} | {int8:.0f} | {eager:.0f} | {compiled} | "
+                     f"{openvino_ms} | {f'{share:.1%}' if share else '-'} | {bound:.0f} | {f'{rss:.0f}' if rss else '-'} |")
         targets.append((f"{arch} ORT fp32 vs eager >= {TARGETS[arch]}x", _ratio(eager, fp32), TARGETS[arch], True))
         targets.append((f"{arch} ORT fp32 vs torch.compile >= 1x", _ratio(comp_ms, fp32), 1.0, True))
         targets.append((f"{arch} ORT fp32 vs OpenVINO >= 1x", _ratio(ov_ms, fp32), 1.0, True))
@@ -139,7 +141,8 @@ def report(results: dict[str, Any]) -> str:
         svc = r["service"]
         if "service_ms" in svc:
             decode = f"; JPEG decode {np.median(svc['decode_ms']):.0f} ms of it" if svc.get("decode_ms") else ""
-            targets.append((f"{arch} POST /detect JPEG overhead <= 15%{decode}", float(np.median(svc["service_ms"])) / float(np.median(svc["direct_ms"])) - 1, 0.15, False))
+            overhead = float(np.median(svc["service_ms"])) / float(np.median(svc["direct_ms"])) - 1
+            targets.append((f"{arch} POST /detect JPEG overhead <= 15%{decode}", overhead, 0.15, False))
         else:
             targets.append((f"{arch} POST /detect overhead: {svc.get('error')}", None, 0.15, False))
     lines.append("")

@@ -24,10 +24,10 @@ from typing import Any
 import torch
 
 from fisheye_infer.models import BEVDetConfig
-from fisheye_infer.rig import Rig, default_rig
-from fisheye_infer.synth import resized_rig
 from fisheye_infer.models.training.compact import COMPACT_SECTIONS, compact_bevdet_config, compact_rig
 from fisheye_infer.models.training.loop import Trainer, TrainOptions
+from fisheye_infer.rig import Rig, default_rig
+from fisheye_infer.synth import resized_rig
 
 BUDGET_S = 3 * 3600
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Literal, Protocol, Union
+from typing import Annotated, Literal, Protocol
 
 import cv2
 import numpy as np
@@ -110,7 +110,7 @@ class OCamModel(_Frozen):
     fov: float = Field(default=220.0, gt=0.0, le=360.0, description="full field of view, degrees")
 
     @model_validator(mode="after")
-    def _affine_invertible(self) -> "OCamModel":
+    def _affine_invertible(self) -> OCamModel:
         if abs(self.c - self.d * self.e) < 1e-9:
             raise ValueError(f"affine c - d*e must be non-zero, got c={self.c}, d={self.d}, e={self.e}")
         return self
@@ -118,7 +118,7 @@ class OCamModel(_Frozen):
     # -- file format -------------------------------------------------------------------
 
     @classmethod
-    def from_file(cls, path: str | Path, fov: float = 220.0) -> "OCamModel":
+    def from_file(cls, path: str | Path, fov: float = 220.0) -> OCamModel:
         """Read an OCamCalib ``calib_results.txt``."""
         path = Path(path)
         try:
@@ -128,7 +128,7 @@ class OCamModel(_Frozen):
         return cls.parse(text, fov=fov, source=str(path))
 
     @classmethod
-    def parse(cls, text: str, fov: float = 220.0, source: str = "<text>") -> "OCamModel":
+    def parse(cls, text: str, fov: float = 220.0, source: str = "<text>") -> OCamModel:
         """Parse the text of a ``calib_results.txt``.
 
         Blank lines (including CRLF and whitespace-only ones) and ``#`` comments are skipped, so the
@@ -148,7 +148,7 @@ class OCamModel(_Frozen):
         fields = ["direct polynomial", "inverse polynomial", "centre (row, column)", "affine (c, d, e)", "image size (height, width)"]
         if len(rows) < 5:
             raise CameraModelError(f"OCam file {source}: expected 5 data rows ({', '.join(fields)}), found {len(rows)}")
-        for row, field, count in ((rows[0], fields[0], None), (rows[1], fields[1], None), (rows[2], fields[2], 2), (rows[3], fields[3], 3), (rows[4], fields[4], 2)):
+        for row, field, count in zip(rows[:5], fields[:5], (None, None, 2, 3, 2)):
             if count is None:
                 if len(row) < 2 or int(row[0]) != len(row) - 1:
                     raise CameraModelError(
@@ -288,7 +288,8 @@ class KannalaBrandt(_Frozen):
     fov: float = Field(default=220.0, gt=0.0, le=360.0)
 
     @classmethod
-    def from_polynomial(cls, coeffs: tuple[float, float, float, float, float], cx: float, cy: float, width: int, height: int, fov: float = 220.0) -> "KannalaBrandt":
+    def from_polynomial(cls, coeffs: tuple[float, float, float, float, float], cx: float, cy: float, width: int, height: int,
+                        fov: float = 220.0) -> KannalaBrandt:
         """Build from the paper's radius form r(theta) = k0 theta + k1 theta^3 + ... + k4 theta^9 (pixels)."""
         k0, *rest = coeffs
         if k0 <= 0:
@@ -339,7 +340,7 @@ class Equidistant(KannalaBrandt):
     type: Literal["equidistant"] = "equidistant"  # type: ignore[assignment]
 
     @model_validator(mode="after")
-    def _no_distortion(self) -> "Equidistant":
+    def _no_distortion(self) -> Equidistant:
         if any(self.k):
             raise ValueError("an equidistant model has no distortion coefficients; use kannala_brandt")
         return self
@@ -367,4 +368,4 @@ class Pinhole(_Frozen):
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
 
-AnyCameraModel = Annotated[Union[OCamModel, KannalaBrandt, Equidistant, Pinhole], Field(discriminator="type")]
+AnyCameraModel = Annotated[OCamModel | KannalaBrandt | Equidistant | Pinhole, Field(discriminator="type")]

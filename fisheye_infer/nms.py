@@ -12,7 +12,8 @@ users whose downstream needs one box per object:
 
 from __future__ import annotations
 
-from typing import Literal, Mapping
+from collections.abc import Callable, Mapping
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -39,7 +40,7 @@ class NmsConfig(BaseModel):
     class_aware: bool = True
 
     @model_validator(mode="after")
-    def _check_per_class(self) -> "NmsConfig":
+    def _check_per_class(self) -> NmsConfig:
         """Per-class values obey the default's bounds: an IoU of 0 or a negative radius would
         silently suppress every other box of the class."""
         for name, value in self.per_class.items():
@@ -74,7 +75,8 @@ def _thresholds(labels: np.ndarray, default: float, per_class: Mapping[int, floa
     return out
 
 
-def _greedy(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, class_aware: bool, suppresses) -> np.ndarray:
+def _greedy(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, class_aware: bool,
+            suppresses: Callable[[int, int], bool]) -> np.ndarray:
     order = np.argsort(-np.asarray(scores), kind="stable")
     alive = np.ones(len(order), dtype=bool)
     keep = []
@@ -97,7 +99,8 @@ def _check(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray) -> tuple[n
     return b, s, lab
 
 
-def rotated_bev_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, iou: float = 0.2, per_class: Mapping[int, float] | None = None, class_aware: bool = True) -> np.ndarray:
+def rotated_bev_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, iou: float = 0.2, per_class: Mapping[int, float] | None = None,
+                    class_aware: bool = True) -> np.ndarray:
     """Indices of the boxes kept, highest score first; a box goes when its BEV IoU with a kept
     box of the same class exceeds that class's threshold."""
     b, s, lab = _check(boxes, scores, labels)
@@ -105,7 +108,8 @@ def rotated_bev_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, i
     return _greedy(b, s, lab, class_aware, lambda i, j: bev_iou(b[i], b[j]) > limit[i])
 
 
-def circle_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, radius: float = 2.0, per_class: Mapping[int, float] | None = None, class_aware: bool = True) -> np.ndarray:
+def circle_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, radius: float = 2.0, per_class: Mapping[int, float] | None = None,
+               class_aware: bool = True) -> np.ndarray:
     """Indices of the boxes kept, highest score first; a box goes when its centre lies within
     the class's radius of a kept box's centre."""
     b, s, lab = _check(boxes, scores, labels)

@@ -23,7 +23,8 @@ when a runtime and an evaluator each convert on their own.
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 

@@ -17,10 +17,11 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from collections.abc import Sequence
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal, Sequence
+from typing import Any, Final, Literal
 
 import numpy as np
 import yaml
@@ -32,7 +33,7 @@ from fisheye_infer.errors import CameraModelError, RigError
 
 __all__ = ["Rig", "RigCamera", "FISHEYE3DOD_CAMERAS", "RIG_SCHEMA_VERSION", "default_rig", "resolve_rig"]
 
-RIG_SCHEMA_VERSION = 1
+RIG_SCHEMA_VERSION: Final = 1
 #: The detectors' input order for Fisheye3DOD.
 FISHEYE3DOD_CAMERAS = ("fisheye_camera_front", "fisheye_camera_left", "fisheye_camera_right", "fisheye_camera_rear")
 _RIGID_TOLERANCE = 1e-4
@@ -90,7 +91,7 @@ class Rig(BaseModel):
     cameras: tuple[RigCamera, ...] = Field(min_length=1)
 
     @model_validator(mode="after")
-    def _unique_names(self) -> "Rig":
+    def _unique_names(self) -> Rig:
         seen = [c.name for c in self.cameras]
         dupes = sorted({n for n in seen if seen.count(n) > 1})
         if dupes:
@@ -100,7 +101,7 @@ class Rig(BaseModel):
     # -- construction ---------------------------------------------------------------------
 
     @classmethod
-    def from_dict(cls, data: Any, source: str = "rig") -> "Rig":
+    def from_dict(cls, data: Any, source: str = "rig") -> Rig:
         """Validate a rig document; every problem is reported with its camera name and field."""
         try:
             return cls.model_validate(data)
@@ -108,7 +109,7 @@ class Rig(BaseModel):
             raise RigError(f"{source}: " + _describe(exc, data)) from None
 
     @classmethod
-    def from_cameras(cls, models: dict[str, Any], cam2lidar: dict[str, np.ndarray], order: Sequence[str] | None = None, name: str = "rig") -> "Rig":
+    def from_cameras(cls, models: dict[str, Any], cam2lidar: dict[str, np.ndarray], order: Sequence[str] | None = None, name: str = "rig") -> Rig:
         """Assemble from per-camera models and cam2lidar matrices, in ``order`` (default: ``models`` order)."""
         order = list(order or models)
         for cam in order:
@@ -122,7 +123,8 @@ class Rig(BaseModel):
         return cls.from_dict({"name": name, "cameras": cameras})
 
     @classmethod
-    def from_ocam_extrinsics(cls, calib: str | Path, lidar2cam_json: str | Path, order: Sequence[str] | None = None, fov: float = 220.0, name: str | None = None) -> "Rig":
+    def from_ocam_extrinsics(cls, calib: str | Path, lidar2cam_json: str | Path, order: Sequence[str] | None = None, fov: float = 220.0,
+                             name: str | None = None) -> Rig:
         """One OCam file shared by all cameras + ``{"cameras": {name: lidar2cam 4x4}}``.
 
         Without ``order``, Fisheye3DOD's order is used when the file has exactly its cameras.
@@ -155,7 +157,7 @@ class Rig(BaseModel):
         frame_id: str | None = None,
         convention: Convention = "compat",
         fov: float = 220.0,
-    ) -> "Rig":
+    ) -> Rig:
         """Rig of one Fisheye3DOD frame from ``<scene>/<vehicle>/<sensor>/sensor_metadata.txt``.
 
         ``frame_id`` defaults to the first frame that every camera and the lidar recorded.
@@ -180,7 +182,7 @@ class Rig(BaseModel):
         return cls.from_cameras({c: model for c in cameras}, cam2lidar, cameras, name=f"{root.parent.name}/{root.name}@{frame_id}")
 
     @classmethod
-    def load(cls, path: str | Path) -> "Rig":
+    def load(cls, path: str | Path) -> Rig:
         """Read a rig file (``.json``, ``.yaml`` or ``.yml``)."""
         path = Path(path)
         try:
@@ -233,14 +235,15 @@ class Rig(BaseModel):
         first = self.cameras[0].model
         for cam in self.cameras[1:]:
             if cam.model != first:
-                raise RigError(f"camera '{cam.name}': its camera model differs from '{self.cameras[0].name}'; this model needs one shared intrinsic calibration")
+                raise RigError(f"camera '{cam.name}': its camera model differs from '{self.cameras[0].name}'; this model needs one shared "
+                               "intrinsic calibration")
         return first
 
     def require(self, names: Sequence[str], image_size: tuple[int, int] | None = None) -> None:
         """Check that the rig has exactly ``names`` in that order and, if given, images of ``image_size`` (W, H)."""
-        for cam in names:
-            if cam not in self.names:
-                raise RigError(f"camera '{cam}': missing from the rig (rig has: {', '.join(self.names)})")
+        for name in names:
+            if name not in self.names:
+                raise RigError(f"camera '{name}': missing from the rig (rig has: {', '.join(self.names)})")
         if list(names) != self.names:
             raise RigError(f"camera order: expected {', '.join(names)}; the rig has {', '.join(self.names)}")
         if image_size is not None:

@@ -8,9 +8,9 @@ intra-op threads as the machine has cores unless told otherwise.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Sequence
 
 import onnxruntime as ort
 

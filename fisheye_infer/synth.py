@@ -19,9 +19,9 @@ Everything is seeded: the same arguments write the same bytes. Box parameters ar
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -35,9 +35,11 @@ __all__ = ["CLASS_SIZES", "CLASS_COLOURS", "Scene", "SynthFrame", "Appearance", 
            "synthesize", "resized_rig"]
 
 #: Typical (length, width, height) in metres per class.
-CLASS_SIZES = {"Car": (4.5, 1.9, 1.6), "Van": (5.0, 2.0, 2.1), "Truck": (7.5, 2.5, 3.2), "Bus": (11.0, 2.9, 3.3), "Pedestrian": (0.7, 0.7, 1.75), "Cyclist": (1.8, 0.7, 1.7)}
+CLASS_SIZES = {"Car": (4.5, 1.9, 1.6), "Van": (5.0, 2.0, 2.1), "Truck": (7.5, 2.5, 3.2), "Bus": (11.0, 2.9, 3.3),
+               "Pedestrian": (0.7, 0.7, 1.75), "Cyclist": (1.8, 0.7, 1.7)}
 #: BGR colour per class, far from the greys of the ground and the blues of the sky.
-CLASS_COLOURS = {"Car": (40, 40, 210), "Van": (0, 140, 255), "Truck": (0, 215, 235), "Bus": (210, 110, 20), "Pedestrian": (200, 40, 200), "Cyclist": (40, 190, 40)}
+CLASS_COLOURS = {"Car": (40, 40, 210), "Van": (0, 140, 255), "Truck": (0, 215, 235), "Bus": (210, 110, 20), "Pedestrian": (200, 40, 200),
+                 "Cyclist": (40, 190, 40)}
 _CLASS_WEIGHTS = (0.4, 0.15, 0.1, 0.05, 0.2, 0.1)
 _SUN = (0.3, 0.5, 0.81)
 _LIGHT = np.array(_SUN, np.float32) / np.linalg.norm(_SUN)
@@ -86,11 +88,11 @@ def random_appearance(rng: np.random.Generator, scene: Scene, colour_jitter: flo
     channel and scaled in brightness (classes stay told apart by colour family and size)."""
     elevation, azimuth = rng.uniform(0.25, 1.4), rng.uniform(-math.pi, math.pi)
     light = (math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation))
-    colours = []
+    colours: list[tuple[float, float, float]] = []
     for label in scene.labels:
         base = np.asarray(CLASS_COLOURS[CLASSES[int(label)]], np.float64)
         colour = np.clip((base + rng.uniform(-colour_jitter, colour_jitter, 3)) * rng.uniform(0.75, 1.2), 0, 255)
-        colours.append(tuple(float(c) for c in colour))
+        colours.append((float(colour[0]), float(colour[1]), float(colour[2])))
     return Appearance(
         light=light, ambient=float(rng.uniform(0.2, 0.5)), ground_grey=float(rng.uniform(60, 150)),
         checker_contrast=float(rng.uniform(0, 60)), noise_contrast=float(rng.uniform(10, 60)),

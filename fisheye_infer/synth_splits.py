@@ -17,9 +17,10 @@ is evaluated by ``fisheye-infer eval`` like any recorded data:
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 

@@ -8,8 +8,9 @@ so the pictures work on a robot with the core install.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -38,7 +39,7 @@ def _text(img: np.ndarray, text: str, org: tuple[int, int], colour: tuple[int, i
 def draw_rig(rig: Rig, size: int = 800, extent_m: float = 6.0) -> np.ndarray:
     """Top view: lidar x points up the picture, y to the left; each camera's position, optical axis
     and horizontal field of view as a wedge."""
-    img = np.full((size, size, 3), 255, np.uint8)
+    img: np.ndarray = np.full((size, size, 3), 255, np.uint8)
     scale = size / (2 * extent_m)
 
     def px(x: float, y: float) -> tuple[int, int]:
@@ -113,7 +114,7 @@ def _class_colour(name: str) -> tuple[int, int, int]:
     return CLASS_COLOURS.get(name, (160, 160, 160))
 
 
-def draw_bev(detections: "Detections", size: int = 800, extent_m: float = 50.0, rig: Rig | None = None) -> np.ndarray:
+def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, rig: Rig | None = None) -> np.ndarray:
     """Bird's-eye view: x up, y left, range rings every 10 m, the ego footprint, boxes with class and score."""
     from fisheye_infer.boxes import bev_corners
 
@@ -128,7 +129,8 @@ def draw_bev(detections: "Detections", size: int = 800, extent_m: float = 50.0, 
         _text(img, f"{r} m", (size // 2 + 3, int(size / 2 - r * scale) + 14), (150, 150, 150), 0.4)
     if rig is not None:
         pos = np.array([c.position for c in rig.cameras])
-        corners = px(np.array([pos[:, 0].max(), pos[:, 0].max(), pos[:, 0].min(), pos[:, 0].min()]), np.array([pos[:, 1].max(), pos[:, 1].min(), pos[:, 1].min(), pos[:, 1].max()]))
+        (x0, y0), (x1, y1) = pos[:, :2].min(axis=0), pos[:, :2].max(axis=0)
+        corners = px(np.array([x1, x1, x0, x0]), np.array([y1, y0, y0, y1]))
         cv2.fillPoly(img, [np.round(corners).astype(np.int32)], (90, 90, 90))
     cv2.arrowedLine(img, (size // 2, size // 2), (size // 2, size // 2 - int(4 * scale)), (0, 0, 0), 2, tipLength=0.3)
     for box, name, score in zip(bev_corners(detections.boxes), detections.names, detections.scores):
@@ -142,7 +144,7 @@ def draw_bev(detections: "Detections", size: int = 800, extent_m: float = 50.0, 
     return img
 
 
-def draw_detections(detections: "Detections", rig: Rig, images: Mapping[str, np.ndarray | None] | None = None, tile: int = 400) -> np.ndarray:
+def draw_detections(detections: Detections, rig: Rig, images: Mapping[str, np.ndarray | None] | None = None, tile: int = 400) -> np.ndarray:
     """The fisheye images with the boxes projected through the rig's camera models, beside the BEV.
 
     Cameras without an image are drawn on black. Returns one BGR picture: a 2-column grid of

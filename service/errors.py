@@ -66,7 +66,7 @@ def shown(text: str, limit: int = MAX_SHOWN_CHARS) -> str:
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
-def listed(names: "list[str] | tuple[str, ...]", limit: int = MAX_LISTED) -> str:
+def listed(names: list[str] | tuple[str, ...], limit: int = MAX_LISTED) -> str:
     """At most ``limit`` names, each ``shown``, then "and N more"."""
     text = ", ".join(shown(str(n)) for n in names[:limit])
     return text + (f" and {len(names) - limit} more" if len(names) > limit else "")
@@ -168,7 +168,7 @@ def error_body(exc: FisheyeInferError) -> dict[str, object]:
     return {"error": str(exc), "status": status_of(exc), "type": type(exc).__name__, "field": _field_of(exc)}
 
 
-def error_response(exc: FisheyeInferError, close: bool = False) -> "JSONResponse":
+def error_response(exc: FisheyeInferError, close: bool = False) -> JSONResponse:
     """The answer to ``exc``; ``close`` (or the error's own ``closes_connection``) ends the connection after it."""
     from starlette.responses import JSONResponse
 
@@ -186,7 +186,7 @@ def error_response(exc: FisheyeInferError, close: bool = False) -> "JSONResponse
     return JSONResponse(error_body(exc), status_code=status, headers=headers)
 
 
-async def handle_fisheye_error(request: "Request", exc: Exception) -> "JSONResponse":
+async def handle_fisheye_error(request: Request, exc: Exception) -> JSONResponse:
     """The exception handler for the whole ``FisheyeInferError`` tree."""
     if not isinstance(exc, FisheyeInferError):  # registered for that class only
         raise exc

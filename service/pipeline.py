@@ -1,7 +1,8 @@
 """One request's frames through decode -> queue -> per-request options -> result documents.
 
 The images are decoded in a thread (at most one decode per core at a time), before the request
-takes its queue place: a slow decode holds a thread, never the queue or the event loop. Shared by ``/detect``, ``/detect/batch`` and ``/stream``. The worker always runs the official
+takes its queue place: a slow decode holds a thread, never the queue or the event loop. Shared
+by ``/detect``, ``/detect/batch`` and ``/stream``. The worker always runs the official
 output set (no threshold, no NMS), so requests with different options can share one
 micro-batch; each request's threshold, class filter and NMS are applied afterwards, off the
 event loop, and counted as postprocess time.

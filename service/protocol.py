@@ -25,8 +25,8 @@ framework, so clients can import it with the core package alone.
 from __future__ import annotations
 
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 from fisheye_infer.service.errors import ServiceError
 

@@ -30,8 +30,9 @@ import collections
 import logging
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -77,7 +78,7 @@ def _resolve(future: asyncio.Future[Any], result: object, error: BaseException |
 class Ticket:
     """A request's place in the queue; ``release`` must be called exactly once (use ``finally``)."""
 
-    def __init__(self, owner: "InferenceQueue") -> None:
+    def __init__(self, owner: InferenceQueue) -> None:
         self._owner = owner
         self._job: _Job | None = None
         self._state = "reserved"  # -> queued -> taken; or released
@@ -91,7 +92,8 @@ class Ticket:
         try:
             return await asyncio.wait_for(asyncio.shield(job.future), self._owner.settings.request_timeout_s)
         except asyncio.TimeoutError:
-            raise InferenceTimeout(f"result: not ready within request_timeout_s={self._owner.settings.request_timeout_s:g} s", field="request_timeout_s") from None
+            raise InferenceTimeout(f"result: not ready within request_timeout_s={self._owner.settings.request_timeout_s:g} s",
+                                   field="request_timeout_s") from None
 
     def release(self) -> None:
         self._owner._release(self)
@@ -131,7 +133,8 @@ class InferenceQueue:
             self._gauges()
             self._cond.notify_all()
         for _, job in left:
-            self._complete(job, None, Unavailable("service: shutting down before this request's turn", field="service", retry_after=self.settings.retry_after_s))
+            self._complete(job, None, Unavailable("service: shutting down before this request's turn", field="service",
+                                                  retry_after=self.settings.retry_after_s))
         deadline = time.monotonic() + timeout
         for thread in self._threads:
             thread.join(max(0.0, deadline - time.monotonic()))
@@ -153,7 +156,8 @@ class InferenceQueue:
         if draining or self._stopping:
             raise Unavailable("service: shutting down, not accepting new work", field="service", retry_after=retry)
         if self._pending >= self.settings.queue_size:
-            raise Unavailable(f"queue: full ({self._pending} requests waiting, queue_size={self.settings.queue_size}); retry after {retry} s", field="queue", retry_after=retry)
+            raise Unavailable(f"queue: full ({self._pending} requests waiting, queue_size={self.settings.queue_size}); retry after {retry} s",
+                              field="queue", retry_after=retry)
 
     def refuse_if_full(self, draining: bool = False) -> None:
         """503 now if ``admit`` would refuse: checked before a body is read, no place is taken."""

@@ -21,8 +21,9 @@ sharing a machine do not oversubscribe its cores.
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Awaitable, Callable, Sequence
+from typing import Any
 
 from prometheus_client import Histogram
 from ray import serve

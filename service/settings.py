@@ -79,7 +79,7 @@ class ServiceSettings(BaseSettings):
         return value
 
     @model_validator(mode="after")
-    def _refuse_unsafe(self) -> "ServiceSettings":
+    def _refuse_unsafe(self) -> ServiceSettings:
         if self.api_key is not None and len(self.api_key.get_secret_value()) < MIN_API_KEY_LENGTH:
             raise ValueError(f"api_key: expected at least {MIN_API_KEY_LENGTH} characters, got {len(self.api_key.get_secret_value())}")
         if self.microbatch_max_size > self.max_batch_frames:

@@ -57,9 +57,9 @@ class Exported:
 
 def _export(arch: str, folder: Path) -> Exported:
     pytest.importorskip("torch")
-    from fisheye_infer.export.exporter import export
-
     from checkpoint_kit import kit_checkpoint
+
+    from fisheye_infer.export.exporter import export
 
     ckpt = kit_checkpoint(arch, folder / f"{arch}.pth")
     out = folder / f"{arch}.onnx"

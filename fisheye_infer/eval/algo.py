@@ -23,7 +23,7 @@ step per prediction. ``match_reference`` is the plain loop, kept to check it.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

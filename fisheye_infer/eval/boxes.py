@@ -8,8 +8,9 @@ are broken by position), so rows stay in sample order, then in per-sample record
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -42,7 +43,7 @@ class EvalBoxes:
     # -- construction -----------------------------------------------------------------------
 
     @classmethod
-    def empty(cls, tokens: Sequence[str] = ()) -> "EvalBoxes":
+    def empty(cls, tokens: Sequence[str] = ()) -> EvalBoxes:
         z = np.zeros(0)
         return cls(tuple(tokens), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), z, z)
 
@@ -53,7 +54,7 @@ class EvalBoxes:
         class_names: Sequence[str] = CLASSES,
         tokens: Sequence[str] | None = None,
         ground_truth: bool = False,
-    ) -> "EvalBoxes":
+    ) -> EvalBoxes:
         """``{sample_token: [record, ...]}`` -> boxes; ``tokens`` fixes the sample order (default: the mapping's).
 
         A token in ``tokens`` that ``results`` lacks is a sample without boxes. With
@@ -80,7 +81,7 @@ class EvalBoxes:
         return cls(order, sample, cols["label"], cols["translation"], cols["size"], cols["yaw"], cols["score"])
 
     @classmethod
-    def from_arrays(cls, tokens: Sequence[str], boxes: Sequence[np.ndarray], scores: Sequence[np.ndarray | None], labels: Sequence[np.ndarray]) -> "EvalBoxes":
+    def from_arrays(cls, tokens: Sequence[str], boxes: Sequence[np.ndarray], scores: Sequence[np.ndarray | None], labels: Sequence[np.ndarray]) -> EvalBoxes:
         """Per-sample runtime boxes (K_i, 7) ``x, y, z_bottom, l, w, h, yaw``; a ``None`` score marks ground truth.
 
         The yaw goes through the record quaternion, so arrays and records evaluate identically.
@@ -109,7 +110,7 @@ class EvalBoxes:
     def __len__(self) -> int:
         return len(self.sample)
 
-    def __getitem__(self, index: Any) -> "EvalBoxes":
+    def __getitem__(self, index: Any) -> EvalBoxes:
         """Rows by boolean mask or index array, same tokens."""
         return EvalBoxes(self.tokens, self.sample[index], self.label[index], self.translation[index], self.size[index], self.yaw[index], self.score[index])
 
@@ -118,7 +119,7 @@ class EvalBoxes:
         """(K,) distance of the gravity centre from the lidar origin in the x-y plane (m)."""
         return np.sqrt(self.translation[:, 0] ** 2 + self.translation[:, 1] ** 2)
 
-    def by_class(self, num_classes: int, class_range: np.ndarray | None = None) -> list["EvalBoxes"]:
+    def by_class(self, num_classes: int, class_range: np.ndarray | None = None) -> list[EvalBoxes]:
         """One ``EvalBoxes`` per class id, rows in their original order; one sort and one gather, not C masks.
 
         With ``class_range`` only rows inside their class's range are kept (see ``in_range``).
@@ -135,11 +136,11 @@ class EvalBoxes:
         limits = np.asarray(class_range, np.float64)
         return self.ego_dist < limits[self.label]
 
-    def within_range(self, class_range: np.ndarray) -> "EvalBoxes":
+    def within_range(self, class_range: np.ndarray) -> EvalBoxes:
         """Rows inside their class's range."""
         return self[self.in_range(class_range)]
 
-    def top_per_sample(self, k: int) -> "EvalBoxes":
+    def top_per_sample(self, k: int) -> EvalBoxes:
         """At most ``k`` highest-scoring rows per sample, kept in their original order (ties: earlier row)."""
         if k < 0:
             raise ValueError(f"k: expected a non-negative count, got {k}")

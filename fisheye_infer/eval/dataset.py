@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -92,7 +93,8 @@ def read_split(root: str | Path, split: str) -> list[SplitEntry]:
         frame_id = item["frame_id"]
         if not frame_id.isdigit():
             raise DatasetError(f"split '{split}': entry {i}: frame_id must be digits, got {frame_id!r}")
-        entries.append(SplitEntry(item["scene_name"], item["vehicle_name"], item["weather"], f"{int(frame_id):08d}", item.get("prev_id", ""), item.get("next_id", "")))
+        entries.append(SplitEntry(item["scene_name"], item["vehicle_name"], item["weather"], f"{int(frame_id):08d}",
+                                  item.get("prev_id", ""), item.get("next_id", "")))
     return entries
 
 
@@ -116,6 +118,7 @@ def read_labels(path: str | Path, class_names: Sequence[str] = CLASSES) -> tuple
         ok = isinstance(box, list) and len(box) == 7 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in box)
         if not ok:
             raise DatasetError(f"{where}: 'bounding_box' must be 7 finite numbers [x, y, z, l, w, h, yaw], got {box!r}")
+        assert isinstance(box, list)  # checked above; tells the type checker
         if min(box[3:6]) <= 0:
             raise DatasetError(f"{where}: 'bounding_box' sizes l, w, h must be positive, got {box[3:6]}")
         name = obj.get("class")

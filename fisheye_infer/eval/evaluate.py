@@ -16,8 +16,9 @@ from __future__ import annotations
 import json
 import sys
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -114,7 +115,8 @@ def evaluate_results(gt: Results, pred: Results, config: EvalConfig | None = Non
     return evaluate(gt_boxes, pred_boxes, config)
 
 
-def detect_dataset(detector: FrameDetector, dataset: Fisheye3DOD, progress: bool = True) -> tuple[dict[str, list[dict[str, Any]]], dict[str, list[dict[str, Any]]]]:
+def detect_dataset(detector: FrameDetector, dataset: Fisheye3DOD,
+                   progress: bool = True) -> tuple[dict[str, list[dict[str, Any]]], dict[str, list[dict[str, Any]]]]:
     """Run ``detector`` on every frame of ``dataset``: (ground truth, predictions) by sample token.
 
     Predictions are the detector's unthresholded output, as the official numbers are computed;

@@ -57,7 +57,7 @@ class EvalConfig(BaseModel):
     distance_breakdown: tuple[float, ...] = Field(default=(30.0, 48.0), description="reference ranges of the distance breakdown (0-r m)")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "EvalConfig":
+    def _consistent(self) -> EvalConfig:
         if len(set(self.class_names)) != len(self.class_names):
             raise ValueError(f"class_names: repeated names in {list(self.class_names)}")
         missing = [c for c in self.class_names if c not in self.class_range]
@@ -90,7 +90,7 @@ class EvalConfig(BaseModel):
     # -- serialisation ------------------------------------------------------------------------
 
     @classmethod
-    def from_dict(cls, data: Any, source: str = "eval config") -> "EvalConfig":
+    def from_dict(cls, data: Any, source: str = "eval config") -> EvalConfig:
         """Validate a config document; each problem is reported with its field."""
         try:
             return cls.model_validate(data)
@@ -102,14 +102,14 @@ class EvalConfig(BaseModel):
         return self.model_dump(mode="json")
 
     @classmethod
-    def deserialize(cls, data: dict[str, Any]) -> "EvalConfig":
+    def deserialize(cls, data: dict[str, Any]) -> EvalConfig:
         return cls.from_dict(data)
 
     def to_json(self) -> str:
         return json.dumps(self.serialize(), indent=2)
 
     @classmethod
-    def from_json(cls, text: str, source: str = "eval config") -> "EvalConfig":
+    def from_json(cls, text: str, source: str = "eval config") -> EvalConfig:
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
@@ -117,7 +117,7 @@ class EvalConfig(BaseModel):
         return cls.from_dict(data, source)
 
     @classmethod
-    def load(cls, path: str | Path) -> "EvalConfig":
+    def load(cls, path: str | Path) -> EvalConfig:
         path = Path(path)
         try:
             text = path.read_text()
@@ -145,7 +145,7 @@ class MetricData:
                 raise ValueError(f"{name}: expected {self.nelem} recall points, got shape {np.shape(getattr(self, name))}")
 
     @classmethod
-    def no_predictions(cls) -> "MetricData":
+    def no_predictions(cls) -> MetricData:
         """No ground truth or no match: precision and confidence 0, every TP error 1."""
         ones = np.ones(cls.nelem)
         return cls(np.linspace(0, 1, cls.nelem), np.zeros(cls.nelem), np.zeros(cls.nelem), ones, ones.copy(), ones.copy())
@@ -160,7 +160,7 @@ class MetricData:
         return {name: getattr(self, name).tolist() for name in ("recall", "precision", "confidence", *TP_METRICS)}
 
     @classmethod
-    def deserialize(cls, data: dict[str, list[float]]) -> "MetricData":
+    def deserialize(cls, data: dict[str, list[float]]) -> MetricData:
         return cls(**{name: np.asarray(data[name], np.float64) for name in ("recall", "precision", "confidence", *TP_METRICS)})
 
     def __eq__(self, other: object) -> bool:
@@ -209,27 +209,27 @@ class MetricsReport(BaseModel):
     eval_seconds: float = 0.0
 
     # The headline figures at the top of the JSON document too, where a script looks first.
-    @computed_field
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def FDS(self) -> float:
         return self.main.FDS
 
-    @computed_field
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def mAP(self) -> float:
         return self.main.mAP
 
-    @computed_field
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def mATE(self) -> float:
         return self.main.mATE
 
-    @computed_field
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def mASE(self) -> float:
         return self.main.mASE
 
-    @computed_field
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def mAOE(self) -> float:
         return self.main.mAOE
@@ -247,7 +247,7 @@ class MetricsReport(BaseModel):
         return self.model_dump_json(indent=indent)
 
     @classmethod
-    def from_json(cls, text: str) -> "MetricsReport":
+    def from_json(cls, text: str) -> MetricsReport:
         return cls.model_validate_json(text)
 
     def to_markdown(self) -> str:

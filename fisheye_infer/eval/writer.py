@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import cv2
 import numpy as np
@@ -160,7 +160,8 @@ class Fisheye3DODWriter:
             if not cv2.imwrite(str(folder / f"{frame_id}.png"), image):
                 raise DatasetError(f"frame {frame_id}: camera '{camera}': could not write {folder / f'{frame_id}.png'}")
 
-    def write_labels(self, frame_id: str, boxes: np.ndarray, labels: np.ndarray, ids: Sequence[int] | None = None, class_names: Sequence[str] = CLASSES) -> None:
+    def write_labels(self, frame_id: str, boxes: np.ndarray, labels: np.ndarray, ids: Sequence[int] | None = None,
+                     class_names: Sequence[str] = CLASSES) -> None:
         """``label_3d/<frame_id>.json`` from runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw``, stored gravity-centred."""
         frame_id = f"{int(frame_id):08d}"
         label_boxes = bottom_to_gravity(boxes)

@@ -19,8 +19,9 @@ not ready or not a fisheye-infer model, ``InferenceError`` when a run fails.
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from typing import Any, Iterator, Mapping
+from typing import Any
 
 import numpy as np
 

@@ -18,7 +18,8 @@ leaves while it waits, its place is given back and the work is dropped (counted 
 from __future__ import annotations
 
 import asyncio
-from typing import Any, Awaitable
+from collections.abc import Awaitable
+from typing import Any
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response

@@ -15,7 +15,8 @@ it. The inputs are the graph's own, ``images`` uint8 ``(B, N, H, W, 3)`` and ``c
 bool ``(B, N)``; the outputs are the fixed-size ``boxes``, ``scores``, ``labels`` and ``valid``.
 
 The service's limits hold here too: the body size (413), at most ``max_batch_frames`` frames
-and no more than fit in ``max_body_bytes`` (the ``max_batch_size`` the config reports; 422), a queue place taken before the body is read (503 when full or draining), a result within
+and no more than fit in ``max_body_bytes`` (the ``max_batch_size`` the config reports; 422), a
+queue place taken before the body is read (503 when full or draining), a result within
 ``request_timeout_s`` (504), the API key. At most ``workers`` graph runs at a time. Errors are
 the service's ``ErrorOut``, whose ``error`` field is what KServe clients read. These routes
 are left out of the OpenAPI document: the KServe v2 specification describes them.

@@ -26,6 +26,7 @@ withdrawn.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from typing import Any
 
@@ -105,10 +106,8 @@ class StreamSession:
             if self._closed:
                 return
             self._closed = True
-            try:
+            with contextlib.suppress(Exception):  # already closed by the client
                 await self.ws.close(code, reason)
-            except Exception:  # already closed by the client
-                pass
 
     def _take_dropped(self) -> list[int]:
         dropped, self.dropped = self.dropped, []

@@ -29,7 +29,7 @@ def test_toy_example_of_the_specification() -> None:
         assert (c.ap, c.trans_err, c.scale_err, c.orient_err) == (0.0, 1.0, 1.0, 1.0)
     assert report.mAP == pytest.approx(0.125)
     assert (report.main.mATE, report.main.mASE, report.main.mAOE) == pytest.approx((5.75 / 6, 5 / 6, 5.2 / 6))
-    assert report.FDS == pytest.approx(0.119444, abs=1e-6)
+    assert pytest.approx(0.119444, abs=1e-6) == report.FDS
     assert report.details()["NDS"] == report.FDS
 
 
@@ -39,7 +39,7 @@ def test_perfect_gives_map_1() -> None:
     report = evaluate_results(gt, pred)
     assert report.mAP == pytest.approx(1.0)
     assert (report.main.mATE, report.main.mASE, report.main.mAOE) == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
-    assert report.FDS == pytest.approx(1.0)
+    assert pytest.approx(1.0) == report.FDS
 
 
 @pytest.mark.parametrize(
@@ -62,7 +62,7 @@ def test_flipped_yaw_gives_aoe_pi() -> None:
     report = evaluate_results({"s": one_of_each(yaw=0.4)}, {"s": one_of_each(score=0.7, yaw=0.4 + math.pi)})
     assert report.main.mAOE == pytest.approx(math.pi)
     assert report.mAP == pytest.approx(1.0)  # orientation does not affect matching
-    assert report.FDS == pytest.approx((3 + 1 + 1 + 0) / 6)
+    assert pytest.approx((3 + 1 + 1 + 0) / 6) == report.FDS
 
 
 def test_size_error_gives_ase() -> None:

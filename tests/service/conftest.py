@@ -7,7 +7,8 @@ end. One Detector (one ONNX Runtime session) is shared by every server of the se
 
 from __future__ import annotations
 
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import cv2
 import httpx

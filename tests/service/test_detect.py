@@ -11,7 +11,6 @@ from service_live import LiveServer, multipart
 
 from fisheye_infer.detector import Detector
 
-
 STAGES = {"queue_wait", "decode", "preprocess", "inference", "postprocess"}
 
 

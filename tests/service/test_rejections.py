@@ -7,7 +7,8 @@ import base64
 import gzip
 import struct
 import zlib
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import cv2
 import httpx
