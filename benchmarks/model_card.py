@@ -27,7 +27,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from fisheye_infer.detector import Detector, FrameDetector
 from fisheye_infer.eval.dataset import Fisheye3DOD

@@ -25,6 +25,8 @@ def configure_train(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--until", type=int, help="stop after this step (checkpointed) and continue later with --resume")
     parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
     parser.add_argument("--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)")
+    parser.add_argument("--depth-weight", type=float, default=3.0,
+                        help="weight of the depth loss against the frames' true ray depths (default 3, as BEVDepth; 0: the official losses alone)")
     parser.set_defaults(run=run_train)
 
 
@@ -67,7 +69,8 @@ def run_train(args: argparse.Namespace) -> int:
         else:
             rig = compact_rig()
     options = TrainOptions(steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
-                           checkpoint_every=args.checkpoint_every, val_frames=args.val_frames)
+                           checkpoint_every=args.checkpoint_every, val_frames=args.val_frames,
+                           depth_weight=args.depth_weight)
     previous = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:
