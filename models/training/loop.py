@@ -5,7 +5,9 @@ linear warm-up from 1/3 of the rate over the first 500 steps, then cosine anneal
 it). Three parts of the official recipe are left out: the momentum cycle, dropout (0.1 in the
 official decoder; the plain-PyTorch decoder has none) and the ImageNet-pretrained ResNet-18
 (``torchvision://resnet18``, not available offline; the backbone starts from seeded fan-in
-weights and the heatmap classifiers from the official prior bias -2.19).
+weights and the heatmap classifiers from the official prior bias -2.19). One term is added: the
+depth loss of ``depth.py`` (weight ``depth_weight``, 3 as BEVDepth; 0 leaves the official losses
+alone), which stands in for what the pretrained backbone would bring.
 
 Step ``s`` trains on frames ``s*B .. s*B+B-1`` of the training split and the learning rate is a
 function of the step, so a run is a pure function of its options: resuming from a checkpoint
@@ -85,7 +87,7 @@ class TrainOptions:
     official losses alone).
     """
 
-    steps: int = 10000
+    steps: int = 8000
     batch_size: int = 2
     lr: float = 2e-4
     weight_decay: float = 0.01
