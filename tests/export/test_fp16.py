@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,8 @@ pytest.importorskip("torch")
 
 from fisheye_infer.artifact import read_meta
 from fisheye_infer.errors import ExportError
-from fisheye_infer.export.exporter import Fp16Result, export_fp16, export_int8, fp16_path_for
+from fisheye_infer.export.commands import configure_export
+from fisheye_infer.export.exporter import Fp16Result, export, export_fp16, export_int8, fp16_path_for
 from fisheye_infer.export.fp16 import to_float16
 
 F, H, I64 = TensorProto.FLOAT, TensorProto.FLOAT16, TensorProto.INT64
@@ -102,3 +104,21 @@ def test_reduced_precision_files_are_not_converted_again(petr_fp16: Fp16Result, 
         export_fp16(petr_fp16.path, tmp_path / "again.onnx", progress=lambda _: None)
     with pytest.raises(ExportError, match="already quantized"):
         export_int8(petr_fp16.path, tmp_path / "again.int8.onnx", calib_frames=1, progress=lambda _: None)
+
+
+def test_export_with_fp16_writes_both_files(small_export, small_bevdet_config, tmp_path: Path) -> None:
+    """``export(fp16=True)`` (``--fp16``): the verified fp32 file at ``out``, the fp16 file next to it, both in the summary."""
+    out = tmp_path / "m.onnx"
+    result = export(small_export.ckpt, out, config=small_bevdet_config, rig=read_meta(small_export.onnx).rig, frames=1, threads=(1,), fp16=True, force=True,
+                    progress=lambda _: None)
+    assert read_meta(out).quantization is None and read_meta(out).tensorrt is not None
+    assert result.fp16 is not None and result.fp16.path == tmp_path / "m.fp16.onnx"
+    assert read_meta(result.fp16.path).quantization.mode == "fp16"
+    summary = result.summary()
+    assert "parity vs PyTorch" in summary and "fp16 vs the fp32 ONNX file" in summary and summary.count("TensorRT ONNX parser") == 2
+
+
+def test_cli_takes_fp16() -> None:
+    parser = argparse.ArgumentParser()
+    configure_export(parser)
+    assert parser.parse_args(["--ckpt", "c.pth", "--out", "m.onnx", "--fp16"]).fp16
