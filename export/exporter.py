@@ -35,16 +35,19 @@ from fisheye_infer.preprocess import frames_from_paths, prepare_batch
 from fisheye_infer.rig import Rig, resolve_rig
 from fisheye_infer.synth import Renderer, random_scene
 
+from .fp16 import to_float16
+from .fp16_parity import fp16_parity
 from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata, without_outputs
 from .quantize import MIN_TOP_MATCHED, FrameReader, int8_parity, int8_path_for, quantize, quantized_scope
+from .tensorrt_check import check_tensorrt
 from .trace import OPSET, trace_to_onnx
 from .verify import verify
 
 if TYPE_CHECKING:
     from fisheye_infer.models import GeometryReport, ModelEntry
 
-__all__ = ["ExportResult", "Int8Result", "OpenedCheckpoint", "export", "export_int8", "infer_architecture", "open_checkpoint",
-           "verification_frames", "file_sha256"]
+__all__ = ["ExportResult", "Fp16Result", "Int8Result", "OpenedCheckpoint", "export", "export_fp16", "export_int8", "fp16_path_for",
+           "infer_architecture", "open_checkpoint", "verification_frames", "file_sha256"]
 
 #: Calibration frames are rendered from seeds offset by this, so they never coincide with the
 #: verification frames (seeds 0, 1, ...) the int8 file is judged on.
@@ -68,7 +71,39 @@ class Int8Result:
             f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
             f"int8 vs the fp32 ONNX file on {p.frames} frames: {p.top_matched_fraction:.1%} of the top-50 boxes matched within "
             f"{p.tolerance_box_m:g} m with the same label (need {MIN_TOP_MATCHED:.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+            *_tensorrt_lines(self.meta, "int8 file: "),
         ])
+
+
+@dataclass(frozen=True)
+class Fp16Result:
+    """The fp16 file written next to the fp32 one (``export_fp16``)."""
+
+    path: Path | None
+    meta: ArtifactMeta
+    parity: ParityReport
+    seconds: float
+    file_bytes: int
+
+    def summary(self) -> str:
+        p, q = self.parity, self.meta.quantization
+        lines = [
+            f"fp16 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {q.scope if q else 'not reduced'})",
+            f"fp16 vs the fp32 ONNX file on {p.frames} frames ({p.evaluated_with}): {p.top_matched_fraction or 0.0:.1%} of the top-50 boxes matched within "
+            f"{p.tolerance_box_m:g} m with the same label (need {MIN_TOP_MATCHED:.0%}; matched max |box| {p.max_box_abs_diff_m:.3f} m, "
+            f"|score| {p.max_score_abs_diff:.4f}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+        ]
+        if p.replayed is not None:
+            r = p.replayed
+            lines.append(f"  at the fp16 file's own top-k choice: {r.top_matched_fraction:.1%} matched; position by position max |box| "
+                         f"{r.max_box_abs_diff_m:.3f} m, |score| {r.max_score_abs_diff:.4f}; dense scores max |diff| {p.max_rank_score_abs_diff or 0.0:.4f}")
+        lines += [f"  {problem}" for problem in p.problems]
+        return "\n".join(lines + _tensorrt_lines(self.meta, "fp16 file: "))
+
+
+def _tensorrt_lines(meta: ArtifactMeta, prefix: str = "") -> list[str]:
+    return [prefix + meta.tensorrt.summary()] if meta.tensorrt is not None else []
+
 
 @dataclass(frozen=True)
 class ExportResult:
@@ -80,6 +115,7 @@ class ExportResult:
     initializer_bytes: int  # every initializer: weights and geometry tables
     geometry_bytes: int  # the ``geom.*`` initializers alone
     int8: Int8Result | None = None
+    fp16: Fp16Result | None = None
 
     def summary(self) -> str:
         p = self.parity
@@ -97,14 +133,19 @@ class ExportResult:
             f"{p.unmatched} box(es) off{'; the written file DIFFERS from the checked graph' if p.written_equals_checked is False else ''} "
             f"-> {'PASSED' if p.passed else 'FAILED'}",
             *(f"  {problem}" for problem in p.problems),
+            *_tensorrt_lines(self.meta),
             f"took {self.seconds:.1f} s",
         ]
         if self.int8 is not None:
             lines.append(self.int8.summary())
+        if self.fp16 is not None:
+            lines.append(self.fp16.summary())
         if self.path:
             lines.append(f"next: fisheye-infer detect {self.path} --images DIR --out result.json --viz result.png")
         if self.int8 is not None and self.int8.path:
             lines.append(f"      fisheye-infer detect {self.int8.path} ...   (int8); fisheye-infer bench {self.int8.path}")
+        if self.fp16 is not None and self.fp16.path:
+            lines.append(f"      {self.fp16.path}: for GPU execution providers (CUDA, TensorRT)")
         return "\n".join(lines)
 
 
@@ -264,6 +305,7 @@ def export(
     int8: bool = False,
     calib_images: str | Path | None = None,
     calib_frames: int = 8,
+    fp16: bool = False,
     progress: Callable[[str], None] = print,
 ) -> ExportResult:
     """Export ``ckpt`` to ``out``; see the module docstring. Raises ``ParityError`` when parity fails.
@@ -272,6 +314,8 @@ def export(
     or a configuration object; by default the official configuration of the architecture.
     ``int8``: once the fp32 file is written, also write ``export_int8``'s file next to it
     (``model.onnx`` -> ``model.int8.onnx``); ``out`` always stays the verified fp32 file.
+    ``fp16``: likewise ``export_fp16``'s file (``model.fp16.onnx``), for GPU execution providers.
+    Every file's metadata carries ``check_tensorrt``'s verdict on its graph (``tensorrt``).
     """
     start = time.perf_counter()
     out = Path(out)
@@ -315,6 +359,7 @@ def export(
         geometry_initializers=tuple(tables),
         checkpoint_sha256=ckpt_sha,
         tools=_tool_versions(),
+        tensorrt=check_tensorrt(proto),
     )
     weights = model.table_weights()
     extra = {REBAKE_WEIGHTS_KEY: encode_arrays(weights)} if weights else {}
@@ -348,7 +393,71 @@ def export(
         if not quant.parity.passed and not force:
             raise ParityError("the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written "
                               f"(use --force to keep it)\n{result.summary()}")
+    if fp16 and written is not None:
+        half = export_fp16(written, frames=frames, verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
+        result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes,
+                              result.initializer_bytes, result.geometry_bytes, result.int8, half)
+        if not half.parity.passed and not force:
+            raise ParityError("the fp16 file finds too few of the fp32 file's boxes; fp32 file kept, no fp16 file written "
+                              f"(use --force to keep it)\n{result.summary()}")
     return result
+
+
+def fp16_path_for(fp32_path: str | Path) -> Path:
+    """Where the fp16 file of ``model.onnx`` goes: ``model.fp16.onnx`` next to it."""
+    path = Path(fp32_path)
+    return path.with_name(f"{path.stem}.fp16{path.suffix}")
+
+
+def export_fp16(
+    fp32_path: str | Path,
+    out: str | Path | None = None,
+    *,
+    frames: int = 2,
+    verify_images: str | Path | None = None,
+    threads: int = 2,
+    force: bool = False,
+    progress: Callable[[str], None] = print,
+) -> Fp16Result:
+    """A verified fp32 file -> its float16 file for GPU execution providers; see ``fp16`` and ``fp16_parity``.
+
+    Evidence: the fp16 file against the fp32 file on the same verification frames as the fp32
+    export, in ONNX Runtime's CPU execution provider; the file is written only when
+    ``MIN_TOP_MATCHED`` of the fp32 top-50 boxes are found again (or with ``force``). Its metadata
+    carries a ``Quantization(mode="fp16")`` record, the ``ParityReport`` (``reference="fp32-onnx"``)
+    and ``check_tensorrt``'s verdict on the fp16 graph.
+    """
+    from fisheye_infer.artifact import read_meta
+
+    start = time.perf_counter()
+    src = Path(fp32_path)
+    out = Path(out) if out is not None else fp16_path_for(src)
+    meta = read_meta(src)
+    if meta.quantization is not None:
+        raise ExportError(f"fp16: {src} is already a reduced-precision file ({meta.quantization.mode}); give the fp32 file")
+    progress("fp16 [1/2] converting weights and compute to float16 (geometry tables, index arithmetic and the interface stay as in fp32)")
+    proto, plan = to_float16(onnx.load(str(src)))
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.h.tmp")
+    try:
+        save_model(proto, tmp)
+        progress(f"fp16 [2/2] comparing with the fp32 file on {frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''}")
+        batch = verification_frames(meta.rig, frames, images=verify_images)
+        parity = fp16_parity(src, tmp, batch, threads=threads)
+        half_meta = meta.model_copy(update={
+            "model_id": f"{meta.model_id}-fp16",
+            "parity": parity,
+            "quantization": Quantization(mode="fp16", scope=plan.scope()),
+            "tensorrt": check_tensorrt(proto),
+        })
+        set_metadata(proto, half_meta)  # the re-baking key copied from the fp32 file stays
+        written: Path | None = None
+        if parity.passed or force:
+            save_model(proto, tmp)
+            os.replace(tmp, out)
+            written = out
+    finally:
+        tmp.unlink(missing_ok=True)
+    return Fp16Result(written, half_meta, parity, time.perf_counter() - start, out.stat().st_size if written else 0)
 
 
 def export_int8(
@@ -395,6 +504,7 @@ def export_int8(
             "model_id": f"{meta.model_id}-int8",
             "parity": parity,
             "quantization": Quantization(mode="int8-qdq", scope=scope, calibration_frames=len(calibration)),
+            "tensorrt": check_tensorrt(proto),
         })
         set_metadata(proto, quant_meta)  # the re-baking key copied from the fp32 file stays
         written: Path | None = None

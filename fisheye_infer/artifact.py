@@ -31,6 +31,9 @@ __all__ = [
     "Normalisation",
     "ParityReport",
     "Quantization",
+    "ReplayedChoice",
+    "TensorRTFinding",
+    "TensorRTReport",
     "inspection_session",
     "parse_meta",
     "read_meta",
@@ -59,6 +62,16 @@ class Normalisation(_Model):
 
     mean: tuple[float, float, float]
     std: tuple[float, float, float]
+
+
+class ReplayedChoice(_Model):
+    """The reference file evaluated at the candidate's own top-k choice (its ranking step fed the
+    candidate's indices): the candidate's numeric differences, with tie-breaking taken out."""
+
+    top_matched_fraction: float  # of the reference's top-50 boxes at that choice, matched within 0.5 m and same label
+    max_box_abs_diff_m: float  # position by position
+    max_score_abs_diff: float
+    labels_equal: bool
 
 
 class ParityReport(_Model):
@@ -90,14 +103,51 @@ class ParityReport(_Model):
     tolerance_score: float
     tolerance_rank_score: float | None = None
     passed: bool
-    reference: str = "pytorch"  # "pytorch-float64", or "fp32-onnx" for an int8 file: what the numbers compare against
-    top_matched_fraction: float | None = None  # int8: fraction of top boxes matched within 0.5 m and same label
+    reference: str = "pytorch"  # "pytorch-float64", or "fp32-onnx" for an int8/fp16 file: what the numbers compare against
+    top_matched_fraction: float | None = None  # int8/fp16: fraction of top boxes matched within 0.5 m and same label
+    evaluated_with: str | None = None  # fp16: what ran the candidate (ONNX Runtime's CPU execution provider)
+    replayed: ReplayedChoice | None = None  # fp16: the fp32 file at the fp16 file's own top-k choice
 
 
 class Quantization(_Model):
-    mode: Literal["int8-qdq"]
+    """A reduced-precision file derived from a verified fp32 file: what was reduced and how."""
+
+    mode: Literal["int8-qdq", "fp16"]
     scope: str
-    calibration_frames: int
+    calibration_frames: int = 0  # int8 only
+
+
+class TensorRTFinding(_Model):
+    """One thing TensorRT's ONNX parser refuses (``error``) or handles in a way worth knowing (``note``)."""
+
+    severity: Literal["error", "note"]
+    node: str = ""  # node name; empty for a finding about the whole graph
+    op_type: str = ""
+    message: str
+
+
+class TensorRTReport(_Model):
+    """The static check of a graph against TensorRT's ONNX parser limits (``export.tensorrt_check``).
+
+    ``compatible`` is False when any finding is an error. The check reads the graph only: no
+    TensorRT is needed, and passing it is evidence that the parser accepts the file, not a
+    TensorRT build.
+    """
+
+    target: str
+    compatible: bool
+    findings: tuple[TensorRTFinding, ...] = ()
+
+    def summary(self, limit: int = 3) -> str:
+        """One line: the verdict, the error count, and the first ``limit`` errors (else notes)."""
+        errors = [f for f in self.findings if f.severity == "error"]
+        notes = len(self.findings) - len(errors)
+        head = f"TensorRT ONNX parser ({self.target}): "
+        if not errors:
+            return head + f"compatible ({notes} note(s))"
+        shown = "; ".join(f"{f.node} ({f.op_type}): {f.message}" if f.node else f.message for f in errors[:limit])
+        more = f"; and {len(errors) - limit} more" if len(errors) > limit else ""
+        return head + f"NOT compatible, {len(errors)} error(s): {shown}{more}"
 
 
 class ArtifactMeta(_Model):
@@ -123,6 +173,7 @@ class ArtifactMeta(_Model):
     tools: dict[str, str] = Field(default_factory=dict)
     parity: ParityReport | None = None
     quantization: Quantization | None = None
+    tensorrt: TensorRTReport | None = None  # files written before the check have none
 
     def check(self) -> ArtifactMeta:
         """Consistency a reader can verify: the rig matches its hash, cameras and image size."""

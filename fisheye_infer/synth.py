@@ -194,6 +194,17 @@ class Renderer:
         model = camera.model
         return np.clip(colour, 0, 255).astype(np.uint8).T.reshape(model.height, model.width, 3)
 
+    def ray_depth(self, origin: np.ndarray, directions: np.ndarray, scene: Scene) -> np.ndarray:
+        """Distance to the first surface (ground or box) along unit rays (3, N) from ``origin`` (3,),
+        lidar frame; inf where a ray meets nothing. The pictures' own intersection code, so a
+        depth target agrees with what the pixels show."""
+        o = np.asarray(origin, np.float32)
+        d = np.ascontiguousarray(directions, np.float32)
+        colour, depth = self._background(o, d, scene.ground_z, Appearance())
+        for box in scene.boxes:
+            self._draw_box(o, d, box, (0.0, 0.0, 0.0), colour, depth)
+        return depth
+
     def _background(self, o: np.ndarray, d: np.ndarray, ground_z: float, look: Appearance) -> tuple[np.ndarray, np.ndarray]:
         """Sky gradient everywhere, then the textured ground where rays fall towards it; colour is (3, N)."""
         up = np.clip(d[2], 0, 1)

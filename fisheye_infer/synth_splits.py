@@ -27,7 +27,7 @@ import numpy as np
 from fisheye_infer.carla import CarlaPose
 from fisheye_infer.records import GT_SCORE, boxes_to_records, records_to_arrays
 from fisheye_infer.rig import Rig
-from fisheye_infer.synth import Renderer, random_appearance, random_scene
+from fisheye_infer.synth import Renderer, Scene, random_appearance, random_scene
 
 __all__ = ["Sample", "SyntheticFrames", "SPLITS", "write_split", "write_frame_folder"]
 
@@ -44,6 +44,7 @@ class Sample:
     records: tuple[dict[str, Any], ...]
     boxes: np.ndarray  # (M, 7) runtime layout, from the records
     labels: np.ndarray  # (M,)
+    scene: Scene  # every object rendered, also those outside the BEV range (they still hide what is behind them)
 
 
 class SyntheticFrames:
@@ -84,7 +85,7 @@ class SyntheticFrames:
         keep = (b[:, 0] >= x0) & (b[:, 0] < x1) & (b[:, 1] >= y0) & (b[:, 1] < y1)
         records = tuple(boxes_to_records(b[keep], np.full(int(keep.sum()), GT_SCORE), scene.labels[keep]))
         boxes, _, labels = records_to_arrays(records, source=f"{self.split} frame {index}")
-        return Sample(int(index), images, records, boxes, labels)
+        return Sample(int(index), images, records, boxes, labels, scene)
 
 
 

@@ -32,6 +32,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                            "(--out stays the fp32 file); written when >= 95%% of the fp32 top-50 boxes are found again (or with --force)")
     int8.add_argument("--calib-images", help="folder with your own frames for calibration, read like --verify-images")
     int8.add_argument("--calib-frames", type=int, default=8, help="seeded synthetic calibration frames of the rig (default 8)")
+    parser.add_argument("--fp16", action="store_true",
+                        help="after the fp32 file is verified, also write a float16 file for GPU execution providers next to it: --out model.onnx -> "
+                             "model.fp16.onnx; written when >= 95%% of the fp32 top-50 boxes are found again (or with --force)")
     parser.set_defaults(run=run)
 
 
@@ -45,6 +48,6 @@ def run(args: argparse.Namespace) -> int:
         return 2
     result = export(args.ckpt, args.out, arch=args.arch, config=args.config, rig=args.rig, geometry=args.geometry,
                     verify_images=args.verify_images, frames=args.frames, force=args.force, allow_pickle=args.allow_pickle,
-                    int8=args.int8, calib_images=args.calib_images, calib_frames=args.calib_frames)
+                    int8=args.int8, calib_images=args.calib_images, calib_frames=args.calib_frames, fp16=args.fp16)
     print(result.summary())
     return 0

@@ -18,7 +18,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="mmdet3d-style FisheyeBEVDet config to train (default: the compact configuration)")
     parser.add_argument("--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint.pth (config and rig from the folder)")
-    parser.add_argument("--steps", type=int, default=10000, help="total optimiser steps (default 10000; may grow on --resume)")
+    parser.add_argument("--steps", type=int, default=8000, help="total optimiser steps (default 8000, the shipped model's run; may grow on --resume)")
     parser.add_argument("--batch-size", type=int, default=2, help="frames per step (default 2)")
     parser.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of AdamW (default 2e-4)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the weights and of the training frames (default 0)")
@@ -27,6 +27,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--until", type=int, help="stop after this step (checkpointed) and continue later with --resume")
     parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
     parser.add_argument("--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)")
+    parser.add_argument("--depth-weight", type=float, default=3.0,
+                        help="weight of the depth loss against the frames' true ray depths (default 3, as BEVDepth; 0: the official losses alone)")
     parser.set_defaults(run=run)
 
 
@@ -68,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             rig = compact_rig()
     options = TrainOptions(steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
-                           checkpoint_every=args.checkpoint_every, val_frames=args.val_frames)
+                           checkpoint_every=args.checkpoint_every, val_frames=args.val_frames,
+                           depth_weight=args.depth_weight)
     previous = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:

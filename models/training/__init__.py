@@ -3,6 +3,7 @@
     targets.py   Gaussian heatmap target and box code of the TransFusion head
     assign.py    3D IoU and the Hungarian assignment of proposals to ground truth
     losses.py    the official heatmap, classification and box losses
+    depth.py     depth targets from the renderer and BEVDepth's depth loss (synthetic frames only)
     compact.py   the compact configuration and its mmdet3d-style config file
     loop.py      optimiser, schedule, checkpoints, --resume, progress and log
 

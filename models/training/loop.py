@@ -5,7 +5,9 @@ linear warm-up from 1/3 of the rate over the first 500 steps, then cosine anneal
 it). Three parts of the official recipe are left out: the momentum cycle, dropout (0.1 in the
 official decoder; the plain-PyTorch decoder has none) and the ImageNet-pretrained ResNet-18
 (``torchvision://resnet18``, not available offline; the backbone starts from seeded fan-in
-weights and the heatmap classifiers from the official prior bias -2.19).
+weights and the heatmap classifiers from the official prior bias -2.19). One term is added: the
+depth loss of ``depth.py`` (weight ``depth_weight``, 3 as BEVDepth; 0 leaves the official losses
+alone), which stands in for what the pretrained backbone would bring.
 
 Step ``s`` trains on frames ``s*B .. s*B+B-1`` of the training split and the learning rate is a
 function of the step, so a run is a pure function of its options: resuming from a checkpoint
@@ -41,6 +43,7 @@ from fisheye_infer.rig import Rig
 from fisheye_infer.synth_splits import Sample, SyntheticFrames
 
 from .compact import write_config
+from .depth import DepthTargets, depth_loss
 from .losses import LossConfig, TransFusionLoss
 from .targets import HeadGrid
 
@@ -49,7 +52,7 @@ __all__ = ["TrainOptions", "Trainer", "collate", "init_for_training", "lr_factor
 ARCH = "fisheye-bevdet"
 #: Initial bias of both heatmap classifiers (the official init: sigmoid(-2.19) = 0.1).
 HEATMAP_PRIOR = -2.19
-TERMS = ("loss", "loss_heatmap", "loss_cls", "loss_bbox", "matched_iou")
+TERMS = ("loss", "loss_heatmap", "loss_cls", "loss_bbox", "loss_depth", "matched_iou")
 
 
 def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
@@ -57,15 +60,35 @@ def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[n
     return (np.stack([s.images for s in samples]), [s.boxes for s in samples], [s.labels for s in samples])
 
 
+class _DepthProbe:
+    """Keeps the depth head's latest output (a forward hook), so the depth loss reads what the forward computed."""
+
+    def __init__(self, view_transform: nn.Module) -> None:
+        self.num_depth = int(view_transform.num_depth)  # type: ignore[arg-type]
+        self.logits: torch.Tensor | None = None
+        view_transform.depthnet.register_forward_hook(self._keep)  # type: ignore[union-attr]
+
+    def _keep(self, module: nn.Module, inputs: Any, output: torch.Tensor) -> None:
+        self.logits = output
+
+    def probs(self) -> torch.Tensor:
+        """M x D x H x W softmax depth of the last forward."""
+        if self.logits is None:
+            raise RuntimeError("the depth probe has seen no forward pass yet")
+        return torch.softmax(self.logits[:, : self.num_depth], dim=1)
+
+
 @dataclass(frozen=True)
 class TrainOptions:
     """What a run is made of; all of it is stored in the checkpoint and must match on ``--resume``.
 
     ``steps`` may grow on resume (a run can be continued further; the cosine then stretches to the
-    new end from the step it resumes at); everything else is fixed.
+    new end from the step it resumes at); everything else is fixed. ``depth_weight`` weighs the
+    depth loss against the synthetic frames' true ray depths (``depth.py``; 0 trains with the
+    official losses alone).
     """
 
-    steps: int = 10000
+    steps: int = 8000
     batch_size: int = 2
     lr: float = 2e-4
     weight_decay: float = 0.01
@@ -74,6 +97,7 @@ class TrainOptions:
     seed: int = 0
     checkpoint_every: int = 100
     val_frames: int = 4
+    depth_weight: float = 3.0
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "checkpoint_every"):
@@ -81,6 +105,8 @@ class TrainOptions:
                 raise ConfigError(f"--{name.replace('_', '-')}: expected at least 1, got {getattr(self, name)}")
         if not self.lr > 0:
             raise ConfigError(f"--lr: expected a positive learning rate, got {self.lr}")
+        if not self.depth_weight >= 0:
+            raise ConfigError(f"--depth-weight: expected 0 or more, got {self.depth_weight}")
         if self.val_frames < 0 or self.warmup_steps < 0:
             raise ConfigError(f"--val-frames / warm-up steps: expected 0 or more, got {self.val_frames} / {self.warmup_steps}")
 
@@ -130,6 +156,9 @@ class Trainer:
         self.train_frames = SyntheticFrames(rig, "train", options.seed, bev_range=bev_range)
         self.val_frames = SyntheticFrames(rig, "val", options.seed, bev_range=bev_range)
         self.loss = TransFusionLoss(self.model.bbox_head, grid, loss)
+        vt = self.model.view_transform
+        self.depth_targets = DepthTargets(vt.geometry, config.view_transform)
+        self.depth_probe = _DepthProbe(vt)
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
         self.step = 0
 
@@ -173,19 +202,25 @@ class Trainer:
 
     # -- training ---------------------------------------------------------------------------
 
-    def _batch(self, step: int) -> tuple[torch.Tensor, list[np.ndarray], list[np.ndarray]]:
-        b = self.options.batch_size
-        images, boxes, labels = collate([self.train_frames[step * b + i] for i in range(b)])
-        return torch.from_numpy(images), boxes, labels
+    def _losses(self, samples: list[Sample]) -> dict[str, torch.Tensor]:
+        """The official terms plus the weighted depth loss, for one forward over ``samples``."""
+        images, boxes, labels = collate(samples)
+        terms = self.loss(self.model.forward_raw(torch.from_numpy(images)), boxes, labels)
+        target = torch.from_numpy(np.concatenate([self.depth_targets(s.scene) for s in samples]))
+        terms["loss_depth"] = depth_loss(self.depth_probe.probs(), target)
+        if self.options.depth_weight:
+            terms["loss"] = terms["loss"] + self.options.depth_weight * terms["loss_depth"]
+        return terms
 
     def train_step(self) -> dict[str, float]:
         """One optimiser step on the next batch; returns the loss terms, the learning rate and the seconds it took."""
         start, cpu = time.perf_counter(), time.process_time()
-        images, boxes, labels = self._batch(self.step)
+        b = self.options.batch_size
+        samples = [self.train_frames[self.step * b + i] for i in range(b)]
         for group in self.optimizer.param_groups:
             group["lr"] = self.options.lr * lr_factor(self.step, self.options.steps, self.options.warmup_steps)
         self.model.train()
-        terms = self.loss(self.model.forward_raw(images), boxes, labels)
+        terms = self._losses(samples)
         self.optimizer.zero_grad(set_to_none=True)
         terms["loss"].backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.options.grad_clip)
@@ -202,8 +237,7 @@ class Trainer:
         self.model.eval()
         sums = dict.fromkeys(TERMS, 0.0)
         for i in range(self.options.val_frames):
-            sample = self.val_frames[i]
-            terms = self.loss(self.model.forward_raw(torch.from_numpy(sample.images[None])), [sample.boxes], [sample.labels])
+            terms = self._losses([self.val_frames[i]])
             for k in TERMS:
                 sums[k] += float(terms[k]) / self.options.val_frames
         return sums
@@ -256,7 +290,8 @@ class ProgressBar:
         filled = int(self.WIDTH * self.done / self.total)
         left = (self.total - self.done) * self.seconds
         self.write(f"\r{self.done}/{self.total} [{'#' * filled}{'.' * (self.WIDTH - filled)}] loss {self.mean['loss']:.3f} "
-                   f"(heatmap {self.mean['loss_heatmap']:.3f} cls {self.mean['loss_cls']:.3f} bbox {self.mean['loss_bbox']:.3f}, "
+                   f"(heatmap {self.mean['loss_heatmap']:.3f} cls {self.mean['loss_cls']:.3f} bbox {self.mean['loss_bbox']:.3f} "
+                   f"depth {self.mean['loss_depth']:.3f}, "
                    f"IoU {self.mean['matched_iou']:.2f}) {self.seconds:.1f} s/step, {left / 60:.0f} min left ")
 
     def note(self, text: str) -> None:
