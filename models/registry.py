@@ -11,14 +11,17 @@ identify a checkpoint of it (``signature_keys`` present, ``absent_keys`` absent)
 that maps official keys to the model's (``checkpoint_filter``), the keys loading drops, and what
 its scores mean. :func:`create_model` builds an eval-mode model, :func:`list_models` names the
 registered architectures (the CLI's ``--arch`` choices), :func:`matching_architectures` tells
-them apart by a checkpoint's keys. Registering an architecture signs it up for strict loading,
-synthetic checkpoints, export and the tests parametrized over ``list_models()``.
+them apart by a checkpoint's keys. An architecture lives in one module ``fisheye_<name>.py`` of this
+package (imported on first use of the registry) with its key manifest in ``manifests/``;
+registering it signs it up for strict loading, synthetic checkpoints, export, the CLI's ``--arch``
+and the tests parametrized over ``list_models()``.
 """
 
 from __future__ import annotations
 
 import importlib
 import json
+import pkgutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -31,8 +34,9 @@ from fisheye_infer.errors import ConfigError
 __all__ = ["ModelEntry", "register_model", "create_model", "list_models", "get_model_entry", "entry_of",
            "matching_architectures", "read_manifest"]
 
-# Detector modules imported on first use of the registry; a missing one is skipped.
-_BUILTIN_MODULES = ("fisheye_bevdet", "fisheye_petr", "fisheye_bevdet_cyl", "fisheye_petr_cyl")
+#: The package's architecture modules, one per registered detector, are named ``fisheye_*.py``; they
+#: are imported on first use of the registry, so a new one needs no entry anywhere else.
+_ARCHITECTURE_MODULES = "fisheye_"
 
 M = TypeVar("M", bound=type[nn.Module])
 StateDict = Mapping[str, Any]
@@ -84,13 +88,9 @@ def _load_builtin() -> None:
     if _loaded:
         return
     _loaded = True
-    for module in _BUILTIN_MODULES:
-        qualified = f"{__package__}.{module}"
-        try:
-            importlib.import_module(qualified)
-        except ModuleNotFoundError as exc:
-            if exc.name != qualified:
-                raise
+    package = importlib.import_module(__package__ or "fisheye_infer.models")
+    for module in sorted(m.name for m in pkgutil.iter_modules(package.__path__) if m.name.startswith(_ARCHITECTURE_MODULES)):
+        importlib.import_module(f"{package.__name__}.{module}")
 
 
 def list_models() -> list[str]:
