@@ -46,7 +46,7 @@ from .verify import verify
 if TYPE_CHECKING:
     from fisheye_infer.models import GeometryReport, ModelEntry
 
-__all__ = ["ExportResult", "Fp16Result", "Int8Result", "OpenedCheckpoint", "export", "export_fp16", "export_int8", "fp16_path_for",
+__all__ = ["ExportResult", "Fp16Result", "Int8Result", "OpenedCheckpoint", "ReducedResult", "export", "export_fp16", "export_int8", "fp16_path_for",
            "infer_architecture", "open_checkpoint", "verification_frames", "file_sha256"]
 
 #: Calibration frames are rendered from seeds offset by this, so they never coincide with the
@@ -55,14 +55,19 @@ CALIBRATION_SEED = 1000
 
 
 @dataclass(frozen=True)
-class Int8Result:
-    """The int8 file written next to (or instead of at --out, see ``export``) the fp32 one."""
+class ReducedResult:
+    """A reduced-precision file derived from a verified fp32 file: where it went (None: not written,
+    its parity failed), its metadata and parity, how long it took and its size."""
 
     path: Path | None
     meta: ArtifactMeta
     parity: ParityReport
     seconds: float
     file_bytes: int
+
+
+class Int8Result(ReducedResult):
+    """The int8 file written next to the fp32 one (``export_int8``)."""
 
     def summary(self) -> str:
         p, q = self.parity, self.meta.quantization
@@ -75,15 +80,8 @@ class Int8Result:
         ])
 
 
-@dataclass(frozen=True)
-class Fp16Result:
+class Fp16Result(ReducedResult):
     """The fp16 file written next to the fp32 one (``export_fp16``)."""
-
-    path: Path | None
-    meta: ArtifactMeta
-    parity: ParityReport
-    seconds: float
-    file_bytes: int
 
     def summary(self) -> str:
         p, q = self.parity, self.meta.quantization
@@ -427,34 +425,18 @@ def export_fp16(
     carries a ``Quantization(mode="fp16")`` record, the ``ParityReport`` (``reference="fp32-onnx"``)
     and ``check_tensorrt``'s verdict on the fp16 graph.
     """
-    from fisheye_infer.artifact import read_meta
-
     start = time.perf_counter()
     src = Path(fp32_path)
     out = Path(out) if out is not None else fp16_path_for(src)
-    meta = read_meta(src)
-    if meta.quantization is not None:
-        raise ExportError(f"fp16: {src} is already a reduced-precision file ({meta.quantization.mode}); give the fp32 file")
+    meta = _fp32_meta(src, "fp16", "already a reduced-precision file")
     progress("fp16 [1/2] converting weights and compute to float16 (geometry tables, index arithmetic and the interface stay as in fp32)")
     proto, plan = to_float16(onnx.load(str(src)))
     tmp = out.with_name(f".{out.name}.{os.getpid()}.h.tmp")
     try:
         save_model(proto, tmp)
-        progress(f"fp16 [2/2] comparing with the fp32 file on {frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''}")
-        batch = verification_frames(meta.rig, frames, images=verify_images)
+        batch = _comparison_frames(meta, frames, verify_images, "fp16 [2/2]", progress)
         parity = fp16_parity(src, tmp, batch, threads=threads)
-        half_meta = meta.model_copy(update={
-            "model_id": f"{meta.model_id}-fp16",
-            "parity": parity,
-            "quantization": Quantization(mode="fp16", scope=plan.scope()),
-            "tensorrt": check_tensorrt(proto),
-        })
-        set_metadata(proto, half_meta)  # the re-baking key copied from the fp32 file stays
-        written: Path | None = None
-        if parity.passed or force:
-            save_model(proto, tmp)
-            os.replace(tmp, out)
-            written = out
+        written, half_meta = _write_reduced(proto, meta, parity, Quantization(mode="fp16", scope=plan.scope()), tmp, out, force)
     finally:
         tmp.unlink(missing_ok=True)
     return Fp16Result(written, half_meta, parity, time.perf_counter() - start, out.stat().st_size if written else 0)
@@ -481,14 +463,10 @@ def export_int8(
     top-50 boxes are found again (or with ``force``). The result carries a ``ParityReport``
     with ``reference="fp32-onnx"`` and a ``Quantization`` record in its metadata.
     """
-    from fisheye_infer.artifact import read_meta
-
     start = time.perf_counter()
     src = Path(fp32_path)
     out = Path(out) if out is not None else int8_path_for(src)
-    meta = read_meta(src)
-    if meta.quantization is not None:
-        raise ExportError(f"int8: {src} is already quantized ({meta.quantization.mode}); give the fp32 file")
+    meta = _fp32_meta(src, "int8", "already quantized")
     progress(f"int8 [1/3] rendering {calib_frames} calibration frame(s){' + ' + str(calib_images) if calib_images else ''}")
     calibration = verification_frames(meta.rig, calib_frames, seed=CALIBRATION_SEED, images=calib_images)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.q.tmp")
@@ -497,21 +475,45 @@ def export_int8(
         quantize(src, tmp, FrameReader(calibration))
         proto = onnx.load(str(tmp))
         scope = quantized_scope(onnx.load(str(src), load_external_data=False))
-        progress(f"int8 [3/3] comparing with the fp32 file on {frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''}")
-        batch = verification_frames(meta.rig, frames, images=verify_images)
+        batch = _comparison_frames(meta, frames, verify_images, "int8 [3/3]", progress)
         parity = int8_parity(src, tmp, batch, threads=threads)
-        quant_meta = meta.model_copy(update={
-            "model_id": f"{meta.model_id}-int8",
-            "parity": parity,
-            "quantization": Quantization(mode="int8-qdq", scope=scope, calibration_frames=len(calibration)),
-            "tensorrt": check_tensorrt(proto),
-        })
-        set_metadata(proto, quant_meta)  # the re-baking key copied from the fp32 file stays
-        written: Path | None = None
-        if parity.passed or force:
-            save_model(proto, tmp)
-            os.replace(tmp, out)
-            written = out
+        quantization = Quantization(mode="int8-qdq", scope=scope, calibration_frames=len(calibration))
+        written, quant_meta = _write_reduced(proto, meta, parity, quantization, tmp, out, force)
     finally:
         tmp.unlink(missing_ok=True)
     return Int8Result(written, quant_meta, parity, time.perf_counter() - start, out.stat().st_size if written else 0)
+
+
+# -- the reduced-precision files (int8, fp16): derived from a verified fp32 file, judged against it ------
+
+
+def _fp32_meta(src: Path, kind: str, already: str) -> ArtifactMeta:
+    """The metadata of the fp32 file a reduced file is made from; a reduced file is refused."""
+    from fisheye_infer.artifact import read_meta
+
+    meta = read_meta(src)
+    if meta.quantization is not None:
+        raise ExportError(f"{kind}: {src} is {already} ({meta.quantization.mode}); give the fp32 file")
+    return meta
+
+
+def _comparison_frames(meta: ArtifactMeta, frames: int, verify_images: str | Path | None, step: str,
+                       progress: Callable[[str], None]) -> np.ndarray:
+    """The fp32 export's own verification frames, which the reduced file is compared on."""
+    progress(f"{step} comparing with the fp32 file on {frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''}")
+    return verification_frames(meta.rig, frames, images=verify_images)
+
+
+def _write_reduced(proto: onnx.ModelProto, meta: ArtifactMeta, parity: ParityReport, quantization: Quantization, tmp: Path, out: Path,
+                   force: bool) -> tuple[Path | None, ArtifactMeta]:
+    """The reduced file's metadata (its parity, what was reduced, the TensorRT check of its graph) and the file
+    itself at ``out`` when its parity passed (or with ``force``): (path or None, metadata)."""
+    suffix = "int8" if quantization.mode == "int8-qdq" else quantization.mode
+    reduced = meta.model_copy(update={"model_id": f"{meta.model_id}-{suffix}", "parity": parity, "quantization": quantization,
+                                      "tensorrt": check_tensorrt(proto)})
+    set_metadata(proto, reduced)  # the re-baking key copied from the fp32 file stays
+    if not (parity.passed or force):
+        return None, reduced
+    save_model(proto, tmp)
+    os.replace(tmp, out)
+    return out, reduced

@@ -5,8 +5,9 @@
 The metadata of an exported file records the parameters of its geometry tables (and, for
 FisheyePETR, the position-encoder weights the key embedding needs), so every ``geom.*``
 initializer can be recomputed without torch. The graph itself is unchanged: it was traced with
-table sizes symbolic. The input file is never modified. A rig whose camera names, order or
-image size do not fit the graph is refused.
+table sizes symbolic. The TensorRT check is run again on the new file (the tables' sizes are part
+of what it reads). The input file is never modified. A rig whose camera names, order or image
+size do not fit the graph is refused.
 """
 
 from __future__ import annotations
@@ -16,11 +17,12 @@ from pathlib import Path
 import onnx
 
 from fisheye_infer.artifact import METADATA_KEY, ArtifactMeta, parse_meta
-from fisheye_infer.errors import ArtifactError, RigError
+from fisheye_infer.errors import ArtifactError, ConfigError, RigError
 from fisheye_infer.geometry.kinds import tables_for
 from fisheye_infer.rig import Rig, resolve_rig
 
 from .graph import REBAKE_WEIGHTS_KEY, decode_arrays, get_metadata, replace_initializers, save_model, set_metadata
+from .tensorrt_check import check_tensorrt
 
 __all__ = ["rebake"]
 
@@ -41,13 +43,17 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
         raise RigError(f"the rig has {len(new_rig)} cameras, the model was built for {len(meta.cameras)} ({', '.join(meta.cameras)})")
     new_rig.require(meta.cameras, meta.image_size)
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
-    tables = tables_for(new_rig, meta.geometry, weights)
+    try:
+        tables = tables_for(new_rig, meta.geometry, weights)
+    except ConfigError as exc:  # e.g. a PETR file without the weights its key embedding needs
+        raise ArtifactError(f"model {model_path}: {exc}") from None
     if set(tables) != set(meta.geometry_initializers):
         raise ArtifactError(f"model {model_path}: its geometry initializers {sorted(meta.geometry_initializers)} differ from those "
                             f"its parameters define {sorted(tables)}")
     replace_initializers(proto, tables)
     model_id = f"{meta.architecture}-{new_rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
-    new_meta = meta.model_copy(update={"rig": new_rig, "rig_hash": new_rig.hash, "model_id": model_id, "geometry_source": "rig", "parity": None})
+    new_meta = meta.model_copy(update={"rig": new_rig, "rig_hash": new_rig.hash, "model_id": model_id, "geometry_source": "rig", "parity": None,
+                                       "tensorrt": check_tensorrt(proto)})
     set_metadata(proto, new_meta.check())
     save_model(proto, out)
     return new_meta
