@@ -21,6 +21,7 @@ from fisheye_infer.geometry.tables import tables_for
 from fisheye_infer.rig import Rig, resolve_rig
 
 from .graph import REBAKE_WEIGHTS_KEY, decode_arrays, get_metadata, replace_initializers, save_model, set_metadata
+from .tensorrt_check import check_tensorrt
 
 __all__ = ["rebake"]
 
@@ -46,7 +47,8 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
         raise ArtifactError(f"model {model_path}: its geometry initializers {sorted(meta.geometry_initializers)} differ from those its parameters define {sorted(tables)}")
     replace_initializers(proto, tables)
     model_id = f"{meta.architecture}-{new_rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
-    new_meta = meta.model_copy(update={"rig": new_rig, "rig_hash": new_rig.hash, "model_id": model_id, "geometry_source": "rig", "parity": None})
+    new_meta = meta.model_copy(update={"rig": new_rig, "rig_hash": new_rig.hash, "model_id": model_id, "geometry_source": "rig", "parity": None,
+                                       "tensorrt": check_tensorrt(proto)})  # its notes quote table values, which the rig changes
     set_metadata(proto, new_meta.check())
     save_model(proto, out)
     return new_meta
