@@ -53,7 +53,7 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
     replace_initializers(proto, tables)
     model_id = f"{meta.architecture}-{new_rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
     new_meta = meta.model_copy(update={"rig": new_rig, "rig_hash": new_rig.hash, "model_id": model_id, "geometry_source": "rig", "parity": None,
-                                       "tensorrt": check_tensorrt(proto)})
+                                       "tensorrt": check_tensorrt(proto)})  # its notes quote table values, which the rig changes
     set_metadata(proto, new_meta.check())
     save_model(proto, out)
     return new_meta

@@ -18,8 +18,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(run=run)
 
 
-#: Score threshold of the demo's picture and counts: the shipped model's boxes above it.
-DEMO_SCORE_THRESHOLD = 0.3
+#: Score threshold of the demo's picture and counts: where the shipped model's F1 (2 m, same class)
+#: peaks on held-out frames (recall 0.42, precision 0.65 on 100 of them; 0.3 keeps 0.95 precision at 0.12 recall).
+DEMO_SCORE_THRESHOLD = 0.1
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import subprocess
 import sys
 from pathlib import Path
@@ -57,6 +59,10 @@ def test_demo_runs_on_defaults(tmp_path: Path, capsys: pytest.CaptureFixture[str
     out = capsys.readouterr().out
     assert "554,668 of 960,000 frustum points" in out
     assert (tmp_path / "rig.png").is_file() and (tmp_path / "sampling_grid.png").is_file()
+    # The shipped trained model finds 4 of the held-out frame's 11 objects with 4 other boxes (score >= 0.1)
+    found, total, extra = (int(v) for v in re.search(r"(\d+) of (\d+) labelled objects found .*?; (\d+) box\(es\) on no object", out).groups())
+    assert total == 11 and found >= 3 and extra <= 6, out[-400:]
+    assert (tmp_path / "result.png").is_file()
 
 
 def test_detect_writes_results_and_picture_then_redraws_them(small_export, tmp_path: Path) -> None:

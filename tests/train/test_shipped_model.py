@@ -1,8 +1,10 @@
 """The shipped compact FisheyeBEVDet: its files, its export, and that it detects on frames it never saw.
 
 The frames are the validation stream's 300-331 (the training command never draws from that
-stream; the model card's figures use frames 0-199 and the bundled frame is 210). The bars sit
-well below the card's figures, which come from 200 frames: 32 frames move AP by a few points.
+stream; the model card's figures use frames 0-199 and the bundled frame is 210). On these 32
+frames the model scores Car AP@2m 0.61 and mAP 0.31 within 30 m (ONNX Runtime, one thread); the
+bars sit well below, so that another CPU's last-bit differences can never fail them while a
+broken export, decoding or checkpoint (AP near 0) always does.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from fisheye_infer.synth_splits import SyntheticFrames, write_split  # noqa: E40
 
 FIRST, COUNT = 300, 32
 #: Bars of this test (the model card's 200-frame figures are higher).
-CAR_AP_2M_30M, MAP_30M = 0.5, 0.25
+CAR_AP_2M_30M, MAP_30M = 0.45, 0.2
 
 
 @pytest.fixture(scope="session")
