@@ -38,7 +38,7 @@ from fisheye_infer.synth import Renderer, random_scene
 from .fp16 import to_float16
 from .fp16_parity import fp16_parity
 from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata, without_outputs
-from .quantize import MIN_TOP_MATCHED, FrameReader, int8_parity, int8_path_for, quantize, quantized_scope
+from .quantize import MIN_TOP_MATCHED, SCOPES, FrameReader, architecture_float, int8_parity, int8_path_for, quantize, quantized_scope
 from .tensorrt_check import check_tensorrt
 from .trace import OPSET, trace_to_onnx
 from .verify import verify
@@ -303,6 +303,7 @@ def export(
     int8: bool = False,
     calib_images: str | Path | None = None,
     calib_frames: int = 8,
+    int8_scope: str = "network",
     fp16: bool = False,
     progress: Callable[[str], None] = print,
 ) -> ExportResult:
@@ -311,8 +312,8 @@ def export(
     ``config`` is the official config file the checkpoint was trained with (read, never executed)
     or a configuration object; by default the official configuration of the architecture.
     ``int8``: once the fp32 file is written, also write ``export_int8``'s file next to it
-    (``model.onnx`` -> ``model.int8.onnx``); ``out`` always stays the verified fp32 file.
-    ``fp16``: likewise ``export_fp16``'s file (``model.fp16.onnx``), for GPU execution providers.
+    (``model.onnx`` -> ``model.int8.onnx``) quantized over ``int8_scope`` (``quantize.SCOPES``);
+    ``out`` always stays the verified fp32 file. ``fp16``: likewise ``export_fp16``'s file (``model.fp16.onnx``), for GPU execution providers.
     Every file's metadata carries ``check_tensorrt``'s verdict on its graph (``tensorrt``).
     """
     start = time.perf_counter()
@@ -320,6 +321,8 @@ def export(
     ckpt = Path(ckpt)
     if out.suffix != ".onnx":
         raise ExportError(f"--out {out}: expected a path ending in .onnx")
+    if int8_scope not in SCOPES:
+        raise ExportError(f"--int8-scope {int8_scope}: expected one of {', '.join(SCOPES)}")
     if int8 and calib_frames < 0:
         raise ExportError(f"--calib-frames {calib_frames}: expected 0 or more synthetic calibration frames")
     if int8 and calib_frames == 0 and calib_images is None:
@@ -384,7 +387,7 @@ def export(
     if not parity.passed and not force:
         raise ParityError(f"the ONNX graph disagrees with PyTorch beyond tolerance; no file written (use --force to keep it)\n{result.summary()}")
     if int8 and written is not None:
-        quant = export_int8(written, calib_images=calib_images, calib_frames=calib_frames, frames=frames,
+        quant = export_int8(written, calib_images=calib_images, calib_frames=calib_frames, scope=int8_scope, frames=frames,
                             verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
         result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes,
                               result.initializer_bytes, result.geometry_bytes, quant)
@@ -448,13 +451,14 @@ def export_int8(
     *,
     calib_images: str | Path | None = None,
     calib_frames: int = 8,
+    scope: str = "network",
     frames: int = 2,
     verify_images: str | Path | None = None,
     threads: int = 2,
     force: bool = False,
     progress: Callable[[str], None] = print,
 ) -> Int8Result:
-    """A verified fp32 file -> its static-QDQ int8 file (image backbone and neck only); see ``quantize``.
+    """A verified fp32 file -> its static-QDQ int8 file over ``scope`` (``quantize.SCOPES``); see ``quantize``.
 
     Calibration: ``calib_frames`` seeded synthetic renders of the file's own rig (seeds from
     ``CALIBRATION_SEED``, disjoint from the verification seeds) plus the user's frames from
@@ -471,13 +475,14 @@ def export_int8(
     calibration = verification_frames(meta.rig, calib_frames, seed=CALIBRATION_SEED, images=calib_images)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.q.tmp")
     try:
-        progress("int8 [2/3] static QDQ quantization of the image backbone and neck (U8 activations, S8 per-channel weights)")
-        quantize(src, tmp, FrameReader(calibration))
+        progress(f"int8 [2/3] static QDQ quantization, scope {scope} (U8 activations, S8 per-channel weights)")
+        keep_float = architecture_float(src)
+        quantize(src, tmp, FrameReader(calibration), scope=scope, keep_float=keep_float)
         proto = onnx.load(str(tmp))
-        scope = quantized_scope(onnx.load(str(src), load_external_data=False))
+        covered = quantized_scope(onnx.load(str(src), load_external_data=False), scope, keep_float)
         batch = _comparison_frames(meta, frames, verify_images, "int8 [3/3]", progress)
         parity = int8_parity(src, tmp, batch, threads=threads)
-        quantization = Quantization(mode="int8-qdq", scope=scope, calibration_frames=len(calibration))
+        quantization = Quantization(mode="int8-qdq", scope=covered, calibration_frames=len(calibration))
         written, quant_meta = _write_reduced(proto, meta, parity, quantization, tmp, out, force)
     finally:
         tmp.unlink(missing_ok=True)

@@ -29,9 +29,13 @@ from fisheye_infer.geometry.tables import POOL_PIXELS, POOL_POINTS
 
 from .graph import check_standard_ops, inputs_to_initializers, rename_values, strip_shape_info
 
-__all__ = ["OPSET", "trace_to_onnx"]
+__all__ = ["OPSET", "TRACE_ROOT", "trace_to_onnx"]
 
 OPSET = 18
+
+#: The attribute the traced wrapper holds the detector under: every weight's initializer name and
+#: every node's recorded module path (``pkg.torch.onnx.name_scopes``) starts with it.
+TRACE_ROOT = "model"
 _BUCKET_PREFIXES = (POOL_POINTS, POOL_PIXELS)
 
 
@@ -41,11 +45,11 @@ class _Graph(nn.Module):
 
     def __init__(self, model: nn.Module, names: list[str]) -> None:
         super().__init__()
-        self.model = model
+        setattr(self, TRACE_ROOT, model)
         self.names = names
 
     def forward(self, images: torch.Tensor, camera_valid: torch.Tensor, tables: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
-        out = self.model(images, camera_valid, tables=dict(zip(self.names, tables)))
+        out = getattr(self, TRACE_ROOT)(images, camera_valid, tables=dict(zip(self.names, tables)))
         return tuple(out[k] for k in OUTPUTS + RANKING_OUTPUTS)
 
 

@@ -29,7 +29,7 @@ from .bev_encoder import SECOND, SECONDFPN
 from .bevdet_config import BEVDetConfig, ViewTransformConfig
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
 from .registry import register_model
-from .transfusion import SCORE_SEMANTICS, TransFusionHead
+from .transfusion import INT8_FLOAT, SCORE_SEMANTICS, TransFusionHead
 from .view_transform import FisheyeLSS
 
 __all__ = ["FisheyeBEVDet", "checkpoint_filter_fn", "bev_grid_checks", "GEOMETRY_KEYS", "IGNORED_KEYS", "SIGNATURE_KEYS"]
@@ -68,7 +68,8 @@ def bev_grid_checks(state_dict: Mapping[str, torch.Tensor], bev: BevGrid) -> tup
 
 
 @register_model("fisheye-bevdet", manifest="fisheye_bevdet_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=(*SIGNATURE_KEYS, _VT + "sphere_grid_2d"), ignored_keys=IGNORED_KEYS, score_semantics=SCORE_SEMANTICS)
+                signature_keys=(*SIGNATURE_KEYS, _VT + "sphere_grid_2d"), ignored_keys=IGNORED_KEYS, score_semantics=SCORE_SEMANTICS,
+                int8_float=INT8_FLOAT)
 class FisheyeBEVDet(FisheyeDetector):
     """Camera-only BEV detector: ResNet-18 + FPN, fisheye LSS, SECOND + SECONDFPN, TransFusion head."""
 

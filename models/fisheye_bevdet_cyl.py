@@ -29,7 +29,7 @@ from .cyl_config import BEVDetCylConfig, CylViewTransformConfig
 from .cylindrical import check_rig_image_size, rectify
 from .fisheye_bevdet import SIGNATURE_KEYS, FisheyeBEVDet, bev_grid_checks
 from .registry import register_model
-from .transfusion import SCORE_SEMANTICS
+from .transfusion import INT8_FLOAT, SCORE_SEMANTICS
 from .view_transform import CylindricalLSS
 
 __all__ = ["FisheyeBEVDetCyl", "checkpoint_filter_fn", "GEOMETRY_KEYS"]
@@ -49,7 +49,8 @@ def checkpoint_filter_fn(state_dict: Mapping[str, torch.Tensor]) -> dict[str, to
 
 
 @register_model("fisheye-bevdet-cyl", manifest="fisheye_bevdet_cyl_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=SIGNATURE_KEYS, absent_keys=(_VT + "sphere_grid_2d",), score_semantics=SCORE_SEMANTICS)
+                signature_keys=SIGNATURE_KEYS, absent_keys=(_VT + "sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
+                int8_float=INT8_FLOAT)
 class FisheyeBEVDetCyl(FisheyeBEVDet):
     """Cylindrical-image BEV detector: rectification, ResNet-18 + FPN, cylindrical LSS, SECOND, TransFusion.
 

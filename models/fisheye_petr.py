@@ -29,7 +29,7 @@ from .backbone import FPN, ResNet
 from .base import FisheyeDetector
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
 from .petr_config import PETRConfig
-from .petr_head import SCORE_SEMANTICS, FisheyePETRHead
+from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, FisheyePETRHead
 from .registry import register_model
 
 __all__ = ["FisheyePETR", "checkpoint_filter_fn", "rename_official_keys", "GEOMETRY_KEYS", "SIGNATURE_KEYS"]
@@ -73,7 +73,8 @@ def checkpoint_filter_fn(state_dict: Mapping[str, Any]) -> dict[str, Any]:
 
 
 @register_model("fisheye-petr", manifest="fisheye_petr_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=(*SIGNATURE_KEYS, _HEAD + "sphere_grid_2d"), score_semantics=SCORE_SEMANTICS)
+                signature_keys=(*SIGNATURE_KEYS, _HEAD + "sphere_grid_2d"), score_semantics=SCORE_SEMANTICS,
+                int8_float=INT8_FLOAT)
 class FisheyePETR(FisheyeDetector):
     """Normalisation -> ResNet-18 -> FPN (P3 only) -> FisheyePETRHead -> NMS-free decoding.
 

@@ -29,14 +29,15 @@ from .cyl_config import CylPETRConfig
 from .cylindrical import check_rig_image_size, rectify
 from .fisheye_petr import _HEAD, SIGNATURE_KEYS, FisheyePETR, checkpoint_filter_fn
 from .petr_config import PETRConfig
-from .petr_head import SCORE_SEMANTICS, CylindricalPETRHead
+from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, CylindricalPETRHead
 from .registry import register_model
 
 __all__ = ["FisheyePETRCyl"]
 
 
 @register_model("fisheye-petr-cyl", manifest="fisheye_petr_cyl_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=SIGNATURE_KEYS, absent_keys=(_HEAD + "sphere_grid_2d",), score_semantics=SCORE_SEMANTICS)
+                signature_keys=SIGNATURE_KEYS, absent_keys=(_HEAD + "sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
+                int8_float=INT8_FLOAT)
 class FisheyePETRCyl(FisheyePETR):
     """Rectification -> normalisation -> ResNet-18 -> FPN (P3 only) -> CylindricalPETRHead -> NMS-free decoding.
 

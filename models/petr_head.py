@@ -36,10 +36,15 @@ from .petr_embedding import inverse_sigmoid, pos2posemb3d
 from .petr_transformer import PETRTransformer, key_padding_bias
 from .ranking import TopK
 
-__all__ = ["FisheyePETRHead", "CylindricalPETRHead", "decode_predictions", "SCORE_SEMANTICS"]
+__all__ = ["FisheyePETRHead", "CylindricalPETRHead", "decode_predictions", "SCORE_SEMANTICS", "INT8_FLOAT"]
 
 #: What the scores of a PETR head mean (recorded in an exported file's metadata).
 SCORE_SEMANTICS = "sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time"
+
+#: The classification and regression branches stay float32 in the int8 file (the counterpart of
+#: TransFusion's output convolutions, which FisheyeBEVDet's measurement keeps float); the
+#: transformer's linear layers are quantized.
+INT8_FLOAT = ("pts_bbox_head.cls_branches", "pts_bbox_head.reg_branches")
 
 
 def _conv_mlp(c_in: int, c_hidden: int, c_out: int) -> nn.Sequential:

@@ -9,7 +9,7 @@ An entry holds the model class and its configuration class (whose ``preprocess``
 count and geometry parameters describe a built model), the official key manifest, the keys that
 identify a checkpoint of it (``signature_keys`` present, ``absent_keys`` absent), the function
 that maps official keys to the model's (``checkpoint_filter``), the keys loading drops, and what
-its scores mean. :func:`create_model` builds an eval-mode model, :func:`list_models` names the
+its scores mean, and which of its modules stay float32 in an int8 file. :func:`create_model` builds an eval-mode model, :func:`list_models` names the
 registered architectures (the CLI's ``--arch`` choices), :func:`matching_architectures` tells
 them apart by a checkpoint's keys. An architecture lives in one module ``fisheye_<name>.py`` of this
 package (imported on first use of the registry) with its key manifest in ``manifests/``;
@@ -55,6 +55,9 @@ class ModelEntry:
     checkpoint_filter: Callable[[StateDict], dict[str, Any]]
     ignored_keys: tuple[str, ...]
     score_semantics: str
+    #: Modules (state-dict prefixes) whose layers stay float32 in the int8 file: where quantizing
+    #: them was measured to cost accuracy on a trained model (see ``fisheye_infer.export.quantize``).
+    int8_float: tuple[str, ...] = ()
 
     def matches(self, state_dict: StateDict) -> bool:
         """Whether a checkpoint's keys are this architecture's."""
@@ -66,7 +69,8 @@ _loaded = False
 
 
 def register_model(name: str, *, manifest: str, signature_keys: tuple[str, ...], checkpoint_filter: Callable[[StateDict], dict[str, Any]],
-                   score_semantics: str, absent_keys: tuple[str, ...] = (), ignored_keys: tuple[str, ...] = ()) -> Callable[[M], M]:
+                   score_semantics: str, absent_keys: tuple[str, ...] = (), ignored_keys: tuple[str, ...] = (),
+                   int8_float: tuple[str, ...] = ()) -> Callable[[M], M]:
     """Class decorator registering a detector (a class with a ``config_cls``) under ``name``."""
 
     def wrap(builder: M) -> M:
@@ -77,7 +81,7 @@ def register_model(name: str, *, manifest: str, signature_keys: tuple[str, ...],
         if not isinstance(config_cls, type):
             raise ConfigError(f"model '{name}': {builder.__qualname__} has no config_cls")
         _REGISTRY[name] = ModelEntry(name, builder, config_cls, manifest, tuple(signature_keys), tuple(absent_keys), checkpoint_filter,
-                                     tuple(ignored_keys), score_semantics)
+                                     tuple(ignored_keys), score_semantics, tuple(int8_float))
         return builder
 
     return wrap

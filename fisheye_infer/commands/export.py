@@ -26,12 +26,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=2, help="seeded synthetic frames for the parity check (default 2)")
     parser.add_argument("--force", action="store_true", help="keep the file even when parity fails")
     parser.add_argument("--allow-pickle", action="store_true", help="load a checkpoint that needs pickle (only from a source you trust)")
-    int8 = parser.add_argument_group("int8", "static QDQ quantization of the image backbone and neck (geometry, pooling and heads stay float32)")
+    int8 = parser.add_argument_group("int8", "static QDQ quantization (U8 activations, S8 per-channel weights); geometry, pooling, "
+                                     "attention products, softmax, norms and box decoding stay float32")
     int8.add_argument("--int8", action="store_true",
                       help="after the fp32 file is verified, also write an int8 file next to it: --out model.onnx -> model.int8.onnx "
                            "(--out stays the fp32 file); written when >= 95%% of the fp32 top-50 boxes are found again (or with --force)")
     int8.add_argument("--calib-images", help="folder with your own frames for calibration, read like --verify-images")
     int8.add_argument("--calib-frames", type=int, default=8, help="seeded synthetic calibration frames of the rig (default 8)")
+    int8.add_argument("--int8-scope", choices=("network", "trunk"), default="network",
+                      help="network: every layer with weights (image trunk, depth net, BEV encoder and neck, head convolutions, "
+                           "linear layers; default); trunk: the image backbone and neck only")
     parser.add_argument("--fp16", action="store_true",
                         help="after the fp32 file is verified, also write a float16 file for GPU execution providers next to it: --out model.onnx -> "
                              "model.fp16.onnx; written when >= 95%% of the fp32 top-50 boxes are found again (or with --force)")
@@ -43,11 +47,12 @@ def run(args: argparse.Namespace) -> int:
         from fisheye_infer.export.exporter import export
     except ImportError as exc:
         return missing_extra(NEEDS_EXPORT, exc)
-    if (args.calib_images is not None or args.calib_frames != 8) and not args.int8:
-        print("fisheye-infer export: error: --calib-images/--calib-frames need --int8", file=sys.stderr)
+    if (args.calib_images is not None or args.calib_frames != 8 or args.int8_scope != "network") and not args.int8:
+        print("fisheye-infer export: error: --calib-images/--calib-frames/--int8-scope need --int8", file=sys.stderr)
         return 2
     result = export(args.ckpt, args.out, arch=args.arch, config=args.config, rig=args.rig, geometry=args.geometry,
                     verify_images=args.verify_images, frames=args.frames, force=args.force, allow_pickle=args.allow_pickle,
-                    int8=args.int8, calib_images=args.calib_images, calib_frames=args.calib_frames, fp16=args.fp16)
+                    int8=args.int8, calib_images=args.calib_images, calib_frames=args.calib_frames,
+                    int8_scope=args.int8_scope, fp16=args.fp16)
     print(result.summary())
     return 0

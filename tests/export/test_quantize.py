@@ -1,7 +1,8 @@
-"""int8 export: static QDQ of the image backbone and neck only, with evidence against the fp32 file."""
+"""int8 export: static QDQ of every weighted layer (or of the image trunk alone), with evidence against the fp32 file."""
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,19 @@ from fisheye_infer.detector import Detector
 from fisheye_infer.errors import ExportError
 from fisheye_infer.export import exporter as exporter_module
 from fisheye_infer.export.exporter import Int8Result, export, export_int8
-from fisheye_infer.export.quantize import QUANT_OPS, FrameReader, image_region, int8_path_for, quantize, top_matched
+from fisheye_infer.export.quantize import (
+    QUANT_OPS,
+    WEIGHTED_OPS,
+    FrameReader,
+    architecture_float,
+    image_region,
+    int8_nodes,
+    int8_path_for,
+    module_of,
+    quantize,
+    top_matched,
+)
+from fisheye_infer.graph_stages import name_nodes
 
 
 @pytest.fixture(scope="module")
@@ -36,17 +49,58 @@ def _region_names(path: Path) -> tuple[onnx.ModelProto, set[str]]:
     return model, set(image_region(model))
 
 
-def test_qdq_nodes_only_in_backbone_and_neck(small_export, small_int8: Int8Result) -> None:
-    model, region = _region_names(small_int8.path)
-    quant = [n for n in model.graph.node if n.op_type in QUANT_OPS]
-    assert quant, "no QuantizeLinear/DequantizeLinear in the int8 file"
+def _int8_layers(model: onnx.ModelProto) -> set[str]:
+    """Names of the layers that run in int8: those whose weight comes out of a DequantizeLinear of an initializer."""
+    inits = {i.name for i in model.graph.initializer}
+    weight_dq = {n.output[0] for n in model.graph.node if n.op_type == "DequantizeLinear" and n.input[0] in inits}
+    return {n.name for n in model.graph.node if n.op_type in WEIGHTED_OPS and len(n.input) > 1 and n.input[1] in weight_dq}
+
+
+def _named(path: Path) -> onnx.ModelProto:
+    model = onnx.load(str(path))
+    name_nodes(model)
+    return model
+
+
+def test_network_scope_quantizes_the_weighted_layers_and_nothing_else(small_export, small_int8: Int8Result) -> None:
+    fp32, model = _named(small_export.onnx), onnx.load(str(small_int8.path))
+    keep_float = architecture_float(small_export.onnx)
+    assert keep_float == ("bbox_head",)
+    chosen = set(int8_nodes(fp32, "network", keep_float))
+    weighted = {n.name for n in fp32.graph.node if n.name in chosen and n.op_type in WEIGHTED_OPS}
+    assert _int8_layers(model) == weighted
+    modules = {module_of(n) for n in fp32.graph.node if n.name in weighted}
+    assert any(m.startswith("img_backbone.") for m in modules) and any(m.startswith("pts_backbone.") for m in modules)
+    assert "view_transform.depthnet" in modules and not any(m.startswith("bbox_head") for m in modules)
     assert {n.domain for n in model.graph.node} <= {"", "ai.onnx"}  # standard QDQ, no contrib ops
-    assert all(n.name in region for n in quant)
-    assert any(n.op_type == "Conv" and n.name in region for n in model.graph.node)
-    fp32 = onnx.load(str(small_export.onnx))
-    fp32_region = set(image_region(fp32))
-    outside = lambda m, r: [(n.op_type, list(n.input), list(n.output)) for n in m.graph.node if n.name not in r]  # noqa: E731
-    assert outside(model, region) == outside(fp32, fp32_region)  # geometry, pooling, heads: the same float graph
+    geometry = {i.name for i in fp32.graph.initializer if i.name.startswith("geom.")}
+    reads_tables = lambda m: sorted((n.op_type, tuple(n.input), tuple(n.output)) for n in m.graph.node if geometry.intersection(n.input))  # noqa: E731
+    assert reads_tables(model) == reads_tables(fp32)  # warp, lift and pooling: the same float nodes on the same values
+    ops = lambda m: Counter(n.op_type for n in m.graph.node if n.op_type not in QUANT_OPS)  # noqa: E731
+    assert not ops(model) - ops(fp32)  # only QuantizeLinear/DequantizeLinear pairs were added
+    assert set(ops(fp32) - ops(model)) <= {"Relu"}  # a ReLU after a quantized layer is its U8 range (ORT drops it)
+
+
+def test_trunk_scope_stays_in_the_backbone_and_neck(small_export, tmp_path: Path) -> None:
+    calibration = np.random.default_rng(0).integers(0, 255, (1, 4, 160, 160, 3), dtype=np.uint8)
+    out = quantize(small_export.onnx, tmp_path / "trunk.onnx", FrameReader(calibration), scope="trunk")
+    model, region = _region_names(out)
+    layers = _int8_layers(model)
+    assert layers and layers <= region
+    assert sum(n.op_type == "Conv" for n in model.graph.node if n.name in region) == len(layers)
+
+
+def test_module_of_reads_the_recorded_module_path_or_the_weight_name(small_export) -> None:
+    model = _named(small_export.onnx)
+    depthnet = next(n for n in model.graph.node if n.op_type == "Conv" and n.input[1].endswith("depthnet.weight"))
+    assert module_of(depthnet) == "view_transform.depthnet"
+    del depthnet.metadata_props[:]
+    assert module_of(depthnet) == "" and module_of(depthnet, {depthnet.input[1]}) == "view_transform.depthnet"
+
+
+def test_an_unknown_scope_is_refused(small_export) -> None:
+    with pytest.raises(ExportError, match="scope 'everything'"):
+        int8_nodes(_named(small_export.onnx), "everything")
 
 
 def test_geometry_initializers_unchanged_and_named(small_export, small_int8: Int8Result) -> None:
@@ -60,7 +114,8 @@ def test_geometry_initializers_unchanged_and_named(small_export, small_int8: Int
 def test_metadata_records_quantization_and_evidence(small_export, small_int8: Int8Result) -> None:
     meta = read_meta(small_int8.path)
     assert meta.quantization is not None and meta.quantization.mode == "int8-qdq"
-    assert meta.quantization.calibration_frames == 2 and "GridSample" in meta.quantization.scope
+    assert meta.quantization.calibration_frames == 2
+    assert meta.quantization.scope.startswith("network:") and "bbox_head (measured)" in meta.quantization.scope
     assert meta.parity is not None and meta.parity.reference == "fp32-onnx"
     assert 0.0 <= meta.parity.top_matched_fraction <= 1.0
     assert meta.model_id == read_meta(small_export.onnx).model_id + "-int8"
@@ -155,8 +210,9 @@ def test_quantizing_an_int8_file_is_refused(small_int8: Int8Result, tmp_path: Pa
         export_int8(small_int8.path, tmp_path / "again.onnx", calib_frames=1, progress=lambda _: None)
 
 
-def test_calibration_options_need_int8(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    assert main(["export", "--ckpt", "x.pth", "--out", str(tmp_path / "m.onnx"), "--calib-frames", "3"]) == 2
+@pytest.mark.parametrize("option", [["--calib-frames", "3"], ["--int8-scope", "trunk"]], ids=["calib-frames", "int8-scope"])
+def test_int8_options_need_int8(option: list[str], capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["export", "--ckpt", "x.pth", "--out", str(tmp_path / "m.onnx"), *option]) == 2
     assert "--int8" in capsys.readouterr().err
 
 
@@ -175,10 +231,10 @@ def test_export_with_int8_writes_both_files(small_export, small_bevdet_config, c
 
 
 @pytest.mark.slow
-def test_full_bevdet_quantizes_its_trunk(bevdet_export, tmp_path: Path) -> None:
-    """The full-size FisheyeBEVDet (about 15 s with two calibration frames on 2 cores)."""
+def test_full_bevdet_quantizes_its_network(bevdet_export, tmp_path: Path) -> None:
+    """The full-size FisheyeBEVDet (two calibration frames): every weighted layer but the head's in int8."""
     result = export_int8(bevdet_export.onnx, tmp_path / "bevdet.int8.onnx", calib_frames=2, frames=1, force=True, progress=lambda _: None)
     model, region = _region_names(result.path)
-    assert all(n.name in region for n in model.graph.node if n.op_type in QUANT_OPS)
-    assert sum(n.op_type == "Conv" for n in model.graph.node if n.name in region) >= 20
+    layers = _int8_layers(model)
+    assert len(layers & region) >= 20 and len(layers - region) >= 8  # trunk, and the depth net, BEV encoder and neck
     assert Detector(result.path, threads=2).info.meta.parity.reference == "fp32-onnx"
