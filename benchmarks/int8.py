@@ -1,0 +1,131 @@
+"""int8 against fp32 on a trained model: accuracy on held-out frames and speed, in one run.
+
+    .venv/bin/python benchmarks/int8.py                       # the shipped compact FisheyeBEVDet, 200 held-out frames
+    .venv/bin/python benchmarks/int8.py --frames 50 --repeat 10
+
+1. export the checkpoint (fp32, verified) and, from that file, the int8 files of both scopes
+   (``network``, the default, and ``trunk``) with the exporter's own calibration (``--calib-frames``
+   seeded renders of the rig; add ``--calib-images`` for frames of your own);
+2. on ``--frames`` frames of the validation stream (``fisheye-infer synth --stream val``): FDS and
+   mAP of each file, and the share of the fp32 top-50 boxes per frame each int8 file finds again
+   (0.5 m, same label; the export's own criterion is 95%);
+3. latency of ``Detector.run_arrays`` on one frame, the files alternated round by round so drift of
+   a shared machine falls on all of them alike; medians and the ratio to fp32 at each thread count.
+
+Prints the CPU's name and its VNNI / AVX-512 flags: the int8 gain depends on them (u8 x s8
+dot products in one instruction with VNNI; several without). Writes ``figures.json`` to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from model_card import RANGES, heldout, run, top50_kept  # noqa: E402
+
+from fisheye_infer.bench import machine  # noqa: E402
+from fisheye_infer.detector import Detector  # noqa: E402
+from fisheye_infer.eval.dataset import Fisheye3DOD  # noqa: E402
+from fisheye_infer.preprocess import load_frame, stack_frames  # noqa: E402
+from fisheye_infer.rig import Rig  # noqa: E402
+
+
+def cpu_name() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").is_file() else []:
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return platform.processor() or "unknown"
+
+
+def latency(paths: dict[str, Path], images: np.ndarray, valid: np.ndarray, threads: int, rounds: int, repeat: int) -> dict[str, float]:
+    """Median ms per ``run_arrays`` call for each file, the files alternated round by round."""
+    detectors = {name: Detector(path, threads=threads) for name, path in paths.items()}
+    times: dict[str, list[float]] = {name: [] for name in paths}
+    for detector in detectors.values():
+        for _ in range(2):
+            detector.run_arrays(images, valid)
+    for _ in range(rounds):
+        for name, detector in detectors.items():
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                detector.run_arrays(images, valid)
+                times[name].append((time.perf_counter() - t0) * 1e3)
+    return {name: float(np.median(t)) for name, t in times.items()}
+
+
+def main() -> None:
+    from fisheye_infer.export.exporter import export, export_int8
+    from fisheye_infer.models.pretrained import COMPACT_BEVDET
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--ckpt", default=str(COMPACT_BEVDET.checkpoint), help="checkpoint (default: the shipped compact FisheyeBEVDet)")
+    parser.add_argument("--config", help="its config file (default: config.py beside --ckpt)")
+    parser.add_argument("--rig", help="its rig file (default: rig.json beside --ckpt)")
+    parser.add_argument("--frames", type=int, default=200, help="held-out frames (default 200)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the validation stream (default 0)")
+    parser.add_argument("--calib-frames", type=int, default=8, help="the exporter's seeded calibration renders (default 8)")
+    parser.add_argument("--calib-images", help="folder with frames of your own for calibration")
+    parser.add_argument("--threads", default="1,2", help="thread counts to time (default 1,2)")
+    parser.add_argument("--rounds", type=int, default=5, help="alternated timing rounds (default 5)")
+    parser.add_argument("--repeat", type=int, default=10, help="calls per file per round (default 10)")
+    parser.add_argument("--out", default="artifacts/int8", help="folder for the frames, the files and the figures")
+    args = parser.parse_args()
+
+    ckpt = Path(args.ckpt)
+    config, rig_path = Path(args.config or ckpt.with_name("config.py")), Path(args.rig or ckpt.with_name("rig.json"))
+    out = Path(args.out)
+    rig = Rig.load(rig_path)
+    host = {"cpu": cpu_name(), **machine()}
+    print(f"CPU: {host['cpu']}, {host['cpu_count']} cores; AVX-512: {host['avx512']}, VNNI: {host['vnni']}; onnxruntime {host['onnxruntime']}")
+    data = heldout(rig, out / "heldout", args.frames, args.seed)
+    fp32_path = export(ckpt, out / "model.onnx", config=config, rig=rig, progress=lambda _: None).path
+    assert fp32_path is not None
+    paths: dict[str, Path] = {"fp32": fp32_path}
+    for scope in ("network", "trunk"):
+        t0 = time.perf_counter()
+        result = export_int8(fp32_path, out / f"model.int8-{scope}.onnx", scope=scope, calib_frames=args.calib_frames,
+                             calib_images=args.calib_images, force=True, progress=lambda _: None)
+        assert result.path is not None
+        paths[scope] = result.path
+        print(f"int8 {scope}: {result.meta.quantization.scope if result.meta.quantization else ''} ({time.perf_counter() - t0:.0f} s; "
+              f"its own check: {result.parity.top_matched_fraction:.1%} of top-50 -> {'passed' if result.parity.passed else 'refused without --force'})")
+
+    figures: dict[str, Any] = {"machine": host, "checkpoint": str(ckpt), "frames": args.frames, "files": {}}
+    reports = {name: run(Detector(path, threads=1), data, list(rig.names))[0] for name, path in paths.items()}
+    fp32 = Detector(paths["fp32"], threads=1)
+    print(f"\n## Accuracy on {args.frames} held-out frames\n")
+    print("| file | FDS 0-30 m | mAP 0-30 m | FDS 0-48 m | mAP 0-48 m | FDS vs fp32 (0-30 m) | top-50 kept |\n|---|---|---|---|---|---|---|")
+    for name, report in reports.items():
+        near, far = (report.distance[label] for label in RANGES)
+        kept = 1.0 if name == "fp32" else top50_kept(fp32, Detector(paths[name], threads=1), data)
+        delta = near.FDS - reports["fp32"].distance[RANGES[0]].FDS
+        print(f"| {name} | {near.FDS:.4f} | {near.mAP:.4f} | {far.FDS:.4f} | {far.mAP:.4f} | {delta:+.4f} | {kept:.1%} |")
+        figures["files"][name] = {"path": str(paths[name]), "MB": paths[name].stat().st_size / 1e6, "top50_kept": kept,
+                                  **{f"{m} {label}": getattr(report.distance[label], m) for label in RANGES for m in ("FDS", "mAP")}}
+
+    frame = next(iter(Fisheye3DOD(data, "val")))
+    images, valid = stack_frames([load_frame(dict(frame.image_paths), fp32.info.cameras, fp32.info.image_size)], fp32.info.image_size)
+    print(f"\n## Latency, one frame ({host['cpu']}; median of {args.rounds} x {args.repeat} calls per file, files alternated)\n")
+    print("| threads | " + " | ".join(f"{name} ms" for name in paths) + " | " + " | ".join(f"{name} speed-up" for name in paths if name != "fp32") + " |")
+    print("|---" * (2 * len(paths)) + "|")
+    figures["latency_ms"] = {}
+    for threads in (int(t) for t in args.threads.split(",")):
+        ms = latency(paths, images, valid, threads, args.rounds, args.repeat)
+        figures["latency_ms"][threads] = ms
+        print(f"| {threads} | " + " | ".join(f"{ms[n]:.1f}" for n in paths) + " | "
+              + " | ".join(f"{ms['fp32'] / ms[n]:.2f}x" for n in paths if n != "fp32") + " |")
+    path = out / "figures.json"
+    path.write_text(json.dumps(figures, indent=1) + "\n")
+    print(f"\nwrote {path}")
+
+
+if __name__ == "__main__":
+    main()
