@@ -161,7 +161,7 @@ def main() -> None:
     int8 = Detector(quant.path or onnx_path, threads=args.threads)
     int8_report, _ = run(int8, data, list(fp32.info.cameras))
     kept = top50_kept(fp32, int8, data)
-    print("\n## int8 (image backbone and neck) against the fp32 file\n")
+    print(f"\n## int8 ({quant.meta.quantization.scope if quant.meta.quantization else ''}) against the fp32 file\n")
     print("| range | FDS fp32 | FDS int8 | difference | top-50 kept (0.5 m, same label) |\n|---|---|---|---|---|")
     for label in RANGES:
         a, b = full.distance[label].FDS, int8_report.distance[label].FDS
