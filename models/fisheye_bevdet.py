@@ -103,9 +103,14 @@ class FisheyeBEVDet(FisheyeDetector):
     # -- forward --------------------------------------------------------------------------
 
     def normalise(self, images: torch.Tensor) -> torch.Tensor:
-        """uint8 B x N x H x W x 3 (BGR) -> float32 (B*N) x 3 x H x W, (x - mean[c]) / std[c], no channel swap."""
-        x = (images.to(torch.float32) - self.mean) / self.std  # B x N x H x W x 3
-        return x.flatten(0, 1).permute(0, 3, 1, 2)
+        """uint8 B x N x H x W x 3 (BGR) -> float32 (B*N) x 3 x H x W, (x - mean[c]) / std[c], no channel swap.
+
+        Channels first, then the arithmetic: the same values as normalising channels-last, but the
+        per-channel constants broadcast over whole planes instead of every third element (ONNX
+        Runtime's Sub and Div took 10% of the compact model's fp32 time the other way round).
+        """
+        x = images.flatten(0, 1).permute(0, 3, 1, 2).to(torch.float32)
+        return (x - self.mean.reshape(1, 3, 1, 1)) / self.std.reshape(1, 3, 1, 1)
 
     def extract_bev(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
                     tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:

@@ -18,7 +18,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="mmdet3d-style FisheyeBEVDet config to train (default: the compact configuration)")
     parser.add_argument("--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint.pth (config and rig from the folder)")
-    parser.add_argument("--steps", type=int, default=8000, help="total optimiser steps (default 8000, the shipped model's run; may grow on --resume)")
+    parser.add_argument("--steps", type=int, default=8000,
+                        help="total optimiser steps (default 8000: the shipped model's first run, continued with --resume --steps 14000)")
     parser.add_argument("--batch-size", type=int, default=2, help="frames per step (default 2)")
     parser.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of AdamW (default 2e-4)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the weights and of the training frames (default 0)")
