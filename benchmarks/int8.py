@@ -29,13 +29,12 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from model_card import RANGES, heldout, run, top50_kept  # noqa: E402
+from model_card import RANGES, add_model_arguments, heldout, run, top50_kept, trained_model  # noqa: E402
 
 from fisheye_infer.bench import machine  # noqa: E402
 from fisheye_infer.detector import Detector  # noqa: E402
 from fisheye_infer.eval.dataset import Fisheye3DOD  # noqa: E402
 from fisheye_infer.preprocess import load_frame, stack_frames  # noqa: E402
-from fisheye_infer.rig import Rig  # noqa: E402
 
 
 def cpu_name() -> str:
@@ -63,14 +62,9 @@ def latency(paths: dict[str, Path], images: np.ndarray, valid: np.ndarray, threa
 
 def main() -> None:
     from fisheye_infer.export.exporter import export, export_int8
-    from fisheye_infer.models.pretrained import COMPACT_BEVDET
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--ckpt", default=str(COMPACT_BEVDET.checkpoint), help="checkpoint (default: the shipped compact FisheyeBEVDet)")
-    parser.add_argument("--config", help="its config file (default: config.py beside --ckpt)")
-    parser.add_argument("--rig", help="its rig file (default: rig.json beside --ckpt)")
-    parser.add_argument("--frames", type=int, default=200, help="held-out frames (default 200)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the validation stream (default 0)")
+    add_model_arguments(parser)
     parser.add_argument("--calib-frames", type=int, default=8, help="the exporter's seeded calibration renders (default 8)")
     parser.add_argument("--calib-images", help="folder with frames of your own for calibration")
     parser.add_argument("--threads", default="1,2", help="thread counts to time (default 1,2)")
@@ -79,10 +73,8 @@ def main() -> None:
     parser.add_argument("--out", default="artifacts/int8", help="folder for the frames, the files and the figures")
     args = parser.parse_args()
 
-    ckpt = Path(args.ckpt)
-    config, rig_path = Path(args.config or ckpt.with_name("config.py")), Path(args.rig or ckpt.with_name("rig.json"))
+    ckpt, config, rig = trained_model(args)
     out = Path(args.out)
-    rig = Rig.load(rig_path)
     host = {"cpu": cpu_name(), **machine()}
     print(f"CPU: {host['cpu']}, {host['cpu_count']} cores; AVX-512: {host['avx512']}, VNNI: {host['vnni']}; onnxruntime {host['onnxruntime']}")
     data = heldout(rig, out / "heldout", args.frames, args.seed)

@@ -78,6 +78,23 @@ def top50_kept(fp32: Detector, int8: Detector, data: Path) -> float:
     return matched / max(considered, 1)
 
 
+def add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """The trained model a benchmark measures and the held-out frames it is measured on."""
+    from fisheye_infer.models.pretrained import COMPACT_BEVDET
+
+    parser.add_argument("--ckpt", default=str(COMPACT_BEVDET.checkpoint), help="checkpoint (default: the shipped compact FisheyeBEVDet)")
+    parser.add_argument("--config", help="its config file (default: config.py beside --ckpt)")
+    parser.add_argument("--rig", help="its rig file (default: rig.json beside --ckpt)")
+    parser.add_argument("--frames", type=int, default=200, help="held-out frames (default 200)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the validation stream (the training run's --seed; default 0)")
+
+
+def trained_model(args: argparse.Namespace) -> tuple[Path, Path, Rig]:
+    """(checkpoint, config file, rig) from ``add_model_arguments``' options."""
+    ckpt = Path(args.ckpt)
+    return ckpt, Path(args.config or ckpt.with_name("config.py")), Rig.load(Path(args.rig or ckpt.with_name("rig.json")))
+
+
 def summary_row(report: MetricsReport) -> dict[str, float]:
     row = {}
     for label in RANGES:
@@ -101,22 +118,15 @@ def class_table(report: MetricsReport) -> str:
 def main() -> None:
     from fisheye_infer.export.exporter import export, export_int8, open_checkpoint
     from fisheye_infer.export.torch_detector import TorchDetector
-    from fisheye_infer.models.pretrained import COMPACT_BEVDET
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--ckpt", default=str(COMPACT_BEVDET.checkpoint), help="checkpoint (default: the shipped compact FisheyeBEVDet)")
-    parser.add_argument("--config", help="its config file (default: config.py beside --ckpt)")
-    parser.add_argument("--rig", help="its rig file (default: rig.json beside --ckpt)")
-    parser.add_argument("--frames", type=int, default=200, help="held-out frames (default 200)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the validation stream (the training run's --seed; default 0)")
+    add_model_arguments(parser)
     parser.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads (default 2)")
     parser.add_argument("--out", default="artifacts/model_card", help="folder for the frames, the files and the figures")
     args = parser.parse_args()
 
-    ckpt = Path(args.ckpt)
-    config, rig_path = Path(args.config or ckpt.with_name("config.py")), Path(args.rig or ckpt.with_name("rig.json"))
+    ckpt, config, rig = trained_model(args)
     out = Path(args.out)
-    rig = Rig.load(rig_path)
     data = heldout(rig, out / "heldout", args.frames, args.seed)
     onnx_path = out / "model.onnx"
     result = export(ckpt, onnx_path, config=config, rig=rig, progress=lambda _: None)
