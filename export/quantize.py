@@ -19,8 +19,8 @@ layer norms and the box decoding, and the modules an architecture names in ``int
 quantizing was measured to cost accuracy: FisheyeBEVDet's TransFusion head). U8 activations
 (percentile ranges over the calibration frames), S8 weights per output channel.
 
-The regions are found by graph position and initializer names, not by node names (which change
-with the exporter). The input file is never modified; the output appears only when quantization
+The regions are found by graph position, initializer names and each node's recorded module path,
+not by node names (which change with the exporter). The input file is never modified; the output appears only when quantization
 has finished and the geometry tables are checked to be byte-identical.
 """
 
