@@ -176,7 +176,7 @@ def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: 
     if scope == "trunk":
         return (f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's GridSample; "
                 "geometry, pooling and heads float32")
-    kept = f"{', '.join(keep_float)} (measured), " if keep_float else ""
+    kept = f"{', '.join(keep_float)} (the architecture's int8_float), " if keep_float else ""
     return (f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} beyond it; "
             f"float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding")
 

@@ -115,7 +115,7 @@ def test_metadata_records_quantization_and_evidence(small_export, small_int8: In
     meta = read_meta(small_int8.path)
     assert meta.quantization is not None and meta.quantization.mode == "int8-qdq"
     assert meta.quantization.calibration_frames == 2
-    assert meta.quantization.scope.startswith("network:") and "bbox_head (measured)" in meta.quantization.scope
+    assert meta.quantization.scope.startswith("network:") and "bbox_head (the architecture's int8_float)" in meta.quantization.scope
     assert meta.parity is not None and meta.parity.reference == "fp32-onnx"
     assert 0.0 <= meta.parity.top_matched_fraction <= 1.0
     assert meta.model_id == read_meta(small_export.onnx).model_id + "-int8"
