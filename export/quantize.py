@@ -20,8 +20,9 @@ quantizing was measured to cost accuracy: FisheyeBEVDet's TransFusion head). U8 
 (percentile ranges over the calibration frames), S8 weights per output channel.
 
 The regions are found by graph position, initializer names and each node's recorded module path,
-not by node names (which change with the exporter). The input file is never modified; the output appears only when quantization
-has finished and the geometry tables are checked to be byte-identical.
+not by node names (which change with the exporter). The input file is never modified; the output
+appears only when quantization has finished and the geometry tables are checked to be
+byte-identical.
 """
 
 from __future__ import annotations
