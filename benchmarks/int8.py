@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/int8.py                       # the shipped compact FisheyeBEVDet, 200 held-out frames
     .venv/bin/python benchmarks/int8.py --frames 50 --repeat 10
+    .venv/bin/python benchmarks/int8.py --keep-float "" --keep-float bbox_head.shared_conv,bbox_head.heatmap_head   # what may stay int8
 
 1. export the checkpoint (fp32, verified) and, from that file, the int8 files of both scopes
    (``network``, the default, and ``trunk``) with the exporter's own calibration (``--calib-frames``
@@ -67,6 +68,9 @@ def main() -> None:
     add_model_arguments(parser)
     parser.add_argument("--calib-frames", type=int, default=8, help="the exporter's seeded calibration renders (default 8)")
     parser.add_argument("--calib-images", help="folder with frames of your own for calibration")
+    parser.add_argument("--keep-float", action="append", default=[], metavar="MODULES",
+                        help="also measure the network scope with these modules float32 instead of the architecture's "
+                             "(comma-separated state-dict prefixes, '' for none; repeatable): how int8_float was chosen")
     parser.add_argument("--threads", default="1,2", help="thread counts to time (default 1,2)")
     parser.add_argument("--rounds", type=int, default=5, help="alternated timing rounds (default 5)")
     parser.add_argument("--repeat", type=int, default=10, help="calls per file per round (default 10)")
@@ -79,15 +83,19 @@ def main() -> None:
     print(f"CPU: {host['cpu']}, {host['cpu_count']} cores; AVX-512: {host['avx512']}, VNNI: {host['vnni']}; onnxruntime {host['onnxruntime']}")
     data = heldout(rig, out / "heldout", args.frames, args.seed)
     fp32_path = export(ckpt, out / "model.onnx", config=config, rig=rig, progress=lambda _: None).path
-    assert fp32_path is not None
+    if fp32_path is None:
+        raise SystemExit("the fp32 export wrote no file")
     paths: dict[str, Path] = {"fp32": fp32_path}
-    for scope in ("network", "trunk"):
+    variants = [("network", "network", None), ("trunk", "trunk", None)]
+    variants += [(f"network, float: {m or 'none'}", "network", tuple(p for p in m.split(",") if p)) for m in args.keep_float]
+    for i, (name, scope, keep_float) in enumerate(variants):
         t0 = time.perf_counter()
-        result = export_int8(fp32_path, out / f"model.int8-{scope}.onnx", scope=scope, calib_frames=args.calib_frames,
+        result = export_int8(fp32_path, out / f"model.int8-{i}.onnx", scope=scope, keep_float=keep_float, calib_frames=args.calib_frames,
                              calib_images=args.calib_images, force=True, progress=lambda _: None)
-        assert result.path is not None
-        paths[scope] = result.path
-        print(f"int8 {scope}: {result.meta.quantization.scope if result.meta.quantization else ''} ({time.perf_counter() - t0:.0f} s; "
+        if result.path is None:
+            raise SystemExit(f"int8 {name}: no file written")
+        paths[name] = result.path
+        print(f"int8 {name}: {result.meta.quantization.scope if result.meta.quantization else ''} ({time.perf_counter() - t0:.0f} s; "
               f"its own check: {result.parity.top_matched_fraction:.1%} of top-50 -> {'passed' if result.parity.passed else 'refused without --force'})")
 
     figures: dict[str, Any] = {"machine": host, "checkpoint": str(ckpt), "frames": args.frames, "files": {}}

@@ -452,6 +452,7 @@ def export_int8(
     calib_images: str | Path | None = None,
     calib_frames: int = 8,
     scope: str = "network",
+    keep_float: Sequence[str] | None = None,
     frames: int = 2,
     verify_images: str | Path | None = None,
     threads: int = 2,
@@ -459,6 +460,7 @@ def export_int8(
     progress: Callable[[str], None] = print,
 ) -> Int8Result:
     """A verified fp32 file -> its static-QDQ int8 file over ``scope`` (``quantize.SCOPES``); see ``quantize``.
+    ``keep_float``: modules left float32 (default: the architecture's ``int8_float``).
 
     Calibration: ``calib_frames`` seeded synthetic renders of the file's own rig (seeds from
     ``CALIBRATION_SEED``, disjoint from the verification seeds) plus the user's frames from
@@ -476,7 +478,7 @@ def export_int8(
     tmp = out.with_name(f".{out.name}.{os.getpid()}.q.tmp")
     try:
         progress(f"int8 [2/3] static QDQ quantization, scope {scope} (U8 activations, S8 per-channel weights)")
-        keep_float = architecture_float(src)
+        keep_float = architecture_float(src) if keep_float is None else tuple(keep_float)
         quantize(src, tmp, FrameReader(calibration), scope=scope, keep_float=keep_float)
         proto = onnx.load(str(tmp))
         covered = quantized_scope(onnx.load(str(src), load_external_data=False), scope, keep_float)

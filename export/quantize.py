@@ -131,7 +131,8 @@ def int8_nodes(model: onnx.ModelProto, scope: str = "network", keep_float: Seque
     if scope not in SCOPES:
         raise ExportError(f"int8: scope {scope!r} is not one of {', '.join(SCOPES)}")
     graph = model.graph
-    trunk = [n.name for n in graph.node if n.name in set(image_region(model)) and n.op_type in TRUNK_OPS]
+    image = set(image_region(model))
+    trunk = [n.name for n in graph.node if n.name in image and n.op_type in TRUNK_OPS]
     if scope == "trunk":
         return trunk
     weights = {i.name for i in graph.initializer if not i.name.startswith(GEOMETRY_PREFIX)}
@@ -220,7 +221,8 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: CalibrationDataRead
     model = onnx.load(str(src))
     name_nodes(model)
     nodes = int8_nodes(model, scope, keep_float)
-    op_types = sorted({n.op_type for n in model.graph.node if n.name in set(nodes)})
+    chosen = set(nodes)
+    op_types = sorted({n.op_type for n in model.graph.node if n.name in chosen})
     before = _geometry_bytes(model)
     with tempfile.TemporaryDirectory(prefix="fisheye-int8-") as tmp:
         named = save_model(model, Path(tmp) / "named.onnx")
