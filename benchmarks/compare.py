@@ -1,8 +1,8 @@
 """Reference points for ``run_all.py``: PyTorch eager and torch.compile, OpenVINO, GEMM peak, FLOPs, service.
 
-Every function times in the calling process, warm-up first, and returns medians in ms; each
-comparison runs on the same checkpoint / ONNX file and the same frames as the ORT figures.
-A reference that cannot run here returns a dict with ``error`` saying why, never raises.
+Each comparison runs on the same checkpoint / ONNX file and the same frames as the ORT figures;
+OpenVINO comes as a callable so that ``run_all.py`` times it in turns with ONNX Runtime. A
+reference that cannot run here says why (an ``error`` entry or message), never raises.
 """
 
 from __future__ import annotations
@@ -76,22 +76,24 @@ def torch_compile(arch: str, ckpt: Path, threads: int, repeat: int, timeout_s: f
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def openvino(onnx_path: Path, images: np.ndarray, threads: int, repeat: int) -> dict[str, Any]:
-    """OpenVINO CPU on the same ONNX file, f32 precision hint (this CPU would pick bf16 otherwise)."""
+def openvino(onnx_path: Path, images: np.ndarray, threads: int) -> Callable[[], object] | str:
+    """One OpenVINO CPU inference on the same ONNX file (f32 precision hint: this CPU would pick
+    bf16 otherwise), as a callable to time alongside ONNX Runtime; or why it cannot run here."""
     try:
         import openvino as ov
     except ImportError:
-        return {"error": "openvino is not installed (pip install openvino)"}
+        return "openvino is not installed (pip install openvino)"
     try:
         core = ov.Core()
         compiled = core.compile_model(str(onnx_path), "CPU", {"INFERENCE_NUM_THREADS": threads, "INFERENCE_PRECISION_HINT": "f32",
                                                                "PERFORMANCE_HINT": "LATENCY"})
         request = compiled.create_infer_request()
         feeds = {"images": images, "camera_valid": np.ones(images.shape[:2], bool)}
-        return {"ms": timed(lambda: request.infer(feeds), repeat), "version": ov.__version__}
+        request.infer(feeds)
+        return lambda: request.infer(feeds)
     except Exception as exc:  # OpenVINO raises its own untyped errors
         lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
-        return {"error": f"OpenVINO failed: {' / '.join(lines[1:3] or lines)[:300]}"}
+        return f"OpenVINO failed: {' / '.join(lines[1:3] or lines)[:300]}"
 
 
 def _matmul_model(kind: str, n: int) -> bytes:

@@ -282,9 +282,18 @@ def test_attention_matches_torch_multihead_attention() -> None:
     q, k, v = torch.randn(2, 7, 64), torch.randn(2, 11, 64), torch.randn(2, 11, 64)
     mask = torch.rand(2, 11) < 0.3
     mask[:, 0] = False
-    out = mine(q, k, v, key_padding_bias(mask)[:, None, None, :])
+    out = mine(q, k, v, key_padding_bias(mask))
     expected = ref(q.transpose(0, 1), k.transpose(0, 1), v.transpose(0, 1), key_padding_mask=mask)[0]
     torch.testing.assert_close(out, expected.transpose(0, 1), rtol=1e-5, atol=1e-6)
+    # one bias row for the whole batch (the static key mask of the rig)
+    shared = mask[:1].expand(2, -1)
+    expected = ref(q.transpose(0, 1), k.transpose(0, 1), v.transpose(0, 1), key_padding_mask=shared)[0]
+    torch.testing.assert_close(mine(q, k, v, key_padding_bias(mask[:1])), expected.transpose(0, 1), rtol=1e-5, atol=1e-6)
+    # every key ignored (all cameras invalid): uniform attention, finite, where torch gives NaN
+    everything = torch.ones(1, 11, dtype=torch.bool)
+    v_proj = torch.nn.functional.linear(v, mine.in_proj_weight[128:], mine.in_proj_bias[128:])
+    uniform = mine.out_proj(v_proj.mean(dim=1, keepdim=True)).expand(2, 7, 64)
+    torch.testing.assert_close(mine(q, k, v, key_padding_bias(everything)), uniform, rtol=1e-5, atol=1e-6)
 
 
 def _reference_layer(layer: torch.nn.Module, t: torch.Tensor, mem: torch.Tensor, qp: torch.Tensor,
@@ -314,8 +323,8 @@ def test_decoder_post_norm_only_on_outputs() -> None:
     mask = torch.zeros(1, 9, dtype=torch.bool)
     mask[0, 3] = True
     with torch.no_grad():
-        outs = dec(t0, mem, qp, kp, key_padding_bias(mask)[:, None, None, :], return_intermediate=True)
-        last = dec(t0, mem, qp, kp, key_padding_bias(mask)[:, None, None, :])
+        outs = dec(t0, mem, qp, kp, key_padding_bias(mask), return_intermediate=True)
+        last = dec(t0, mem, qp, kp, key_padding_bias(mask))
         t = t0
         for i, layer in enumerate(dec.layers):
             t = _reference_layer(layer, t, mem, qp, kp, mask)  # carried tensor is NOT post-normed
