@@ -84,8 +84,10 @@ def int8_path_for(fp32_path: str | Path) -> Path:
 class FrameReader(CalibrationDataReader):
     """Calibration frames for ``quantize_static``: one (1, N, H, W, 3) uint8 frame per call.
 
-    One frame at a time keeps the calibration run's memory at batch-1 size; MinMax merges the
-    per-frame ranges, so the batch size does not change the result.
+    ``set_range`` lets the calibrator take the frames one at a time (``quantize`` asks for that):
+    it keeps every recorded tensor of the frames it is given until it has folded them into its
+    histograms, and on the full-size FisheyePETR that is about 3.5 GB per frame (eight frames at
+    once did not fit in 24 GB).
     """
 
     def __init__(self, frames: np.ndarray, valid: np.ndarray | None = None) -> None:
@@ -93,17 +95,21 @@ class FrameReader(CalibrationDataReader):
             raise ExportError(f"calibration frames: expected a non-empty (F, N, H, W, 3) uint8 array, got {frames.dtype} {frames.shape}")
         self.frames = frames
         self.valid = np.ones(frames.shape[:2], bool) if valid is None else valid
-        self._items: Iterator[dict[str, np.ndarray]] = self._feeds()
+        self.set_range(0, len(frames))
 
-    def _feeds(self) -> Iterator[dict[str, np.ndarray]]:
-        for i in range(len(self.frames)):
+    def _feeds(self, start: int, end: int) -> Iterator[dict[str, np.ndarray]]:
+        for i in range(start, min(end, len(self.frames))):
             yield {INPUT_IMAGES: self.frames[i : i + 1], INPUT_CAMERA_VALID: self.valid[i : i + 1]}
 
     def get_next(self) -> dict[str, np.ndarray] | None:
         return next(self._items, None)
 
+    def set_range(self, start_index: int, end_index: int) -> None:
+        self._range = (start_index, end_index)
+        self._items: Iterator[dict[str, np.ndarray]] = self._feeds(start_index, end_index)
+
     def rewind(self) -> None:
-        self._items = self._feeds()
+        self._items = self._feeds(*self._range)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -132,36 +138,37 @@ def int8_nodes(model: onnx.ModelProto, scope: str = "network", keep_float: Seque
         raise ExportError(f"int8: scope {scope!r} is not one of {', '.join(SCOPES)}")
     graph = model.graph
     image = set(image_region(model))
-    trunk = [n.name for n in graph.node if n.name in image and n.op_type in TRUNK_OPS]
-    if scope == "trunk":
-        return trunk
     weights = {i.name for i in graph.initializer if not i.name.startswith(GEOMETRY_PREFIX)}
     geometry = {i.name for i in graph.initializer if i.name.startswith(GEOMETRY_PREFIX)}
+    floats = {n.name for n in graph.node if any(_within(module_of(n, weights), prefix) for prefix in keep_float)}
+    trunk = {n.name for n in graph.node if n.name in image and n.op_type in TRUNK_OPS and n.name not in floats}
     region = set(trunk)
-    made_in_region: set[str] = set()
-    for node in graph.node:  # graph order: a follower comes after the layer it follows
-        weighted = node.op_type in WEIGHTED_OPS and len(node.input) > 1 and node.input[1] in weights
-        follower = node.op_type in TRUNK_OPS and any(i in made_in_region for i in node.input)
-        kept_float = any(_within(module_of(node, weights), prefix) for prefix in keep_float)
-        if (weighted or follower or node.name in region) and not geometry.intersection(node.input) and not kept_float:
-            region.add(node.name)
-            made_in_region.update(node.output)
+    if scope == "network":
+        made_in_region: set[str] = set()
+        for node in graph.node:  # graph order: a follower comes after the layer it follows
+            weighted = node.op_type in WEIGHTED_OPS and len(node.input) > 1 and node.input[1] in weights
+            follower = node.op_type in TRUNK_OPS and any(i in made_in_region for i in node.input)
+            if (weighted or follower or node.name in trunk) and not geometry.intersection(node.input) and node.name not in floats:
+                region.add(node.name)
+                made_in_region.update(node.output)
     return [n.name for n in graph.node if n.name in region]
 
 
 def module_of(node: onnx.NodeProto, weights: set[str] | None = None) -> str:
     """The model module a node was traced from, as a state-dict prefix (``bbox_head.heatmap_head.0``).
 
-    The exporter records each node's module path in its metadata (``pkg.torch.onnx.name_scopes``,
-    under the trace wrapper's ``model``); a graph without it falls back on the weight's initializer
-    name. Empty when neither says.
+    A layer whose weight (input 1, one of ``weights``) is a parameter of the traced model belongs
+    to that parameter's module: a convolution with a folded BatchNorm is recorded under the
+    BatchNorm (``img_backbone.bn1`` for ``img_backbone.conv1``). Other nodes: the module path the
+    exporter records in their metadata (``pkg.torch.onnx.name_scopes``, under the trace wrapper's
+    ``model``). Empty when neither says.
     """
+    if weights is not None and len(node.input) > 1 and node.input[1] in weights and node.input[1].startswith(TRACE_ROOT + "."):
+        return node.input[1].removeprefix(TRACE_ROOT + ".").rsplit(".", 1)[0]
     for prop in node.metadata_props:
         if prop.key == "pkg.torch.onnx.name_scopes":
             scopes = [s for s in ast.literal_eval(prop.value) if s == TRACE_ROOT or s.startswith(TRACE_ROOT + ".")]
             return scopes[-1].removeprefix(TRACE_ROOT).removeprefix(".") if scopes else ""
-    if weights is not None and len(node.input) > 1 and node.input[1] in weights:
-        return node.input[1].removeprefix(TRACE_ROOT + ".").rsplit(".", 1)[0]
     return ""
 
 
@@ -203,7 +210,7 @@ def architecture_float(model_path: str | Path) -> tuple[str, ...]:
     return get_model_entry(read_meta(model_path).architecture).int8_float
 
 
-def quantize(onnx_path: str | Path, out: str | Path, reader: CalibrationDataReader, *, scope: str = "network",
+def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, scope: str = "network",
              keep_float: Sequence[str] | None = None, per_channel: bool = True) -> Path:
     """Static QDQ quantization of ``onnx_path``'s ``int8_nodes(scope, keep_float)`` into ``out``; returns ``out``.
     ``keep_float`` defaults to the file's architecture's (``architecture_float``).
@@ -240,7 +247,8 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: CalibrationDataRead
                     weight_type=QuantType.QInt8,
                     per_channel=per_channel,
                     calibrate_method=CalibrationMethod.Percentile,
-                    extra_options={"WeightSymmetric": True, "ActivationSymmetric": False, "CalibPercentile": CALIBRATION_PERCENTILE},
+                    extra_options={"WeightSymmetric": True, "ActivationSymmetric": False, "CalibPercentile": CALIBRATION_PERCENTILE,
+                                   "CalibStridedMinMax": 1},  # frame by frame: see FrameReader
                 )
         except Exception as exc:  # ORT's quantizer raises untyped errors
             raise ExportError(f"int8: quantize_static failed on {src} ({scope}): {exc}") from exc

@@ -90,12 +90,27 @@ def test_trunk_scope_stays_in_the_backbone_and_neck(small_export, tmp_path: Path
     assert sum(n.op_type == "Conv" for n in model.graph.node if n.name in region) == len(layers)
 
 
+@pytest.mark.parametrize("scope", ["network", "trunk"])
+def test_keep_float_reaches_into_the_image_trunk(small_export, scope: str) -> None:
+    model = _named(small_export.onnx)
+    everything = set(int8_nodes(model, scope))
+    layer1 = {n.name for n in model.graph.node if n.name in everything and module_of(n).startswith("img_backbone.layer1.")}
+    assert any(n.op_type == "Conv" for n in model.graph.node if n.name in layer1)
+    assert set(int8_nodes(model, scope, ("img_backbone.layer1",))) == everything - layer1
+    assert set(int8_nodes(model, scope, ("img_backbone.layer",))) == everything  # whole module names only
+    conv1 = next(n.name for n in model.graph.node if n.op_type == "Conv" and n.input[1] == "model.img_backbone.conv1.weight")
+    assert conv1 in everything and conv1 not in int8_nodes(model, scope, ("img_backbone.conv1",))
+
+
 def test_module_of_reads_the_recorded_module_path_or_the_weight_name(small_export) -> None:
     model = _named(small_export.onnx)
     depthnet = next(n for n in model.graph.node if n.op_type == "Conv" and n.input[1].endswith("depthnet.weight"))
     assert module_of(depthnet) == "view_transform.depthnet"
     del depthnet.metadata_props[:]
     assert module_of(depthnet) == "" and module_of(depthnet, {depthnet.input[1]}) == "view_transform.depthnet"
+    # the first convolution, its BatchNorm folded in: recorded under the BatchNorm, owned by the convolution
+    conv1 = next(n for n in model.graph.node if n.op_type == "Conv" and n.input[1] == "model.img_backbone.conv1.weight")
+    assert module_of(conv1) == "img_backbone.bn1" and module_of(conv1, {conv1.input[1]}) == "img_backbone.conv1"
 
 
 def test_an_unknown_scope_is_refused(small_export) -> None:
@@ -173,6 +188,10 @@ def test_frame_reader_feeds_one_frame_at_a_time_and_rewinds() -> None:
     assert len(items) == 3 and items[0]["images"].shape == (1, 4, 8, 8, 3) and items[0]["camera_valid"].all()
     reader.rewind()
     assert reader.get_next() is not None
+    reader.set_range(1, 2)  # how the calibrator takes the frames one at a time
+    assert [item["images"].shape[0] for item in iter(reader.get_next, None)] == [1]
+    reader.rewind()
+    assert reader.get_next() is not None and reader.get_next() is None
 
 
 def test_frame_reader_refuses_wrong_frames() -> None:
