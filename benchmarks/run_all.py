@@ -6,8 +6,8 @@
 Seeded checkpoints (seed 0) and their fp32 and int8 exports go to ``benchmarks/artifacts/``
 (gitignored; reused when present). Then, per model: ``fisheye_infer.bench.bench_model`` (latency
 per stage, throughput at batch 1/2/4, peak RSS at 1 and 2 threads), and, in this one process,
-in turns call by call: ORT fp32 and int8, OpenVINO on the same fp32 file, PyTorch eager (plus
-torch.compile in a child process). GEMM throughput and graph FLOPs give the machine's limit. Figures go to
+in turns, a few calls at a time: ORT fp32 and int8, OpenVINO on the same fp32 file, PyTorch eager
+(plus torch.compile in a child process). GEMM throughput and graph FLOPs give the machine's limit. Figures go to
 ``benchmarks/artifacts/results.json``. Not part of the tests: nothing here asserts a speed.
 """
 
@@ -46,14 +46,17 @@ def build(arch: str, progress: Callable[[str], None]) -> tuple[Path, Path, Path]
     return ckpt, fp32, int8
 
 
-def alternate(fns: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
-    """Median ms of each function, run in turns (one warm-up each first) so load spikes hit all alike."""
+def alternate(fns: dict[str, Callable[[], object]], rounds: int, block: int = 3) -> dict[str, float]:
+    """Median ms of each function, run in turns so load spikes hit all alike: each round calls every
+    function ``block`` times in a row (one warm-up call each first). Blocks rather than single calls
+    because a runtime's threads spin for a while after a call: ONNX Runtime's and PyTorch's workers
+    would take CPU from whatever runs next, and the first call of a block absorbs that."""
     for fn in fns.values():
         fn()
     times: dict[str, list[float]] = {k: [] for k in fns}
     for _ in range(rounds):
         for k, fn in fns.items():
-            times[k] += timed(fn, 1, warmup=0)
+            times[k] += timed(fn, block, warmup=0)
     return {k: float(np.median(v)) for k, v in times.items()}
 
 

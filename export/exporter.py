@@ -304,6 +304,7 @@ def export(
     calib_images: str | Path | None = None,
     calib_frames: int = 8,
     int8_scope: str = "network",
+    int8_float: Sequence[str] | None = None,
     fp16: bool = False,
     progress: Callable[[str], None] = print,
 ) -> ExportResult:
@@ -312,7 +313,8 @@ def export(
     ``config`` is the official config file the checkpoint was trained with (read, never executed)
     or a configuration object; by default the official configuration of the architecture.
     ``int8``: once the fp32 file is written, also write ``export_int8``'s file next to it
-    (``model.onnx`` -> ``model.int8.onnx``) quantized over ``int8_scope`` (``quantize.SCOPES``);
+    (``model.onnx`` -> ``model.int8.onnx``) quantized over ``int8_scope`` (``quantize.SCOPES``), with
+    the modules of ``int8_float`` left float32 (default: the architecture's ``int8_float``);
     ``out`` always stays the verified fp32 file. ``fp16``: likewise ``export_fp16``'s file (``model.fp16.onnx``), for GPU execution providers.
     Every file's metadata carries ``check_tensorrt``'s verdict on its graph (``tensorrt``).
     """
@@ -387,8 +389,8 @@ def export(
     if not parity.passed and not force:
         raise ParityError(f"the ONNX graph disagrees with PyTorch beyond tolerance; no file written (use --force to keep it)\n{result.summary()}")
     if int8 and written is not None:
-        quant = export_int8(written, calib_images=calib_images, calib_frames=calib_frames, scope=int8_scope, frames=frames,
-                            verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
+        quant = export_int8(written, calib_images=calib_images, calib_frames=calib_frames, scope=int8_scope, keep_float=int8_float,
+                            frames=frames, verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
         result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes,
                               result.initializer_bytes, result.geometry_bytes, quant)
         if not quant.parity.passed and not force:
@@ -478,10 +480,11 @@ def export_int8(
     tmp = out.with_name(f".{out.name}.{os.getpid()}.q.tmp")
     try:
         progress(f"int8 [2/3] static QDQ quantization, scope {scope} (U8 activations, S8 per-channel weights)")
+        chosen_by = "the architecture's int8_float" if keep_float is None else "asked for at export"
         keep_float = architecture_float(src) if keep_float is None else tuple(keep_float)
         quantize(src, tmp, FrameReader(calibration), scope=scope, keep_float=keep_float)
         proto = onnx.load(str(tmp))
-        covered = quantized_scope(onnx.load(str(src), load_external_data=False), scope, keep_float)
+        covered = quantized_scope(onnx.load(str(src), load_external_data=False), scope, keep_float, chosen_by)
         batch = _comparison_frames(meta, frames, verify_images, "int8 [3/3]", progress)
         parity = int8_parity(src, tmp, batch, threads=threads)
         quantization = Quantization(mode="int8-qdq", scope=covered, calibration_frames=len(calibration))

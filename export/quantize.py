@@ -140,7 +140,12 @@ def int8_nodes(model: onnx.ModelProto, scope: str = "network", keep_float: Seque
     image = set(image_region(model))
     weights = {i.name for i in graph.initializer if not i.name.startswith(GEOMETRY_PREFIX)}
     geometry = {i.name for i in graph.initializer if i.name.startswith(GEOMETRY_PREFIX)}
-    floats = {n.name for n in graph.node if any(_within(module_of(n, weights), prefix) for prefix in keep_float)}
+    modules = {n.name: module_of(n, weights) for n in graph.node}
+    for prefix in keep_float:
+        if not any(_within(m, prefix) for m in modules.values()):
+            raise ExportError(f"int8: keep float32 {prefix!r}: no node of the graph belongs to that module "
+                              "(expected a state-dict prefix such as 'img_backbone.conv1' or 'bbox_head')")
+    floats = {name for name, m in modules.items() if any(_within(m, prefix) for prefix in keep_float)}
     trunk = {n.name for n in graph.node if n.name in image and n.op_type in TRUNK_OPS and n.name not in floats}
     region = set(trunk)
     if scope == "network":
@@ -176,8 +181,10 @@ def _within(module: str, prefix: str) -> bool:
     return module == prefix or module.startswith(prefix + ".")
 
 
-def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: Sequence[str] = ()) -> str:
-    """A one-line description of what ``quantize`` covers, for the file's metadata."""
+def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: Sequence[str] = (),
+                    chosen_by: str = "the architecture's int8_float") -> str:
+    """A one-line description of what ``quantize`` covers, for the file's metadata; ``chosen_by``
+    says where ``keep_float`` came from."""
     model = _named(model)
     trunk, nodes = set(image_region(model)), set(int8_nodes(model, scope, keep_float))
     layers = [n for n in model.graph.node if n.name in nodes and n.op_type in WEIGHTED_OPS]
@@ -185,7 +192,7 @@ def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: 
     if scope == "trunk":
         return (f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's GridSample; "
                 "geometry, pooling and heads float32")
-    kept = f"{', '.join(keep_float)} (the architecture's int8_float), " if keep_float else ""
+    kept = f"{', '.join(keep_float)} ({chosen_by}), " if keep_float else ""
     return (f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} beyond it; "
             f"float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding")
 

@@ -36,6 +36,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     int8.add_argument("--int8-scope", choices=("network", "trunk"), default="network",
                       help="network: every layer with weights (image trunk, depth net, BEV encoder and neck, head convolutions, "
                            "linear layers; default); trunk: the image backbone and neck only")
+    int8.add_argument("--int8-float", metavar="MODULES",
+                      help="modules to leave float32, comma-separated state-dict prefixes (e.g. img_backbone.conv1,bbox_head; '' for none), "
+                           "in place of the architecture's (FisheyeBEVDet: bbox_head): fewer int8 layers keep more of the fp32 boxes, "
+                           "at some of the speed-up")
     parser.add_argument("--fp16", action="store_true",
                         help="after the fp32 file is verified, also write a float16 file for GPU execution providers next to it: --out model.onnx -> "
                              "model.fp16.onnx; written when >= 95%% of the fp32 top-50 boxes are found again (or with --force)")
@@ -47,12 +51,13 @@ def run(args: argparse.Namespace) -> int:
         from fisheye_infer.export.exporter import export
     except ImportError as exc:
         return missing_extra(NEEDS_EXPORT, exc)
-    if (args.calib_images is not None or args.calib_frames != 8 or args.int8_scope != "network") and not args.int8:
-        print("fisheye-infer export: error: --calib-images/--calib-frames/--int8-scope need --int8", file=sys.stderr)
+    if (args.calib_images is not None or args.calib_frames != 8 or args.int8_scope != "network" or args.int8_float is not None) and not args.int8:
+        print("fisheye-infer export: error: --calib-images/--calib-frames/--int8-scope/--int8-float need --int8", file=sys.stderr)
         return 2
+    int8_float = None if args.int8_float is None else tuple(m.strip() for m in args.int8_float.split(",") if m.strip())
     result = export(args.ckpt, args.out, arch=args.arch, config=args.config, rig=args.rig, geometry=args.geometry,
                     verify_images=args.verify_images, frames=args.frames, force=args.force, allow_pickle=args.allow_pickle,
                     int8=args.int8, calib_images=args.calib_images, calib_frames=args.calib_frames,
-                    int8_scope=args.int8_scope, fp16=args.fp16)
+                    int8_scope=args.int8_scope, int8_float=int8_float, fp16=args.fp16)
     print(result.summary())
     return 0

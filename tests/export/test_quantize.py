@@ -97,9 +97,15 @@ def test_keep_float_reaches_into_the_image_trunk(small_export, scope: str) -> No
     layer1 = {n.name for n in model.graph.node if n.name in everything and module_of(n).startswith("img_backbone.layer1.")}
     assert any(n.op_type == "Conv" for n in model.graph.node if n.name in layer1)
     assert set(int8_nodes(model, scope, ("img_backbone.layer1",))) == everything - layer1
-    assert set(int8_nodes(model, scope, ("img_backbone.layer",))) == everything  # whole module names only
+    with pytest.raises(ExportError, match="'img_backbone.layer': no node"):  # whole module names only
+        int8_nodes(model, scope, ("img_backbone.layer",))
     conv1 = next(n.name for n in model.graph.node if n.op_type == "Conv" and n.input[1] == "model.img_backbone.conv1.weight")
     assert conv1 in everything and conv1 not in int8_nodes(model, scope, ("img_backbone.conv1",))
+
+
+def test_keep_float_of_an_unknown_module_is_refused(small_export) -> None:
+    with pytest.raises(ExportError, match="'img_backbone.conv9': no node of the graph belongs to that module"):
+        int8_nodes(_named(small_export.onnx), "network", ("bbox_head", "img_backbone.conv9"))
 
 
 def test_module_of_reads_the_recorded_module_path_or_the_weight_name(small_export) -> None:
@@ -229,7 +235,8 @@ def test_quantizing_an_int8_file_is_refused(small_int8: Int8Result, tmp_path: Pa
         export_int8(small_int8.path, tmp_path / "again.onnx", calib_frames=1, progress=lambda _: None)
 
 
-@pytest.mark.parametrize("option", [["--calib-frames", "3"], ["--int8-scope", "trunk"]], ids=["calib-frames", "int8-scope"])
+@pytest.mark.parametrize("option", [["--calib-frames", "3"], ["--int8-scope", "trunk"], ["--int8-float", "bbox_head"]],
+                         ids=["calib-frames", "int8-scope", "int8-float"])
 def test_int8_options_need_int8(option: list[str], capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert main(["export", "--ckpt", "x.pth", "--out", str(tmp_path / "m.onnx"), *option]) == 2
     assert "--int8" in capsys.readouterr().err
@@ -239,10 +246,15 @@ def test_export_with_int8_writes_both_files(small_export, small_bevdet_config, c
     """``export(int8=True)`` (``--int8``): the verified fp32 file at ``out``, the int8 file next to it, both in the summary."""
     out = tmp_path / "m.onnx"
     result = export(small_export.ckpt, out, config=small_bevdet_config, rig=read_meta(small_export.onnx).rig, frames=1,
-                    int8=True, calib_frames=1, force=True)
+                    int8=True, calib_frames=1, int8_float=("bbox_head", "img_backbone.conv1"), force=True)
     assert read_meta(out).quantization is None and read_meta(out).parity.passed
     assert result.int8 is not None and result.int8.path == tmp_path / "m.int8.onnx"
-    assert read_meta(result.int8.path).parity.reference == "fp32-onnx"
+    int8_meta = read_meta(result.int8.path)
+    assert int8_meta.parity.reference == "fp32-onnx"
+    assert "bbox_head, img_backbone.conv1 (asked for at export)" in int8_meta.quantization.scope
+    conv1 = next(n.name for n in _named(out).graph.node if n.op_type == "Conv" and n.input[1] == "model.img_backbone.conv1.weight")
+    layers = _int8_layers(onnx.load(str(result.int8.path)))
+    assert layers and conv1 not in layers
     summary = result.summary()
     assert "parity vs PyTorch" in summary and "top-50 boxes matched" in summary
     printed = capsys.readouterr().out
