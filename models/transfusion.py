@@ -33,8 +33,9 @@ SCORE_SEMANTICS = "sigmoid(class logit) x the proposal's heatmap peak (TransFusi
 #: The head stays float32 in the int8 file. Measured (FDS 0-30 m against fp32, 200 held-out frames,
 #: ``benchmarks/int8.py --keep-float ""``): on the 8,000-step compact model calibrated on validation
 #: frames, quantizing the head moved FDS by -0.017 (heatmap branch float: -0.006); on the shipped
-#: 14,000-step model with the exporter's calibration, by -0.003, at 1.77x instead of 1.56x on one
-#: thread. It stays float until more trained models show the head is safe to quantize.
+#: 14,000-step model with the exporter's calibration, by -0.011 (1.79x instead of 1.58x on one
+#: thread; -0.003 with the calibration frames taken all at once). It stays float until more
+#: trained models show the head is safe to quantize.
 INT8_FLOAT = ("bbox_head",)
 
 DEFAULT_COMMON_HEADS: dict[str, tuple[int, int]] = {"center": (2, 2), "height": (1, 2), "dim": (3, 2), "rot": (2, 2)}
