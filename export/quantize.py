@@ -189,9 +189,12 @@ def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: 
     trunk, nodes = set(image_region(model)), set(int8_nodes(model, scope, keep_float))
     layers = [n for n in model.graph.node if n.name in nodes and n.op_type in WEIGHTED_OPS]
     in_trunk = sum(1 for n in layers if n.name in trunk)
-    if scope == "trunk":
+    if scope == "trunk":  # only the float modules inside the trunk change what this scope covers
+        weights = {i.name for i in model.graph.initializer}
+        inside = [p for p in keep_float if any(_within(module_of(n, weights), p) for n in model.graph.node if n.name in trunk)]
+        kept = f"{', '.join(inside)} ({chosen_by}), " if inside else ""
         return (f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's GridSample; "
-                "geometry, pooling and heads float32")
+                f"float32: {kept}geometry, pooling and heads")
     kept = f"{', '.join(keep_float)} ({chosen_by}), " if keep_float else ""
     return (f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} beyond it; "
             f"float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding")

@@ -28,6 +28,7 @@ from fisheye_infer.export.quantize import (
     int8_path_for,
     module_of,
     quantize,
+    quantized_scope,
     top_matched,
 )
 from fisheye_infer.graph_stages import name_nodes
@@ -101,6 +102,9 @@ def test_keep_float_reaches_into_the_image_trunk(small_export, scope: str) -> No
         int8_nodes(model, scope, ("img_backbone.layer",))
     conv1 = next(n.name for n in model.graph.node if n.op_type == "Conv" and n.input[1] == "model.img_backbone.conv1.weight")
     assert conv1 in everything and conv1 not in int8_nodes(model, scope, ("img_backbone.conv1",))
+    described = quantized_scope(model, scope, ("bbox_head", "img_backbone.layer1"), "asked for at export")
+    float_part = described.split("float32: ", 1)[1]
+    assert float_part.startswith("bbox_head, img_backbone.layer1 (asked for at export)" if scope == "network" else "img_backbone.layer1 (asked for at export)")
 
 
 def test_keep_float_of_an_unknown_module_is_refused(small_export) -> None:
