@@ -66,13 +66,15 @@ def _named(path: Path) -> onnx.ModelProto:
 def test_network_scope_quantizes_the_weighted_layers_and_nothing_else(small_export, small_int8: Int8Result) -> None:
     fp32, model = _named(small_export.onnx), onnx.load(str(small_int8.path))
     keep_float = architecture_float(small_export.onnx)
-    assert keep_float == ("bbox_head",)
+    assert keep_float == ("bbox_head.heatmap_head", "bbox_head.prediction_heads", "bbox_head.decoder", "bbox_head.class_encoding")
     chosen = set(int8_nodes(fp32, "network", keep_float))
     weighted = {n.name for n in fp32.graph.node if n.name in chosen and n.op_type in WEIGHTED_OPS}
     assert _int8_layers(model) == weighted
-    modules = {module_of(n) for n in fp32.graph.node if n.name in weighted}
+    params = {i.name for i in fp32.graph.initializer}
+    modules = {module_of(n, params) for n in fp32.graph.node if n.name in weighted}
     assert any(m.startswith("img_backbone.") for m in modules) and any(m.startswith("pts_backbone.") for m in modules)
-    assert "view_transform.depthnet" in modules and not any(m.startswith("bbox_head") for m in modules)
+    assert "view_transform.depthnet" in modules and "bbox_head.shared_conv" in modules
+    assert not any(m.startswith(keep_float) for m in modules)  # the rest of the head stays float
     assert {n.domain for n in model.graph.node} <= {"", "ai.onnx"}  # standard QDQ, no contrib ops
     geometry = {i.name for i in fp32.graph.initializer if i.name.startswith("geom.")}
     reads_tables = lambda m: sorted((n.op_type, tuple(n.input), tuple(n.output)) for n in m.graph.node if geometry.intersection(n.input))  # noqa: E731
@@ -140,7 +142,7 @@ def test_metadata_records_quantization_and_evidence(small_export, small_int8: In
     meta = read_meta(small_int8.path)
     assert meta.quantization is not None and meta.quantization.mode == "int8-qdq"
     assert meta.quantization.calibration_frames == 2
-    assert meta.quantization.scope.startswith("network:") and "bbox_head (the architecture's int8_float)" in meta.quantization.scope
+    assert meta.quantization.scope.startswith("network:") and "bbox_head.class_encoding (the architecture's int8_float)" in meta.quantization.scope
     assert meta.parity is not None and meta.parity.reference == "fp32-onnx"
     assert 0.0 <= meta.parity.top_matched_fraction <= 1.0
     assert meta.model_id == read_meta(small_export.onnx).model_id + "-int8"
@@ -267,7 +269,7 @@ def test_export_with_int8_writes_both_files(small_export, small_bevdet_config, c
 
 @pytest.mark.slow
 def test_full_bevdet_quantizes_its_network(bevdet_export, tmp_path: Path) -> None:
-    """The full-size FisheyeBEVDet (two calibration frames): every weighted layer but the head's in int8."""
+    """The full-size FisheyeBEVDet (two calibration frames): every weighted layer in int8 but the head's (its shared convolution aside)."""
     result = export_int8(bevdet_export.onnx, tmp_path / "bevdet.int8.onnx", calib_frames=2, frames=1, force=True, progress=lambda _: None)
     model, region = _region_names(result.path)
     layers = _int8_layers(model)
