@@ -395,7 +395,8 @@ def export(
                               result.initializer_bytes, result.geometry_bytes, quant)
         if not quant.parity.passed and not force:
             raise ParityError("the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written "
-                              f"(use --force to keep it)\n{result.summary()}")
+                              "(keep more layers float32 with --int8-float or --int8-scope trunk, calibrate on your own frames "
+                              f"with --calib-images, or use --force to keep it)\n{result.summary()}")
     if fp16 and written is not None:
         half = export_fp16(written, frames=frames, verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
         result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes,

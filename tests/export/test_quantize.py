@@ -15,7 +15,7 @@ pytest.importorskip("torch")
 from fisheye_infer.artifact import read_meta
 from fisheye_infer.cli import main
 from fisheye_infer.detector import Detector
-from fisheye_infer.errors import ExportError
+from fisheye_infer.errors import ExportError, ParityError
 from fisheye_infer.export import exporter as exporter_module
 from fisheye_infer.export.exporter import Int8Result, export, export_int8
 from fisheye_infer.export.quantize import (
@@ -234,6 +234,18 @@ def test_failed_box_match_keeps_no_int8_file(small_export, tmp_path: Path, monke
     result = export_int8(small_export.onnx, tmp_path / "m.int8.onnx", calib_frames=1, frames=1, progress=lambda _: None)
     assert result.path is None and list(tmp_path.iterdir()) == []
     assert "FAILED" in result.summary()
+
+
+def test_export_refusing_int8_keeps_fp32_and_says_what_to_try(small_export, small_bevdet_config, tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    real = exporter_module.int8_parity
+    monkeypatch.setattr(exporter_module, "int8_parity", lambda *a, **k: real(*a, **k).model_copy(update={"passed": False}))
+    out = tmp_path / "m.onnx"
+    with pytest.raises(ParityError, match="--int8-float or --int8-scope trunk") as failure:
+        export(small_export.ckpt, out, config=small_bevdet_config, rig=read_meta(small_export.onnx).rig, frames=1,
+               int8=True, calib_frames=1, progress=lambda _: None)
+    assert "--calib-images" in str(failure.value) and "--force" in str(failure.value)
+    assert read_meta(out).parity.passed and not (tmp_path / "m.int8.onnx").exists()
 
 
 def test_quantizing_an_int8_file_is_refused(small_int8: Int8Result, tmp_path: Path) -> None:
