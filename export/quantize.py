@@ -16,7 +16,8 @@ What stays float, and why: everything that reads a ``geom.*`` table (the warp, t
 pooling gathers and MatMuls; those tables must stay named and untouched so that ``rebake`` still
 works, and their errors are metres), products of two activations (attention scores), softmax,
 layer norms and the box decoding, and the modules an architecture names in ``int8_float`` (where
-quantizing was measured to cost accuracy: FisheyeBEVDet's TransFusion head). U8 activations
+quantizing was measured to cost accuracy: FisheyeBEVDet's TransFusion head but its shared
+convolution). U8 activations
 (percentile ranges over the calibration frames), S8 weights per output channel.
 
 The regions are found by graph position, initializer names and each node's recorded module path,
@@ -191,11 +192,11 @@ def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: 
     in_trunk = sum(1 for n in layers if n.name in trunk)
     if scope == "trunk":  # only the float modules inside the trunk change what this scope covers
         weights = {i.name for i in model.graph.initializer}
-        inside = [p for p in keep_float if any(_within(module_of(n, weights), p) for n in model.graph.node if n.name in trunk)]
-        kept = f"{', '.join(inside)} ({chosen_by}), " if inside else ""
+        keep_float = [p for p in keep_float if any(_within(module_of(n, weights), p) for n in model.graph.node if n.name in trunk)]
+    kept = f"{', '.join(keep_float)} ({chosen_by}), " if keep_float else ""
+    if scope == "trunk":
         return (f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's GridSample; "
                 f"float32: {kept}geometry, pooling and heads")
-    kept = f"{', '.join(keep_float)} ({chosen_by}), " if keep_float else ""
     return (f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} beyond it; "
             f"float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding")
 

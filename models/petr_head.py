@@ -42,7 +42,7 @@ __all__ = ["FisheyePETRHead", "CylindricalPETRHead", "decode_predictions", "SCOR
 SCORE_SEMANTICS = "sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time"
 
 #: The classification and regression branches stay float32 in the int8 file (the counterpart of
-#: the TransFusion head, which FisheyeBEVDet's measurement keeps float); the transformer's linear
+#: the TransFusion head's branches, which FisheyeBEVDet's measurement keeps float); the transformer's linear
 #: layers are quantized. Not measured: no trained FisheyePETR exists, and on the checkpoint kit's
 #: untrained head the top boxes' scores tie (the best five equal to three decimals), so no int8
 #: scope can be judged there.

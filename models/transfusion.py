@@ -40,7 +40,7 @@ SCORE_SEMANTICS = "sigmoid(class logit) x the proposal's heatmap peak (TransFusi
 #:
 #: (speed-ups on one thread, shipped model). The shared convolution reads the BEV features with
 #: 512 channels on the full-size model and was its largest float layer (60 of 375 ms per frame
-#: at 2 threads); in int8 the full-size FisheyeBEVDet goes from 2.05x to 2.34x of fp32.
+#: at 2 threads); in int8 the full-size FisheyeBEVDet goes from 2.0x to 2.3x of fp32 (``make bench``).
 INT8_FLOAT = ("bbox_head.heatmap_head", "bbox_head.prediction_heads", "bbox_head.decoder", "bbox_head.class_encoding")
 
 DEFAULT_COMMON_HEADS: dict[str, tuple[int, int]] = {"center": (2, 2), "height": (1, 2), "dim": (3, 2), "rot": (2, 2)}
