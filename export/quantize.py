@@ -4,7 +4,8 @@
     quantize("model.onnx", "model.int8.onnx", FrameReader(frames))   # path in, path out
 
 Two scopes. ``trunk``: the image trunk only, every node upstream of the view transform's
-``GridSample`` that depends on the ``images`` input alone (normalisation, ResNet, FPN).
+warp (the gathers of its ``geom.warp.*`` taps) that depends on the ``images`` input alone
+(normalisation, ResNet, FPN).
 ``network`` (the default): the trunk plus every layer with weights beyond it, i.e. each
 ``Conv``, ``ConvTranspose``, ``MatMul`` or ``Gemm`` whose weight is an initializer: the depth
 and context net, the BEV encoder and neck (SECOND / SECONDFPN), the head's convolutions and
@@ -118,7 +119,7 @@ class FrameReader(CalibrationDataReader):
 
 def image_region(model: onnx.ModelProto) -> list[str]:
     """Names of the image trunk's nodes (see ``fisheye_infer.graph_stages.image_region``); a graph without
-    the GridSample that anchors it cannot be quantized (``ExportError``)."""
+    the warp that anchors it cannot be quantized (``ExportError``)."""
     try:
         return graph_stages.image_region(model)
     except ArtifactError as exc:
@@ -195,7 +196,7 @@ def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: 
         keep_float = [p for p in keep_float if any(_within(module_of(n, weights), p) for n in model.graph.node if n.name in trunk)]
     kept = f"{', '.join(keep_float)} ({chosen_by}), " if keep_float else ""
     if scope == "trunk":
-        return (f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's GridSample; "
+        return (f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's warp; "
                 f"float32: {kept}geometry, pooling and heads")
     return (f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} beyond it; "
             f"float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding")

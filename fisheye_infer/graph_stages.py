@@ -6,10 +6,11 @@
 ORT's profiler reports nodes of the *optimised* graph, whose names and fusions change with the
 ORT version and the CPU (NCHWc reorders, fused Conv+Relu); attributing them back is fragile.
 Cutting the exported graph by position is not: the image trunk is every node upstream of the
-view transform's GridSample that depends on the images alone (as int8 quantization finds it),
-the view transform ends at the last node reading a ``geom.pool.*`` table (FisheyeBEVDet:
-warp, depth/context net, lift, pooling) or at the GridSample itself (FisheyePETR: the warp),
-and the head is everything else. Each stage becomes a model of its own, fed with the values
+view transform's warp (the first nodes that combine the image features with a geometry table)
+that depends on the images alone (as int8 quantization finds it), the view transform ends at the
+last node reading a ``geom.pool.*`` table (FisheyeBEVDet: warp, depth/context net, lift,
+pooling) or at the last node reading the warp's taps (FisheyePETR: the warp), and the head is
+everything else. Each stage becomes a model of its own, fed with the values
 the full graph computes at its cut, and is timed with the same session options. The stages
 cannot be fused across a cut, so their sum is compared with the full graph's time.
 
@@ -29,7 +30,7 @@ import onnxruntime as ort
 
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES
 from fisheye_infer.errors import ArtifactError
-from fisheye_infer.geometry.tables import POOL_PREFIX, PREFIX
+from fisheye_infer.geometry.tables import POOL_PREFIX, PREFIX, WARP
 
 __all__ = ["STAGES", "Stage", "name_nodes", "image_region", "split_stages", "time_stages"]
 
@@ -57,29 +58,34 @@ def name_nodes(model: onnx.ModelProto) -> None:
 def image_region(model: onnx.ModelProto) -> list[str]:
     """Names of the nodes that make up the image trunk (normalisation, backbone, neck), in graph order.
 
-    A node belongs to it when it is an ancestor of a GridSample's sampled input and none of its
-    inputs derive from ``camera_valid`` or from a ``geom.*`` table. Every node needs a name
-    (``name_nodes``). Raises ``ArtifactError`` when the graph has no GridSample fed by the images,
-    the anchor of the region in both architectures.
+    The anchors are the nodes that combine a value derived from the images alone with one derived
+    from a ``geom.*`` table: the warp's gathers (or a GridSample). A node belongs to the region
+    when it is an ancestor of an anchor's image input and none of its inputs derive from
+    ``camera_valid`` or from a ``geom.*`` table. Every node needs a name (``name_nodes``). Raises
+    ``ArtifactError`` when no node samples the image features with a geometry table.
     """
     graph = model.graph
-    geometry = {i.name for i in graph.initializer if i.name.startswith(PREFIX)}
-    tainted = set(geometry) | {INPUT_CAMERA_VALID}  # values that must not feed the region
+    from_geometry = {i.name for i in graph.initializer if i.name.startswith(PREFIX)}
+    tainted = set(from_geometry) | {INPUT_CAMERA_VALID}  # values that must not feed the region
     from_images = {INPUT_IMAGES}
     producer: dict[str, onnx.NodeProto] = {}
+    anchors: list[onnx.NodeProto] = []
     for node in graph.node:  # ONNX graphs are topologically sorted
         for out in node.output:
             producer[out] = node
         ins = [n for n in node.input if n]
+        if any(n in from_images for n in ins) and any(n in from_geometry for n in ins):
+            anchors.append(node)
+        if any(n in from_geometry for n in ins):
+            from_geometry.update(node.output)
         if any(n in tainted for n in ins):
             tainted.update(node.output)
         elif any(n in from_images for n in ins):
             from_images.update(node.output)
-    anchors = [n for n in graph.node if n.op_type == "GridSample" and n.input[0] in from_images and n.input[0] not in tainted]
     if not anchors:
-        raise ArtifactError("the graph has no GridSample sampling the image features; cannot locate the image backbone and neck")
+        raise ArtifactError("no node samples the image features with a geometry table (geom.*); cannot locate the image backbone and neck")
     region: set[str] = set()
-    stack = [a.input[0] for a in anchors]
+    stack = [n for a in anchors for n in a.input if n in from_images]
     while stack:
         value = stack.pop()
         node = producer.get(value)
@@ -95,7 +101,7 @@ def _assign(model: onnx.ModelProto) -> dict[str, str]:
     graph = model.graph
     trunk = set(image_region(model))
     pool_readers = [n for n in graph.node if any(i.startswith(POOL_PREFIX) for i in n.input)]
-    anchors = pool_readers[-1:] or [n for n in graph.node if n.op_type == "GridSample"]
+    anchors = pool_readers[-1:] or [n for n in graph.node if any(i.startswith(WARP) for i in n.input)]
     producer = {o: n for n in graph.node for o in n.output}
     view: set[str] = set()
     stack = [anchors[-1]]

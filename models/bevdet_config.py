@@ -17,7 +17,7 @@ from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.lss import LSSParams
 from fisheye_infer.records import CLASSES
 
-from .config import BackboneConfig, ImageConfig, ModelConfig, read_backbone, read_classes, read_image
+from .config import BackboneConfig, ImageConfig, ModelConfig, feature_size_of, read_backbone, read_classes, read_image
 from .mmconfig import Section, as_tuple
 
 __all__ = ["ViewTransformConfig", "BEVEncoderConfig", "HeadConfig", "BEVDetConfig"]
@@ -164,7 +164,9 @@ class BEVDetConfig(ModelConfig):
     def geometry_params(self) -> Any:
         vt = self.view_transform
         return LSSParams(feature_size=tuple(vt.feature_size), azimuth_range=tuple(vt.azimuth_range),
-                         elevation_range=tuple(vt.elevation_range), dbound=tuple(vt.dbound), xbound=tuple(vt.xbound),
+                         elevation_range=tuple(vt.elevation_range),
+                         source_size=feature_size_of((self.image.height, self.image.width), self.backbone),
+                         dbound=tuple(vt.dbound), xbound=tuple(vt.xbound),
                          ybound=tuple(vt.ybound), zbound=tuple(vt.zbound))
 
     # -- reading an official file ---------------------------------------------------------

@@ -92,6 +92,7 @@ class BEVDetCylConfig(BEVDetConfig):
         vt = self.view_transform
         return CylLSSParams(feature_size=tuple(vt.feature_size), azimuth_range=tuple(vt.azimuth_range),
                             elevation_range=tuple(vt.elevation_range), image_size=(self.cylinder.height, self.cylinder.width),
+                            source_size=(self.image.height, self.image.width),
                             dbound=tuple(vt.dbound), xbound=tuple(vt.xbound), ybound=tuple(vt.ybound), zbound=tuple(vt.zbound))
 
     @classmethod
@@ -147,6 +148,7 @@ class CylPETRConfig(PETRConfig):
         h = self.head
         return CylPETRParams(feature_size=tuple(h.feature_size), azimuth_range=tuple(h.azimuth_range),
                              elevation_range=tuple(h.elevation_range), image_size=(self.cylinder.height, self.cylinder.width),
+                             source_size=(self.image.height, self.image.width),
                              depth_num=h.depth_num, depth_start=h.depth_start, position_range=tuple(h.position_range),
                              num_feats=h.embed_dims // 2, temperature=h.pe_temperature)
 

@@ -2,9 +2,10 @@
 
 The official pipelines resample every raw fisheye image onto a cylinder with ``cv2.remap``
 (INTER_LINEAR, BORDER_CONSTANT 0) *before* mean/std normalisation, on float32 pixels. Here it is
-one ``grid_sample`` (bilinear, zeros, ``align_corners=True``) with the constant grid
-``geom.image_grid`` of :func:`fisheye_infer.geometry.grids.cylindrical_image_grid`, which emulates
-cv2's 1/32-pixel rounding of the maps, so an exported graph takes raw uint8 fisheye images.
+one bilinear resampling (``grid_sample``'s bilinear, zeros, ``align_corners=True``) with the
+constant grid of :func:`fisheye_infer.geometry.grids.cylindrical_image_grid`, which emulates cv2's
+1/32-pixel rounding of the maps, run as the grid's taps ``geom.rectify.*`` (:mod:`.resample`), so
+an exported graph takes raw uint8 fisheye images.
 Out-of-image taps read 0, as in cv2; after normalisation those pixels are ``-mean / std``.
 """
 
@@ -13,25 +14,26 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 
 from fisheye_infer.errors import ConfigError
+
+from .resample import sample_rows
 
 __all__ = ["rectify", "check_rig_image_size"]
 
 
-def rectify(images: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
-    """uint8 (or float) B x N x H x W x 3 fisheye images -> B x N x 3 x Hc x Wc raw pixels, in the grid's dtype.
+def rectify(images: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """uint8 (or float) B x N x H x W x 3 fisheye images -> B x N x 3 x Hc x Wc (``size``) raw pixels, in the weights' dtype.
 
-    ``grid`` is 1 x Hc x Wc x 2, shared by the cameras (one intrinsic model), so the cameras are
-    stacked along channels and sampled with one grid per sample: channels are sampled
-    independently, the numbers are those of a per-camera GridSample. The grid is float32, or
-    float64 in the export check's float64 reference model.
+    ``index`` / ``weight`` are the taps of the grid on an H x W image, shared by the cameras (one
+    intrinsic model): each output pixel reads the same four pixels of every camera's three
+    channels, one row of the channels-last images. The weights are float32, or float64 in the
+    export check's float64 reference model.
     """
     b, n, h, w, c = images.shape
-    x = images.to(grid.dtype).permute(0, 1, 4, 2, 3).reshape(b, n * c, h, w)  # B x 3N x H x W
-    out = F.grid_sample(x, grid.expand(b, -1, -1, -1), mode="bilinear", padding_mode="zeros", align_corners=True)
-    return out.reshape(b, n, c, grid.shape[1], grid.shape[2])  # B x N x 3 x Hc x Wc
+    rows = images.to(weight.dtype).permute(2, 3, 0, 1, 4).reshape(h * w, b * n * c)  # HW x 3BN
+    out = sample_rows(rows, index, weight)  # HcWc x 3BN
+    return out.reshape(*size, b, n, c).permute(2, 3, 4, 0, 1)  # B x N x 3 x Hc x Wc
 
 
 def check_rig_image_size(rig: Any, height: int, width: int, field: str) -> None:

@@ -5,7 +5,7 @@
     out = model(images_uint8)                                  # B x 4 x 800 x 800 x 3 raw fisheye BGR
 
 The official pipeline rectifies each raw fisheye image onto a 400 x 800 cylinder with cv2.remap
-before normalisation; here that is the first op of the graph (``geom.image_grid``), so an exported
+before normalisation; here that is the first op of the graph (``geom.rectify.*``), so an exported
 model takes raw uint8 fisheye frames like FisheyeBEVDet. After it: the same ResNet-18 + FPN (P3
 25 x 50), a ``CylindricalLSS`` (depthnet directly on P3, cylindrical frustum, the same trunc mean
 pool through the bucketed plan), SECOND + SECONDFPN and TransFusion. Module names are the official
@@ -21,7 +21,7 @@ from typing import Any
 import torch
 
 from fisheye_infer.geometry.cyl_lss import CylLSSGeometry
-from fisheye_infer.geometry.tables import IMAGE_GRID
+from fisheye_infer.geometry.tables import RECTIFY
 from fisheye_infer.rig import Rig
 
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
@@ -29,6 +29,7 @@ from .cyl_config import BEVDetCylConfig, CylViewTransformConfig
 from .cylindrical import check_rig_image_size, rectify
 from .fisheye_bevdet import SIGNATURE_KEYS, FisheyeBEVDet, bev_grid_checks
 from .registry import register_model
+from .resample import taps_for
 from .transfusion import INT8_FLOAT, SCORE_SEMANTICS
 from .view_transform import CylindricalLSS
 
@@ -86,8 +87,10 @@ class FisheyeBEVDetCyl(FisheyeBEVDet):
 
         Rectification runs on raw pixel values, normalisation after it, as in the official pipeline.
         """
-        grid = (tables or self.geometry_tables())[IMAGE_GRID]
-        x = rectify(images, grid)  # B x N x 3 x Hc x Wc
+        g = self.view_transform.geometry
+        index, weight = taps_for(tables or self.geometry_tables(), RECTIFY, g.image_grid, g.params.source_size,  # type: ignore[union-attr]
+                                 images.shape[2:4], images.device)
+        x = rectify(images, index, weight, g.params.image_size)  # type: ignore[union-attr]  # B x N x 3 x Hc x Wc
         x = (x - self.mean.reshape(1, 1, 3, 1, 1)) / self.std.reshape(1, 1, 3, 1, 1)
         return x.flatten(0, 1)
 

@@ -5,7 +5,7 @@
     out = model(images_uint8)                                  # B x 4 x 800 x 800 x 3 raw fisheye BGR
 
 The official pipeline rectifies each raw fisheye image onto a 400 x 800 cylinder with cv2.remap
-before normalisation; here that is the first op of the graph (``geom.image_grid``), so an exported
+before normalisation; here that is the first op of the graph (``geom.rectify.*``), so an exported
 model takes raw uint8 fisheye frames like FisheyePETR. After it: the same ResNet-18 + FPN (P3
 25 x 50) and :class:`~.petr_head.CylindricalPETRHead`. The checkpoint holds no geometry
 tensor: its keys are FisheyePETR's minus ``frustum``, ``sphere_grid_3d``, ``sphere_grid_2d`` and
@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from fisheye_infer.errors import CheckpointError
-from fisheye_infer.geometry.tables import IMAGE_GRID
+from fisheye_infer.geometry.tables import RECTIFY
 from fisheye_infer.rig import Rig
 
 from .checkpoint import GEOMETRY_POLICIES, GeometryReport, KeySpec
@@ -31,6 +31,7 @@ from .fisheye_petr import _HEAD, SIGNATURE_KEYS, FisheyePETR, checkpoint_filter_
 from .petr_config import PETRConfig
 from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, CylindricalPETRHead
 from .registry import register_model
+from .resample import taps_for
 
 __all__ = ["FisheyePETRCyl"]
 
@@ -71,7 +72,10 @@ class FisheyePETRCyl(FisheyePETR):
 
         Rectification runs on raw pixel values, normalisation after it, as in the official pipeline.
         """
-        x = rectify(images, (tables or self.geometry_tables())[IMAGE_GRID])
+        g = self.pts_bbox_head.geometry
+        index, weight = taps_for(tables or self.geometry_tables(), RECTIFY, g.image_grid, g.params.source_size,  # type: ignore[union-attr]
+                                 images.shape[2:4], images.device)
+        x = rectify(images, index, weight, g.params.image_size)  # type: ignore[union-attr]
         if self.config.image.bgr_to_rgb:
             x = x[:, :, [2, 1, 0]]
         return (x - self.pixel_mean) / self.pixel_std

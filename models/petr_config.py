@@ -22,7 +22,7 @@ from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.petr import PETRParams
 from fisheye_infer.records import CLASSES
 
-from .config import BackboneConfig, ImageConfig, ModelConfig, read_backbone, read_classes, read_image
+from .config import BackboneConfig, ImageConfig, ModelConfig, feature_size_of, read_backbone, read_classes, read_image
 from .mmconfig import Section
 
 __all__ = ["PETRHeadConfig", "PETRConfig"]
@@ -115,7 +115,9 @@ class PETRConfig(ModelConfig):
     def geometry_params(self) -> Any:
         h = self.head
         return PETRParams(feature_size=tuple(h.feature_size), azimuth_range=tuple(h.azimuth_range),
-                          elevation_range=tuple(h.elevation_range), depth_num=h.depth_num, depth_start=h.depth_start,
+                          elevation_range=tuple(h.elevation_range),
+                          source_size=feature_size_of((self.image.height, self.image.width), self.backbone),
+                          depth_num=h.depth_num, depth_start=h.depth_start,
                           position_range=tuple(h.position_range), num_feats=h.embed_dims // 2, temperature=h.pe_temperature)
 
     # -- reading an official file ---------------------------------------------------------

@@ -3,7 +3,7 @@
 Data path (B batch, N cameras, C = embed_dims, H x W = feature_size, Q = num_query):
 
     P3          B x N x C x h x w      stride-16 fisheye features (FPN level 0)
-    warp        B x N x C x H x W      grid_sample on the constant spherical grid (align_corners)
+    warp        B x N x C x H x W      grid_sample on the constant spherical grid, as bilinear taps
     memory      B x (N*H*W) x C        input_proj, keys in (n, h, w) order
     key_pos     1 x (N*H*W) x C        PE3D(cam2lidar) + adapt_pos3d(sine PE of the key mask)
     decoder     B x Q x C              6 post-norm layers, post_norm on the returned output
@@ -23,18 +23,19 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from fisheye_infer.errors import CheckpointError, ConfigError
 from fisheye_infer.geometry.cyl_petr import CylPETRGeometry
 from fisheye_infer.geometry.petr import PETRGeometry
-from fisheye_infer.geometry.tables import GRID, IMAGE_GRID, PETR_KEY_MASK, PETR_KEY_POS
+from fisheye_infer.geometry.tables import PETR_KEY_MASK, PETR_KEY_POS, WARP
 
 from .petr_config import PETRConfig
 from .petr_embedding import inverse_sigmoid, pos2posemb3d
 from .petr_transformer import PETRTransformer, key_padding_bias
 from .ranking import TopK
+from .resample import resample, taps_for
+from .table_buffers import install_tables, installed_tables
 
 __all__ = ["FisheyePETRHead", "CylindricalPETRHead", "decode_predictions", "SCORE_SEMANTICS", "INT8_FLOAT"]
 
@@ -97,7 +98,7 @@ class FisheyePETRHead(nn.Module):
 
         # Calibration-derived tables and the cached embeddings: buffers, but not state-dict keys.
         n = config.num_cameras
-        self._register_grid(geometry)
+        self._sampling_names: tuple[str, ...] = ()
         self.register_buffer("unvalid_area", torch.zeros(1, 1, fh, fw), persistent=False)
         self.register_buffer("coords3d", torch.zeros(n, 3 * cfg.depth_num, fh, fw), persistent=False)
         self.register_buffer("key_pos", torch.zeros(1, n * fh * fw, c), persistent=False)
@@ -108,13 +109,9 @@ class FisheyePETRHead(nn.Module):
         self.set_geometry(geometry)
 
     # ------------------------------------------------------------------ geometry and caches
-    def _register_grid(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
-        """The buffer of the warp grid (``geom.grid``), filled by ``set_geometry``."""
-        fh, fw = self.cfg.feature_size
-        self.register_buffer("sphere_grid_2d", torch.zeros(fh, fw, 2), persistent=False)
-
-    def _install_grid(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
-        self.sphere_grid_2d.copy_(_f32(geometry.grid).to(self.code_weights.device))  # type: ignore[union-attr]
+    def _install_sampling(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
+        """The resampling taps (``geom.warp.*``, or ``geom.rectify.*`` of the cylindrical head) as buffers."""
+        self._sampling_names = install_tables(self, geometry.sampling_tables(), self._sampling_names, self.code_weights.device)
 
     def set_geometry(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
         """Install a rig's tables (warp grid, key mask, cam2lidar) and recompute the cached embeddings."""
@@ -128,7 +125,7 @@ class FisheyePETRHead(nn.Module):
             return
         self.geometry = geometry
         device = self.code_weights.device
-        self._install_grid(geometry)
+        self._install_sampling(geometry)
         self.unvalid_area.copy_(_f32(geometry.unvalid_area).reshape(self.unvalid_area.shape).to(device))
         self.coords3d.copy_(_f32(geometry.coords()).to(device))
         self.refresh_embeddings()
@@ -173,7 +170,7 @@ class FisheyePETRHead(nn.Module):
 
     def tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables an exported graph holds as named initializers."""
-        return {GRID: self.sphere_grid_2d.unsqueeze(0), PETR_KEY_POS: self.key_pos, PETR_KEY_MASK: self.key_mask_flat}
+        return {**installed_tables(self, self._sampling_names), PETR_KEY_POS: self.key_pos, PETR_KEY_MASK: self.key_mask_flat}
 
     def query_positions(self) -> torch.Tensor:
         """(Q, C): query_embedding(pos2posemb3d(raw reference points))."""
@@ -184,15 +181,14 @@ class FisheyePETRHead(nn.Module):
     def warp(self, p3: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """B x N x C x h x w -> B x N x C x H x W on the shared spherical grid.
 
-        The grid is the same for every camera, so the cameras are stacked along channels and
-        sampled with one grid per sample (channels are sampled independently: same numbers).
+        The grid is the same for every camera, so every camera's channels are sampled with the
+        same taps (``geom.warp.*``; see :mod:`.resample`).
         """
         b, n, c, h, w = p3.shape
         fh, fw = self.cfg.feature_size
-        grid = (tables or self.tables())[GRID].expand(b, fh, fw, 2)
-        x = F.grid_sample(p3.reshape(b, n * c, h, w), grid, mode="bilinear", padding_mode="zeros",
-                          align_corners=True)
-        return x.reshape(b, n, c, fh, fw)
+        g = self.geometry
+        index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, (h, w), p3.device)  # type: ignore[union-attr]
+        return resample(p3.reshape(b * n, c, h, w), index, weight, (fh, fw)).reshape(b, n, c, fh, fw)
 
     def forward_decoder(self, p3: torch.Tensor, camera_valid: torch.Tensor | None = None,
                         cam2lidar: Any = None, return_intermediate: bool = False,
@@ -248,23 +244,11 @@ class CylindricalPETRHead(FisheyePETRHead):
     """The official ``CylindricalPETRHead`` at test time; module names and order are FisheyePETRHead's.
 
     No feature warp: the images were rectified before the backbone, so P3 (25 x 50) is the key
-    grid; the head holds the image rectification grid ``geom.image_grid`` instead, so ``tables()``
+    grid; the head holds the image rectification's taps ``geom.rectify.*`` instead, so ``tables()``
     lists every table of the graph. No key mask, and the key rays lie on the cylinder
     (:class:`~fisheye_infer.geometry.cyl_petr.CylPETRGeometry`). State-dict keys are
     FisheyePETRHead's minus the four geometry tensors.
     """
-
-    def _register_grid(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
-        hc, wc = geometry.params.image_size  # type: ignore[union-attr]
-        self.register_buffer("image_grid", torch.zeros(1, hc, wc, 2), persistent=False)  # 1 x Hc x Wc x 2
-
-    def _install_grid(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
-        grid = torch.from_numpy(np.ascontiguousarray(geometry.image_grid, dtype=np.float32))[None]  # type: ignore[union-attr]
-        self.register_buffer("image_grid", grid.to(self.code_weights.device), persistent=False)
-
-    def tables(self) -> dict[str, torch.Tensor]:
-        """The ``geom.*`` tables an exported graph holds as named initializers."""
-        return {IMAGE_GRID: self.image_grid, PETR_KEY_POS: self.key_pos, PETR_KEY_MASK: self.key_mask_flat}
 
     def warp(self, p3: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """No feature warp: B x N x C x H x W features of the rectified images are the keys."""

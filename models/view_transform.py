@@ -4,9 +4,10 @@ All geometry comes from :mod:`fisheye_infer.geometry` (numpy, one source of trut
 ``LSSGeometry`` or, for the cylindrical baseline, a ``CylLSSGeometry``); this module only holds
 its tables as non-persistent buffers and does the tensor work:
 
-1. ``warp``: ``grid_sample`` of the stride-16 features with the constant equirectangular grid
-   (bilinear, zeros, ``align_corners=True`` although the grid is normalised with divisor W,
-   as the official model does);
+1. ``warp``: the official ``grid_sample`` of the stride-16 features with the constant
+   equirectangular grid (bilinear, zeros, ``align_corners=True`` although the grid is normalised
+   with divisor W, as the official model does), run as the grid's precomputed bilinear taps
+   (:mod:`.resample`);
 2. ``depth_context``: a 1x1 ``depthnet``; softmax over the first D channels, raw context after;
 3. ``pool``: mean pooling of depth x context into the BEV cells with the precomputed bucketed
    plan (Gather + batched MatMul; no scatter, no sort, no boolean indexing).
@@ -20,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from fisheye_infer.errors import ConfigError
@@ -28,15 +28,13 @@ from fisheye_infer.geometry.cyl_lss import CylLSSGeometry
 from fisheye_infer.geometry.frustum import frustum_to_lidar
 from fisheye_infer.geometry.lss import LSSGeometry
 from fisheye_infer.geometry.pooling import BevGrid, voxelise
-from fisheye_infer.geometry.tables import GRID, POOL_CELL_ROWS, POOL_COUNTS, pool_pixels, pool_points
+from fisheye_infer.geometry.tables import POOL_CELL_ROWS, POOL_COUNTS, WARP, pool_pixels, pool_points
 
 from .bevdet_config import ViewTransformConfig
+from .resample import resample, taps_for
+from .table_buffers import install_tables, installed_tables
 
 __all__ = ["FisheyeLSS", "CylindricalLSS", "pool_reference_torch"]
-
-
-def _buffer_name(table: str) -> str:
-    return table.replace(".", "_")
 
 
 def pool_reference_torch(depth: torch.Tensor, ctx: torch.Tensor, points_lidar: np.ndarray,
@@ -79,12 +77,7 @@ class FisheyeLSS(nn.Module):
         self._check_geometry(geometry)
         if tuple(geometry.plan.grid_xy) != self.cfg.bev_shape:
             raise ConfigError(f"pooling plan grid {geometry.plan.grid_xy} differs from the configuration's {self.cfg.bev_shape}")
-        for name in self._table_names:
-            delattr(self, _buffer_name(name))
-        tables = geometry.tables()
-        for name, value in tables.items():
-            self.register_buffer(_buffer_name(name), torch.from_numpy(np.ascontiguousarray(value)), persistent=False)
-        self._table_names = tuple(tables)
+        self._table_names = install_tables(self, geometry.tables(), self._table_names)
         self._num_buckets = len(geometry.plan.bucket_points)
         self.geometry = geometry
 
@@ -99,7 +92,7 @@ class FisheyeLSS(nn.Module):
 
     def tables(self) -> dict[str, torch.Tensor]:
         """The installed ``geom.*`` tables as tensors (the buffers), by their graph names."""
-        return {name: getattr(self, _buffer_name(name)) for name in self._table_names}
+        return installed_tables(self, self._table_names)
 
     @property
     def num_cameras(self) -> int:
@@ -108,9 +101,10 @@ class FisheyeLSS(nn.Module):
     # -- stages -------------------------------------------------------------------------
 
     def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """M x C x Hf x Wf -> M x C x H x W, bilinear, zero padding, align_corners=True."""
-        grid = (tables or self.tables())[GRID].expand(feat.shape[0], -1, -1, -1)
-        return F.grid_sample(feat, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+        """M x C x Hf x Wf -> M x C x H x W with the grid's bilinear taps (``geom.warp.*``; see :mod:`.resample`)."""
+        g = self.geometry
+        index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, feat.shape[-2:], feat.device)
+        return resample(feat, index, weight, self.cfg.feature_size)
 
     def depth_context(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """M x Cin x H x W -> depth probabilities M x D x H x W and context M x C x H x W."""
@@ -196,7 +190,7 @@ class CylindricalLSS(FisheyeLSS):
     :class:`FisheyeLSS` with the warp removed: the images were rectified onto the cylinder before
     the backbone, so the stride-16 features already sit on the cylinder grid. Built as
     ``CylindricalLSS(cfg: CylViewTransformConfig, geometry: CylLSSGeometry)``; it also keeps
-    ``geom.image_grid`` among its tables (read by the model before the backbone), so the model's
+    ``geom.rectify.*`` among its tables (read by the model before the backbone), so the model's
     ``geometry_tables()`` is this module's ``tables()``, as for FisheyeBEVDet.
     """
 

@@ -1,6 +1,6 @@
 """Pure numpy geometry: arrays in, arrays out, float64 inside, float32 out.
 
-One source of truth for the sampling grids, frustums, BEV pooling plans and PETR position
+One source of truth for the sampling grids and their bilinear taps, frustums, BEV pooling plans and PETR position
 coordinates that the PyTorch models, the exporter and the runtime share. The building blocks are
 ``grids``, ``frustum``, ``pooling`` and the coordinate functions of ``petr``; one module per
 parameter kind (``lss``, ``cyl_lss``, ``petr``, ``cyl_petr``) turns a rig into a geometry object,
@@ -12,6 +12,8 @@ from fisheye_infer.geometry.cyl_lss import CylLSSGeometry, CylLSSParams
 from fisheye_infer.geometry.cyl_petr import CylPETRGeometry, CylPETRParams
 from fisheye_infer.geometry.frustum import cylindrical_frustum, depth_bins, frustum_to_lidar, linspace_depth_bins, spherical_frustum
 from fisheye_infer.geometry.grids import (
+    BilinearTaps,
+    bilinear_taps,
     cylindrical_grid,
     cylindrical_image_grid,
     cylindrical_remap,
@@ -28,6 +30,8 @@ from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_p
 
 __all__ = [
     "BevGrid",
+    "BilinearTaps",
+    "bilinear_taps",
     "CylLSSGeometry",
     "CylLSSParams",
     "CylPETRGeometry",

@@ -1,7 +1,7 @@
 """fisheye-bevdet-cyl's geometry: the image rectification grid, the cylindrical frustum, the pooling plan.
 
 The cylindrical baseline rectifies the raw fisheye images onto a cylinder before the backbone
-(``geom.image_grid``), so its stride-16 features already sit on the cylinder grid: no feature
+(``geom.rectify.*``), so its stride-16 features already sit on the cylinder grid: no feature
 warp, and the frustum lies on cylinders whose radius is the depth.
 """
 
@@ -16,7 +16,7 @@ from fisheye_infer.geometry.frustum import cylindrical_frustum, frustum_to_lidar
 from fisheye_infer.geometry.grids import cylindrical_image_grid
 from fisheye_infer.geometry.lss import LSSParams
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
-from fisheye_infer.geometry.tables import IMAGE_GRID, CylParams, grid_table, pool_tables
+from fisheye_infer.geometry.tables import RECTIFY, CylParams, pool_tables, sampling_tables
 from fisheye_infer.rig import Rig
 
 __all__ = ["CylLSSParams", "CylLSSGeometry", "cyl_image_grid"]
@@ -72,6 +72,10 @@ class CylLSSGeometry:
             plan = build_pooling_plan(frustum_to_lidar(new, self.cam2lidar), self.bev_grid, self.plan.bucket_sizes)
         return replace(self, frustum=new, plan=plan, source=source)
 
+    def sampling_tables(self) -> dict[str, np.ndarray]:
+        """The image rectification's taps (``geom.rectify.*``) on the ``source_size`` raw images."""
+        return sampling_tables(RECTIFY, self.image_grid, self.params.source_size)
+
     def tables(self, weights: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
         """The named ``geom.*`` tables of the graph (no weights needed)."""
-        return {**grid_table(IMAGE_GRID, self.image_grid), **pool_tables(self.plan)}
+        return {**self.sampling_tables(), **pool_tables(self.plan)}

@@ -1,7 +1,7 @@
 """fisheye-petr-cyl's geometry: the image rectification grid and the keys' embedding on cylinder rays.
 
 Differences from :mod:`.petr`, as in the official ``CylindricalPETRHead``: no feature warp (the
-images are rectified before the backbone, ``geom.image_grid``), no key mask (nothing is masked,
+images are rectified before the backbone, ``geom.rectify.*``), no key mask (nothing is masked,
 so the sine encoding is a plain ramp), and the key rays lie on a cylinder,
 q = d (sin phi_w, y_h, cos phi_w), with the official head's swapped unpacking of its ranges
 (:meth:`CylPETRParams.directions`).
@@ -19,7 +19,7 @@ from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.cyl_lss import cyl_image_grid
 from fisheye_infer.geometry.grids import cylindrical_directions
 from fisheye_infer.geometry.petr import PETRParams, check_tables, key_coords, key_position_embedding
-from fisheye_infer.geometry.tables import IMAGE_GRID, CylParams, grid_table, key_tables
+from fisheye_infer.geometry.tables import RECTIFY, CylParams, key_tables, sampling_tables
 from fisheye_infer.rig import Rig
 
 __all__ = ["CylPETRParams", "CylPETRGeometry", "cyl_petr_directions"]
@@ -92,4 +92,8 @@ class CylPETRGeometry:
         """Every ``geom.*`` table of the graph; the key embedding needs the position-encoder weights."""
         if weights is None:
             raise ConfigError("weights: cylindrical PETR tables need the position_encoder and adapt_pos3d weights")
-        return {**grid_table(IMAGE_GRID, self.image_grid), **key_tables(self.key_pos(weights), self.key_mask())}
+        return {**self.sampling_tables(), **key_tables(self.key_pos(weights), self.key_mask())}
+
+    def sampling_tables(self) -> dict[str, np.ndarray]:
+        """The image rectification's taps (``geom.rectify.*``) on the ``source_size`` raw images."""
+        return sampling_tables(RECTIFY, self.image_grid, self.params.source_size)

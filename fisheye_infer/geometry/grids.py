@@ -12,6 +12,7 @@ Angles are computed in float64 and the tables are cast to float32 once, at the e
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,6 +32,8 @@ __all__ = [
     "REMAP_SUBPIXELS",
     "remap_grid",
     "cylindrical_image_grid",
+    "BilinearTaps",
+    "bilinear_taps",
     "sample_bilinear",
     "invalid_mask",
 ]
@@ -162,19 +165,31 @@ def cylindrical_image_grid(camera: OCamModel, out_hw: tuple[int, int], azimuth_r
     return remap_grid(map_x, map_y, camera.width, camera.height)
 
 
-def sample_bilinear(image: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """``grid_sample(image, grid, 'bilinear', 'zeros', align_corners=True)`` in float32.
+@dataclass(frozen=True)
+class BilinearTaps:
+    """Bilinear resampling with a constant grid as four gathers and weights.
 
-    ``image`` is (C, H, W) or (H, W); ``grid`` is (h, w, 2). The arithmetic follows PyTorch's
-    CPU kernel step by step, in float32, so that the masks sampled at construction time in the
+    Output pixel p reads source pixels ``index[4p : 4p + 4]`` (flat ``row * width + col``; nw, ne,
+    sw, se) with the weights ``weight[p, 0]``. A tap outside the source has index 0 and weight 0,
+    so the sum reads 0 there: ``grid_sample``'s zero padding.
+    """
+
+    index: np.ndarray  # (P * 4,) int64
+    weight: np.ndarray  # (P, 1, 4) float32
+
+
+def bilinear_taps(grid: np.ndarray, height: int, width: int) -> BilinearTaps:
+    """The taps of ``grid_sample(x, grid, 'bilinear', 'zeros', align_corners=True)`` on a ``height`` x ``width`` source.
+
+    ``grid`` is (h, w, 2). The arithmetic follows PyTorch's CPU kernel step by step, in float32,
+    so that the weights are the ones it uses and the masks sampled at construction time in the
     official code (and their rounding artefacts) come out the same.
     """
-    img = np.asarray(image, dtype=np.float32)
-    squeeze = img.ndim == 2
-    if squeeze:
-        img = img[None]
-    _, height, width = img.shape
     g = np.asarray(grid, dtype=np.float32)
+    if g.ndim != 3 or g.shape[-1] != 2:
+        raise ConfigError(f"grid: expected (H, W, 2), got {g.shape}")
+    if height < 1 or width < 1:
+        raise ConfigError(f"height, width: the sampled source must be at least 1 x 1, got {height} x {width}")
     one = np.float32(1.0)
     x = (g[..., 0] + one) * np.float32((width - 1) / 2)
     y = (g[..., 1] + one) * np.float32((height - 1) / 2)
@@ -185,12 +200,34 @@ def sample_bilinear(image: np.ndarray, grid: np.ndarray) -> np.ndarray:
     wx0, wy0 = one - fx, one - fy
     weights = (wy0 * wx0, wy0 * fx, fy * wx0, fy * fx)  # nw, ne, sw, se
     x0i, y0i = x0.astype(np.int64), y0.astype(np.int64)
-    out = np.zeros((img.shape[0], *g.shape[:2]), dtype=np.float32)
-    for (dy, dx), weight in zip(((0, 0), (0, 1), (1, 0), (1, 1)), weights):
+    index, weight = [], []
+    for (dy, dx), w in zip(((0, 0), (0, 1), (1, 0), (1, 1)), weights):
         xi, yi = x0i + dx, y0i + dy
         inside = (xi >= 0) & (xi < width) & (yi >= 0) & (yi < height)
-        tap = img[:, np.clip(yi, 0, height - 1), np.clip(xi, 0, width - 1)] * inside
-        out = out + weight * tap
+        index.append(np.where(inside, yi * width + xi, 0).reshape(-1))
+        weight.append(np.where(inside, w, np.float32(0.0)).reshape(-1))
+    return BilinearTaps(index=np.stack(index, axis=1).reshape(-1).astype(np.int64),
+                        weight=np.stack(weight, axis=1).astype(np.float32)[:, None, :])
+
+
+def sample_bilinear(image: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """``grid_sample(image, grid, 'bilinear', 'zeros', align_corners=True)`` in float32.
+
+    ``image`` is (C, H, W) or (H, W); ``grid`` is (h, w, 2). The taps are :func:`bilinear_taps`'
+    and are summed in PyTorch's order (nw, ne, sw, se), in float32.
+    """
+    img = np.asarray(image, dtype=np.float32)
+    squeeze = img.ndim == 2
+    if squeeze:
+        img = img[None]
+    channels, height, width = img.shape
+    taps = bilinear_taps(grid, height, width)
+    flat = img.reshape(channels, -1)
+    index = taps.index.reshape(-1, 4)
+    out = np.zeros((channels, index.shape[0]), dtype=np.float32)
+    for k in range(4):
+        out = out + taps.weight[:, 0, k] * flat[:, index[:, k]]
+    out = out.reshape(channels, *np.shape(grid)[:2])
     return out[0] if squeeze else out
 
 

@@ -3,7 +3,7 @@
     params = LSSParams(feature_size=(25, 100), azimuth_range=..., elevation_range=..., dbound=..., xbound=..., ...)
     geometry = LSSGeometry.from_rig(rig, params)          # the rig's tables
     geometry.with_tables(grid=stored_grid)                 # a checkpoint's stored tables instead
-    geometry.tables()                                      # {"geom.grid": ..., "geom.pool.*": ...}
+    geometry.tables()                                      # {"geom.warp.*": ..., "geom.pool.*": ...}
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 from fisheye_infer.geometry.frustum import depth_bins, frustum_to_lidar, spherical_frustum
 from fisheye_infer.geometry.grids import invalid_mask, spherical_grid
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
-from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, GRID, Params, grid_table, pool_tables
+from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, WARP, Params, pool_tables, sampling_tables
 from fisheye_infer.rig import Rig
 
 __all__ = ["LSSParams", "LSSGeometry"]
@@ -76,6 +76,10 @@ class LSSGeometry:
             plan = build_pooling_plan(frustum_to_lidar(new_frustum, self.cam2lidar), self.bev_grid, self.plan.bucket_sizes)
         return replace(self, grid=new_grid, frustum=new_frustum, plan=plan, source=source)
 
+    def sampling_tables(self) -> dict[str, np.ndarray]:
+        """The feature warp's taps (``geom.warp.*``) on the ``source_size`` image features."""
+        return sampling_tables(WARP, self.grid, self.params.source_size)
+
     def tables(self, weights: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
         """The named ``geom.*`` tables of the graph (no weights needed)."""
-        return {**grid_table(GRID, self.grid), **pool_tables(self.plan)}
+        return {**self.sampling_tables(), **pool_tables(self.plan)}

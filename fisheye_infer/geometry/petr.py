@@ -8,7 +8,7 @@ position encoder, plus the sine encoding of the key mask through ``adapt_pos3d``
 fixed weights the whole table is a constant.
 
     geometry = PETRGeometry.from_rig(rig, params)
-    geometry.tables(weights)     # {"geom.grid", "geom.petr.key_pos", "geom.petr.key_mask"}
+    geometry.tables(weights)     # {"geom.warp.*", "geom.petr.key_pos", "geom.petr.key_mask"}
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.grids import DEFAULT_AZIMUTH_RANGE, DEFAULT_ELEVATION_RANGE, invalid_mask, spherical_directions, spherical_grid
-from fisheye_infer.geometry.tables import GRID, Params, grid_table, key_tables
+from fisheye_infer.geometry.tables import WARP, Params, key_tables, sampling_tables
 from fisheye_infer.rig import Rig
 
 __all__ = ["DEFAULT_POSITION_RANGE", "PETRParams", "PETRGeometry", "lid_depths", "inverse_sigmoid", "position_coords",
@@ -240,4 +240,8 @@ class PETRGeometry:
         """Every ``geom.*`` table of the graph; the key embedding needs the position-encoder weights."""
         if weights is None:
             raise ConfigError("weights: FisheyePETR's tables need the position_encoder and adapt_pos3d weights")
-        return {**grid_table(GRID, self.grid), **key_tables(self.key_pos(weights), self.key_mask())}
+        return {**self.sampling_tables(), **key_tables(self.key_pos(weights), self.key_mask())}
+
+    def sampling_tables(self) -> dict[str, np.ndarray]:
+        """The feature warp's taps (``geom.warp.*``) on the ``source_size`` image features."""
+        return sampling_tables(WARP, self.grid, self.params.source_size)

@@ -7,8 +7,16 @@ them for a new rig with numpy only; both get them from one geometry object per p
 parameters that define the tables travel in the model's metadata, so a file carries everything
 needed to re-bake it.
 
+Resampling with a constant grid (the feature warp, the cylindrical image rectification) is
+stored as its bilinear taps, :func:`~fisheye_infer.geometry.grids.bilinear_taps` of the grid on
+the sampled source (``Params.source_size``): the graph gathers four rows of the channels-last
+source per output pixel and weighs them with one batched MatMul. That is GridSample's bilinear,
+zero-padded, ``align_corners=True`` result, and ONNX Runtime's GridSample kernel took three times
+as long on the models' warps.
+
 LSS (FisheyeBEVDet), for N cameras, an H x W angular grid and an X x Y BEV grid:
-    geom.grid                 (1, H, W, 2)  float32  grid_sample coordinates, shared by the cameras
+    geom.warp.index           (H*W*4,)      int64    flat source pixel of each tap, shared by the cameras
+    geom.warp.weight          (H*W, 1, 4)   float32  the taps' bilinear weights (0 outside the source)
     geom.pool.counts          (1, X*Y, 1)   float32  points per BEV cell, at least 1 (mean divisor)
     geom.pool.cell_rows       (X*Y,)        int64    row of each cell in the bucket outputs (+ zero row)
     geom.pool.points.<b>      (K_b, L_b)    int64    flat point indices of bucket b, padded with P
@@ -17,16 +25,16 @@ The bucket ladder (L_b) is fixed by the parameters and the graph is exported wit
 symbolic, so every rig yields the same graph; only the tables' contents and K_b change.
 
 PETR (FisheyePETR):
-    geom.grid                 (1, H, W, 2)  float32
+    geom.warp.index, geom.warp.weight        as above
     geom.petr.key_pos         (1, N*H*W, C) float32  key position embedding (needs the weights)
     geom.petr.key_mask        (1, N*H*W)    bool     keys ignored by attention
 
 The cylindrical baselines rectify the raw fisheye images instead of their features, so their
-graphs take ``geom.image_grid`` and no ``geom.grid``:
-    geom.image_grid           (1, Hi, Wi, 2) float32 GridSample coordinates of the raw image
-                                                     (cv2.remap emulation, align_corners=True)
-Cylindrical LSS (fisheye-bevdet-cyl): geom.image_grid + the geom.pool.* tables above.
-Cylindrical PETR (fisheye-petr-cyl): geom.image_grid + geom.petr.key_pos + geom.petr.key_mask
+graphs take the taps of the image grid (cv2.remap emulation) and no ``geom.warp.*``:
+    geom.rectify.index        (Hi*Wi*4,)    int64    flat raw-image pixel of each tap
+    geom.rectify.weight       (Hi*Wi, 1, 4) float32
+Cylindrical LSS (fisheye-bevdet-cyl): geom.rectify.* + the geom.pool.* tables above.
+Cylindrical PETR (fisheye-petr-cyl): geom.rectify.* + geom.petr.key_pos + geom.petr.key_mask
 (all False: the official head masks no key).
 
 The cylindrical ranges are used as given: ``azimuth_range`` / ``elevation_range`` hold the
@@ -42,12 +50,16 @@ import math
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from fisheye_infer.errors import ConfigError
+from fisheye_infer.geometry.grids import bilinear_taps
 from fisheye_infer.geometry.pooling import PoolingPlan
 
 __all__ = [
     "PREFIX",
-    "GRID",
-    "IMAGE_GRID",
+    "WARP",
+    "RECTIFY",
+    "taps_index",
+    "taps_weight",
     "POOL_PREFIX",
     "POOL_COUNTS",
     "POOL_CELL_ROWS",
@@ -59,13 +71,13 @@ __all__ = [
     "pool_points",
     "pool_pixels",
     "pool_tables",
-    "grid_table",
+    "sampling_tables",
     "key_tables",
 ]
 
 PREFIX = "geom."
-GRID = "geom.grid"
-IMAGE_GRID = "geom.image_grid"
+WARP = "geom.warp."  # the feature warp's taps: + "index" / "weight"
+RECTIFY = "geom.rectify."  # the cylindrical image rectification's taps
 POOL_PREFIX = "geom.pool."
 POOL_COUNTS = "geom.pool.counts"
 POOL_CELL_ROWS = "geom.pool.cell_rows"
@@ -87,9 +99,21 @@ def pool_pixels(bucket: int) -> str:
     return f"{POOL_PIXELS}{bucket}"
 
 
-def grid_table(name: str, grid: np.ndarray) -> dict[str, np.ndarray]:
-    """A sampling grid (H, W, 2) as the (1, H, W, 2) float32 table ``name`` (``GRID`` or ``IMAGE_GRID``)."""
-    return {name: np.ascontiguousarray(grid, np.float32)[None]}
+def taps_index(prefix: str) -> str:
+    return f"{prefix}index"
+
+
+def taps_weight(prefix: str) -> str:
+    return f"{prefix}weight"
+
+
+def sampling_tables(prefix: str, grid: np.ndarray, source_size: tuple[int, int] | None) -> dict[str, np.ndarray]:
+    """The taps of ``grid`` (H, W, 2) on a ``source_size`` (H, W) source as the tables ``prefix`` (``WARP`` or ``RECTIFY``)."""
+    if source_size is None:
+        raise ConfigError("geometry parameters: source_size is missing (files exported before the sampling taps held a "
+                          "GridSample grid instead); export the checkpoint again to get tables for it")
+    taps = bilinear_taps(grid, *source_size)
+    return {taps_index(prefix): taps.index, taps_weight(prefix): taps.weight}
 
 
 def pool_tables(plan: PoolingPlan) -> dict[str, np.ndarray]:
@@ -110,13 +134,18 @@ def key_tables(key_pos: np.ndarray, key_mask: np.ndarray) -> dict[str, np.ndarra
 
 
 class Params(BaseModel):
-    """What every parameter kind shares: the key/feature grid and its angular ranges."""
+    """What every parameter kind shares: the key/feature grid, its angular ranges and what it samples.
+
+    ``source_size`` is the (H, W) of the tensor the grid resamples: the image features (feature
+    warp) or the raw fisheye images (cylindrical rectification). Its taps depend on it.
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     feature_size: tuple[int, int]
     azimuth_range: tuple[float, float]
     elevation_range: tuple[float, float]
+    source_size: tuple[int, int] | None = None
 
 
 class CylParams(Params):

@@ -41,7 +41,8 @@ def test_geometry_is_baked_as_named_initializers(exported) -> None:
     names = {i.name for i in model.graph.initializer}
     meta = read_meta(exported.onnx)
     assert set(meta.geometry_initializers) <= names
-    assert "geom.grid" in names
+    assert {"geom.warp.index", "geom.warp.weight"} <= names
+    assert not any(n.op_type == "GridSample" for n in model.graph.node)  # the warp is its precomputed taps
     expected = {"fisheye-bevdet": "geom.pool.cell_rows", "fisheye-petr": "geom.petr.key_pos"}[exported.arch]
     assert expected in meta.geometry_initializers
     assert not any(n.op_type.startswith("Scatter") for n in model.graph.node)

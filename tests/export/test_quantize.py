@@ -211,12 +211,31 @@ def test_frame_reader_refuses_wrong_frames() -> None:
         FrameReader(np.zeros((1, 4, 8, 8, 3), np.float32))
 
 
-def test_graph_without_gridsample_is_refused(tmp_path: Path) -> None:
+def test_graph_without_warp_is_refused(tmp_path: Path) -> None:
     x = onnx.helper.make_tensor_value_info("images", onnx.TensorProto.FLOAT, [1, 3])
     y = onnx.helper.make_tensor_value_info("y", onnx.TensorProto.FLOAT, [1, 3])
     graph = onnx.helper.make_graph([onnx.helper.make_node("Relu", ["images"], ["y"], name="relu")], "g", [x], [y])
-    with pytest.raises(ExportError, match="no GridSample"):
+    with pytest.raises(ExportError, match="no node samples the image features"):
         image_region(onnx.helper.make_model(graph))
+
+
+def test_trunk_ends_at_the_gather_of_the_warp_taps() -> None:
+    """images -> Relu -> Transpose -> Gather(geom.warp.index) -> MatMul(geom.warp.weight) -> Relu: the trunk is the first two."""
+    h = onnx.helper
+    x = h.make_tensor_value_info("images", onnx.TensorProto.FLOAT, [4, 3])
+    valid = h.make_tensor_value_info("camera_valid", onnx.TensorProto.BOOL, [1])
+    y = h.make_tensor_value_info("y", onnx.TensorProto.FLOAT, [2, 1, 4])
+    index = onnx.numpy_helper.from_array(np.array([0, 1, 2, 3, 1, 1, 0, 0], np.int64), "geom.warp.index")
+    weight = onnx.numpy_helper.from_array(np.full((2, 1, 4), 0.25, np.float32), "geom.warp.weight")
+    shape = onnx.numpy_helper.from_array(np.array([2, 4, 4], np.int64), "shape")
+    nodes = [h.make_node("Relu", ["images"], ["a"], name="relu"),
+             h.make_node("Transpose", ["a"], ["rows"], name="rows"),
+             h.make_node("Gather", ["rows", "geom.warp.index"], ["taps"], name="gather"),
+             h.make_node("Reshape", ["taps", "shape"], ["taps3"], name="reshape"),
+             h.make_node("MatMul", ["geom.warp.weight", "taps3"], ["warped"], name="weigh"),
+             h.make_node("Relu", ["warped"], ["y"], name="after")]
+    graph = h.make_graph(nodes, "g", [x, valid], [y], initializer=[index, weight, shape])
+    assert image_region(h.make_model(graph)) == ["relu", "rows"]
 
 
 def test_int8_path_sits_next_to_the_fp32_file() -> None:

@@ -199,7 +199,7 @@ def test_released_image_grid_steps_radians_per_column(rig: Rig, full_bevdet) -> 
     camera = rig.shared_model()
     uv = camera.world2cam(rays.reshape(-1, 3)).reshape(400, 800, 2).astype(np.float32)
     expected = remap_grid(uv[..., 0], uv[..., 1], camera.width, camera.height)
-    grid = full_bevdet.geometry_tables()["geom.image_grid"][0].numpy()
+    grid = full_bevdet.view_transform.geometry.image_grid
     one_step = 2.0 / (camera.width - 1) / 32  # an ulp of difference may tip a 1/32 px rounding
     np.testing.assert_allclose(grid, expected, rtol=0, atol=1.01 * one_step)
 
@@ -339,13 +339,13 @@ def test_full_size_forward(arch: str, boxes: int, full_bevdet, full_petr) -> Non
 def test_geometry_table_names(full_bevdet, full_petr) -> None:  # noqa: ANN001
     lss = full_bevdet.geometry_tables()
     buckets = len(DEFAULT_BUCKET_SIZES)
-    assert set(lss) == {"geom.image_grid", "geom.pool.counts", "geom.pool.cell_rows"} | {
+    assert set(lss) == {"geom.rectify.index", "geom.rectify.weight", "geom.pool.counts", "geom.pool.cell_rows"} | {
         f"geom.pool.{kind}.{b}" for kind in ("points", "pixels") for b in range(buckets)}
-    assert lss["geom.image_grid"].shape == (1, 400, 800, 2)
+    assert lss["geom.rectify.index"].shape == (400 * 800 * 4,) and lss["geom.rectify.weight"].shape == (400 * 800, 1, 4)
     assert [lss[f"geom.pool.points.{b}"].shape[1] for b in range(buckets)] == list(DEFAULT_BUCKET_SIZES)
     petr = full_petr.geometry_tables()
     assert {k: tuple(v.shape) for k, v in petr.items()} == {
-        "geom.image_grid": (1, 400, 800, 2), "geom.petr.key_pos": (1, 5000, 256), "geom.petr.key_mask": (1, 5000)}
+        "geom.rectify.index": (400 * 800 * 4,), "geom.rectify.weight": (400 * 800, 1, 4), "geom.petr.key_pos": (1, 5000, 256), "geom.petr.key_mask": (1, 5000)}
     assert petr["geom.petr.key_mask"].dtype == torch.bool
 
 
@@ -368,7 +368,7 @@ def test_forward_takes_every_table_from_the_dict(arch: str, small_models) -> Non
     for key in base:
         assert torch.equal(base[key], same[key]), key
     flipped = dict(model.geometry_tables())
-    flipped["geom.image_grid"] = flipped["geom.image_grid"].flip(2)
+    flipped["geom.rectify.index"] = flipped["geom.rectify.index"].flip(0)
     assert not torch.equal(_run(model, images, tables=flipped)["scores"], base["scores"])
     if arch == PETR:  # the pooling tables are exercised by the next test
         moved = dict(model.geometry_tables())
