@@ -224,10 +224,10 @@ def sample_bilinear(image: np.ndarray, grid: np.ndarray) -> np.ndarray:
     taps = bilinear_taps(grid, height, width)
     flat = img.reshape(channels, -1)
     index = taps.index.reshape(-1, 4)
-    out = np.zeros((channels, index.shape[0]), dtype=np.float32)
+    total: np.ndarray = np.zeros((channels, index.shape[0]), dtype=np.float32)
     for k in range(4):
-        out = out + taps.weight[:, 0, k] * flat[:, index[:, k]]
-    out = out.reshape(channels, *np.shape(grid)[:2])
+        total = total + taps.weight[:, 0, k] * flat[:, index[:, k]]
+    out = total.reshape(channels, *np.shape(grid)[:2])
     return out[0] if squeeze else out
 
 
