@@ -180,3 +180,69 @@ def save_model(model: onnx.ModelProto, path: str | Path) -> Path:
     onnx.save_model(model, str(path), save_as_external_data=False)
     return path
 
+
+
+def fold_input_scale(model: onnx.ModelProto) -> list[str]:
+    """Fold a per-channel division of a convolution's input into its weights; returns the convolutions changed.
+
+    The normalisation ``(x - mean) / std`` ends in a Div by a per-channel constant that feeds the
+    first convolution, possibly through Reshapes that keep the channel, height and width axes.
+    ``conv(pad0(y / s)) = conv_{W / s}(pad0(y))`` exactly in real arithmetic (zero padding is
+    unchanged by scaling, unlike the mean's subtraction), so the Div goes and the weights take
+    ``1 / s`` per input channel. In an int8 file that Div ran channels-last, where ONNX Runtime
+    broadcasts the three-channel constant element by element.
+    """
+    graph = model.graph
+    inits = {i.name: i for i in graph.initializer}
+    consumers: dict[str, list[onnx.NodeProto]] = {}
+    for node in graph.node:
+        for name in _reads(node):
+            consumers.setdefault(name, []).append(node)
+    shapes = _static_shapes(model)
+    folded: list[str] = []
+    for div in [n for n in graph.node if n.op_type == "Div"]:
+        scale = _channel_constant(inits.get(div.input[1]))
+        if scale is None or len(consumers.get(div.output[0], [])) != 1:
+            continue
+        node, value = consumers[div.output[0]][0], div.output[0]
+        while node.op_type == "Reshape" and _keeps_chw(shapes.get(node.input[0]), shapes.get(node.output[0])) \
+                and len(consumers.get(node.output[0], [])) == 1:
+            node, value = consumers[node.output[0]][0], node.output[0]
+        weight = inits.get(node.input[1]) if node.op_type == "Conv" and len(node.input) > 1 else None
+        group = next((a.i for a in node.attribute if a.name == "group"), 1)
+        if weight is None or node.input[0] != value or group != 1 or len(consumers[weight.name]) != 1 \
+                or len(weight.dims) != 4 or weight.dims[1] != scale.size:
+            continue
+        w = numpy_helper.to_array(weight)
+        weight.CopyFrom(numpy_helper.from_array((w / scale.astype(w.dtype)[None, :, None, None]).astype(w.dtype), weight.name))
+        for reader in consumers[div.output[0]]:
+            reader.input[:] = [div.input[0] if i == div.output[0] else i for i in reader.input]
+        graph.node.remove(div)
+        if not any(div.input[1] in _reads(n) for n in graph.node):
+            graph.initializer.remove(inits[div.input[1]])
+        folded.append(node.name or node.output[0])
+    return folded
+
+
+def _channel_constant(init: onnx.TensorProto | None) -> np.ndarray | None:
+    """The C values of a positive, finite constant shaped (..., C, 1, 1) with ones before C, else ``None``."""
+    if init is None or len(init.dims) < 3 or list(init.dims[-2:]) != [1, 1] or any(d != 1 for d in init.dims[:-3]):
+        return None
+    value = numpy_helper.to_array(init).reshape(-1)
+    return value if np.all(np.isfinite(value)) and np.all(value > 0) else None
+
+
+def _keeps_chw(before: tuple[int, ...] | None, after: tuple[int, ...] | None) -> bool:
+    """A Reshape that merges or splits leading axes only: the last three (C, H, W) known and unchanged."""
+    return before is not None and after is not None and len(before) >= 3 and len(after) >= 3 \
+        and before[-3:] == after[-3:] and all(d > 0 for d in before[-3:])
+
+
+def _static_shapes(model: onnx.ModelProto) -> dict[str, tuple[int, ...]]:
+    """Value name -> shape from ONNX shape inference, with -1 for a symbolic or unknown dimension."""
+    inferred = onnx.shape_inference.infer_shapes(model)
+    shapes = {}
+    for info in [*inferred.graph.value_info, *inferred.graph.input, *inferred.graph.output]:
+        if info.type.HasField("tensor_type") and info.type.tensor_type.HasField("shape"):
+            shapes[info.name] = tuple(d.dim_value if d.HasField("dim_value") else -1 for d in info.type.tensor_type.shape.dim)
+    return shapes

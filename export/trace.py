@@ -4,7 +4,9 @@ The model is traced with ``torch.onnx.export(dynamo=True)`` and every ``geom.*``
 a graph input. The batch axis is symbolic, and so is the row count K_b of every pooling bucket:
 the resulting graph contains no constant derived from a table's size, which is what lets
 ``rebake`` give the same graph any rig's tables. Afterwards the table inputs become named
-initializers. The tracer sees example buckets of at least two rows (a bucket may hold one row for
+initializers, and the normalisation's per-channel division is folded into the first
+convolution's weights (``graph.fold_input_scale``; exact in real arithmetic, and the written file
+is checked against PyTorch like the rest). The tracer sees example buckets of at least two rows (a bucket may hold one row for
 a given rig, and torch.export specialises sizes 0 and 1): the extra rows repeat the bucket's last
 row, and no cell reads them.
 """
@@ -27,7 +29,7 @@ from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RA
 from fisheye_infer.errors import ExportError
 from fisheye_infer.geometry.tables import POOL_PIXELS, POOL_POINTS
 
-from .graph import check_standard_ops, inputs_to_initializers, rename_values, strip_shape_info
+from .graph import check_standard_ops, fold_input_scale, inputs_to_initializers, rename_values, strip_shape_info
 
 __all__ = ["OPSET", "TRACE_ROOT", "trace_to_onnx"]
 
@@ -109,6 +111,7 @@ def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], image_hw: 
     rename_values(proto, dict(zip(traced_inputs, [INPUT_IMAGES, INPUT_CAMERA_VALID, *names])))
     rename_values(proto, dict(zip([o.name for o in proto.graph.output], OUTPUTS + RANKING_OUTPUTS)))
     inputs_to_initializers(proto, tables)
+    fold_input_scale(proto)  # the normalisation's division, into the first convolution's weights
     strip_shape_info(proto)
     check_standard_ops(proto, OPSET)
     return proto

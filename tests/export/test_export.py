@@ -49,6 +49,14 @@ def test_geometry_is_baked_as_named_initializers(exported) -> None:
     assert {i.name for i in model.graph.input} == {"images", "camera_valid"}
 
 
+def test_normalisation_division_is_in_the_first_convolution(exported) -> None:
+    """Only the mean's Sub stands between the images and the first convolution (its Div is in the weights)."""
+    model = onnx.load(str(exported.onnx))
+    ops = [n.op_type for n in model.graph.node if n.op_type not in ("Shape", "Constant")]
+    first_conv = ops.index("Conv")
+    assert "Sub" in ops[:first_conv] and "Div" not in ops[:first_conv]
+
+
 def test_metadata_describes_the_model(exported, rig: Rig) -> None:
     meta = read_meta(exported.onnx)
     assert meta.architecture == exported.arch and meta.schema_version == 1
