@@ -10,9 +10,8 @@ needed to re-bake it.
 Resampling with a constant grid (the feature warp, the cylindrical image rectification) is
 stored as its bilinear taps, :func:`~fisheye_infer.geometry.grids.bilinear_taps` of the grid on
 the sampled source (``Params.source_size``): the graph gathers four rows of the channels-last
-source per output pixel and weighs them with one batched MatMul. That is GridSample's bilinear,
-zero-padded, ``align_corners=True`` result, and ONNX Runtime's GridSample kernel took three times
-as long on the models' warps.
+source per output pixel and weighs them with one batched MatMul: GridSample's bilinear,
+zero-padded, ``align_corners=True`` result, in less time than ONNX Runtime's GridSample kernel.
 
 LSS (FisheyeBEVDet), for N cameras, an H x W angular grid and an X x Y BEV grid:
     geom.warp.index           (H*W*4,)      int64    flat source pixel of each tap, shared by the cameras
