@@ -5,8 +5,8 @@ The tables are :func:`fisheye_infer.geometry.grids.bilinear_taps` of the grid (`
 out channels-last, one row per source pixel, so each tap gathers one contiguous row of all
 cameras' channels; the weighted sum of the four rows is a (1 x 4) @ (4 x K) product per output
 pixel. The result is GridSample's (bilinear, zero padding, ``align_corners=True``) up to float
-rounding. ONNX Runtime's GridSample kernel took 14-15 ms on the full-size models' warps (2 threads);
-these gathers, transposes and MatMul take 5-9 ms.
+rounding, and ONNX Runtime runs these gathers, transposes and MatMul in less time than its
+GridSample kernel on the models' warps.
 """
 
 from __future__ import annotations
