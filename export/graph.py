@@ -34,6 +34,9 @@ __all__ = [
     "encode_arrays",
     "decode_arrays",
     "save_model",
+    "fold_input_scale",
+    "readers_of",
+    "static_shapes",
 ]
 
 #: A second metadata key, present when re-baking needs weights (FisheyePETR's key embedding).
@@ -126,6 +129,15 @@ def with_outputs(model: onnx.ModelProto, outputs: Mapping[str, int]) -> onnx.Mod
     return out
 
 
+def readers_of(graph: onnx.GraphProto) -> dict[str, list[onnx.NodeProto]]:
+    """Value name -> the nodes that read it (subgraph reads count for their node), in graph order."""
+    readers: dict[str, list[onnx.NodeProto]] = {}
+    for node in graph.node:
+        for name in _reads(node):
+            readers.setdefault(name, []).append(node)
+    return readers
+
+
 def _reads(node: onnx.NodeProto) -> Iterator[str]:
     """Every value ``node`` reads, those of its subgraphs (If, Loop, Scan) included."""
     yield from (n for n in node.input if n)
@@ -194,11 +206,8 @@ def fold_input_scale(model: onnx.ModelProto) -> list[str]:
     """
     graph = model.graph
     inits = {i.name: i for i in graph.initializer}
-    consumers: dict[str, list[onnx.NodeProto]] = {}
-    for node in graph.node:
-        for name in _reads(node):
-            consumers.setdefault(name, []).append(node)
-    shapes = _static_shapes(model)
+    consumers = readers_of(graph)
+    shapes = static_shapes(model)
     folded: list[str] = []
     for div in [n for n in graph.node if n.op_type == "Div"]:
         scale = _channel_constant(inits.get(div.input[1]))
@@ -238,7 +247,7 @@ def _keeps_chw(before: tuple[int, ...] | None, after: tuple[int, ...] | None) ->
         and before[-3:] == after[-3:] and all(d > 0 for d in before[-3:])
 
 
-def _static_shapes(model: onnx.ModelProto) -> dict[str, tuple[int, ...]]:
+def static_shapes(model: onnx.ModelProto) -> dict[str, tuple[int, ...]]:
     """Value name -> shape from ONNX shape inference, with -1 for a symbolic or unknown dimension."""
     inferred = onnx.shape_inference.infer_shapes(model)
     shapes = {}

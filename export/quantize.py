@@ -51,6 +51,7 @@ from fisheye_infer.geometry.tables import PREFIX as GEOMETRY_PREFIX
 from fisheye_infer.graph_stages import name_nodes
 
 from .graph import check_standard_ops, save_model
+from .int8_rewrites import after_quantization, before_quantization
 from .trace import TRACE_ROOT
 from .verify import run_onnx
 
@@ -239,6 +240,7 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
     keep_float = architecture_float(src) if keep_float is None else tuple(keep_float)
     model = onnx.load(str(src))
     name_nodes(model)
+    before_quantization(model)  # exact rewrites ORT runs faster in int8 (int8_rewrites)
     nodes = int8_nodes(model, scope, keep_float)
     chosen = set(nodes)
     op_types = sorted({n.op_type for n in model.graph.node if n.name in chosen})
@@ -267,6 +269,7 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
         finally:
             logging.getLogger().setLevel(level)
         result = onnx.load(str(quantized))
+    after_quantization(result)
     del result.metadata_props[:]
     result.metadata_props.extend(model.metadata_props)
     del result.graph.value_info[:]

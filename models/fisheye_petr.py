@@ -28,6 +28,7 @@ from fisheye_infer.geometry.petr import PETRGeometry
 from .backbone import FPN, ResNet
 from .base import FisheyeDetector
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
+from .normalise import normalise_frames
 from .petr_config import PETRConfig
 from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, FisheyePETRHead
 from .registry import register_model
@@ -109,17 +110,13 @@ class FisheyePETR(FisheyeDetector):
     # -- forward --------------------------------------------------------------------------
 
     def normalize(self, images: torch.Tensor) -> torch.Tensor:
-        """uint8 B x N x H x W x 3 (BGR) -> float B x N x 3 x H x W, normalised as in training."""
-        x = images.to(torch.float32).permute(0, 1, 4, 2, 3)
-        if self.config.image.bgr_to_rgb:
-            x = x[:, :, [2, 1, 0]]
-        return (x - self.pixel_mean) / self.pixel_std
+        """uint8 B x N x H x W x 3 (BGR) -> float (B*N) x 3 x H x W, normalised as in training (``normalise_frames``)."""
+        return normalise_frames(images, self.pixel_mean, self.pixel_std, self.config.image.bgr_to_rgb)
 
     def forward_features(self, images: torch.Tensor) -> torch.Tensor:
         """uint8 images B x N x H x W x 3 -> P3 B x N x C x H/16 x W/16 (FPN level 0 only)."""
         b, n = images.shape[:2]
-        x = self.normalize(images)
-        p3 = self.img_neck(self.img_backbone(x.reshape(b * n, *x.shape[2:])))[0]
+        p3 = self.img_neck(self.img_backbone(self.normalize(images)))[0]
         return p3.reshape(b, n, *p3.shape[1:])
 
     def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,

@@ -50,11 +50,16 @@ def test_geometry_is_baked_as_named_initializers(exported) -> None:
 
 
 def test_normalisation_division_is_in_the_first_convolution(exported) -> None:
-    """Only the mean's Sub stands between the images and the first convolution (its Div is in the weights)."""
+    """Only the mean's Sub stands between the images and the first convolution (its Div is in the weights),
+    and it subtracts a whole row's constant (W x 3 values), not three values broadcast channels-last."""
     model = onnx.load(str(exported.onnx))
-    ops = [n.op_type for n in model.graph.node if n.op_type not in ("Shape", "Constant")]
+    nodes = [n for n in model.graph.node if n.op_type not in ("Shape", "Constant")]
+    ops = [n.op_type for n in nodes]
     first_conv = ops.index("Conv")
     assert "Sub" in ops[:first_conv] and "Div" not in ops[:first_conv]
+    sub = nodes[ops.index("Sub")]
+    mean = {i.name: i for i in model.graph.initializer}[sub.input[1]]
+    assert list(mean.dims) == [800 * 3]
 
 
 def test_metadata_describes_the_model(exported, rig: Rig) -> None:

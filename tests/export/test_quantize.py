@@ -18,6 +18,7 @@ from fisheye_infer.detector import Detector
 from fisheye_infer.errors import ExportError, ParityError
 from fisheye_infer.export import exporter as exporter_module
 from fisheye_infer.export.exporter import Int8Result, export, export_int8
+from fisheye_infer.export.int8_rewrites import before_quantization
 from fisheye_infer.export.quantize import (
     QUANT_OPS,
     WEIGHTED_OPS,
@@ -57,6 +58,10 @@ def _int8_layers(model: onnx.ModelProto) -> set[str]:
     return {n.name for n in model.graph.node if n.op_type in WEIGHTED_OPS and len(n.input) > 1 and n.input[1] in weight_dq}
 
 
+def _ops(model: onnx.ModelProto) -> list[str]:
+    return [n.op_type for n in model.graph.node]
+
+
 def _named(path: Path) -> onnx.ModelProto:
     model = onnx.load(str(path))
     name_nodes(model)
@@ -65,6 +70,7 @@ def _named(path: Path) -> onnx.ModelProto:
 
 def test_network_scope_quantizes_the_weighted_layers_and_nothing_else(small_export, small_int8: Int8Result) -> None:
     fp32, model = _named(small_export.onnx), onnx.load(str(small_int8.path))
+    assert len(before_quantization(fp32)) == 2  # the ResNet stem and SECONDFPN's upsampling, as quantize rewrites them
     keep_float = architecture_float(small_export.onnx)
     assert keep_float == ("bbox_head.heatmap_head", "bbox_head.prediction_heads", "bbox_head.decoder", "bbox_head.class_encoding")
     chosen = set(int8_nodes(fp32, "network", keep_float))
@@ -82,6 +88,24 @@ def test_network_scope_quantizes_the_weighted_layers_and_nothing_else(small_expo
     ops = lambda m: Counter(n.op_type for n in m.graph.node if n.op_type not in QUANT_OPS)  # noqa: E731
     assert not ops(model) - ops(fp32)  # only QuantizeLinear/DequantizeLinear pairs were added
     assert set(ops(fp32) - ops(model)) <= {"Relu"}  # a ReLU after a quantized layer is its U8 range (ORT drops it)
+
+
+def test_int8_file_runs_the_stem_over_blocks_and_upsamples_without_convtranspose(small_export, small_int8: Int8Result) -> None:
+    """The stem convolution reads 12 channels (2 x 2 blocks of 3) through uint8 data movement; the upsampling is an
+    int8 1x1 convolution whose DepthToSpace reads uint8; the fp32 file keeps its own form."""
+    fp32, model = onnx.load(str(small_export.onnx)), onnx.load(str(small_int8.path))
+    assert "ConvTranspose" in _ops(fp32) and "ConvTranspose" not in _ops(model)
+    inits = {i.name: i for i in model.graph.initializer}
+    producers = {o: n for n in model.graph.node for o in n.output}
+    weights = {n.output[0]: inits[n.input[0]] for n in model.graph.node if n.op_type == "DequantizeLinear" and n.input[0] in inits}
+    convs = [n for n in model.graph.node if n.op_type == "Conv" and n.input[1] in weights]
+    assert list(weights[convs[0].input[1]].dims[1:]) == [12, 4, 4]  # 7x7 stride 2 over 3 channels -> 4x4 over 12
+    to_space = next(n for n in model.graph.node if n.op_type == "DepthToSpace")
+    assert producers[to_space.input[0]].op_type == "QuantizeLinear"
+    movement = [producers[convs[0].input[0]]]  # DequantizeLinear <- Transpose <- Reshape <- Transpose <- Reshape ... <- QuantizeLinear
+    while movement[-1].op_type != "QuantizeLinear":
+        movement.append(producers[movement[-1].input[0]])
+    assert [n.op_type for n in movement][1:5] == ["Transpose", "Reshape", "Transpose", "Reshape"]
 
 
 def test_trunk_scope_stays_in_the_backbone_and_neck(small_export, tmp_path: Path) -> None:

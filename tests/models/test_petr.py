@@ -262,7 +262,7 @@ def test_warp_equals_per_camera_grid_sample(small_petr: FisheyePETR) -> None:
 def test_normalisation_uses_rgb_stats_on_bgr(small_petr: FisheyePETR) -> None:
     img = torch.zeros(1, 4, 96, 96, 3, dtype=torch.uint8)
     img[..., 0], img[..., 1], img[..., 2] = 10, 20, 30  # B, G, R
-    x = small_petr.normalize(img)[0, 0, :, 0, 0]
+    x = small_petr.normalize(img)[0, :, 0, 0]
     expected = [(10 - 123.675) / 58.395, (20 - 116.28) / 57.12, (30 - 103.53) / 57.375]
     torch.testing.assert_close(x, torch.tensor(expected), rtol=1e-6, atol=1e-6)
 

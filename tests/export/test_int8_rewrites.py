@@ -1,0 +1,160 @@
+"""The int8 rewrites compute what the graph computed: hand-made graphs, run in ONNX Runtime before and after."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from fisheye_infer.export.int8_rewrites import (
+    data_movement_on_quantized_values,
+    stem_as_space_to_depth,
+    upsample_as_depth_to_space,
+)
+
+RNG = np.random.default_rng(0)
+
+
+def _model(nodes: list[onnx.NodeProto], inputs: list[onnx.ValueInfoProto], inits: dict[str, np.ndarray]) -> onnx.ModelProto:
+    graph = helper.make_graph(nodes, "g", inputs, [helper.make_tensor_value_info("y", TensorProto.FLOAT, None)],
+                              [numpy_helper.from_array(v, k) for k, v in inits.items()])
+    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+
+
+def _run(model: onnx.ModelProto, feeds: dict[str, np.ndarray]) -> np.ndarray:
+    known = {i.name for i in model.graph.input} | {i.name for i in model.graph.initializer}
+    for node in model.graph.node:  # in graph order: every value made before it is read
+        assert set(node.input) <= known, f"{node.name} reads {set(node.input) - known} before it is made"
+        known.update(node.output)
+    options = ort.SessionOptions()
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    return ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"]).run(None, feeds)[0]
+
+
+def _ops(model: onnx.ModelProto) -> list[str]:
+    return [n.op_type for n in model.graph.node]
+
+
+# -- the stem as a convolution over 2 x 2 blocks ------------------------------------------------------
+
+def _stem(k: int, pad: int, channels: int = 3, size: tuple[int, int] = (20, 16), bias: bool = True) -> onnx.ModelProto:
+    inits = {"w": RNG.normal(size=(8, channels, k, k)).astype(np.float32)}
+    if bias:
+        inits["b"] = RNG.normal(size=8).astype(np.float32)
+    nodes = [helper.make_node("Transpose", ["x"], ["t"], perm=[0, 3, 1, 2]),
+             helper.make_node("Conv", ["t", *inits], ["y"], name="stem", kernel_shape=[k, k], strides=[2, 2], pads=[pad] * 4)]
+    return _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, ["n", *size, channels])], inits)
+
+
+@pytest.mark.parametrize(("k", "pad"), [(7, 3), (3, 1), (5, 2), (4, 0), (3, 0)])
+def test_stem_over_blocks_gives_the_same_output(k: int, pad: int) -> None:
+    model = _stem(k, pad)
+    x = {"x": RNG.normal(size=(2, 20, 16, 3)).astype(np.float32)}
+    before = _run(model, x)
+    assert stem_as_space_to_depth(model) == ["stem"]
+    conv = next(n for n in model.graph.node if n.op_type == "Conv")
+    assert [a.ints for a in conv.attribute if a.name == "strides"] == [[1, 1]]
+    assert list({i.name: i for i in model.graph.initializer}["w"].dims[:2]) == [8, 12]  # 4 x 3 channels
+    after = _run(model, x)
+    assert after.shape == before.shape
+    np.testing.assert_allclose(after, before, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize(("change", "why"), [
+    ({"size": (21, 16)}, "odd height"),
+    ({"channels": 8}, "more channels than a stem"),
+])
+def test_stem_left_alone_where_the_blocks_do_not_fit(change: dict, why: str) -> None:
+    model = _stem(7, 3, **change)
+    assert stem_as_space_to_depth(model) == [], why
+
+
+def test_stem_left_alone_at_stride_one() -> None:
+    model = _stem(3, 1)
+    conv = next(n for n in model.graph.node if n.op_type == "Conv")
+    conv.attribute.remove(next(a for a in conv.attribute if a.name == "strides"))
+    conv.attribute.append(helper.make_attribute("strides", [1, 1]))
+    assert stem_as_space_to_depth(model) == []
+
+
+# -- ConvTranspose (kernel = stride) as Conv + DepthToSpace ---------------------------------------------
+
+def _upsample(k: int, stride: int, relu: bool, bias: bool = True) -> onnx.ModelProto:
+    inits = {"w": RNG.normal(size=(6, 5, k, k)).astype(np.float32)}
+    if bias:
+        inits["b"] = RNG.normal(size=5).astype(np.float32)
+    nodes = [helper.make_node("ConvTranspose", ["x", *inits], ["u" if relu else "y"], name="up", kernel_shape=[k, k], strides=[stride, stride])]
+    if relu:
+        nodes.append(helper.make_node("Relu", ["u"], ["y"], name="relu"))
+    return _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 6, 7, 9])], inits)
+
+
+@pytest.mark.parametrize(("k", "relu", "bias"), [(2, True, True), (2, False, True), (3, True, False)])
+def test_upsample_as_depth_to_space_gives_the_same_output(k: int, relu: bool, bias: bool) -> None:
+    model = _upsample(k, k, relu, bias)
+    x = {"x": RNG.normal(size=(1, 6, 7, 9)).astype(np.float32)}
+    before = _run(model, x)
+    assert upsample_as_depth_to_space(model) == ["up"]
+    assert _ops(model) == ["Conv", "Relu", "DepthToSpace"] if relu else ["Conv", "DepthToSpace"]
+    np.testing.assert_allclose(_run(model, x), before, rtol=1e-5, atol=1e-5)
+
+
+def test_overlapping_upsample_is_left_alone() -> None:
+    model = _upsample(3, 2, relu=False)
+    assert upsample_as_depth_to_space(model) == []
+    assert _ops(model) == ["ConvTranspose"]
+
+
+# -- data movement on the uint8 side of per-tensor (de)quantization ------------------------------------
+
+def _scalars(scale: float = 0.05, zero: int = 128) -> dict[str, np.ndarray]:
+    return {"s": np.array(scale, np.float32), "z": np.array(zero, np.uint8)}
+
+
+def test_depth_to_space_moves_before_the_dequantization() -> None:
+    nodes = [helper.make_node("QuantizeLinear", ["x", "s", "z"], ["q"]),
+             helper.make_node("DequantizeLinear", ["q", "s", "z"], ["d"]),
+             helper.make_node("DepthToSpace", ["d"], ["y"], name="d2s", blocksize=2, mode="CRD")]
+    model = _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 8, 3, 5])], _scalars())
+    x = {"x": RNG.normal(size=(1, 8, 3, 5)).astype(np.float32)}
+    before = _run(model, x)
+    assert data_movement_on_quantized_values(model) == ["d2s"]
+    assert _ops(model) == ["QuantizeLinear", "DepthToSpace", "DequantizeLinear"]
+    np.testing.assert_array_equal(_run(model, x), before)
+
+
+def test_quantization_moves_to_the_start_of_a_reshape_transpose_chain() -> None:
+    nodes = [helper.make_node("Relu", ["x"], ["r"]),
+             helper.make_node("Reshape", ["r", "shape"], ["a"], name="split"),
+             helper.make_node("Transpose", ["a"], ["b"], name="swap", perm=[0, 2, 1, 3]),
+             helper.make_node("QuantizeLinear", ["b", "s", "z"], ["q"]),
+             helper.make_node("DequantizeLinear", ["q", "s", "z"], ["y"])]
+    inits = {**_scalars(), "shape": np.array([2, 3, 4, 5], np.int64)}
+    model = _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [2, 12, 5])], inits)
+    x = {"x": RNG.normal(size=(2, 12, 5)).astype(np.float32)}
+    before = _run(model, x)
+    assert data_movement_on_quantized_values(model) == ["split", "swap"]
+    assert _ops(model) == ["Relu", "QuantizeLinear", "Reshape", "Transpose", "DequantizeLinear"]
+    np.testing.assert_array_equal(_run(model, x), before)
+
+
+def test_per_channel_quantization_is_left_alone() -> None:
+    """A per-channel scale is not the same for every value: permuting across channels would change it."""
+    nodes = [helper.make_node("QuantizeLinear", ["x", "s", "z"], ["q"], axis=1),
+             helper.make_node("DequantizeLinear", ["q", "s", "z"], ["d"], axis=1),
+             helper.make_node("DepthToSpace", ["d"], ["y"], blocksize=2, mode="CRD")]
+    inits = {"s": np.full(8, 0.05, np.float32), "z": np.full(8, 128, np.uint8)}
+    model = _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 8, 3, 5])], inits)
+    assert data_movement_on_quantized_values(model) == []
+    assert _ops(model) == ["QuantizeLinear", "DequantizeLinear", "DepthToSpace"]
+
+
+def test_a_value_with_a_second_reader_stays_float() -> None:
+    nodes = [helper.make_node("Transpose", ["x"], ["t"], perm=[0, 2, 1]),
+             helper.make_node("QuantizeLinear", ["t", "s", "z"], ["q"]),
+             helper.make_node("DequantizeLinear", ["q", "s", "z"], ["d"]),
+             helper.make_node("Add", ["d", "t"], ["y"])]
+    model = _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 4, 6])], _scalars())
+    assert data_movement_on_quantized_values(model) == []
