@@ -21,7 +21,7 @@ same products and sums, in another arrangement); only float rounding order may d
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from typing import Any
 
 import numpy as np
@@ -39,9 +39,10 @@ STEM_MAX_CHANNELS = 4
 DATA_MOVEMENT = ("Reshape", "Transpose", "DepthToSpace", "SpaceToDepth")
 
 
-def before_quantization(model: onnx.ModelProto) -> list[str]:
-    """Apply the fp32-graph rewrites in place; returns the names of the nodes rewritten."""
-    return stem_as_space_to_depth(model) + upsample_as_depth_to_space(model)
+def before_quantization(model: onnx.ModelProto, quantized: Collection[str] | None = None) -> list[str]:
+    """Apply the fp32-graph rewrites in place to the nodes named in ``quantized`` (default: all);
+    returns the names of the nodes rewritten. A layer that stays float keeps its form."""
+    return stem_as_space_to_depth(model, quantized) + upsample_as_depth_to_space(model, quantized)
 
 
 def after_quantization(model: onnx.ModelProto) -> list[str]:
@@ -76,7 +77,7 @@ def _like(node: onnx.NodeProto, template: onnx.NodeProto) -> onnx.NodeProto:
 
 # -- before quantization ---------------------------------------------------------------------------
 
-def stem_as_space_to_depth(model: onnx.ModelProto) -> list[str]:
+def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None = None) -> list[str]:
     """Rewrite a stride-2 convolution of a channels-last input as a stride-1 one over its 2x2 blocks.
 
     Matches ``Transpose(perm 0,3,1,2) -> Conv`` with kernel ``k`` (square), stride 2, equal pads
@@ -87,6 +88,7 @@ def stem_as_space_to_depth(model: onnx.ModelProto) -> list[str]:
     ``ceil((k + e) / 2)`` whose weight is the original one shifted by ``e`` and zero-filled, on
     ``4C`` channels ordered (row in block, column in block, channel). The blocks come from the
     channels-last input by Reshape and Transpose. The end padding makes the output size equal.
+    ``only``: the convolutions that may be rewritten, by name (default: all).
     """
     graph = model.graph
     inits = {i.name: i for i in graph.initializer}
@@ -94,7 +96,7 @@ def stem_as_space_to_depth(model: onnx.ModelProto) -> list[str]:
     producers = {o: n for n in graph.node for o in n.output}
     shapes = static_shapes(model)
     changed: list[str] = []
-    for conv in [n for n in graph.node if n.op_type == "Conv"]:
+    for conv in [n for n in graph.node if n.op_type == "Conv" and (only is None or n.name in only)]:
         transpose = producers.get(conv.input[0])
         weight = inits.get(conv.input[1]) if len(conv.input) > 1 else None
         if transpose is None or transpose.op_type != "Transpose" or list(_attrs(transpose).get("perm", [])) != [0, 3, 1, 2] \
@@ -156,7 +158,7 @@ def _stem_plan(conv: onnx.NodeProto, weight_shape: tuple[int, ...], nhwc: tuple[
     return blocks, e, begin, ends[0], ends[1]
 
 
-def upsample_as_depth_to_space(model: onnx.ModelProto) -> list[str]:
+def upsample_as_depth_to_space(model: onnx.ModelProto, only: Collection[str] | None = None) -> list[str]:
     """Rewrite each non-overlapping ConvTranspose (kernel = stride) as a 1x1 Conv and a DepthToSpace.
 
     With kernel = stride = ``s``, no padding and no dilation, every output pixel reads exactly one
@@ -164,12 +166,13 @@ def upsample_as_depth_to_space(model: onnx.ModelProto) -> list[str]:
     convolution to ``C_out * s * s`` channels, weight ``W'[o*s*s + i*s + j, c] = W[c, o, i, j]``,
     followed by DepthToSpace in CRD order. A ReLU that alone reads the ConvTranspose moves before
     the DepthToSpace (elementwise, so it commutes), where it belongs to the convolution.
+    ``only``: the ConvTranspose nodes that may be rewritten, by name (default: all).
     """
     graph = model.graph
     inits = {i.name: i for i in graph.initializer}
     readers = readers_of(graph)
     changed: list[str] = []
-    for node in [n for n in graph.node if n.op_type == "ConvTranspose"]:
+    for node in [n for n in graph.node if n.op_type == "ConvTranspose" and (only is None or n.name in only)]:
         weight = inits.get(node.input[1]) if len(node.input) > 1 else None
         has_bias = len(node.input) > 2 and bool(node.input[2])
         bias = inits.get(node.input[2]) if has_bias else None

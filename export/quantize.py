@@ -240,7 +240,7 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
     keep_float = architecture_float(src) if keep_float is None else tuple(keep_float)
     model = onnx.load(str(src))
     name_nodes(model)
-    before_quantization(model)  # exact rewrites ORT runs faster in int8 (int8_rewrites)
+    before_quantization(model, int8_nodes(model, scope, keep_float))  # exact rewrites ORT runs faster in int8 (int8_rewrites)
     nodes = int8_nodes(model, scope, keep_float)
     chosen = set(nodes)
     op_types = sorted({n.op_type for n in model.graph.node if n.name in chosen})

@@ -62,6 +62,12 @@ def test_stem_over_blocks_gives_the_same_output(k: int, pad: int) -> None:
     np.testing.assert_allclose(after, before, rtol=1e-5, atol=1e-4)
 
 
+def test_stem_not_named_is_left_alone() -> None:
+    model = _stem(7, 3)
+    assert stem_as_space_to_depth(model, only=["another"]) == []
+    assert _ops(model) == ["Transpose", "Conv"]
+
+
 @pytest.mark.parametrize(("change", "why"), [
     ({"size": (21, 16)}, "odd height"),
     ({"channels": 8}, "more channels than a stem"),

@@ -70,8 +70,8 @@ def _named(path: Path) -> onnx.ModelProto:
 
 def test_network_scope_quantizes_the_weighted_layers_and_nothing_else(small_export, small_int8: Int8Result) -> None:
     fp32, model = _named(small_export.onnx), onnx.load(str(small_int8.path))
-    assert len(before_quantization(fp32)) == 2  # the ResNet stem and SECONDFPN's upsampling, as quantize rewrites them
     keep_float = architecture_float(small_export.onnx)
+    assert len(before_quantization(fp32, int8_nodes(fp32, "network", keep_float))) == 2  # the stem and the upsampling, as quantize does
     assert keep_float == ("bbox_head.heatmap_head", "bbox_head.prediction_heads", "bbox_head.decoder", "bbox_head.class_encoding")
     chosen = set(int8_nodes(fp32, "network", keep_float))
     weighted = {n.name for n in fp32.graph.node if n.name in chosen and n.op_type in WEIGHTED_OPS}
@@ -106,6 +106,16 @@ def test_int8_file_runs_the_stem_over_blocks_and_upsamples_without_convtranspose
     while movement[-1].op_type != "QuantizeLinear":
         movement.append(producers[movement[-1].input[0]])
     assert [n.op_type for n in movement][1:5] == ["Transpose", "Reshape", "Transpose", "Reshape"]
+
+
+def test_layers_kept_float_keep_their_form(small_export, tmp_path: Path) -> None:
+    """The block forms are for int8 kernels; a stem or an upsampling left float keeps the form fp32 runs faster."""
+    calibration = np.random.default_rng(0).integers(0, 255, (1, 4, 160, 160, 3), dtype=np.uint8)
+    out = quantize(small_export.onnx, tmp_path / "float_ends.onnx", FrameReader(calibration), keep_float=("img_backbone.conv1", "pts_neck"))
+    model = onnx.load(str(out))
+    assert "ConvTranspose" in _ops(model) and "DepthToSpace" not in _ops(model)
+    stem = next(i for i in model.graph.initializer if i.name.endswith("img_backbone.conv1.weight"))
+    assert list(stem.dims[1:]) == [3, 7, 7]
 
 
 def test_trunk_scope_stays_in_the_backbone_and_neck(small_export, tmp_path: Path) -> None:
