@@ -21,6 +21,10 @@ quantizing was measured to cost accuracy: FisheyeBEVDet's TransFusion head but i
 convolution). U8 activations
 (percentile ranges over the calibration frames), S8 weights per output channel.
 
+Before quantizing, layers that become int8 are rewritten into forms ONNX Runtime runs faster in
+int8 and that compute the same sums (``int8_rewrites``: the stem over 2x2 blocks, ConvTranspose
+as Conv + DepthToSpace, data movement on uint8 values).
+
 The regions are found by graph position, initializer names and each node's recorded module path,
 not by node names (which change with the exporter). The input file is never modified; the output
 appears only when quantization has finished and the geometry tables are checked to be

@@ -10,7 +10,8 @@ cheap; but an int8 file runs its first convolution channels-last, the layout opt
 channels-first Sub after the transposition, and a three-value constant broadcast over the last
 axis runs element by element there (~5x slower than over planes). Subtracting the mean tiled
 along a row, ``(W * 3,)``, over rows of ``W * 3`` values is fast in both layouts and gives the
-same numbers: each element is the same float subtraction.
+same numbers: each element is the same float subtraction. The cast comes first, so that no UINT8
+tensor is moved inside the fp32 graph (TensorRT takes UINT8 only at the network's edge).
 """
 
 from __future__ import annotations
