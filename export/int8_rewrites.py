@@ -60,11 +60,41 @@ def _int64s(name: str, values: list[int]) -> onnx.TensorProto:
     return numpy_helper.from_array(np.asarray(values, dtype=np.int64), name)
 
 
+def _readers(graph: onnx.GraphProto) -> dict[str, list[onnx.NodeProto]]:
+    """``readers_of``, with a graph output read once more (by the model's caller): a value a rewrite
+    may drop or retype must have no reader besides the one it rewrites."""
+    readers = readers_of(graph)
+    for out in graph.output:
+        readers.setdefault(out.name, []).append(_CALLER)
+    return readers
+
+
+_CALLER = onnx.NodeProto(op_type="(graph output)")
+
+
+def _value_names(graph: onnx.GraphProto) -> set[str]:
+    return {i.name for i in graph.input} | {i.name for i in graph.initializer} | {o for n in graph.node for o in n.output}
+
+
+def _fresh(taken: set[str], base: str) -> str:
+    """A value name not yet in ``taken`` (which it joins)."""
+    name, k = base, 1
+    while name in taken:
+        name, k = f"{base}.{k}", k + 1
+    taken.add(name)
+    return name
+
+
+def _position(graph: onnx.GraphProto, node: onnx.NodeProto) -> int:
+    """Index of ``node`` in the graph, found by its first output (each value is made once)."""
+    return next(i for i, n in enumerate(graph.node) if n.output[0] == node.output[0])
+
+
 def _replace(graph: onnx.GraphProto, old: list[onnx.NodeProto], new: list[onnx.NodeProto]) -> None:
     """Put ``new`` where the first of ``old`` stood, and drop ``old``."""
-    at = min(list(graph.node).index(n) for n in old)
+    at = min(_position(graph, n) for n in old)
     for node in old:
-        graph.node.remove(node)
+        del graph.node[_position(graph, node)]
     for k, node in enumerate(new):
         graph.node.insert(at + k, node)
 
@@ -92,7 +122,7 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
     """
     graph = model.graph
     inits = {i.name: i for i in graph.initializer}
-    readers = readers_of(graph)
+    readers = _readers(graph)
     producers = {o: n for n in graph.node for o in n.output}
     shapes = static_shapes(model)
     changed: list[str] = []
@@ -129,8 +159,8 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
         attrs.update(kernel_shape=[blocks, blocks], strides=[1, 1], pads=[begin, begin, end_h, end_w])
         attrs.pop("auto_pad", None)
         new_conv = _like(helper.make_node("Conv", [chain[-1].output[0], *conv.input[1:]], list(conv.output), name=name, **attrs), conv)
-        old = [conv] + ([transpose] if len(readers[transpose.output[0]]) == 1 else [])
-        _replace(graph, old, [*chain, new_conv])
+        readers[transpose.output[0]].remove(conv)
+        _replace(graph, [conv] + ([transpose] if not readers[transpose.output[0]] else []), [*chain, new_conv])
         changed.append(name)
     return changed
 
@@ -170,7 +200,7 @@ def upsample_as_depth_to_space(model: onnx.ModelProto, only: Collection[str] | N
     """
     graph = model.graph
     inits = {i.name: i for i in graph.initializer}
-    readers = readers_of(graph)
+    readers = _readers(graph)
     changed: list[str] = []
     for node in [n for n in graph.node if n.op_type == "ConvTranspose" and (only is None or n.name in only)]:
         weight = inits.get(node.input[1]) if len(node.input) > 1 else None
@@ -222,44 +252,50 @@ def data_movement_on_quantized_values(model: onnx.ModelProto) -> list[str]:
     """
     graph = model.graph
     inits = {i.name: i for i in graph.initializer}
+    taken = _value_names(graph)
     moved: list[str] = []
 
     def per_tensor(node: onnx.NodeProto) -> bool:
         return all(name in inits and len(inits[name].dims) == 0 for name in node.input[1:3] if name)
 
-    readers = readers_of(graph)
+    readers = _readers(graph)
     for dq in [n for n in graph.node if n.op_type == "DequantizeLinear" and per_tensor(n)]:
         after = readers.get(dq.output[0], [])
         if dq.input[0] in inits or len(after) != 1 or after[0].op_type not in ("DepthToSpace", "SpaceToDepth"):
             continue
         move = after[0]
-        quantized = f"{move.output[0]}.quantized"
-        move.input[0], dq.input[0] = dq.input[0], quantized
-        dq.output[0], move.output[0] = move.output[0], quantized
-        nodes = list(graph.node)
-        i, j = nodes.index(dq), nodes.index(move)
+        i, j = _position(graph, dq), _position(graph, move)
+        quantized = _fresh(taken, f"{move.output[0]}.quantized")
         first, second = onnx.NodeProto(), onnx.NodeProto()
-        first.CopyFrom(move)
-        second.CopyFrom(dq)
-        graph.node[i].CopyFrom(first)  # the permutation now runs where the DequantizeLinear did
+        first.CopyFrom(move)  # the permutation, now on the quantized values, where the DequantizeLinear stood
+        first.input[0], first.output[0] = dq.input[0], quantized
+        second.CopyFrom(dq)  # the DequantizeLinear, now making the permutation's old output
+        second.input[0], second.output[0] = quantized, move.output[0]
+        graph.node[i].CopyFrom(first)
         graph.node[j].CopyFrom(second)
         moved.append(first.name)
 
-    readers = readers_of(graph)
+    readers = _readers(graph)
     producers = {o: n for n in graph.node for o in n.output}
+    retyped: set[str] = set()
     for q in [n for n in graph.node if n.op_type == "QuantizeLinear" and per_tensor(n)]:
         chain = list(_movement_chain(q.input[0], producers, readers))
         if not chain:
             continue
         first, last = chain[-1], chain[0]
-        quantized = f"{first.input[0]}.quantized"
-        source, target = first.input[0], q.output[0]
-        q.input[0], q.output[0] = source, quantized
-        first.input[0] = quantized
-        last.output[0] = target
-        graph.node.remove(q)
-        graph.node.insert(list(graph.node).index(first), q)
+        at, old_at, moved_q = _position(graph, first), _position(graph, q), onnx.NodeProto()
+        moved_q.CopyFrom(q)
+        moved_q.input[0] = first.input[0]
+        moved_q.output[0] = _fresh(taken, f"{first.input[0]}.quantized")
+        retyped.update(n.output[0] for n in chain[1:])  # float before, uint8 now
+        first.input[0] = moved_q.output[0]
+        last.output[0] = q.output[0]
+        del graph.node[old_at]  # after the chain, so ``at`` still points at its start
+        graph.node.insert(at, moved_q)
         moved.extend(n.name for n in reversed(chain))
+    stale = [v for v in graph.value_info if v.name in retyped]
+    for info in stale:
+        graph.value_info.remove(info)
     return moved
 
 

@@ -69,9 +69,9 @@ def _log_to_stderr(level: str) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         import fastapi  # noqa: F401
-        import python_multipart  # noqa: F401  (python-multipart)
         import prometheus_client  # noqa: F401
         import pydantic_settings  # noqa: F401
+        import python_multipart  # noqa: F401  (python-multipart)
         import uvicorn  # noqa: F401
     except ImportError as exc:
         return missing_extra(NEEDS_SERVE, exc)

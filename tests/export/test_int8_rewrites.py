@@ -164,3 +164,66 @@ def test_a_value_with_a_second_reader_stays_float() -> None:
              helper.make_node("Add", ["d", "t"], ["y"])]
     model = _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 4, 6])], _scalars())
     assert data_movement_on_quantized_values(model) == []
+
+
+def test_two_chains_from_one_value_get_their_own_quantized_values() -> None:
+    nodes = [helper.make_node("Relu", ["x"], ["r"]),
+             helper.make_node("Transpose", ["r"], ["a"], name="swap", perm=[0, 2, 1]),
+             helper.make_node("QuantizeLinear", ["a", "s", "z"], ["qa"]),
+             helper.make_node("DequantizeLinear", ["qa", "s", "z"], ["da"]),
+             helper.make_node("Reshape", ["r", "shape"], ["b"], name="flat"),
+             helper.make_node("QuantizeLinear", ["b", "s", "z"], ["qb"]),
+             helper.make_node("DequantizeLinear", ["qb", "s", "z"], ["db"]),
+             helper.make_node("Reshape", ["db", "back"], ["db3"]),
+             helper.make_node("Transpose", ["da"], ["da3"], perm=[0, 2, 1]),
+             helper.make_node("Add", ["db3", "da3"], ["y"])]
+    inits = {**_scalars(), "shape": np.array([2, 12], np.int64), "back": np.array([2, 3, 4], np.int64)}
+    model = _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [2, 3, 4])], inits)
+    x = {"x": RNG.normal(size=(2, 3, 4)).astype(np.float32)}
+    before = _run(model, x)
+    assert sorted(data_movement_on_quantized_values(model)) == ["flat", "swap"]
+    outputs = [o for n in model.graph.node for o in n.output]
+    assert len(outputs) == len(set(outputs))
+    np.testing.assert_array_equal(_run(model, x), before)
+
+
+def test_moves_in_a_row_do_not_reuse_a_name() -> None:
+    """A DepthToSpace moved before its DequantizeLinear, then a chain after that ending in a QuantizeLinear."""
+    nodes = [helper.make_node("QuantizeLinear", ["x", "s", "z"], ["q"]),
+             helper.make_node("DequantizeLinear", ["q", "s", "z"], ["d"]),
+             helper.make_node("DepthToSpace", ["d"], ["e"], name="d2s", blocksize=2, mode="CRD"),
+             helper.make_node("Transpose", ["e"], ["t"], name="swap", perm=[0, 1, 3, 2]),
+             helper.make_node("QuantizeLinear", ["t", "s", "z"], ["q2"]),
+             helper.make_node("DequantizeLinear", ["q2", "s", "z"], ["y"])]
+    model = _model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 8, 3, 5])], _scalars())
+    x = {"x": RNG.normal(size=(1, 8, 3, 5)).astype(np.float32)}
+    before = _run(model, x)
+    assert data_movement_on_quantized_values(model) == ["d2s", "swap"]
+    outputs = [o for n in model.graph.node for o in n.output]
+    assert len(outputs) == len(set(outputs))
+    np.testing.assert_array_equal(_run(model, x), before)
+
+
+def _with_output(model: onnx.ModelProto, name: str) -> onnx.ModelProto:
+    model.graph.output.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, None))
+    return model
+
+
+def test_graph_outputs_are_never_dropped_or_retyped() -> None:
+    """A value the model's caller reads counts as a second reader for every rewrite."""
+    stem = _with_output(_stem(7, 3), "t")
+    assert stem_as_space_to_depth(stem) == ["stem"]
+    assert "t" in [o for n in stem.graph.node for o in n.output]  # the channels-first input is still made
+    up = _with_output(_upsample(2, 2, relu=True), "u")
+    assert upsample_as_depth_to_space(up) == ["up"]
+    assert _ops(up) == ["Conv", "DepthToSpace", "Relu"]  # the ReLU stays after: "u" is read before it
+    nodes = [helper.make_node("Relu", ["x"], ["r"]),
+             helper.make_node("Transpose", ["r"], ["a"], perm=[0, 2, 1]),
+             helper.make_node("QuantizeLinear", ["a", "s", "z"], ["q"]),
+             helper.make_node("DequantizeLinear", ["q", "s", "z"], ["y"])]
+    chain = _with_output(_model(nodes, [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 4, 6])], _scalars()), "a")
+    assert data_movement_on_quantized_values(chain) == []
+    x = {"x": RNG.normal(size=(1, 4, 6)).astype(np.float32)}
+    up_x = {"x": RNG.normal(size=(1, 6, 7, 9)).astype(np.float32)}
+    for model, feeds in ((stem, {"x": RNG.normal(size=(2, 20, 16, 3)).astype(np.float32)}), (up, up_x), (chain, x)):
+        _run(model, feeds)
