@@ -37,6 +37,7 @@ __all__ = [
     "fold_input_scale",
     "readers_of",
     "static_shapes",
+    "GRAPH_OUTPUT_READER",
 ]
 
 #: A second metadata key, present when re-baking needs weights (FisheyePETR's key embedding).
@@ -129,12 +130,20 @@ def with_outputs(model: onnx.ModelProto, outputs: Mapping[str, int]) -> onnx.Mod
     return out
 
 
+#: Stands in ``readers_of`` for the model's caller, who reads every graph output.
+GRAPH_OUTPUT_READER = onnx.NodeProto(op_type="(graph output)")
+
+
 def readers_of(graph: onnx.GraphProto) -> dict[str, list[onnx.NodeProto]]:
-    """Value name -> the nodes that read it (subgraph reads count for their node), in graph order."""
+    """Value name -> the nodes that read it (subgraph reads count for their node), in graph order,
+    and ``GRAPH_OUTPUT_READER`` for a graph output: a rewrite may drop or change a value only when
+    the node it rewrites is its one reader."""
     readers: dict[str, list[onnx.NodeProto]] = {}
     for node in graph.node:
         for name in _reads(node):
             readers.setdefault(name, []).append(node)
+    for out in graph.output:
+        readers.setdefault(out.name, []).append(GRAPH_OUTPUT_READER)
     return readers
 
 
@@ -191,7 +200,6 @@ def save_model(model: onnx.ModelProto, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     onnx.save_model(model, str(path), save_as_external_data=False)
     return path
-
 
 
 def fold_input_scale(model: onnx.ModelProto) -> list[str]:

@@ -60,18 +60,6 @@ def _int64s(name: str, values: list[int]) -> onnx.TensorProto:
     return numpy_helper.from_array(np.asarray(values, dtype=np.int64), name)
 
 
-def _readers(graph: onnx.GraphProto) -> dict[str, list[onnx.NodeProto]]:
-    """``readers_of``, with a graph output read once more (by the model's caller): a value a rewrite
-    may drop or retype must have no reader besides the one it rewrites."""
-    readers = readers_of(graph)
-    for out in graph.output:
-        readers.setdefault(out.name, []).append(_CALLER)
-    return readers
-
-
-_CALLER = onnx.NodeProto(op_type="(graph output)")
-
-
 def _value_names(graph: onnx.GraphProto) -> set[str]:
     return {i.name for i in graph.input} | {i.name for i in graph.initializer} | {o for n in graph.node for o in n.output}
 
@@ -122,7 +110,7 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
     """
     graph = model.graph
     inits = {i.name: i for i in graph.initializer}
-    readers = _readers(graph)
+    readers = readers_of(graph)
     producers = {o: n for n in graph.node for o in n.output}
     shapes = static_shapes(model)
     changed: list[str] = []
@@ -200,7 +188,7 @@ def upsample_as_depth_to_space(model: onnx.ModelProto, only: Collection[str] | N
     """
     graph = model.graph
     inits = {i.name: i for i in graph.initializer}
-    readers = _readers(graph)
+    readers = readers_of(graph)
     changed: list[str] = []
     for node in [n for n in graph.node if n.op_type == "ConvTranspose" and (only is None or n.name in only)]:
         weight = inits.get(node.input[1]) if len(node.input) > 1 else None
@@ -258,7 +246,7 @@ def data_movement_on_quantized_values(model: onnx.ModelProto) -> list[str]:
     def per_tensor(node: onnx.NodeProto) -> bool:
         return all(name in inits and len(inits[name].dims) == 0 for name in node.input[1:3] if name)
 
-    readers = _readers(graph)
+    readers = readers_of(graph)
     for dq in [n for n in graph.node if n.op_type == "DequantizeLinear" and per_tensor(n)]:
         after = readers.get(dq.output[0], [])
         if dq.input[0] in inits or len(after) != 1 or after[0].op_type not in ("DepthToSpace", "SpaceToDepth"):
@@ -275,7 +263,7 @@ def data_movement_on_quantized_values(model: onnx.ModelProto) -> list[str]:
         graph.node[j].CopyFrom(second)
         moved.append(first.name)
 
-    readers = _readers(graph)
+    readers = readers_of(graph)
     producers = {o: n for n in graph.node for o in n.output}
     retyped: set[str] = set()
     for q in [n for n in graph.node if n.op_type == "QuantizeLinear" and per_tensor(n)]:

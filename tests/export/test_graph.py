@@ -15,7 +15,7 @@ MEAN = np.array([123.675, 116.28, 103.53], np.float32)
 
 
 def _model(*, five_d: bool = False, second_reader: bool = False, group: int = 1, scale: np.ndarray = STD,
-           reshape_to: tuple[int, ...] = (2, 3, 8, 8)) -> onnx.ModelProto:
+           reshape_to: tuple[int, ...] = (2, 3, 8, 8), scaled_out: bool = False) -> onnx.ModelProto:
     """images -> Sub(mean) -> Div(std) [-> Reshape] -> Conv(3x3, pad 1) -> y; five_d: (1, 2, 3, 8, 8) images."""
     lead = (1, 2) if five_d else (2,)
     shape_c = (*[1] * len(lead), 3, 1, 1)
@@ -34,6 +34,8 @@ def _model(*, five_d: bool = False, second_reader: bool = False, group: int = 1,
     if second_reader:
         nodes.append(helper.make_node("Relu", ["scaled"], ["also"]))
         outputs.append(helper.make_tensor_value_info("also", TensorProto.FLOAT, None))
+    if scaled_out:  # the caller reads the normalised images too
+        outputs.append(helper.make_tensor_value_info("scaled", TensorProto.FLOAT, None))
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [*lead, 3, 8, 8])
     graph = helper.make_graph(nodes, "g", [x], outputs, initializer=inits)
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
@@ -55,9 +57,10 @@ def test_division_folds_into_the_first_convolution(five_d: bool) -> None:
     np.testing.assert_allclose(_run(model, x), before, rtol=1e-5, atol=1e-4)  # the border too: padding stays 0
 
 
-@pytest.mark.parametrize("case", ["second reader", "grouped", "not per channel", "negative", "reshape moves channels"])
+@pytest.mark.parametrize("case", ["second reader", "graph output", "grouped", "not per channel", "negative", "reshape moves channels"])
 def test_division_stays_where_folding_would_change_the_result(case: str) -> None:
     model = {"second reader": lambda: _model(second_reader=True),
+             "graph output": lambda: _model(scaled_out=True),
              "grouped": lambda: _model(group=3),
              "not per channel": lambda: _model(scale=np.array([2.0], np.float32)),
              "negative": lambda: _model(scale=np.array([1.0, -1.0, 2.0], np.float32)),
