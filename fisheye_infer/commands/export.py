@@ -38,7 +38,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                            "linear layers; default); trunk: the image backbone and neck only")
     int8.add_argument("--int8-float", metavar="MODULES",
                       help="modules to leave float32, comma-separated state-dict prefixes (e.g. img_backbone.conv1,bbox_head; '' for none), "
-                           "in place of the architecture's (FisheyeBEVDet: its head but the shared convolution): fewer int8 layers keep "
+                           "in place of the architecture's (FisheyeBEVDet: its head but the shared and first heatmap convolutions): fewer int8 layers keep "
                            "more of the fp32 boxes, at some of the speed-up")
     parser.add_argument("--fp16", action="store_true",
                         help="after the fp32 file is verified, also write a float16 file for GPU execution providers next to it: --out model.onnx -> "
