@@ -18,8 +18,8 @@ pooling gathers and MatMuls; those tables must stay named and untouched so that 
 works, and their errors are metres), products of two activations (attention scores), softmax,
 layer norms and the box decoding, and the modules an architecture names in ``int8_float`` (where
 quantizing was measured to cost accuracy: FisheyeBEVDet's TransFusion head but its shared
-convolution). U8 activations
-(percentile ranges over the calibration frames), S8 weights per output channel.
+convolution and the first convolution of its heatmap branch). U8 activations (percentile ranges
+over the calibration frames), S8 weights per output channel.
 
 Before quantizing, layers that become int8 are rewritten into forms ONNX Runtime runs faster in
 int8 and that compute the same sums (``int8_rewrites``: the stem over 2x2 blocks, ConvTranspose
