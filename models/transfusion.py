@@ -39,11 +39,13 @@ SCORE_SEMANTICS = "sigmoid(class logit) x the proposal's heatmap peak (TransFusi
 #:   head float:                          8,000 steps -0.003, 91.1%, 1.97x; shipped +0.004, 91.8%, 1.99x
 #:   ... but shared_conv:                 8,000 steps +0.000, 90.6%, 2.19x; shipped +0.005, 91.5%, 2.26x
 #:   ... but shared_conv, heatmap_head.0: 8,000 steps -0.003, 90.2%, 2.27x; shipped +0.004, 91.3%, 2.27x
+#:   ... and heatmap_head.1 too:          8,000 steps -0.018, 92.0%, 2.33x; shipped -0.007, 93.0%, 2.35x
 #:   whole head int8:                     8,000 steps -0.016, 91.5%, 2.23x; shipped -0.011, 92.3%, 2.35x
 #:
 #: Both convolutions are 3x3 over the whole BEV grid: the shared one reads 512 channels on the
 #: full-size model and was its largest float layer, and the heatmap's first one was the compact
-#: model's (shipped model, the files of the middle rows alternated 20 x 5 times: 26.0 -> 24.8 ms).
+#: model's (shipped model, the files of the second and third rows alternated 20 x 5 times: 26.0 ->
+#: 24.8 ms). The fourth row (measured in another run) is why the heatmap's last convolution stays float.
 INT8_FLOAT = ("bbox_head.heatmap_head.1", "bbox_head.prediction_heads", "bbox_head.decoder", "bbox_head.class_encoding")
 
 DEFAULT_COMMON_HEADS: dict[str, tuple[int, int]] = {"center": (2, 2), "height": (1, 2), "dim": (3, 2), "rot": (2, 2)}
