@@ -1,8 +1,10 @@
 """Evidence for an fp16 file: its detections against the verified fp32 file's, on the same frames.
 
-Two comparisons, both in ONNX Runtime's CPU execution provider (which runs a float16 graph:
-values between nodes stay float16 as in the file; a node it has no float16 kernel for runs its
-float32 kernel between Casts that ORT inserts):
+Two comparisons, by default both in ONNX Runtime's CPU execution provider (which runs a float16
+graph: values between nodes stay float16 as in the file; a node it has no float16 kernel for runs
+its float32 kernel between Casts that ORT inserts). ``candidate_providers`` runs the candidate
+file elsewhere instead (a GPU's CUDA provider, where it will run), the fp32 reference staying on
+the CPU:
 
 1. at each file's own top-k choice, the criterion shared with int8: the share of the fp32
    file's top-50 boxes found again within 0.5 m with the same label (``quantize.top_matched``);
@@ -28,13 +30,13 @@ import onnxruntime as ort
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ParityReport, ReplayedChoice
 from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ExportError
+from fisheye_infer.session import Provider, provider_name, resolve_providers
 
 from .graph import with_outputs
 from .quantize import MATCH_RADIUS_M, MIN_TOP_MATCHED, top_matched
 
-__all__ = ["EVALUATED_WITH", "fp16_parity", "replay_choice"]
+__all__ = ["evaluated_with", "fp16_parity", "replay_choice"]
 
-EVALUATED_WITH = "onnxruntime-cpu"
 _SCORES, _INDICES = RANKING_OUTPUTS
 Outputs = dict[str, np.ndarray]
 
@@ -59,12 +61,17 @@ def replay_choice(model: onnx.ModelProto) -> onnx.ModelProto:
     return out
 
 
-def _session(model: onnx.ModelProto, threads: int) -> ort.InferenceSession:
+def _session(model: onnx.ModelProto, threads: int, providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> ort.InferenceSession:
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.log_severity_level = 3
-    return ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
+    return ort.InferenceSession(model.SerializeToString(), options, providers=list(providers))
+
+
+def evaluated_with(providers: Sequence[Provider]) -> str:
+    """``onnxruntime-cpu``, ``onnxruntime-cuda``, ...: the first (preferred) provider's short name."""
+    return f"onnxruntime-{provider_name(providers[0]).removesuffix('ExecutionProvider').lower()}"
 
 
 def _run(session: ort.InferenceSession, frames: np.ndarray, extra: Sequence[np.ndarray] | None = None) -> Outputs:
@@ -92,16 +99,22 @@ def _ties(dense: np.ndarray, k: int) -> int:
 
 
 def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray, threads: int = 2,
-                min_fraction: float = MIN_TOP_MATCHED) -> ParityReport:
+                min_fraction: float = MIN_TOP_MATCHED, candidate_providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> ParityReport:
     """The fp16 file against the fp32 file on ``frames`` (F, N, H, W, 3) uint8; see the module docstring.
 
     Passes when at least ``min_fraction`` of the fp32 top-50 boxes are found again (comparison 1).
+    ``fp16_path`` may be any file with the fp32 file's interface (the fp32 file itself, run in
+    ``candidate_providers``, measures what a GPU provider's arithmetic changes).
     """
     fp32 = onnx.load(str(fp32_path))
+    where = evaluated_with(candidate_providers)
     try:
-        half = _run(_session(_with_ranking(onnx.load(str(fp16_path))), threads), frames)
+        resolve_providers(candidate_providers)  # else ONNX Runtime would fall back to the CPU and say so only in a log line
+        session = _session(_with_ranking(onnx.load(str(fp16_path))), threads, candidate_providers)
+        where = evaluated_with(session.get_providers())
+        half = _run(session, frames)
     except Exception as exc:  # ORT's errors are untyped
-        raise ExportError(f"fp16: ONNX Runtime's CPU execution provider cannot run {fp16_path} ({exc}); no parity, no file") from exc
+        raise ExportError(f"fp16: ONNX Runtime ({where}) cannot run {fp16_path} ({exc}); no parity, no file") from exc
     full = _run(_session(_with_ranking(fp32), threads), frames)
     replayed = _run(_session(replay_choice(fp32), threads), frames, half[_INDICES])
     ref, cand, at_choice = ([o[k] for k in OUTPUTS] for o in (full, half, replayed))
@@ -119,7 +132,7 @@ def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray
         order_equal=bool(np.array_equal(full[_INDICES], half[_INDICES])),
         valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=considered - matched,
         tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=fraction >= min_fraction,
-        reference="fp32-onnx", top_matched_fraction=fraction, evaluated_with=EVALUATED_WITH, problems=problems,
+        reference="fp32-onnx", top_matched_fraction=fraction, evaluated_with=where, problems=problems,
         replayed=ReplayedChoice(top_matched_fraction=r_matched / r_considered if r_considered else 1.0,
                                 max_box_abs_diff_m=float(box_diff(at_choice[0], cand[0]).max()),
                                 max_score_abs_diff=float(np.abs(at_choice[1].astype(np.float64) - cand[1]).max()),

@@ -9,6 +9,8 @@ decode (PNG bytes -> arrays), preprocessing, inference and post-processing, with
 p90 of each and the throughput. Inference is further split into backbone+neck, view transform
 and head by running the graph cut into stage models (``fisheye_infer.graph_stages``; needs
 ``onnx``). Peak RSS is measured in a fresh process per thread count, as a service would see it.
+``providers`` runs all of it in other ONNX Runtime execution providers (a GPU's: ``CUDAExecutionProvider``);
+thread counts then only set the CPU side (nodes the provider leaves to the CPU, and the stage cuts' copies).
 Nothing here asserts a speed: the numbers are for people, and ``benchmarks/run_all.py``
 compares them with PyTorch, OpenVINO, the machine's GEMM throughput and the issue's targets.
 """
@@ -16,6 +18,7 @@ compares them with PyTorch, OpenVINO, the machine's GEMM throughput and the issu
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import platform
 import resource
@@ -28,6 +31,8 @@ from typing import Any
 
 import cv2
 import numpy as np
+
+from fisheye_infer.session import Provider
 
 __all__ = ["bench_model", "format_table", "png_frame", "stats", "peak_rss_mb"]
 
@@ -64,30 +69,30 @@ def _e2e(detector: Any, frames: list[dict[str, bytes]], repeat: int, warmup: int
     return out
 
 
-def _graph_stages(path: Path, frame: dict[str, bytes], detector: Any, threads: int, repeat: int) -> dict[str, Any]:
+def _graph_stages(path: Path, frame: dict[str, bytes], detector: Any, threads: int, repeat: int, providers: list[Provider]) -> dict[str, Any]:
     from fisheye_infer.graph_stages import time_stages
     from fisheye_infer.preprocess import load_frame, stack_frames
     from fisheye_infer.session import session_options
 
     images, valid = stack_frames([load_frame(frame, detector.info.cameras, detector.info.image_size)], detector.info.image_size)
-    times = time_stages(path, {"images": images, "camera_valid": valid}, lambda: session_options(threads), repeat=repeat)
+    times = time_stages(path, {"images": images, "camera_valid": valid}, lambda: session_options(threads), repeat=repeat, providers=providers)
     return {k: stats(v) for k, v in times.items()}
 
 
-def peak_rss_mb(model_path: str | Path, threads: int, runs: int = 3) -> float:
-    """Peak RSS (MB) of a fresh process that loads a Detector and runs ``runs`` frames."""
-    cmd = [sys.executable, "-m", "fisheye_infer.bench", "--rss-child", str(model_path), str(threads), str(runs)]
+def peak_rss_mb(model_path: str | Path, threads: int, runs: int = 3, providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> float:
+    """Peak RSS (MB, host memory) of a fresh process that loads a Detector and runs ``runs`` frames."""
+    cmd = [sys.executable, "-m", "fisheye_infer.bench", "--rss-child", str(model_path), str(threads), str(runs), json.dumps(list(providers))]
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"peak RSS measurement failed: {done.stderr.strip()[-500:]}")
     return float(done.stdout.strip().splitlines()[-1])
 
 
-def _rss_child(model_path: str, threads: int, runs: int) -> None:
+def _rss_child(model_path: str, threads: int, runs: int, providers: str) -> None:
     from fisheye_infer.detector import Detector
 
     frame = png_frame(model_path)
-    detector = Detector(model_path, threads=threads)
+    detector = Detector(model_path, threads=threads, providers=[p if isinstance(p, str) else tuple(p) for p in json.loads(providers)])
     for _ in range(runs):
         detector.detect(frame)
     print(_own_peak_rss_mb())
@@ -109,23 +114,44 @@ def _own_peak_rss_mb() -> float:
 def machine() -> dict[str, Any]:
     import onnxruntime as ort
 
-    flags = ""
+    flags, cpu = "", ""
     with contextlib.suppress(OSError, IndexError):  # not Linux, or no flags line
-        flags = Path("/proc/cpuinfo").read_text().split("flags", 1)[1].split("\n", 1)[0]
-    return {"cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-            "onnxruntime": ort.__version__, "avx512": "avx512f" in flags, "vnni": "avx512_vnni" in flags or "avx_vnni" in flags}
+        info = Path("/proc/cpuinfo").read_text()
+        flags = info.split("flags", 1)[1].split("\n", 1)[0]
+        cpu = info.split("model name", 1)[1].split(":", 1)[1].split("\n", 1)[0].strip()
+    return {"cpu": cpu, "cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
+            "onnxruntime": ort.__version__, "avx512": "avx512f" in flags, "vnni": "avx512_vnni" in flags or "avx_vnni" in flags,
+            "gpus": _nvidia_gpus()}
+
+
+def _nvidia_gpus() -> list[str]:
+    """The NVIDIA GPUs' names and drivers as ``nvidia-smi`` lists them; none without it."""
+    try:
+        done = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"], capture_output=True, text=True,
+                              timeout=10, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return []
+    return [line.strip() for line in done.stdout.splitlines() if line.strip()] if done.returncode == 0 else []
 
 
 def bench_model(path: str | Path, threads: Sequence[int] = (1, 2), batches: Sequence[int] = (1, 2, 4), repeat: int = 10,
-                warmup: int = 2, stages: bool = True, rss: bool = True, progress: Any = print) -> dict[str, Any]:
-    """Everything ``fisheye-infer bench`` measures for one model, as a JSON-ready dict."""
+                warmup: int = 2, stages: bool = True, rss: bool = True, progress: Any = print,
+                providers: str | Sequence[Provider] | None = None) -> dict[str, Any]:
+    """Everything ``fisheye-infer bench`` measures for one model, as a JSON-ready dict.
+
+    ``providers`` as ``Detector`` takes them (``None``: CPU; ``"auto"``); the result names the
+    providers the session really got."""
     from fisheye_infer.detector import Detector
+    from fisheye_infer.session import provider_name, resolve_providers
 
     path = Path(path)
     frame = png_frame(path)
-    result: dict[str, Any] = {"model": str(path), "machine": machine(), "repeat": repeat, "warmup": warmup, "runs": [], "stages": {}, "peak_rss_mb": {}}
+    chosen = resolve_providers(providers)
+    result: dict[str, Any] = {"model": str(path), "machine": machine(), "providers": [provider_name(p) for p in chosen], "repeat": repeat,
+                              "warmup": warmup, "runs": [], "stages": {}, "peak_rss_mb": {}}
     for t in threads:
-        detector = Detector(path, threads=t)
+        detector = Detector(path, threads=t, providers=chosen)
+        result["providers"] = list(detector.info.providers)
         result["model_id"] = detector.info.model_id
         result["architecture"] = detector.info.architecture
         result["quantization"] = detector.info.meta.quantization.mode if detector.info.meta.quantization else "fp32"
@@ -134,16 +160,16 @@ def bench_model(path: str | Path, threads: Sequence[int] = (1, 2), batches: Sequ
             result["runs"].append({"threads": t, "batch": b, **_e2e(detector, [frame] * b, repeat, warmup)})
         if stages:
             progress(f"bench {path.name}: {t} thread(s), graph stages")
-            result["stages"][str(t)] = _graph_stages(path, frame, detector, t, max(3, repeat // 2))
+            result["stages"][str(t)] = _graph_stages(path, frame, detector, t, max(3, repeat // 2), chosen)
         del detector
         if rss:
-            result["peak_rss_mb"][str(t)] = peak_rss_mb(path, t)
+            result["peak_rss_mb"][str(t)] = peak_rss_mb(path, t, providers=chosen)
     return result
 
 
 def format_table(result: dict[str, Any]) -> str:
     """One line per (threads, batch): medians and p90 in ms, throughput; then the graph stages."""
-    lines = [f"{result['model']} ({result.get('architecture')}, {result.get('quantization')})",
+    lines = [f"{result['model']} ({result.get('architecture')}, {result.get('quantization')}; {', '.join(result.get('providers', ['CPUExecutionProvider']))})",
              "threads batch | total med/p90 ms | decode | preprocess | inference | postprocess | frames/s"]
     for r in result["runs"]:
         lines.append(f"{r['threads']:>7} {r['batch']:>5} | {r['total']['median']:8.1f} / {r['total']['p90']:7.1f} | "
@@ -158,8 +184,8 @@ def format_table(result: dict[str, Any]) -> str:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) == 5 and sys.argv[1] == "--rss-child":
-        _rss_child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
+    if len(sys.argv) == 6 and sys.argv[1] == "--rss-child":
+        _rss_child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5])
     else:
         from fisheye_infer.cli import main
 

@@ -21,10 +21,13 @@ class list against the labels the graph returns (at warm-up, and on every run).
 
 from __future__ import annotations
 
+import os
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,11 +36,14 @@ from fisheye_infer.detections import Detections
 from fisheye_infer.errors import ArtifactError, FrameError
 from fisheye_infer.nms import NmsConfig
 from fisheye_infer.options import check_classes, check_nms, check_score_threshold
-from fisheye_infer.preprocess import Frame, load_frame, stack_frames
+from fisheye_infer.preprocess import Frame, load_frames, stack_frames
 from fisheye_infer.rig import Rig
-from fisheye_infer.session import create_session, map_ort_errors
+from fisheye_infer.session import Provider, create_session, map_ort_errors
 
 __all__ = ["Detector", "DetectorInfo", "FrameDetector", "check_interface", "check_output_shapes", "describe"]
+
+#: Most threads a Detector decodes encoded images with (one image each; a frame has four).
+DECODE_THREADS = 8
 
 
 @dataclass(frozen=True)
@@ -110,6 +116,17 @@ class FrameDetector:
         self.score_threshold = check_score_threshold(score_threshold)
         self.nms = check_nms(nms)
         self.ready = False
+        # Encoded images are decoded in parallel: decoding four PNGs one after another takes longer
+        # than the whole graph run on a GPU. Threads start on first use; callers share them.
+        self._decoder = ThreadPoolExecutor(max_workers=min(DECODE_THREADS, os.cpu_count() or 1), thread_name_prefix="fisheye-decode")
+
+    def _decode_map(self, frames: Sequence[Frame]) -> Callable[..., Iterable[Any]]:
+        """The thread pool's ``map`` when there is more than one image to decode, else the plain one."""
+        encoded = 0
+        for frame in frames:  # malformed frames count as none here; load_frames names what is wrong with them
+            images = frame.values() if isinstance(frame, Mapping) else frame if isinstance(frame, Sequence) and not isinstance(frame, (str, bytes)) else ()
+            encoded += sum(isinstance(image, (bytes, bytearray, memoryview, str, os.PathLike)) for image in images)
+        return self._decoder.map if encoded > 1 else map
 
     def warmup(self) -> None:
         """One run on a black frame, so the first real call does not pay for allocation."""
@@ -161,12 +178,7 @@ class FrameDetector:
         if len(frames) == 0:
             raise FrameError("frames: expected a non-empty sequence of frames")
         t0 = time.perf_counter()
-        loaded = []
-        for b, frame in enumerate(frames):
-            try:
-                loaded.append(load_frame(frame, self.info.cameras, self.info.image_size))
-            except FrameError as exc:
-                raise FrameError(f"frame {b}: {exc}" if len(frames) > 1 else str(exc)) from None
+        loaded = load_frames(frames, self.info.cameras, self.info.image_size, self._decode_map(frames))
         t1 = time.perf_counter()
         images, valid = stack_frames(loaded, self.info.image_size)
         t2 = time.perf_counter()
@@ -199,7 +211,7 @@ class Detector(FrameDetector):
         model_path: str | Path,
         *,
         threads: int | None = None,
-        providers: str | Sequence[str] | None = None,
+        providers: str | Sequence[Provider] | None = None,
         score_threshold: float | None = None,
         nms: NmsConfig | str | None = None,
         warmup: bool = True,

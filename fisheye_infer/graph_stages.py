@@ -20,7 +20,7 @@ Needs the ``onnx`` package (the ``export`` extra).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +31,7 @@ import onnxruntime as ort
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES
 from fisheye_infer.errors import ArtifactError
 from fisheye_infer.geometry.tables import POOL_PREFIX, PREFIX, WARP
+from fisheye_infer.session import Provider
 
 __all__ = ["STAGES", "Stage", "name_nodes", "image_region", "split_stages", "time_stages"]
 
@@ -142,19 +143,21 @@ def split_stages(model: onnx.ModelProto) -> list[Stage]:
     return stages
 
 
-def _session(model: onnx.ModelProto, options: ort.SessionOptions) -> ort.InferenceSession:
-    return ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
+def _session(model: onnx.ModelProto, options: ort.SessionOptions, providers: Sequence[Provider]) -> ort.InferenceSession:
+    return ort.InferenceSession(model.SerializeToString(), options, providers=list(providers))
 
 
 def time_stages(path: str | Path, feeds: dict[str, np.ndarray], options_for: Callable[[], ort.SessionOptions],
-                repeat: int = 5, warmup: int = 1) -> dict[str, list[float]]:
-    """Per-stage wall times (ms, one entry per repeat), stages run one after another on real cut values."""
+                repeat: int = 5, warmup: int = 1, providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> dict[str, list[float]]:
+    """Per-stage wall times (ms, one entry per repeat), stages run one after another on real cut values.
+
+    In a GPU provider each stage's time includes copying its inputs in and its outputs back."""
     model = onnx.load(str(path))
     try:
         stages = split_stages(model)
     except Exception as exc:
         raise ArtifactError(f"model {path}: cannot split into stages ({exc})") from exc
-    sessions = [_session(s.model, options_for()) for s in stages]
+    sessions = [_session(s.model, options_for(), providers) for s in stages]
     times: dict[str, list[float]] = {s.name: [] for s in stages}
     for i in range(warmup + repeat):
         values = dict(feeds)

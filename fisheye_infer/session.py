@@ -11,12 +11,14 @@ import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import onnxruntime as ort
 
 from fisheye_infer.errors import ArtifactError, InferenceError
 
-__all__ = ["PREFERRED_PROVIDERS", "available_providers", "resolve_providers", "session_options", "create_session", "map_ort_errors"]
+__all__ = ["PREFERRED_PROVIDERS", "Provider", "available_providers", "resolve_providers", "provider_name", "session_options", "create_session",
+           "map_ort_errors"]
 
 #: Accelerated providers tried in this order when ``providers="auto"``; CPU always comes last.
 PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "OpenVINOExecutionProvider", "CPUExecutionProvider")
@@ -26,18 +28,29 @@ def available_providers() -> list[str]:
     return list(ort.get_available_providers())
 
 
-def resolve_providers(providers: str | Sequence[str] | None) -> list[str]:
+#: A provider by name, or with its options as ONNX Runtime takes them: ``("CUDAExecutionProvider", {"use_tf32": "0"})``.
+Provider = str | tuple[str, dict[str, Any]]
+
+
+def resolve_providers(providers: str | Sequence[Provider] | None) -> list[Provider]:
     """``None`` -> CPU; ``"auto"`` -> the installed accelerated providers, then CPU; else as given (checked)."""
     installed = available_providers()
     if providers is None:
         return ["CPUExecutionProvider"]
     if providers == "auto":
         return [p for p in PREFERRED_PROVIDERS if p in installed]
-    wanted = [providers] if isinstance(providers, str) else list(providers)
-    missing = [p for p in wanted if p not in installed]
+    wanted: list[Provider] = [providers] if isinstance(providers, str) else list(providers)
+    for p in wanted:
+        if not (isinstance(p, str) or (isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], str) and isinstance(p[1], dict))):
+            raise ValueError(f"providers: expected a provider name or a (name, options dict) pair, got {p!r}")
+    missing = [name for name in map(provider_name, wanted) if name not in installed]
     if missing:
         raise ValueError(f"providers: {', '.join(missing)} not offered by the installed onnxruntime (available: {', '.join(installed)})")
     return wanted
+
+
+def provider_name(provider: Provider) -> str:
+    return provider if isinstance(provider, str) else provider[0]
 
 
 def session_options(threads: int | None = None) -> ort.SessionOptions:
@@ -56,7 +69,7 @@ def session_options(threads: int | None = None) -> ort.SessionOptions:
     return options
 
 
-def create_session(path: str | Path, threads: int | None = None, providers: str | Sequence[str] | None = None) -> ort.InferenceSession:
+def create_session(path: str | Path, threads: int | None = None, providers: str | Sequence[Provider] | None = None) -> ort.InferenceSession:
     """An inference session with the project's defaults; ``threads`` sets intra-op parallelism."""
     options = session_options(threads)
     try:

@@ -8,6 +8,7 @@
 | ``model_path`` | required | the ONNX file written by ``fisheye-infer export`` |
 | ``host`` / ``port`` | 127.0.0.1 / 8000 | where uvicorn listens; loopback unless told otherwise |
 | ``threads`` | all cores | ONNX Runtime intra-op threads |
+| ``providers`` | CPU | ONNX Runtime execution providers in order (``CUDAExecutionProvider,CPUExecutionProvider``), or ``auto`` |
 | ``workers`` | 1 | inference threads calling the Detector |
 | ``queue_size`` | 8 | requests admitted and not yet running; beyond it: 503 + Retry-After |
 | ``max_body_bytes`` | 32 MiB | request body and WebSocket message size (413 beyond) |
@@ -50,6 +51,8 @@ class ServiceSettings(BaseSettings):
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=0, le=65535)
     threads: int | None = Field(default=None, ge=1, description="ONNX Runtime intra-op threads (default: all cores)")
+    providers: Annotated[list[str], NoDecode] = Field(default_factory=list, description="ONNX Runtime execution providers in order of "
+                                                      "preference, or ['auto'] for the installed accelerated ones (default: CPU)")
     workers: int = Field(default=1, ge=1, le=16, description="inference threads calling the Detector")
     queue_size: int = Field(default=8, ge=1, description="requests admitted and not yet running")
     max_body_bytes: int = Field(default=32 * 1024 * 1024, ge=1024)
@@ -68,15 +71,32 @@ class ServiceSettings(BaseSettings):
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     warmup: bool = True
 
-    @field_validator("cors_origins", mode="before")
+    @field_validator("cors_origins", "providers", mode="before")
     @classmethod
-    def _split_origins(cls, value: object) -> object:
-        """Accept ``FISHEYE_CORS_ORIGINS=https://a,https://b`` as well as a JSON list."""
+    def _split_list(cls, value: object) -> object:
+        """Accept ``FISHEYE_CORS_ORIGINS=https://a,https://b`` (``FISHEYE_PROVIDERS=CUDAExecutionProvider,CPUExecutionProvider``)
+        as well as a JSON list."""
         if isinstance(value, str):
             if value.lstrip().startswith("["):
                 return json.loads(value)
             return [v.strip() for v in value.split(",") if v.strip()]
         return value
+
+    @field_validator("providers")
+    @classmethod
+    def _installed_providers(cls, value: list[str]) -> list[str]:
+        """Refused here, before the model loads, when the installed onnxruntime does not offer one."""
+        if value == ["auto"]:
+            return value
+        from fisheye_infer.session import resolve_providers
+
+        resolve_providers(value)
+        return value
+
+    @property
+    def session_providers(self) -> str | list[str] | None:
+        """``providers`` as ``Detector`` takes it."""
+        return None if not self.providers else "auto" if self.providers == ["auto"] else list(self.providers)
 
     @model_validator(mode="after")
     def _refuse_unsafe(self) -> ServiceSettings:

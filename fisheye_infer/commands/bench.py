@@ -1,6 +1,7 @@
 """``fisheye-infer bench MODEL.onnx``: how fast an exported model runs on this machine, stage by stage.
 
     fisheye-infer bench model.onnx --threads 1,2 --batch 1,2,4 --repeat 10 --out bench.json
+    fisheye-infer bench model.fp16.onnx --providers CUDAExecutionProvider,CPUExecutionProvider   # on a GPU (onnxruntime-gpu)
 
 The measurement is ``fisheye_infer.bench`` (end to end and per stage, peak RSS in a fresh
 process), the stage split ``fisheye_infer.graph_stages``; ``benchmarks/`` compares the figures
@@ -14,13 +15,14 @@ import json
 import sys
 from pathlib import Path
 
-from fisheye_infer.commands.common import positive_ints
+from fisheye_infer.commands.common import PROVIDERS_HELP, positive_ints, providers_arg
 
 __all__ = ["configure", "run"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("model", help="an ONNX file written by fisheye-infer export (fp32 or int8)")
+    parser.add_argument("model", help="an ONNX file written by fisheye-infer export (fp32, int8 or fp16)")
+    parser.add_argument("--providers", type=providers_arg, help=PROVIDERS_HELP)
     parser.add_argument("--threads", type=positive_ints, default=[1, 2], help="intra-op thread counts (default 1,2)")
     parser.add_argument("--batch", type=positive_ints, default=[1, 2, 4], help="batch sizes (default 1,2,4)")
     parser.add_argument("--repeat", type=int, default=10, help="timed calls per setting after warm-up (default 10)")
@@ -45,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
             print("bench: no onnx package, skipping the per-stage split (pip install onnx)", file=sys.stderr)
             stages = False
     result = bench_model(args.model, args.threads, args.batch, max(1, args.repeat), max(0, args.warmup), stages, not args.no_rss,
-                         progress=lambda s: print(s, file=sys.stderr))
+                         progress=lambda s: print(s, file=sys.stderr), providers=args.providers)
     print(format_table(result))
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=2))

@@ -6,11 +6,13 @@ import argparse
 import sys
 
 __all__ = ["NEEDS_EXPORT", "NEEDS_SERVE", "NEEDS_RAY_SERVE", "missing_extra", "positive_int", "positive_ints", "int_list", "csv_list", "int_pair",
-           "RIG_HELP"]
+           "providers_arg", "PROVIDERS_HELP", "RIG_HELP"]
 
 NEEDS_EXPORT = "this command needs the export extra: pip install 'fisheye-infer[export]' (install torch==2.13.0 first)"
 NEEDS_SERVE = "fisheye-infer serve needs the serve extra: pip install 'fisheye-infer[serve]'"
 NEEDS_RAY_SERVE = "fisheye-infer serve --ray needs the ray extra: pip install 'fisheye-infer[ray]'"
+PROVIDERS_HELP = ("ONNX Runtime execution providers, comma-separated in order of preference (CUDAExecutionProvider,CPUExecutionProvider), "
+                  "or 'auto' for the installed accelerated ones, then CPU (default: CPU)")
 RIG_HELP = "rig file (.json/.yaml), folder with calib_results.txt + lidar2cam.json, or 'default'"
 
 
@@ -86,3 +88,18 @@ class ArchChoices:
 
     def __iter__(self):  # type: ignore[no-untyped-def]
         return iter(self._names() or ())
+
+
+def providers_arg(text: str) -> str | list[str]:
+    """``auto`` or comma-separated provider names, checked against the installed onnxruntime here,
+    so a typo or a CPU-only onnxruntime is a usage error that lists what is available."""
+    if text.strip() == "auto":
+        return "auto"
+    from fisheye_infer.session import resolve_providers
+
+    names = csv_list(text)
+    try:
+        resolve_providers(names)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("providers: ")) from None
+    return names

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from fisheye_infer.commands.common import positive_int
+from fisheye_infer.commands.common import PROVIDERS_HELP, positive_int, providers_arg
 from fisheye_infer.errors import ConfigError, FrameError, OptionError
 
 if TYPE_CHECKING:
@@ -36,6 +36,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--classes", help="comma-separated class names to keep")
     parser.add_argument("--nms", choices=("rotated", "circle"), help="optional NMS (the official output has none)")
     parser.add_argument("--threads", type=positive_int, help="ONNX Runtime intra-op threads (default: all cores)")
+    parser.add_argument("--providers", type=providers_arg, help=PROVIDERS_HELP)
     _configure_ray(parser)
     parser.set_defaults(run=run)
 
@@ -97,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     from fisheye_infer.preprocess import frames_from_paths
 
     nms = NmsConfig(kind=args.nms) if args.nms else None
-    detector = Detector(args.model, threads=args.threads, score_threshold=args.score_threshold, nms=nms)
+    detector = Detector(args.model, threads=args.threads, providers=args.providers, score_threshold=args.score_threshold, nms=nms)
     frames = frames_from_paths(args.images, detector.info.cameras)
     classes = [c.strip() for c in args.classes.split(",") if c.strip()] if args.classes else None
     unknown = sorted(set(classes or ()) - set(detector.info.classes))
@@ -146,6 +147,8 @@ def _run_ray(args: argparse.Namespace) -> int:
                                         ("--classes", args.classes), ("--nms", args.nms)) if value]
     if refused:
         raise ConfigError(f"--ray writes the official unthresholded output for evaluation; {', '.join(refused)} cannot be combined with it")
+    if args.providers:
+        raise ConfigError("--providers: the --ray actors run on CPU (Ray reserves CPUs for them, not GPUs); run without --ray on a GPU")
     if not args.model or not args.out or bool(args.data) == bool(args.images):
         raise ConfigError("--ray needs a MODEL, --out and exactly one of --data ROOT or --images")
     try:

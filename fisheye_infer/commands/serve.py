@@ -19,7 +19,7 @@ import sys
 import threading
 from typing import Any
 
-from fisheye_infer.commands.common import NEEDS_RAY_SERVE, NEEDS_SERVE, missing_extra
+from fisheye_infer.commands.common import NEEDS_RAY_SERVE, NEEDS_SERVE, PROVIDERS_HELP, missing_extra
 
 __all__ = ["configure", "run"]
 
@@ -31,6 +31,7 @@ _SETTINGS_FLAGS: dict[str, tuple[type, str]] = {
     "host": (str, "address to listen on (default 127.0.0.1: this machine only)"),
     "port": (int, "port (default 8000)"),
     "threads": (int, "ONNX Runtime intra-op threads (default: all cores)"),
+    "providers": (str, PROVIDERS_HELP),
     "workers": (int, "inference threads calling the model (default 1)"),
     "queue_size": (int, "requests waiting before new ones get 503 (default 8)"),
     "max_body_bytes": (int, "largest request body or stream message (default 32 MiB)"),
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_ray(args, settings)
     _log_to_stderr(args.log_level)
     print(f"loading {settings.model_path} ...", file=sys.stderr)
-    detector = Detector(settings.model_path, threads=settings.threads, warmup=settings.warmup)
+    detector = Detector(settings.model_path, threads=settings.threads, providers=settings.session_providers, warmup=settings.warmup)
     server = build_server(settings, create_app(settings, detector), log_level=args.log_level)
     server.run()
     return 0 if server.started else 1

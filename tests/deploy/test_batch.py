@@ -73,6 +73,7 @@ def test_detect_ray_writes_one_results_file_that_eval_reads(ray_local, small_exp
         (["--score-threshold", "0.3"], "--score-threshold cannot be combined"),  # evaluation wants the unthresholded output
         (["--batch-size", "0"], "batch_size: expected at least 1"),
         (["--concurrency", "0"], "concurrency: expected at least 1"),
+        (["--providers", "CPUExecutionProvider"], "--providers: the --ray actors run on CPU"),  # Ray reserves no GPU for them
     ],
 )
 def test_detect_ray_refuses_bad_options_before_starting_ray(small_export, synth_root: Path, tmp_path: Path, extra: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:

@@ -16,8 +16,9 @@ pytest.importorskip("torch")
 from fisheye_infer.artifact import read_meta
 from fisheye_infer.commands import export as export_command
 from fisheye_infer.errors import ExportError
-from fisheye_infer.export.exporter import Fp16Result, export, export_fp16, export_int8, fp16_path_for
+from fisheye_infer.export.exporter import Fp16Result, export, export_fp16, export_int8, fp16_path_for, verification_frames
 from fisheye_infer.export.fp16 import to_float16
+from fisheye_infer.export.fp16_parity import evaluated_with, fp16_parity
 
 F, H, I64 = TensorProto.FLOAT, TensorProto.FLOAT16, TensorProto.INT64
 
@@ -122,3 +123,15 @@ def test_cli_takes_fp16() -> None:
     parser = argparse.ArgumentParser()
     export_command.configure(parser)
     assert parser.parse_args(["--ckpt", "c.pth", "--out", "m.onnx", "--fp16"]).fp16
+
+
+def test_parity_runs_the_candidate_where_it_is_asked_to(small_export) -> None:
+    """``candidate_providers``: the file under test runs in those providers (a GPU's, in benchmarks/gpu.py), the fp32
+    reference on the CPU; the report names where. The fp32 file against itself is exact; a provider this onnxruntime
+    lacks is refused by name."""
+    frames = verification_frames(read_meta(small_export.onnx).rig, 1)
+    same = fp16_parity(small_export.onnx, small_export.onnx, frames, threads=1, candidate_providers=[("CPUExecutionProvider", {})])
+    assert same.evaluated_with == "onnxruntime-cpu" and same.top_matched_fraction == 1.0 and same.max_box_abs_diff_m == 0.0 and same.passed
+    assert evaluated_with(["CUDAExecutionProvider", "CPUExecutionProvider"]) == "onnxruntime-cuda"
+    with pytest.raises(ExportError, match=r"fp16: ONNX Runtime \(onnxruntime-nosuch\) cannot run .*NoSuchExecutionProvider"):
+        fp16_parity(small_export.onnx, small_export.onnx, frames, threads=1, candidate_providers=["NoSuchExecutionProvider"])

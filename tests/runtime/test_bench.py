@@ -16,8 +16,10 @@ from fisheye_infer.graph_stages import STAGES
 
 def test_bench_writes_every_figure(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "bench.json"
-    assert main(["bench", str(small_export.onnx), "--threads", "1", "--batch", "1,2", "--repeat", "2", "--warmup", "1", "--out", str(out)]) == 0
+    assert main(["bench", str(small_export.onnx), "--threads", "1", "--batch", "1,2", "--repeat", "2", "--warmup", "1", "--out", str(out),
+                 "--providers", "CPUExecutionProvider"]) == 0
     doc = json.loads(out.read_text())
+    assert doc["providers"] == ["CPUExecutionProvider"] and doc["machine"]["cpu_count"] >= 1 and isinstance(doc["machine"]["gpus"], list)
     assert [(r["threads"], r["batch"]) for r in doc["runs"]] == [(1, 1), (1, 2)]
     for run in doc["runs"]:
         assert {"total", "decode", "preprocess", "inference", "postprocess"} <= set(run)
@@ -26,13 +28,17 @@ def test_bench_writes_every_figure(small_export, tmp_path: Path, capsys: pytest.
     assert 50 < doc["peak_rss_mb"]["1"] < 4000
     assert doc["architecture"] == "fisheye-bevdet" and doc["quantization"] == "fp32"
     printed = capsys.readouterr().out
-    assert "threads batch | total med/p90 ms" in printed and "peak RSS at 1 thread(s)" in printed
+    assert "threads batch | total med/p90 ms" in printed and "peak RSS at 1 thread(s)" in printed and "fp32; CPUExecutionProvider)" in printed
 
 
 def test_bench_refuses_bad_options(small_export, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
         main(["bench", str(small_export.onnx), "--threads", "0"])
     assert "expected comma-separated positive integers" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # a provider this onnxruntime lacks is a usage error that lists the ones it has
+        main(["bench", str(small_export.onnx), "--providers", "NoSuchExecutionProvider,CPUExecutionProvider"])
+    assert "--providers: NoSuchExecutionProvider not offered by the installed onnxruntime" in (err := capsys.readouterr().err)
+    assert "CPUExecutionProvider" in err.split("available:")[1]
 
 
 def test_peak_rss_is_the_childs_own_not_its_parents() -> None:

@@ -78,7 +78,8 @@ def test_detect_writes_results_and_picture_then_redraws_them(small_export, tmp_p
     for name, image in Renderer().render(rig, random_scene(np.random.default_rng(1))).items():
         cv2.imwrite(str(frame_dir / f"{name.removeprefix('fisheye_camera_')}.png"), image)
     out, viz = tmp_path / "result.json", tmp_path / "result.png"
-    assert main(["detect", str(small_export.onnx), "--images", str(frame_dir), "--out", str(out), "--viz", str(viz), "--score-threshold", "0.05"]) == 0
+    assert main(["detect", str(small_export.onnx), "--images", str(frame_dir), "--out", str(out), "--viz", str(viz), "--score-threshold", "0.05",
+                 "--providers", "CPUExecutionProvider"]) == 0
     doc = json.loads(out.read_text())
     assert doc["model_id"] == read_meta(small_export.onnx).model_id and len(doc["frames"]) == 1
     frame = doc["frames"][0]

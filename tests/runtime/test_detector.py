@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -62,6 +63,8 @@ def test_every_input_form_gives_the_same_result(detector: Detector, frame, tmp_p
         got = detector.detect(form)
         np.testing.assert_array_equal(got.boxes, reference.boxes)
         np.testing.assert_array_equal(got.scores, reference.scores)
+    # the encoded forms were decoded by the Detector's own threads, one image each
+    assert any(t.name.startswith("fisheye-decode") for t in threading.enumerate())
 
 
 def test_degraded_mode_reports_cameras_used(detector: Detector, frame) -> None:
@@ -153,5 +156,10 @@ def test_providers_default_to_cpu_and_unknown_ones_are_named(small_export) -> No
     assert auto.info.providers[-1] == "CPUExecutionProvider" and auto.ready
     with pytest.raises(ValueError, match="providers: NoSuchExecutionProvider not offered by the installed onnxruntime"):
         Detector(small_export.onnx, providers=["NoSuchExecutionProvider"])
+    # with options, as ONNX Runtime takes them (CUDA's {"use_tf32": "0"} for fp32-exact results on a GPU)
+    with_options = Detector(small_export.onnx, threads=1, providers=[("CPUExecutionProvider", {})], warmup=False)
+    assert with_options.info.providers == ("CPUExecutionProvider",)
+    with pytest.raises(ValueError, match=r"providers: expected a provider name or a \(name, options dict\) pair, got \('CPUExecutionProvider',\)"):
+        Detector(small_export.onnx, providers=[("CPUExecutionProvider",)])  # type: ignore[list-item]
     with pytest.raises(ValueError, match="threads: expected a positive number, got 0"):
         Detector(small_export.onnx, threads=0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from fisheye_infer.errors import FrameError
-from fisheye_infer.preprocess import encoded_image_size, load_frame, prepare_batch
+from fisheye_infer.preprocess import encoded_image_size, load_frame, load_frames, prepare_batch
 
 CAMERAS = ("front", "left", "right", "rear")
 WH = (64, 48)
@@ -82,6 +83,23 @@ def test_batch_errors_name_the_frame(arrays: list[np.ndarray]) -> None:
         prepare_batch([arrays, {"roof": arrays[0]}], CAMERAS, WH)
     with pytest.raises(FrameError, match="non-empty sequence"):
         prepare_batch([], CAMERAS, WH)
+
+
+def test_parallel_decoding_gives_the_sequential_result_and_first_error(arrays: list[np.ndarray]) -> None:
+    """A thread pool's map decodes the images; the arrays and the error reported are those of the plain loop."""
+    frames = [[png(a) for a in arrays], [png(a) for a in reversed(arrays)], {"front": arrays[0], "rear": png(arrays[1])}]
+    with ThreadPoolExecutor(4) as pool:
+        parallel = load_frames(frames, CAMERAS, WH, pool.map)
+        sequential = load_frames(frames, CAMERAS, WH)
+        assert [[None if a is None else a.tolist() for a in f] for f in parallel] == [[None if a is None else a.tolist() for a in f] for f in sequential]
+        assert np.array_equal(parallel[1][0], arrays[3]) and parallel[2][1] is None
+        # frame 1 has two bad images: the first in camera order is the one named, whichever thread finishes first
+        bad = [frames[0], [png(arrays[0]), b"not an image", png(np.zeros((96, 128, 3), np.uint8)), png(arrays[3])], {}]
+        for map_images in (pool.map, map):
+            with pytest.raises(FrameError, match="^frame 1: camera 'left': the bytes are not a decodable"):
+                load_frames(bad, CAMERAS, WH, map_images)
+    with pytest.raises(FrameError, match="^frame 1: no camera image given"):
+        load_frames([frames[0], {}], CAMERAS, WH)
 
 
 @pytest.mark.parametrize("ext", [".png", ".jpg"])

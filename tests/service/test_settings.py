@@ -14,6 +14,14 @@ from fisheye_infer.service.settings import ServiceSettings
 def test_defaults_listen_on_loopback_without_microbatching() -> None:
     s = ServiceSettings(model_path="m.onnx")
     assert (s.host, s.port, s.api_key, s.microbatching, s.cors_origins) == ("127.0.0.1", 8000, None, False, [])
+    assert s.session_providers is None  # the Detector's default: CPU
+
+
+@pytest.mark.parametrize("value, providers", [("CPUExecutionProvider", ["CPUExecutionProvider"]), ("auto", "auto"),
+                                              ('["CPUExecutionProvider"]', ["CPUExecutionProvider"])])
+def test_providers_from_the_environment(monkeypatch: pytest.MonkeyPatch, value: str, providers: object) -> None:
+    monkeypatch.setenv("FISHEYE_PROVIDERS", value)
+    assert ServiceSettings(model_path="m.onnx").session_providers == providers
 
 
 def test_environment_with_prefix(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -37,6 +45,9 @@ def test_environment_with_prefix(monkeypatch: pytest.MonkeyPatch) -> None:
         ({"cors_origins": ["*"], "api_key": "k" * 16}, pytest.raises(ValidationError, match="cors_origins")),  # any page could use the key
         ({"queue_size": 0}, pytest.raises(ValidationError, match="queue_size")),
         ({"port": 70000}, pytest.raises(ValidationError, match="port")),
+        # refused before the model loads, naming what the installed onnxruntime offers
+        ({"providers": "CUDAExecutionProviderX,CPUExecutionProvider"},
+         pytest.raises(ValidationError, match=r"providers: CUDAExecutionProviderX not offered by the installed onnxruntime \(available: .*CPUExecutionProvider")),
     ],
 )
 def test_unsafe_combinations_are_refused(overrides: dict[str, Any], expectation) -> None:

@@ -60,7 +60,7 @@ def _free_port() -> int:
 
 def test_cli_serve_drains_on_sigterm(small_model: Path, images: dict[str, bytes]) -> None:
     port = _free_port()
-    env = {**os.environ, "FISHEYE_QUEUE_SIZE": "3", "FISHEYE_DRAIN_TIMEOUT_S": "10"}
+    env = {**os.environ, "FISHEYE_QUEUE_SIZE": "3", "FISHEYE_DRAIN_TIMEOUT_S": "10", "FISHEYE_PROVIDERS": "CPUExecutionProvider"}
     command = [sys.executable, "-m", "fisheye_infer", "serve", str(small_model), "--port", str(port), "--threads", "1", "--log-level", "info"]
     process = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
@@ -74,7 +74,8 @@ def test_cli_serve_drains_on_sigterm(small_model: Path, images: dict[str, bytes]
                 pass
             assert process.poll() is None and time.monotonic() < deadline, "server did not come up"
             time.sleep(0.1)
-        assert httpx.get(f"{url}/model").json()["limits"]["queue_size"] == 3  # from FISHEYE_QUEUE_SIZE
+        model = httpx.get(f"{url}/model").json()
+        assert model["limits"]["queue_size"] == 3 and model["providers"] == ["CPUExecutionProvider"]  # from FISHEYE_QUEUE_SIZE, FISHEYE_PROVIDERS
         result: list[httpx.Response] = []
         sender = threading.Thread(target=lambda: result.append(httpx.post(f"{url}/detect/batch", files=_batch(images, 8), timeout=30)))
         sender.start()
@@ -103,6 +104,7 @@ def test_serve_reports_a_missing_model_and_exits_1(tmp_path: Path) -> None:
         (["--queue-size", "0"], {}, "queue_size: Input should be greater than or equal to 1"),
         ([], {"FISHEYE_API_KEY": "short"}, "api_key: expected at least 16 characters, got 5"),
         (["--microbatch-max-size", "9"], {}, "microbatch_max_size: 9 exceeds max_batch_frames 8"),
+        (["--providers", "NoSuchExecutionProvider"], {}, "providers: NoSuchExecutionProvider not offered by the installed onnxruntime"),
     ],
 )
 def test_serve_refuses_bad_settings_by_name(flags: list[str], env: dict[str, str], words: str) -> None:
