@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,13 +120,18 @@ class FrameDetector:
         # than the whole graph run on a GPU. Threads start on first use; callers share them.
         self._decoder = ThreadPoolExecutor(max_workers=min(DECODE_THREADS, os.cpu_count() or 1), thread_name_prefix="fisheye-decode")
 
+    def map_images(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+        """``fn`` over ``items`` on the Detector's decode threads, results (and the first error) in order;
+        the service decodes its requests' images with it too."""
+        return self._decoder.map(fn, items)
+
     def _decode_map(self, frames: Sequence[Frame]) -> Callable[..., Iterable[Any]]:
-        """The thread pool's ``map`` when there is more than one image to decode, else the plain one."""
+        """``map_images`` when there is more than one image to decode, else the plain ``map``."""
         encoded = 0
         for frame in frames:  # malformed frames count as none here; load_frames names what is wrong with them
             images = frame.values() if isinstance(frame, Mapping) else frame if isinstance(frame, Sequence) and not isinstance(frame, (str, bytes)) else ()
             encoded += sum(isinstance(image, (bytes, bytearray, memoryview, str, os.PathLike)) for image in images)
-        return self._decoder.map if encoded > 1 else map
+        return self.map_images if encoded > 1 else map
 
     def warmup(self) -> None:
         """One run on a black frame, so the first real call does not pay for allocation."""

@@ -11,6 +11,7 @@ event loop, and counted as postprocess time.
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import Any
 
 import anyio
@@ -60,7 +61,8 @@ async def run_frames(service: Service, frames: list[EncodedFrame], options: Dete
     if service.spec is None:
         raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
     service.refuse_if_full()  # no decoding for a request the queue would refuse
-    loaded, decode_ms = await anyio.to_thread.run_sync(decode_frames, frames, service.spec, limiter=service.decode_limiter)
+    decode = partial(decode_frames, frames, service.spec, map_images=service.detector.map_images if service.detector else map)
+    loaded, decode_ms = await anyio.to_thread.run_sync(decode, limiter=service.decode_limiter)
     ticket = service.admit()
     try:
         results = await ticket.run(loaded)

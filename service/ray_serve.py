@@ -21,7 +21,7 @@ sharing a machine do not oversubscribe its cores.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -96,6 +96,9 @@ class BatchedDetector:
 
     def run_arrays(self, images: Any, valid: Any) -> list[Any]:
         return self._detector.run_arrays(images, valid)
+
+    def map_images(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+        return self._detector.map_images(fn, items)
 
     def detect_batch(self, frames: Sequence[Frame], **options: Any) -> list[Detections]:
         if options:

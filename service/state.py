@@ -44,7 +44,7 @@ class Service:
         self.spec: FrameSpec | None = None
         self.draining = False
         self.streams: set[_Stream] = set()
-        self.decode_limiter: anyio.CapacityLimiter | None = None  # decode threads, at most one per core
+        self.decode_limiter: anyio.CapacityLimiter | None = None  # requests decoding at once, one per core (images: the Detector's threads)
         self.reading = 0  # requests whose body is arriving or whose images are decoding (no queue place yet)
 
     async def start(self, detector: Detector | None = None) -> None:

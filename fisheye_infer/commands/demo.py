@@ -58,9 +58,10 @@ def run(args: argparse.Namespace) -> int:
 
     from fisheye_infer.commands import detect
 
-    detect_args = argparse.Namespace(model=str(onnx_path), images=[str(shipped.heldout_frame)], result=None, out=str(out / "result.json"),
-                                     viz=str(out / "result.png"), score_threshold=DEMO_SCORE_THRESHOLD, classes=None, nms=None, threads=None)
-    detect.run(detect_args)
+    detect_parser = argparse.ArgumentParser(prog="fisheye-infer detect")  # detect's own flags and defaults
+    detect.configure(detect_parser)
+    detect.run(detect_parser.parse_args([str(onnx_path), "--images", str(shipped.heldout_frame), "--out", str(out / "result.json"),
+                                         "--viz", str(out / "result.png"), "--score-threshold", str(DEMO_SCORE_THRESHOLD)]))
     detections = json.loads((out / "result.json").read_text())["frames"][0]["detections"]
     labels = json.loads((shipped.heldout_frame / "labels.json").read_text())["records"]
     found, extra = _match_labels(detections, labels)

@@ -131,6 +131,10 @@ CASES: list[tuple[str, str, Request, int, str | None, str]] = [
     ("batch: gap in frames", "/detect/batch", lambda im: {"files": multipart(im, "0.") + multipart(im, "2.")}, 422, "1", "without gaps"),
     ("batch: too many frames", "/detect/batch", lambda im: {"json": {"frames": [{"images": {FRONT: "AA=="}}] * 9}}, 422, "frames", "max_batch_frames=8"),
     ("batch: bad frame named", "/detect/batch", lambda im: {"files": multipart(im, "0.") + multipart({**im, FRONT: png_header_claiming(60000, 60000)}, "1.")}, 422, f"1.{FRONT}", "frame 1"),
+    # the images decode in parallel; the first undecodable one in frame and camera order is the one named
+    ("batch: first undecodable image named", "/detect/batch",
+     lambda im: {"files": multipart(im, "0.") + multipart({**im, "fisheye_camera_rear": corrupt_png(im)}, "1.")
+                 + multipart({**im, FRONT: corrupt_png(im)}, "2.")}, 422, "1.fisheye_camera_rear", "frame 1"),
     ("batch: empty frame list", "/detect/batch", lambda im: {"json": {"frames": []}}, 422, "frames", "at least 1"),
     ("corrupt JPEG data", "/detect", lambda im: with_front(im, header_then_noise(im), "image/jpeg"), 422, FRONT, "corrupt data"),
     ("JPEG with a thousand scans", "/detect", lambda im: with_front(im, many_scans(im), "image/jpeg"), 422, FRONT, "more than 64 scans"),
