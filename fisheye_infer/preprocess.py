@@ -75,8 +75,8 @@ def load_frames(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple
     """Decode and validate several frames; errors name the frame (when there are several) and the camera.
 
     ``map_images`` runs the per-image work: a thread pool's ``map`` decodes the images in parallel
-    (OpenCV and libjpeg-turbo release the GIL while they decode; four 800 x 800 PNGs take about
-    a third of the sequential time on four cores). Results and errors are those of the
+    (OpenCV and libjpeg-turbo release the GIL while they decode; four 800 x 800 PNGs took under a
+    third of the sequential time on a 16-core machine). Results and errors are those of the
     sequential order either way: the first bad image in frame and camera order is reported.
     """
     def named(b: int, exc: FrameError) -> FrameError:
