@@ -30,7 +30,7 @@ import onnxruntime as ort
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ParityReport, ReplayedChoice
 from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ExportError
-from fisheye_infer.session import Provider, provider_name, resolve_providers
+from fisheye_infer.session import Provider, check_started, provider_name, resolve_providers
 
 from .graph import with_outputs
 from .quantize import MATCH_RADIUS_M, MIN_TOP_MATCHED, top_matched
@@ -66,7 +66,7 @@ def _session(model: onnx.ModelProto, threads: int, providers: Sequence[Provider]
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.log_severity_level = 3
-    return ort.InferenceSession(model.SerializeToString(), options, providers=list(providers))
+    return ort.InferenceSession(model.SerializeToString(), options, providers=list(providers), enable_fallback=0)
 
 
 def evaluated_with(providers: Sequence[Provider]) -> str:
@@ -107,14 +107,16 @@ def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray
     ``candidate_providers``, measures what a GPU provider's arithmetic changes).
     """
     fp32 = onnx.load(str(fp32_path))
-    where = evaluated_with(candidate_providers)
+    providers = [candidate_providers] if isinstance(candidate_providers, str) else list(candidate_providers)
+    if not providers:
+        raise ExportError("fp16: candidate_providers: expected at least one provider")
+    where = evaluated_with(providers)
     try:
-        resolve_providers(candidate_providers)  # else ONNX Runtime would fall back to the CPU and say so only in a log line
-        session = _session(_with_ranking(onnx.load(str(fp16_path))), threads, candidate_providers)
-        where = evaluated_with(session.get_providers())
+        session = _session(_with_ranking(onnx.load(str(fp16_path))), threads, resolve_providers(providers))
+        check_started(session, providers, str(fp16_path))  # no silent fallback to the CPU
         half = _run(session, frames)
     except Exception as exc:  # ORT's errors are untyped
-        raise ExportError(f"fp16: ONNX Runtime ({where}) cannot run {fp16_path} ({exc}); no parity, no file") from exc
+        raise ExportError(f"fp16: ONNX Runtime ({where}) cannot run {fp16_path} ({exc}); no parity") from exc
     full = _run(_session(_with_ranking(fp32), threads), frames)
     replayed = _run(_session(replay_choice(fp32), threads), frames, half[_INDICES])
     ref, cand, at_choice = ([o[k] for k in OUTPUTS] for o in (full, half, replayed))
@@ -132,7 +134,7 @@ def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray
         order_equal=bool(np.array_equal(full[_INDICES], half[_INDICES])),
         valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=considered - matched,
         tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=fraction >= min_fraction,
-        reference="fp32-onnx", top_matched_fraction=fraction, evaluated_with=where, problems=problems,
+        reference="fp32-onnx", top_matched_fraction=fraction, evaluated_with=evaluated_with(session.get_providers()), problems=problems,
         replayed=ReplayedChoice(top_matched_fraction=r_matched / r_considered if r_considered else 1.0,
                                 max_box_abs_diff_m=float(box_diff(at_choice[0], cand[0]).max()),
                                 max_score_abs_diff=float(np.abs(at_choice[1].astype(np.float64) - cand[1]).max()),

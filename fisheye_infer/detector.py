@@ -22,6 +22,7 @@ class list against the labels the graph returns (at warm-up, and on every run).
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -33,17 +34,17 @@ import numpy as np
 
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, METADATA_KEY, OUTPUTS, ArtifactMeta, parse_meta
 from fisheye_infer.detections import Detections
-from fisheye_infer.errors import ArtifactError, FrameError
+from fisheye_infer.errors import ArtifactError, FrameError, OptionError
 from fisheye_infer.nms import NmsConfig
 from fisheye_infer.options import check_classes, check_nms, check_score_threshold
 from fisheye_infer.preprocess import Frame, load_frames, stack_frames
 from fisheye_infer.rig import Rig
-from fisheye_infer.session import Provider, create_session, map_ort_errors
+from fisheye_infer.session import Provider, create_session, map_ort_errors, usable_cpus
 
 __all__ = ["Detector", "DetectorInfo", "FrameDetector", "check_interface", "check_output_shapes", "describe"]
 
-#: Most threads a Detector decodes encoded images with (one image each; a frame has four).
-DECODE_THREADS = 8
+#: Set in a Detector's decode threads: ``map_images`` called from one runs in that thread (no nesting deadlock).
+_decoding = threading.local()
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,11 @@ def describe(meta: ArtifactMeta, providers: Sequence[str]) -> DetectorInfo:
     )
 
 
+def _check_decode_threads(decode_threads: int | None) -> None:
+    if decode_threads is not None and decode_threads < 1:
+        raise OptionError(f"decode_threads: expected a positive number, got {decode_threads}")
+
+
 class FrameDetector:
     """Frames in, ``Detections`` out, around one graph run; subclasses say where the graph runs.
 
@@ -111,19 +117,35 @@ class FrameDetector:
 
     info: DetectorInfo
 
-    def __init__(self, info: DetectorInfo, *, score_threshold: float | None = None, nms: NmsConfig | str | None = None) -> None:
+    def __init__(self, info: DetectorInfo, *, score_threshold: float | None = None, nms: NmsConfig | str | None = None,
+                 decode_threads: int | None = None) -> None:
         self.info = info
         self.score_threshold = check_score_threshold(score_threshold)
         self.nms = check_nms(nms)
         self.ready = False
+        _check_decode_threads(decode_threads)
         # Encoded images are decoded in parallel: decoding four PNGs one after another takes longer
         # than the whole graph run on a GPU. Threads start on first use; callers share them.
-        self._decoder = ThreadPoolExecutor(max_workers=min(DECODE_THREADS, os.cpu_count() or 1), thread_name_prefix="fisheye-decode")
+        self._decoder = ThreadPoolExecutor(max_workers=decode_threads or usable_cpus(), thread_name_prefix="fisheye-decode")
 
     def map_images(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
         """``fn`` over ``items`` on the Detector's decode threads, results (and the first error) in order;
-        the service decodes its requests' images with it too."""
-        return self._decoder.map(fn, items)
+        the service decodes its requests' images with it too. Called from a decode thread, or once
+        the interpreter is shutting down (no new threads then), it runs in the calling thread."""
+        if getattr(_decoding, "active", False):
+            return map(fn, items)
+
+        def run(item: Any) -> Any:
+            _decoding.active = True
+            try:
+                return fn(item)
+            finally:
+                _decoding.active = False
+
+        try:
+            return self._decoder.map(run, items)
+        except RuntimeError:  # "cannot schedule new futures after interpreter shutdown"
+            return map(fn, items)
 
     def _decode_map(self, frames: Sequence[Frame]) -> Callable[..., Iterable[Any]]:
         """``map_images`` when there is more than one image to decode, else the plain ``map``."""
@@ -220,9 +242,11 @@ class Detector(FrameDetector):
         score_threshold: float | None = None,
         nms: NmsConfig | str | None = None,
         warmup: bool = True,
+        decode_threads: int | None = None,
     ) -> None:
         check_score_threshold(score_threshold)  # bad options are named before the session is built
         check_nms(nms)
+        _check_decode_threads(decode_threads)
         self.path = Path(model_path)
         if not self.path.is_file():
             raise ArtifactError(f"model {self.path}: no such file")
@@ -230,7 +254,7 @@ class Detector(FrameDetector):
         meta = parse_meta(self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}")
         check_interface({i.name: i.shape for i in self._session.get_inputs()}, [o.name for o in self._session.get_outputs()], meta, f"model {self.path}")
         check_output_shapes({o.name: o.shape for o in self._session.get_outputs()}, meta, f"model {self.path}")
-        super().__init__(describe(meta, self._session.get_providers()), score_threshold=score_threshold, nms=nms)
+        super().__init__(describe(meta, self._session.get_providers()), score_threshold=score_threshold, nms=nms, decode_threads=decode_threads)
         if warmup:
             self.warmup()
 

@@ -144,7 +144,7 @@ def split_stages(model: onnx.ModelProto) -> list[Stage]:
 
 
 def _session(model: onnx.ModelProto, options: ort.SessionOptions, providers: Sequence[Provider]) -> ort.InferenceSession:
-    return ort.InferenceSession(model.SerializeToString(), options, providers=list(providers))
+    return ort.InferenceSession(model.SerializeToString(), options, providers=list(providers), enable_fallback=0)
 
 
 def time_stages(path: str | Path, feeds: dict[str, np.ndarray], options_for: Callable[[], ort.SessionOptions],

@@ -82,26 +82,29 @@ def load_frames(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple
     def named(b: int, exc: FrameError) -> FrameError:
         return FrameError(f"frame {b}: {exc}") if len(frames) > 1 else exc
 
-    mappings = []
-    for b, frame in enumerate(frames):
+    mappings: list[Mapping[str, ImageInput] | FrameError] = []
+    for frame in frames:
         try:
             mappings.append(_as_mapping(frame, cameras))
-        except FrameError as exc:
-            raise named(b, exc) from None
+        except FrameError as exc:  # raised when its turn comes, after the frames before it
+            mappings.append(exc)
 
     def one(task: tuple[str, ImageInput]) -> np.ndarray | None:
         camera, image = task
         return None if image is None else _check_array(_to_array(image, camera, image_wh), camera, image_wh)
 
-    results = iter(map_images(one, [(camera, images.get(camera)) for images in mappings for camera in cameras]))
+    tasks = [(camera, images.get(camera)) for images in mappings if not isinstance(images, FrameError) for camera in cameras]
+    results = iter(map_images(one, tasks))
     loaded: list[list[np.ndarray | None]] = []
-    for b in range(len(frames)):
+    for b, images in enumerate(mappings):
+        if isinstance(images, FrameError):
+            raise named(b, images) from None
         try:
             row = [next(results) for _ in cameras]
         except FrameError as exc:
             raise named(b, exc) from None
         if all(image is None for image in row):
-            raise FrameError(f"frame{f' {b}' if len(frames) > 1 else ''}: no camera image given (cameras: {', '.join(cameras)})")
+            raise named(b, FrameError(f"frame: no camera image given (cameras: {', '.join(cameras)})"))
         loaded.append(row)
     return loaded
 

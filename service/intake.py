@@ -188,6 +188,8 @@ def decode_frames(frames: list[EncodedFrame], spec: FrameSpec, map_images: Calla
             error = RequestInvalid(str(exc), field=camera)
             raise (_in_frame(index, error) if len(frames) > 1 else error) from None
 
+    if not frames:
+        return [], []
     t0 = time.perf_counter()
     decoded = list(map_images(one, [(i, camera, frame.get(camera)) for i, frame in enumerate(frames) for camera in spec.cameras]))
     per_frame = (time.perf_counter() - t0) * 1e3 / len(frames)

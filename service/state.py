@@ -9,7 +9,6 @@ server when nothing is left.
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from functools import partial
@@ -23,6 +22,7 @@ from fisheye_infer.service.intake import FrameSpec
 from fisheye_infer.service.metrics import ServiceMetrics
 from fisheye_infer.service.queue import InferenceQueue, Ticket
 from fisheye_infer.service.settings import ServiceSettings
+from fisheye_infer.session import usable_cpus
 
 __all__ = ["Service"]
 
@@ -56,7 +56,7 @@ class Service:
             await anyio.to_thread.run_sync(detector.warmup)
         if detector.score_threshold is not None or detector.nms is not None:
             log.warning("the Detector's own score_threshold/nms apply to every request before the request's options")
-        self.decode_limiter = anyio.CapacityLimiter(os.cpu_count() or 1)
+        self.decode_limiter = anyio.CapacityLimiter(usable_cpus())
         self.detector = detector
         self.spec = FrameSpec.of(detector.info, s.max_batch_frames)
         self.queue = InferenceQueue(detector, s, self.metrics)

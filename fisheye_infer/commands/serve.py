@@ -125,6 +125,10 @@ def _run_ray(args: argparse.Namespace, settings: Any) -> int:
     from fisheye_infer.errors import ConfigError
     from fisheye_infer.service.ray_serve import RayServeOptions, build_app
 
+    if settings.providers:
+        print("fisheye-infer serve: error: providers: the --ray replicas run on CPU (Ray reserves CPUs for them, not GPUs); "
+              "serve without --ray on a GPU", file=sys.stderr)
+        return 1
     try:
         options = RayServeOptions(replicas=args.replicas, cpus_per_replica=args.cpus_per_replica, max_batch_size=args.max_batch_size,
                                   batch_wait_ms=args.batch_wait_ms)

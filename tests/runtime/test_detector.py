@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fisheye_infer.detector import Detector
-from fisheye_infer.errors import ArtifactError, FrameError
+from fisheye_infer.errors import ArtifactError, ConfigError, FrameError, OptionError
 from fisheye_infer.nms import NmsConfig
 from fisheye_infer.rig import Rig
 from fisheye_infer.synth import Renderer, random_scene
@@ -161,5 +161,25 @@ def test_providers_default_to_cpu_and_unknown_ones_are_named(small_export) -> No
     assert with_options.info.providers == ("CPUExecutionProvider",)
     with pytest.raises(ValueError, match=r"providers: expected a provider name or a \(name, options dict\) pair, got \('CPUExecutionProvider',\)"):
         Detector(small_export.onnx, providers=[("CPUExecutionProvider",)])  # type: ignore[list-item]
+    with pytest.raises(ValueError, match="providers: 'auto' stands alone"):
+        Detector(small_export.onnx, providers=["auto", "CPUExecutionProvider"])
+
+
+def test_a_provider_that_does_not_start_is_an_error_not_a_cpu_fallback(small_export, monkeypatch: pytest.MonkeyPatch) -> None:
+    """This onnxruntime is told it has CUDA; ONNX Runtime then runs the session on the CPU (a CUDA provider
+    without a GPU or its libraries does the same): asked for by name, that is refused."""
+    import fisheye_infer.session as session
+
+    monkeypatch.setattr(session, "available_providers", lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"])
+    with pytest.warns(UserWarning), pytest.raises(ConfigError, match="ONNX Runtime did not start CUDAExecutionProvider .*runs on CPUExecutionProvider"):
+        Detector(small_export.onnx, threads=1, providers=["CUDAExecutionProvider", "CPUExecutionProvider"])
+
+
+def test_decode_threads_nest_and_are_checked(detector: Detector, small_export) -> None:
+    """map_images called from a decode thread runs there (no deadlock on a full pool)."""
+    nested = list(detector.map_images(lambda i: sum(detector.map_images(lambda j: i * j, range(4))), range(16)))
+    assert nested == [6 * i for i in range(16)]
+    with pytest.raises(OptionError, match="decode_threads: expected a positive number, got 0"):
+        Detector(small_export.onnx, decode_threads=0)
     with pytest.raises(ValueError, match="threads: expected a positive number, got 0"):
         Detector(small_export.onnx, threads=0)

@@ -98,8 +98,14 @@ def test_parallel_decoding_gives_the_sequential_result_and_first_error(arrays: l
         for map_images in (pool.map, map):
             with pytest.raises(FrameError, match="^frame 1: camera 'left': the bytes are not a decodable"):
                 load_frames(bad, CAMERAS, WH, map_images)
-    with pytest.raises(FrameError, match="^frame 1: no camera image given"):
+    with pytest.raises(FrameError, match="^frame 1: frame: no camera image given"):
         load_frames([frames[0], {}], CAMERAS, WH)
+    # a malformed frame is reported in its turn: frame 0's bad image comes first, as in a plain loop over the frames
+    for later in ([png(arrays[0])] * 3, "not a frame", 5):
+        with pytest.raises(FrameError, match="^frame 0: camera 'left': the bytes are not a decodable"):
+            load_frames([bad[1], later], CAMERAS, WH, map)
+    with pytest.raises(FrameError, match="^frame 1: frame: got 3 images, expected 4"):
+        load_frames([frames[0], [png(arrays[0])] * 3, bad[1]], CAMERAS, WH, map)
 
 
 @pytest.mark.parametrize("ext", [".png", ".jpg"])

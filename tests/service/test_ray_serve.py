@@ -98,3 +98,6 @@ def test_serve_ray_refuses_bad_options_before_starting_ray(small_model, capsys: 
 
     assert main(["serve", str(small_model), "--ray", "--replicas", "0"]) == 1
     assert "replicas: expected at least 1" in capsys.readouterr().err
+    # Ray reserves CPUs for its replicas, not GPUs: a provider choice would not reach a GPU there
+    assert main(["serve", str(small_model), "--ray", "--providers", "CPUExecutionProvider"]) == 1
+    assert "providers: the --ray replicas run on CPU" in capsys.readouterr().err
