@@ -146,12 +146,13 @@ def bench_model(path: str | Path, threads: Sequence[int] = (1, 2), batches: Sequ
 
     path = Path(path)
     frame = png_frame(path)
-    chosen = resolve_providers(providers)
-    result: dict[str, Any] = {"model": str(path), "machine": machine(), "providers": [provider_name(p) for p in chosen], "repeat": repeat,
+    asked = resolve_providers(providers)
+    result: dict[str, Any] = {"model": str(path), "machine": machine(), "providers": [provider_name(p) for p in asked], "repeat": repeat,
                               "warmup": warmup, "runs": [], "stages": {}, "peak_rss_mb": {}}
     for t in threads:
-        detector = Detector(path, threads=t, providers=chosen)
+        detector = Detector(path, threads=t, providers=providers)
         result["providers"] = list(detector.info.providers)
+        chosen: list[Provider] = list(detector.info.providers) if providers == "auto" else asked  # what "auto" started
         result["model_id"] = detector.info.model_id
         result["architecture"] = detector.info.architecture
         result["quantization"] = detector.info.meta.quantization.mode if detector.info.meta.quantization else "fp32"

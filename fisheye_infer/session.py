@@ -7,6 +7,7 @@ intra-op threads as the machine has cores unless told otherwise.
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -19,6 +20,8 @@ from fisheye_infer.errors import ArtifactError, ConfigError, InferenceError
 
 __all__ = ["PREFERRED_PROVIDERS", "Provider", "available_providers", "resolve_providers", "provider_name", "session_options", "create_session",
            "check_started", "map_ort_errors", "usable_cpus"]
+
+log = logging.getLogger("fisheye_infer")
 
 #: Accelerated providers tried in this order when ``providers="auto"``; CPU always comes last.
 PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "OpenVINOExecutionProvider", "CPUExecutionProvider")
@@ -84,14 +87,22 @@ def create_session(path: str | Path, threads: int | None = None, providers: str 
 
     Providers named explicitly must start: ONNX Runtime would otherwise fall back to the CPU (a
     CUDA provider without its libraries or a GPU) and say so only in its log. ``"auto"`` takes
-    whatever starts; ``session.get_providers()`` says what that was.
+    whatever starts, dropping from the front of its list the providers that fail (a warning
+    each); ``session.get_providers()`` says what that was.
     """
     options = session_options(threads)
     wanted = resolve_providers(providers)
-    try:
-        session = ort.InferenceSession(str(path), options, providers=wanted, enable_fallback=int(providers == "auto"))
-    except Exception as exc:  # onnxruntime raises untyped RuntimeErrors for bad files
-        raise ArtifactError(f"model {path}: ONNX Runtime cannot load it with {', '.join(map(provider_name, wanted))} ({exc})") from exc
+    while True:
+        try:
+            session = ort.InferenceSession(str(path), options, providers=wanted, enable_fallback=0)
+            break
+        except Exception as exc:  # onnxruntime raises untyped RuntimeErrors for bad files
+            if providers != "auto" or len(wanted) == 1:
+                raise ArtifactError(f"model {path}: ONNX Runtime cannot load it with {', '.join(map(provider_name, wanted))} ({exc})") from exc
+            # onnxruntime-gpu lists TensorRT whether or not its libraries are installed: try the next one
+            log.warning("providers auto: %s did not start (%s); trying %s", provider_name(wanted[0]), str(exc).strip()[:300],
+                        ", ".join(map(provider_name, wanted[1:])))
+            wanted = wanted[1:]
     if providers != "auto":
         check_started(session, wanted, f"model {path}")
     return session
