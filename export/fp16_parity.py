@@ -30,7 +30,7 @@ import onnxruntime as ort
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ParityReport, ReplayedChoice
 from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ExportError
-from fisheye_infer.session import Provider, check_started, provider_name, resolve_providers
+from fisheye_infer.session import Provider, open_session, provider_name, resolve_providers
 
 from .graph import with_outputs
 from .quantize import MATCH_RADIUS_M, MIN_TOP_MATCHED, top_matched
@@ -66,7 +66,7 @@ def _session(model: onnx.ModelProto, threads: int, providers: Sequence[Provider]
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.log_severity_level = 3
-    return ort.InferenceSession(model.SerializeToString(), options, providers=list(providers), enable_fallback=0)
+    return open_session(model.SerializeToString(), options, providers, "fp16 parity")
 
 
 def evaluated_with(providers: Sequence[Provider]) -> str:
@@ -112,8 +112,7 @@ def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray
         raise ExportError("fp16: candidate_providers: expected at least one provider")
     where = evaluated_with(providers)
     try:
-        session = _session(_with_ranking(onnx.load(str(fp16_path))), threads, resolve_providers(providers))
-        check_started(session, providers, str(fp16_path))  # no silent fallback to the CPU
+        session = _session(_with_ranking(onnx.load(str(fp16_path))), threads, resolve_providers(providers))  # no silent fallback to the CPU
         half = _run(session, frames)
     except Exception as exc:  # ORT's errors are untyped
         raise ExportError(f"fp16: ONNX Runtime ({where}) cannot run {fp16_path} ({exc}); no parity") from exc

@@ -21,7 +21,6 @@ class list against the labels the graph returns (at warm-up, and on every run).
 
 from __future__ import annotations
 
-import os
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -147,14 +146,6 @@ class FrameDetector:
         except RuntimeError:  # "cannot schedule new futures after interpreter shutdown"
             return map(fn, items)
 
-    def _decode_map(self, frames: Sequence[Frame]) -> Callable[..., Iterable[Any]]:
-        """``map_images`` when there is more than one image to decode, else the plain ``map``."""
-        encoded = 0
-        for frame in frames:  # malformed frames count as none here; load_frames names what is wrong with them
-            images = frame.values() if isinstance(frame, Mapping) else frame if isinstance(frame, Sequence) and not isinstance(frame, (str, bytes)) else ()
-            encoded += sum(isinstance(image, (bytes, bytearray, memoryview, str, os.PathLike)) for image in images)
-        return self.map_images if encoded > 1 else map
-
     def warmup(self) -> None:
         """One run on a black frame, so the first real call does not pay for allocation."""
         width, height = self.info.image_size
@@ -205,7 +196,7 @@ class FrameDetector:
         if len(frames) == 0:
             raise FrameError("frames: expected a non-empty sequence of frames")
         t0 = time.perf_counter()
-        loaded = load_frames(frames, self.info.cameras, self.info.image_size, self._decode_map(frames))
+        loaded = load_frames(frames, self.info.cameras, self.info.image_size, self.map_images)
         t1 = time.perf_counter()
         images, valid = stack_frames(loaded, self.info.image_size)
         t2 = time.perf_counter()

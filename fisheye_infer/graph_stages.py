@@ -31,7 +31,7 @@ import onnxruntime as ort
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES
 from fisheye_infer.errors import ArtifactError
 from fisheye_infer.geometry.tables import POOL_PREFIX, PREFIX, WARP
-from fisheye_infer.session import Provider
+from fisheye_infer.session import Provider, open_session
 
 __all__ = ["STAGES", "Stage", "name_nodes", "image_region", "split_stages", "time_stages"]
 
@@ -144,7 +144,7 @@ def split_stages(model: onnx.ModelProto) -> list[Stage]:
 
 
 def _session(model: onnx.ModelProto, options: ort.SessionOptions, providers: Sequence[Provider]) -> ort.InferenceSession:
-    return ort.InferenceSession(model.SerializeToString(), options, providers=list(providers), enable_fallback=0)
+    return open_session(model.SerializeToString(), options, providers, f"stage model {model.graph.name}")
 
 
 def time_stages(path: str | Path, feeds: dict[str, np.ndarray], options_for: Callable[[], ort.SessionOptions],

@@ -25,10 +25,15 @@ ImageInput = np.ndarray | bytes | bytearray | memoryview | str | os.PathLike | N
 Frame = Mapping[str, ImageInput] | Sequence[ImageInput]
 
 
+#: Images that need decoding: encoded bytes, and paths to encoded files.
+_BYTES = (bytes, bytearray, memoryview)
+_PATHS = (str, os.PathLike)
+
+
 def _to_array(image: ImageInput, camera: str, expected_wh: tuple[int, int]) -> np.ndarray:
-    if isinstance(image, (bytes, bytearray, memoryview)):
+    if isinstance(image, _BYTES):
         return decode_image(bytes(image), camera, expected_wh)
-    if isinstance(image, (str, os.PathLike)):
+    if isinstance(image, _PATHS):
         path = Path(image)
         try:
             data = path.read_bytes()
@@ -74,10 +79,11 @@ def load_frames(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple
                 ) -> list[list[np.ndarray | None]]:
     """Decode and validate several frames; errors name the frame (when there are several) and the camera.
 
-    ``map_images`` runs the per-image work: a thread pool's ``map`` decodes the images in parallel
-    (OpenCV and libjpeg-turbo release the GIL while they decode; four 800 x 800 PNGs took under a
-    third of the sequential time on a 16-core machine). Results and errors are those of the
-    sequential order either way: the first bad image in frame and camera order is reported.
+    ``map_images`` runs the per-image work when more than one image needs decoding: a thread
+    pool's ``map`` decodes them in parallel (OpenCV and libjpeg-turbo release the GIL while they
+    decode; four 800 x 800 PNGs took under a third of the sequential time on a 16-core machine).
+    Results and errors are those of the sequential order either way: the first bad image in
+    frame and camera order is reported.
     """
     def named(b: int, exc: FrameError) -> FrameError:
         return FrameError(f"frame {b}: {exc}") if len(frames) > 1 else exc
@@ -94,7 +100,8 @@ def load_frames(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple
         return None if image is None else _check_array(_to_array(image, camera, image_wh), camera, image_wh)
 
     tasks = [(camera, images.get(camera)) for images in mappings if not isinstance(images, FrameError) for camera in cameras]
-    results = iter(map_images(one, tasks))
+    encoded = sum(isinstance(image, (*_BYTES, *_PATHS)) for _, image in tasks)
+    results = iter((map_images if encoded > 1 else map)(one, tasks))
     loaded: list[list[np.ndarray | None]] = []
     for b, images in enumerate(mappings):
         if isinstance(images, FrameError):

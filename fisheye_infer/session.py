@@ -19,7 +19,7 @@ import onnxruntime as ort
 from fisheye_infer.errors import ArtifactError, ConfigError, InferenceError
 
 __all__ = ["PREFERRED_PROVIDERS", "Provider", "available_providers", "resolve_providers", "provider_name", "session_options", "create_session",
-           "check_started", "map_ort_errors", "usable_cpus"]
+           "open_session", "check_started", "map_ort_errors", "usable_cpus"]
 
 log = logging.getLogger("fisheye_infer")
 
@@ -105,6 +105,13 @@ def create_session(path: str | Path, threads: int | None = None, providers: str 
             wanted = wanted[1:]
     if providers != "auto":
         check_started(session, wanted, f"model {path}")
+    return session
+
+
+def open_session(model: str | bytes, options: ort.SessionOptions, providers: Sequence[Provider], context: str) -> ort.InferenceSession:
+    """A session on exactly ``providers`` (a path or serialized model): no fallback to the CPU (``check_started``)."""
+    session = ort.InferenceSession(model, options, providers=list(providers), enable_fallback=0)
+    check_started(session, providers, context)
     return session
 
 

@@ -98,6 +98,17 @@ def test_parallel_decoding_gives_the_sequential_result_and_first_error(arrays: l
         for map_images in (pool.map, map):
             with pytest.raises(FrameError, match="^frame 1: camera 'left': the bytes are not a decodable"):
                 load_frames(bad, CAMERAS, WH, map_images)
+    # the given map runs only when more than one image needs decoding
+    counted: list[int] = []
+
+    def counting_map(fn, items):  # type: ignore[no-untyped-def]
+        items = list(items)
+        counted.append(len(items))
+        return map(fn, items)
+
+    load_frames([[png(a) for a in arrays]], CAMERAS, WH, counting_map)
+    load_frames([arrays, [png(arrays[0]), *arrays[1:]]], CAMERAS, WH, counting_map)
+    assert counted == [4]
     with pytest.raises(FrameError, match="^frame 1: frame: no camera image given"):
         load_frames([frames[0], {}], CAMERAS, WH)
     # a malformed frame is reported in its turn: frame 0's bad image comes first, as in a plain loop over the frames
