@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/int8.py                       # the shipped compact FisheyeBEVDet, 200 held-out frames
     .venv/bin/python benchmarks/int8.py --frames 50 --repeat 10
     .venv/bin/python benchmarks/int8.py --keep-float "" --keep-float bbox_head.shared_conv,bbox_head.heatmap_head   # what may stay int8
+    .venv/bin/python benchmarks/int8.py --weight-bits 8                          # what the 7-bit weights cost
 
 1. export the checkpoint (fp32, verified) and, from that file, the int8 files of both scopes
    (``network``, the default, and ``trunk``) with the exporter's own calibration (``--calib-frames``
@@ -14,14 +15,14 @@
    a shared machine falls on all of them alike; medians and the ratio to fp32 at each thread count.
 
 Prints the CPU's name and its VNNI / AVX-512 flags: the int8 gain depends on them (u8 x s8
-dot products in one instruction with VNNI; several without). Writes ``figures.json`` to ``--out``.
+dot products in one instruction with VNNI; several without, see ``openvino_isa.py`` for the ratio
+with the instruction set capped). Writes ``figures.json`` to ``--out``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 from pathlib import Path
@@ -36,13 +37,6 @@ from fisheye_infer.bench import machine  # noqa: E402
 from fisheye_infer.detector import Detector  # noqa: E402
 from fisheye_infer.eval.dataset import Fisheye3DOD  # noqa: E402
 from fisheye_infer.preprocess import load_frame, stack_frames  # noqa: E402
-
-
-def cpu_name() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").is_file() else []:
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return platform.processor() or "unknown"
 
 
 def latency(paths: dict[str, Path], images: np.ndarray, valid: np.ndarray, threads: int, rounds: int, repeat: int) -> dict[str, float]:
@@ -63,6 +57,7 @@ def latency(paths: dict[str, Path], images: np.ndarray, valid: np.ndarray, threa
 
 def main() -> None:
     from fisheye_infer.export.exporter import export, export_int8
+    from fisheye_infer.export.quantize import WEIGHT_BITS
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     add_model_arguments(parser)
@@ -71,6 +66,8 @@ def main() -> None:
     parser.add_argument("--keep-float", action="append", default=[], metavar="MODULES",
                         help="also measure the network scope with these modules float32 instead of the architecture's "
                              "(comma-separated state-dict prefixes, '' for none; repeatable): how int8_float was chosen")
+    parser.add_argument("--weight-bits", type=int, action="append", default=[], choices=(8,),
+                        help="also measure the network scope with 8-bit weights instead of 7 (which every x86 CPU adds alike)")
     parser.add_argument("--threads", default="1,2", help="thread counts to time (default 1,2)")
     parser.add_argument("--rounds", type=int, default=5, help="alternated timing rounds (default 5)")
     parser.add_argument("--repeat", type=int, default=10, help="calls per file per round (default 10)")
@@ -79,19 +76,21 @@ def main() -> None:
 
     ckpt, config, rig = trained_model(args)
     out = Path(args.out)
-    host = {"cpu": cpu_name(), **machine()}
-    print(f"CPU: {host['cpu']}, {host['cpu_count']} cores; AVX-512: {host['avx512']}, VNNI: {host['vnni']}; onnxruntime {host['onnxruntime']}")
+    host = machine()
+    print(f"CPU: {host['cpu']}, {host['cpu_count']} cores; AVX2: {host['avx2']}, AVX-512: {host['avx512']}, VNNI: {host['vnni']}; "
+          f"onnxruntime {host['onnxruntime']}")
     data = heldout(rig, out / "heldout", args.frames, args.seed)
     fp32_path = export(ckpt, out / "model.onnx", config=config, rig=rig, progress=lambda _: None).path
     if fp32_path is None:
         raise SystemExit("the fp32 export wrote no file")
     paths: dict[str, Path] = {"fp32": fp32_path}
-    variants = [("network", "network", None), ("trunk", "trunk", None)]
-    variants += [(f"network, float: {m or 'none'}", "network", tuple(p for p in m.split(",") if p)) for m in args.keep_float]
-    for i, (name, scope, keep_float) in enumerate(variants):
+    variants = [("network", "network", None, WEIGHT_BITS), ("trunk", "trunk", None, WEIGHT_BITS)]
+    variants += [(f"network, float: {m or 'none'}", "network", tuple(p for p in m.split(",") if p), WEIGHT_BITS) for m in args.keep_float]
+    variants += [(f"network, {bits}-bit weights", "network", None, bits) for bits in args.weight_bits]
+    for i, (name, scope, keep_float, bits) in enumerate(variants):
         t0 = time.perf_counter()
         result = export_int8(fp32_path, out / f"model.int8-{i}.onnx", scope=scope, keep_float=keep_float, calib_frames=args.calib_frames,
-                             calib_images=args.calib_images, force=True, progress=lambda _: None)
+                             calib_images=args.calib_images, force=True, weight_bits=bits, progress=lambda _: None)
         if result.path is None:
             raise SystemExit(f"int8 {name}: no file written")
         paths[name] = result.path

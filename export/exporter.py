@@ -38,7 +38,7 @@ from fisheye_infer.synth import Renderer, random_scene
 from .fp16 import to_float16
 from .fp16_parity import fp16_parity
 from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata, without_outputs
-from .quantize import MIN_TOP_MATCHED, SCOPES, FrameReader, architecture_float, int8_parity, int8_path_for, quantize, quantized_scope
+from .quantize import MIN_TOP_MATCHED, SCOPES, WEIGHT_BITS, FrameReader, architecture_float, int8_parity, int8_path_for, quantize, quantized_scope
 from .tensorrt_check import check_tensorrt
 from .trace import OPSET, trace_to_onnx
 from .verify import verify
@@ -71,7 +71,8 @@ class Int8Result(ReducedResult):
 
     def summary(self) -> str:
         p, q = self.parity, self.meta.quantization
-        how = f"{q.mode}, {q.scope}, calibrated on {q.calibration_frames} frame(s)" if q is not None else "not quantized"
+        how = (f"{q.mode}, {q.scope}, {q.weight_bits}-bit weights, calibrated on {q.calibration_frames} frame(s)" if q is not None
+               else "not quantized")
         return "\n".join([
             f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
             f"int8 vs the fp32 ONNX file on {p.frames} frames: {p.top_matched_fraction:.1%} of the top-50 boxes matched within "
@@ -460,10 +461,12 @@ def export_int8(
     verify_images: str | Path | None = None,
     threads: int = 2,
     force: bool = False,
+    weight_bits: int = WEIGHT_BITS,
     progress: Callable[[str], None] = print,
 ) -> Int8Result:
     """A verified fp32 file -> its static-QDQ int8 file over ``scope`` (``quantize.SCOPES``); see ``quantize``.
-    ``keep_float``: modules left float32 (default: the architecture's ``int8_float``).
+    ``keep_float``: modules left float32 (default: the architecture's ``int8_float``). ``weight_bits``: 7,
+    or 8 only to measure what 7 costs (``quantize.WEIGHT_BITS`` says why).
 
     Calibration: ``calib_frames`` seeded synthetic renders of the file's own rig (seeds from
     ``CALIBRATION_SEED``, disjoint from the verification seeds) plus the user's frames from
@@ -480,15 +483,15 @@ def export_int8(
     calibration = verification_frames(meta.rig, calib_frames, seed=CALIBRATION_SEED, images=calib_images)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.q.tmp")
     try:
-        progress(f"int8 [2/3] static QDQ quantization, scope {scope} (U8 activations, S8 per-channel weights)")
+        progress(f"int8 [2/3] static QDQ quantization, scope {scope} (U8 activations, S8 per-channel {weight_bits}-bit weights)")
         chosen_by = "the architecture's int8_float" if keep_float is None else "asked for at export"
         keep_float = architecture_float(src) if keep_float is None else tuple(keep_float)
-        quantize(src, tmp, FrameReader(calibration), scope=scope, keep_float=keep_float)
+        quantize(src, tmp, FrameReader(calibration), scope=scope, keep_float=keep_float, weight_bits=weight_bits)
         proto = onnx.load(str(tmp))
         covered = quantized_scope(onnx.load(str(src), load_external_data=False), scope, keep_float, chosen_by)
         batch = _comparison_frames(meta, frames, verify_images, "int8 [3/3]", progress)
         parity = int8_parity(src, tmp, batch, threads=threads)
-        quantization = Quantization(mode="int8-qdq", scope=covered, calibration_frames=len(calibration))
+        quantization = Quantization(mode="int8-qdq", scope=covered, calibration_frames=len(calibration), weight_bits=weight_bits)
         written, quant_meta = _write_reduced(proto, meta, parity, quantization, tmp, out, force)
     finally:
         tmp.unlink(missing_ok=True)

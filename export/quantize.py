@@ -19,7 +19,8 @@ works, and their errors are metres), products of two activations (attention scor
 layer norms and the box decoding, and the modules an architecture names in ``int8_float`` (where
 quantizing was measured to cost accuracy: FisheyeBEVDet's TransFusion head but its shared
 convolution and the first convolution of its heatmap branch). U8 activations (percentile ranges
-over the calibration frames), S8 weights per output channel.
+over the calibration frames), S8 weights per output channel in 7 bits (``WEIGHT_BITS``), so that
+every x86 CPU computes the same integers.
 
 Before quantizing, layers that become int8 are rewritten into forms ONNX Runtime runs faster in
 int8 and that compute the same sums (``int8_rewrites``: the stem over 2x2 blocks, ConvTranspose
@@ -59,8 +60,9 @@ from .int8_rewrites import after_quantization, before_quantization
 from .trace import TRACE_ROOT
 from .verify import run_onnx
 
-__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "FrameReader", "architecture_float", "image_region",
-           "int8_nodes", "int8_parity", "int8_path_for", "module_of", "quantize", "quantized_scope", "top_matched"]
+__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader",
+           "architecture_float", "check_weight_range", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "module_of",
+           "quantize", "quantized_scope", "top_matched"]
 
 #: QuantizeLinear / DequantizeLinear: what a QDQ model adds, and what must stay inside the region.
 QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
@@ -69,6 +71,20 @@ QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
 #: trained compact FisheyeBEVDet, 92.6% of the fp32 top-50 boxes kept instead of 90.2% with the
 #: plain min/max, and FDS 0.002 closer.
 CALIBRATION_PERCENTILE = 99.99
+
+#: Weights are quantized to 7 bits, [-64, 64], not to [-127, 127]. On x86 CPUs without VNNI (AVX2
+#: only, or AVX-512 before Cascade Lake) ONNX Runtime's u8 x s8 kernels multiply with vpmaddubsw,
+#: which adds each pair of neighbouring products in int16 and saturates: 255 x 127 x 2 = 64,770 does
+#: not fit, 255 x 64 x 2 = 32,640 does. So with 7 bits every x86 CPU computes the same integers as
+#: the machine that verified the file. With 8 bits, on the shipped compact FisheyeBEVDet, a third of
+#: the stem's outputs (the image's pixels times the first layer's weights) and up to 1% of other
+#: layers' would saturate on such a CPU (``benchmarks/int8_saturation.py``), while on a VNNI CPU,
+#: whose vpdpbusd adds in int32, 7 bits keep as many of the fp32 top-50 boxes as 8
+#: (``benchmarks/int8.py --weight-bits 8``).
+WEIGHT_BITS = 7
+#: The largest weight magnitude for each number of weight bits ONNX Runtime's quantizer writes
+#: (symmetric int8, and its ``reduce_range``).
+WEIGHT_QMAX = {7: 64, 8: 127}
 
 #: What ``int8_nodes`` may cover: ``network`` (trunk + every weighted layer beyond it) or ``trunk``.
 SCOPES = ("network", "trunk")
@@ -228,17 +244,21 @@ def architecture_float(model_path: str | Path) -> tuple[str, ...]:
 
 
 def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, scope: str = "network",
-             keep_float: Sequence[str] | None = None, per_channel: bool = True) -> Path:
+             keep_float: Sequence[str] | None = None, per_channel: bool = True, weight_bits: int = WEIGHT_BITS) -> Path:
     """Static QDQ quantization of ``onnx_path``'s ``int8_nodes(scope, keep_float)`` into ``out``; returns ``out``.
     ``keep_float`` defaults to the file's architecture's (``architecture_float``).
 
     U8 activations (ranges: the ``CALIBRATION_PERCENTILE`` of each tensor's values over the reader's
     frames; ORT records the tensors of every node whose op type is quantized, which is why
-    ``int8_nodes`` leaves data movement out), S8 weights (per output channel by default). Only the
+    ``int8_nodes`` leaves data movement out), S8 weights of ``weight_bits`` bits (per output channel by
+    default; ``check_weight_range`` holds the written file to them; 8 only to measure what 7 costs, since
+    such a file can give other boxes on CPUs without VNNI). Only the
     chosen nodes get QDQ pairs; every other node, initializer and the metadata are carried over unchanged (the
     exporter then replaces the metadata with the int8 parity report).
     """
     src, out = Path(onnx_path), Path(out)
+    if weight_bits not in WEIGHT_QMAX:
+        raise ExportError(f"int8: weight_bits {weight_bits}: expected one of {sorted(WEIGHT_QMAX)}")
     if src.resolve() == out.resolve():
         raise ExportError(f"int8: output {out} is the input file; the input is never modified")
     keep_float = architecture_float(src) if keep_float is None else tuple(keep_float)
@@ -264,6 +284,7 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
                     activation_type=QuantType.QUInt8,
                     weight_type=QuantType.QInt8,
                     per_channel=per_channel,
+                    reduce_range=weight_bits == 7,  # the weights' range only; activations keep 8 bits
                     calibrate_method=CalibrationMethod.Percentile,
                     extra_options={"WeightSymmetric": True, "ActivationSymmetric": False, "CalibPercentile": CALIBRATION_PERCENTILE,
                                    "CalibStridedMinMax": 1},  # frame by frame: see FrameReader
@@ -274,6 +295,7 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
             logging.getLogger().setLevel(level)
         result = onnx.load(str(quantized))
     after_quantization(result)
+    check_weight_range(result, weight_bits)
     del result.metadata_props[:]
     result.metadata_props.extend(model.metadata_props)
     del result.graph.value_info[:]
@@ -289,6 +311,24 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
     finally:
         tmp_out.unlink(missing_ok=True)
     return out
+
+
+def check_weight_range(model: onnx.ModelProto, weight_bits: int = WEIGHT_BITS) -> None:
+    """Every int8 weight a ``DequantizeLinear`` reads from an initializer lies within +-``WEIGHT_QMAX[weight_bits]``,
+    with zero point 0; an ``ExportError`` names the first that does not (why: ``WEIGHT_BITS``)."""
+    qmax = WEIGHT_QMAX[weight_bits]
+    initializers = {i.name: i for i in model.graph.initializer}
+    for node in model.graph.node:
+        if node.op_type != "DequantizeLinear" or node.input[0] not in initializers:
+            continue
+        if initializers[node.input[0]].data_type != onnx.TensorProto.INT8:
+            continue
+        values = numpy_helper.to_array(initializers[node.input[0]]).astype(np.int32)
+        zero = (numpy_helper.to_array(initializers[node.input[2]]).astype(np.int32)
+                if len(node.input) > 2 and node.input[2] in initializers else np.zeros(1, np.int32))
+        if values.size and (np.abs(values).max() > qmax or np.any(zero != 0)):
+            raise ExportError(f"int8: weight {node.input[0]} spans [{values.min()}, {values.max()}] with zero point "
+                              f"{sorted(set(zero.ravel().tolist()))[:3]}; expected {weight_bits}-bit weights, [-{qmax}, {qmax}] around 0")
 
 
 # -- evidence: int8 boxes against the fp32 file's ------------------------------------------------

@@ -115,6 +115,9 @@ class Quantization(_Model):
     mode: Literal["int8-qdq", "fp16"]
     scope: str
     calibration_frames: int = 0  # int8 only
+    #: int8: the weights' bits. 7 keeps u8 x s8 pair sums within int16, so CPUs without VNNI compute what
+    #: VNNI computes (``export.quantize.WEIGHT_QMAX``); None in int8 files written before it was recorded (8 bits).
+    weight_bits: int | None = None
 
 
 class TensorRTFinding(_Model):

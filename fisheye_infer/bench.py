@@ -17,7 +17,6 @@ compares them with PyTorch, OpenVINO, the machine's GEMM throughput and the issu
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import platform
@@ -32,6 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from fisheye_infer.cpu import cpu_info
 from fisheye_infer.session import Provider
 
 __all__ = ["bench_model", "format_table", "png_frame", "stats", "peak_rss_mb"]
@@ -114,14 +114,9 @@ def _own_peak_rss_mb() -> float:
 def machine() -> dict[str, Any]:
     import onnxruntime as ort
 
-    flags, cpu = "", ""
-    with contextlib.suppress(OSError, IndexError):  # not Linux, or no flags line
-        info = Path("/proc/cpuinfo").read_text()
-        flags = info.split("flags", 1)[1].split("\n", 1)[0]
-        cpu = info.split("model name", 1)[1].split(":", 1)[1].split("\n", 1)[0].strip()
-    return {"cpu": cpu, "cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-            "onnxruntime": ort.__version__, "avx512": "avx512f" in flags, "vnni": "avx512_vnni" in flags or "avx_vnni" in flags,
-            "gpus": _nvidia_gpus()}
+    cpu = cpu_info()
+    return {"cpu": cpu.name, "cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
+            "onnxruntime": ort.__version__, "avx512": cpu.avx512, "vnni": cpu.vnni, "avx2": "avx2" in cpu.flags, "gpus": _nvidia_gpus()}
 
 
 def _nvidia_gpus() -> list[str]:

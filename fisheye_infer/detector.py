@@ -32,13 +32,14 @@ from typing import Any
 import numpy as np
 
 from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, METADATA_KEY, OUTPUTS, ArtifactMeta, parse_meta
+from fisheye_infer.cpu import cpu_info, int8_saturation_warning
 from fisheye_infer.detections import Detections
 from fisheye_infer.errors import ArtifactError, FrameError, OptionError
 from fisheye_infer.nms import NmsConfig
 from fisheye_infer.options import check_classes, check_nms, check_score_threshold
 from fisheye_infer.preprocess import Frame, load_frames, stack_frames
 from fisheye_infer.rig import Rig
-from fisheye_infer.session import Provider, create_session, map_ort_errors, usable_cpus
+from fisheye_infer.session import Provider, create_session, log, map_ort_errors, usable_cpus
 
 __all__ = ["Detector", "DetectorInfo", "FrameDetector", "check_interface", "check_output_shapes", "describe"]
 
@@ -246,6 +247,8 @@ class Detector(FrameDetector):
         check_interface({i.name: i.shape for i in self._session.get_inputs()}, [o.name for o in self._session.get_outputs()], meta, f"model {self.path}")
         check_output_shapes({o.name: o.shape for o in self._session.get_outputs()}, meta, f"model {self.path}")
         super().__init__(describe(meta, self._session.get_providers()), score_threshold=score_threshold, nms=nms, decode_threads=decode_threads)
+        if (saturation := int8_saturation_warning(meta, self._session.get_providers(), cpu_info())) is not None:
+            log.warning(saturation)
         if warmup:
             self.warmup()
 

@@ -26,7 +26,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=2, help="seeded synthetic frames for the parity check (default 2)")
     parser.add_argument("--force", action="store_true", help="keep the file even when parity fails")
     parser.add_argument("--allow-pickle", action="store_true", help="load a checkpoint that needs pickle (only from a source you trust)")
-    int8 = parser.add_argument_group("int8", "static QDQ quantization (U8 activations, S8 per-channel weights); geometry, pooling, "
+    int8 = parser.add_argument_group("int8", "static QDQ quantization (U8 activations, S8 per-channel 7-bit weights); geometry, pooling, "
                                      "attention products, softmax, norms and box decoding stay float32")
     int8.add_argument("--int8", action="store_true",
                       help="after the fp32 file is verified, also write an int8 file next to it: --out model.onnx -> model.int8.onnx "

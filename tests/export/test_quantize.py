@@ -12,18 +12,22 @@ from onnx import numpy_helper
 
 pytest.importorskip("torch")
 
-from fisheye_infer.artifact import read_meta
+from fisheye_infer.artifact import Quantization, read_meta
 from fisheye_infer.cli import main
+from fisheye_infer.cpu import CpuInfo, int8_saturation_warning
 from fisheye_infer.detector import Detector
 from fisheye_infer.errors import ExportError, ParityError
 from fisheye_infer.export import exporter as exporter_module
 from fisheye_infer.export.exporter import Int8Result, export, export_int8
+from fisheye_infer.export.graph import save_model, set_metadata
 from fisheye_infer.export.int8_rewrites import before_quantization
 from fisheye_infer.export.quantize import (
     QUANT_OPS,
+    WEIGHT_QMAX,
     WEIGHTED_OPS,
     FrameReader,
     architecture_float,
+    check_weight_range,
     image_region,
     int8_nodes,
     int8_path_for,
@@ -340,3 +344,88 @@ def test_full_bevdet_quantizes_its_network(bevdet_export, tmp_path: Path) -> Non
     layers = _int8_layers(model)
     assert len(layers & region) >= 20 and len(layers - region) >= 8  # trunk, and the depth net, BEV encoder and neck
     assert Detector(result.path, threads=2).info.meta.parity.reference == "fp32-onnx"
+
+
+# -- 7-bit weights: the same integers on CPUs with and without VNNI ----------------------------------
+
+AVX2_ONLY = CpuInfo("an AVX2-only CPU", frozenset({"sse2", "avx", "avx2", "fma"}))
+WITH_VNNI = CpuInfo("a VNNI CPU", frozenset({"sse2", "avx2", "avx512f", "avx512_vnni"}))
+
+
+def _int8_weights(model: onnx.ModelProto) -> list[np.ndarray]:
+    inits = {i.name: i for i in model.graph.initializer}
+    return [numpy_helper.to_array(inits[n.input[0]]) for n in model.graph.node
+            if n.op_type == "DequantizeLinear" and n.input[0] in inits and inits[n.input[0]].data_type == onnx.TensorProto.INT8]
+
+
+def test_int8_weights_are_7_bit_so_pairs_of_products_fit_int16(small_int8: Int8Result) -> None:
+    """vpmaddubsw (x86 without VNNI) adds two u8 x s8 products in saturating int16: 2 x 255 x 64 fits, 2 x 255 x 127 does not."""
+    model = onnx.load(str(small_int8.path))
+    weights = _int8_weights(model)
+    assert len(weights) == len(_int8_layers(model))
+    assert max(int(np.abs(w.astype(np.int32)).max()) for w in weights) == WEIGHT_QMAX[7] == 64  # the 7-bit range, used to its end
+    assert 2 * 255 * WEIGHT_QMAX[7] <= np.iinfo(np.int16).max < 2 * 255 * WEIGHT_QMAX[8]
+    assert small_int8.meta.quantization is not None and small_int8.meta.quantization.weight_bits == 7
+    assert read_meta(small_int8.path).quantization == small_int8.meta.quantization
+    assert "7-bit weights" in small_int8.summary()
+
+
+def _dequantize_graph(weight: np.ndarray, zero_point: np.ndarray) -> onnx.ModelProto:
+    inits = [numpy_helper.from_array(weight, "conv.weight_quantized"), numpy_helper.from_array(np.ones(len(weight), np.float32), "s"),
+             numpy_helper.from_array(zero_point, "zp")]
+    node = onnx.helper.make_node("DequantizeLinear", ["conv.weight_quantized", "s", "zp"], ["w"], axis=0)
+    out = onnx.helper.make_tensor_value_info("w", onnx.TensorProto.FLOAT, list(weight.shape))
+    return onnx.helper.make_model(onnx.helper.make_graph([node], "g", [], [out], inits))
+
+
+def test_check_weight_range_names_a_weight_beyond_7_bits() -> None:
+    check_weight_range(_dequantize_graph(np.array([[64, -64], [3, 0]], np.int8), np.zeros(2, np.int8)))
+    with pytest.raises(ExportError, match=r"conv.weight_quantized spans \[-100, 3\].*expected 7-bit weights, \[-64, 64\]"):
+        check_weight_range(_dequantize_graph(np.array([[1, -100], [3, 0]], np.int8), np.zeros(2, np.int8)))
+    check_weight_range(_dequantize_graph(np.array([[1, -100], [3, 0]], np.int8), np.zeros(2, np.int8)), weight_bits=8)
+    with pytest.raises(ExportError, match=r"zero point \[0, 5\]"):
+        check_weight_range(_dequantize_graph(np.array([[1, -10], [3, 0]], np.int8), np.array([0, 5], np.int8)))
+
+
+def test_8_bit_weights_on_request(small_export, tmp_path: Path) -> None:
+    result = export_int8(small_export.onnx, tmp_path / "m.int8.onnx", calib_frames=1, frames=1, force=True, weight_bits=8,
+                         progress=lambda _: None)
+    assert result.path is not None and result.meta.quantization is not None and result.meta.quantization.weight_bits == 8
+    assert max(int(np.abs(w.astype(np.int32)).max()) for w in _int8_weights(onnx.load(str(result.path)))) == WEIGHT_QMAX[8]
+    with pytest.raises(ExportError, match="weight_bits 6"):
+        export_int8(small_export.onnx, tmp_path / "n.int8.onnx", calib_frames=1, frames=1, force=True, weight_bits=6, progress=lambda _: None)
+
+
+def test_saturation_warning_only_for_8_bit_int8_files_on_x86_without_vnni(small_int8: Int8Result) -> None:
+    meta = small_int8.meta
+    assert meta.quantization is not None
+    old = meta.model_copy(update={"quantization": meta.quantization.model_copy(update={"weight_bits": None})})
+    cpu = ["CPUExecutionProvider"]
+    message = int8_saturation_warning(old, cpu, AVX2_ONLY)
+    assert message is not None and "8-bit weights" in message and "without VNNI" in message and "export" in message
+    assert int8_saturation_warning(meta, cpu, AVX2_ONLY) is None  # 7-bit weights never saturate
+    assert int8_saturation_warning(old, cpu, WITH_VNNI) is None
+    assert int8_saturation_warning(old, ["CUDAExecutionProvider", "CPUExecutionProvider"], AVX2_ONLY) is None
+    assert int8_saturation_warning(old, cpu, CpuInfo("an Arm CPU", frozenset())) is None  # flags unknown: nothing said
+    fp32 = meta.model_copy(update={"quantization": None})
+    assert int8_saturation_warning(fp32, cpu, AVX2_ONLY) is None
+    half = meta.model_copy(update={"quantization": Quantization(mode="fp16", scope="network")})
+    assert int8_saturation_warning(half, cpu, AVX2_ONLY) is None
+
+
+def test_detector_warns_about_an_8_bit_int8_file_on_a_cpu_without_vnni(small_int8: Int8Result, tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """Files written before weights were limited to 7 bits record no ``weight_bits``; this machine's CPU stands in for one without VNNI."""
+    meta = small_int8.meta
+    assert meta.quantization is not None
+    proto = onnx.load(str(small_int8.path))
+    set_metadata(proto, meta.model_copy(update={"quantization": meta.quantization.model_copy(update={"weight_bits": None})}))
+    old = save_model(proto, tmp_path / "old.int8.onnx")
+    import fisheye_infer.detector as detector_module
+
+    monkeypatch.setattr(detector_module, "cpu_info", lambda: AVX2_ONLY)
+    with caplog.at_level("WARNING", logger="fisheye_infer"):
+        Detector(old, threads=1, warmup=False)
+        Detector(small_int8.path, threads=1, warmup=False)
+    warnings = [r.getMessage() for r in caplog.records if "VNNI" in r.getMessage()]
+    assert len(warnings) == 1 and meta.model_id in warnings[0]  # the 8-bit file only

@@ -1,0 +1,129 @@
+"""Would an int8 file give other boxes on an x86 CPU without VNNI? Its int16 pair saturation, counted.
+
+    .venv/bin/python benchmarks/int8_saturation.py model.int8.onnx [--frames 2]
+
+Without VNNI (AVX2 only, or AVX-512 before Cascade Lake) ONNX Runtime multiplies u8 activations by
+s8 weights with ``vpmaddubsw``, which adds the products of two neighbouring input channels (at one
+kernel tap of an NHWC convolution; two neighbouring rows of a MatMul's weight) in int16 and
+saturates; VNNI's ``vpdpbusd`` adds in int32. This script runs the file on ``--frames`` seeded
+renders of its own rig, reads the u8 input of every int8 convolution and MatMul, and counts the
+outputs for which at least one pair leaves [-32768, 32767]. The export's 7-bit weights
+(``export.quantize.WEIGHT_BITS``) make that impossible (2 x 255 x 64 = 32,640), so such a file prints
+zero everywhere; files with 8-bit weights (``benchmarks/int8.py --weight-bits 8``, or written before
+7 bits) show where the CPUs disagree.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import torch
+import torch.nn.functional as F
+from onnx import helper, numpy_helper
+
+from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, read_meta
+from fisheye_infer.export.exporter import verification_frames
+
+INT16 = (-32768, 32767)
+
+
+@dataclass
+class Layer:
+    node: onnx.NodeProto
+    activation: str  # the u8 tensor the layer's DequantizeLinear reads
+    weight: torch.Tensor  # int8 values as float (exact)
+    outputs: int = 0
+    saturated: int = 0
+
+
+def int8_layers(model: onnx.ModelProto) -> list[Layer]:
+    """Convolutions and MatMuls whose input and weight both come out of a DequantizeLinear (u8 activation, int8 initializer)."""
+    inits = {i.name: i for i in model.graph.initializer}
+    producer = {out: n for n in model.graph.node for out in n.output}
+    layers = []
+    for node in model.graph.node:
+        if node.op_type not in ("Conv", "MatMul") or len(node.input) < 2:
+            continue
+        x, w = producer.get(node.input[0]), producer.get(node.input[1])
+        if x is None or w is None or x.op_type != w.op_type or x.op_type != "DequantizeLinear" or w.input[0] not in inits:
+            continue
+        if inits[w.input[0]].data_type != onnx.TensorProto.INT8:
+            continue
+        layers.append(Layer(node, x.input[0], torch.from_numpy(numpy_helper.to_array(inits[w.input[0]]).astype(np.float32))))
+    return layers
+
+
+def _attribute(node: onnx.NodeProto, name: str, default: Any) -> Any:
+    return next((helper.get_attribute_value(a) for a in node.attribute if a.name == name), default)
+
+
+def saturated_outputs(layer: Layer, activation: np.ndarray) -> tuple[int, int]:
+    """(outputs with at least one saturated pair, outputs) of one layer on one input."""
+    a = torch.from_numpy(activation.astype(np.float32))
+    if layer.node.op_type == "MatMul":  # (..., K) x (K, N): pairs of neighbouring k
+        k, n = layer.weight.shape
+        rows = a.reshape(-1, k // 2, 2)
+        w = layer.weight[: k // 2 * 2].reshape(k // 2, 2, n)
+        hit = torch.zeros(rows.shape[0], n, dtype=torch.bool)
+        for j in range(k // 2):
+            pair = rows[:, j, 0, None] * w[j, 0] + rows[:, j, 1, None] * w[j, 1]
+            hit |= (pair < INT16[0]) | (pair > INT16[1])
+        return int(hit.sum()), hit.numel()
+    cout, cin, kh, kw = layer.weight.shape
+    if _attribute(layer.node, "group", 1) != 1:
+        return 0, 0  # grouped convolutions: not in these models
+    pads = _attribute(layer.node, "pads", [0, 0, 0, 0])
+    a = F.pad(a, (pads[1], pads[3], pads[0], pads[2]))
+    cols = F.unfold(a, (kh, kw), dilation=_attribute(layer.node, "dilations", [1, 1]), stride=_attribute(layer.node, "strides", [1, 1]))
+    cols = cols.view(a.shape[0], cin, kh * kw, -1)[:, : cin // 2 * 2].view(a.shape[0], cin // 2, 2, kh * kw, -1)
+    w = layer.weight[:, : cin // 2 * 2].reshape(cout, cin // 2, 2, kh * kw)
+    reachable = 255 * (w[:, :, 0].abs() + w[:, :, 1].abs()) > INT16[1]  # only these (channel, pair, tap) can saturate
+    hit = torch.zeros(a.shape[0], cout, cols.shape[-1], dtype=torch.bool)
+    for c in torch.nonzero(reachable.flatten(1).any(dim=1)).flatten().tolist():
+        pair = cols[:, :, 0] * w[c, :, 0, :, None] + cols[:, :, 1] * w[c, :, 1, :, None]
+        hit[:, c] = ((pair < INT16[0]) | (pair > INT16[1])).flatten(1, 2).any(dim=1)
+    return int(hit.sum()), hit.numel()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("model", help="an int8 file written by fisheye-infer export --int8")
+    parser.add_argument("--frames", type=int, default=2, help="seeded renders of the file's rig (default 2)")
+    args = parser.parse_args()
+    meta = read_meta(args.model)
+    model = onnx.load(args.model)
+    layers = int8_layers(model)
+    if not layers:
+        raise SystemExit(f"{args.model}: no int8 convolution or MatMul (is it an int8 file?)")
+    print(f"{args.model}: {len(layers)} int8 layers, weights up to |{max(int(layer.weight.abs().max()) for layer in layers)}|, "
+          f"recorded weight bits: {meta.quantization.weight_bits if meta.quantization else None}")
+    del model.graph.output[:]
+    for name in sorted({layer.activation for layer in layers}):
+        model.graph.output.append(helper.make_empty_tensor_value_info(name))
+    options = ort.SessionOptions()
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL  # the QDQ graph as written: its u8 tensors exist
+    session = ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
+    names = [o.name for o in session.get_outputs()]
+    frames = verification_frames(meta.rig, args.frames)
+    for frame in frames:
+        values = dict(zip(names, session.run(names, {INPUT_IMAGES: frame[None], INPUT_CAMERA_VALID: np.ones((1, len(meta.cameras)), bool)})))
+        for layer in layers:
+            hit, total = saturated_outputs(layer, values[layer.activation])
+            layer.saturated += hit
+            layer.outputs += total
+    total = sum(layer.outputs for layer in layers)
+    hits = sum(layer.saturated for layer in layers)
+    print(f"\noutputs with a saturated int16 pair on {len(frames)} frame(s): {hits:,} of {total:,} ({hits / max(total, 1):.2%})\n")
+    print("| layer | weight | outputs saturated |\n|---|---|---|")
+    for layer in sorted(layers, key=lambda x: -x.saturated / max(x.outputs, 1)):
+        if layer.saturated:
+            print(f"| {layer.node.name} | {tuple(layer.weight.shape)} | {layer.saturated / layer.outputs:.2%} |")
+
+
+if __name__ == "__main__":
+    main()
