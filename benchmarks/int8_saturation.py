@@ -1,13 +1,17 @@
 """Would an int8 file give other boxes on an x86 CPU without VNNI? Its int16 pair saturation, counted.
 
-    .venv/bin/python benchmarks/int8_saturation.py model.int8.onnx [--frames 2]
+    .venv/bin/python benchmarks/int8_saturation.py model.int8.onnx [--frames 1]
 
 Without VNNI (AVX2 only, or AVX-512 before Cascade Lake) ONNX Runtime multiplies u8 activations by
 s8 weights with ``vpmaddubsw``, which adds the products of two neighbouring input channels (at one
 kernel tap of an NHWC convolution; two neighbouring rows of a MatMul's weight) in int16 and
 saturates; VNNI's ``vpdpbusd`` adds in int32. This script runs the file on ``--frames`` seeded
-renders of its own rig, reads the u8 input of every int8 convolution and MatMul, and counts the
-outputs for which at least one pair leaves [-32768, 32767]. The export's 7-bit weights
+renders of its own rig, reads the u8 input of every int8 convolution and MatMul of the QDQ graph
+(ONNX Runtime fuses each into a QLinearConv or QLinearMatMul in the detectors' files), and counts
+the outputs for which at least one pair leaves [-32768, 32767]. Pairs are taken as the kernels
+take them: neighbouring input channels at one kernel tap (tap by tap, channel by channel, when the
+channel count is odd), neighbouring rows of a MatMul's weight. Grouped convolutions and Gemm are
+listed, not counted. The export's 7-bit weights
 (``export.quantize.WEIGHT_BITS``) make that impossible (2 x 255 x 64 = 32,640), so such a file prints
 zero everywhere; files with 8-bit weights (``benchmarks/int8.py --weight-bits 8``, or written before
 7 bits) show where the CPUs disagree.
@@ -36,26 +40,32 @@ INT16 = (-32768, 32767)
 class Layer:
     node: onnx.NodeProto
     activation: str  # the u8 tensor the layer's DequantizeLinear reads
+    zero_point: int  # its zero point: what an int8 convolution pads with
     weight: torch.Tensor  # int8 values as float (exact)
     outputs: int = 0
     saturated: int = 0
 
 
-def int8_layers(model: onnx.ModelProto) -> list[Layer]:
-    """Convolutions and MatMuls whose input and weight both come out of a DequantizeLinear (u8 activation, int8 initializer)."""
+def int8_layers(model: onnx.ModelProto) -> tuple[list[Layer], list[str]]:
+    """Convolutions and MatMuls whose input and weight both come out of a DequantizeLinear (u8 activation, int8
+    initializer), and the names of the quantized layers this script does not model (Gemm, grouped convolutions)."""
     inits = {i.name: i for i in model.graph.initializer}
     producer = {out: n for n in model.graph.node for out in n.output}
-    layers = []
+    layers, skipped = [], []
     for node in model.graph.node:
-        if node.op_type not in ("Conv", "MatMul") or len(node.input) < 2:
+        if node.op_type not in ("Conv", "MatMul", "Gemm") or len(node.input) < 2:
             continue
         x, w = producer.get(node.input[0]), producer.get(node.input[1])
         if x is None or w is None or x.op_type != w.op_type or x.op_type != "DequantizeLinear" or w.input[0] not in inits:
             continue
         if inits[w.input[0]].data_type != onnx.TensorProto.INT8:
             continue
-        layers.append(Layer(node, x.input[0], torch.from_numpy(numpy_helper.to_array(inits[w.input[0]]).astype(np.float32))))
-    return layers
+        if node.op_type == "Gemm" or _attribute(node, "group", 1) != 1:
+            skipped.append(node.name)
+            continue
+        zero = int(numpy_helper.to_array(inits[x.input[2]]).ravel()[0]) if len(x.input) > 2 and x.input[2] in inits else 0
+        layers.append(Layer(node, x.input[0], zero, torch.from_numpy(numpy_helper.to_array(inits[w.input[0]]).astype(np.float32))))
+    return layers, skipped
 
 
 def _attribute(node: onnx.NodeProto, name: str, default: Any) -> Any:
@@ -67,7 +77,7 @@ def saturated_outputs(layer: Layer, activation: np.ndarray) -> tuple[int, int]:
     a = torch.from_numpy(activation.astype(np.float32))
     if layer.node.op_type == "MatMul":  # (..., K) x (K, N): pairs of neighbouring k
         k, n = layer.weight.shape
-        rows = a.reshape(-1, k // 2, 2)
+        rows = a.reshape(-1, k)[:, : k // 2 * 2].reshape(-1, k // 2, 2)
         w = layer.weight[: k // 2 * 2].reshape(k // 2, 2, n)
         hit = torch.zeros(rows.shape[0], n, dtype=torch.bool)
         for j in range(k // 2):
@@ -75,13 +85,18 @@ def saturated_outputs(layer: Layer, activation: np.ndarray) -> tuple[int, int]:
             hit |= (pair < INT16[0]) | (pair > INT16[1])
         return int(hit.sum()), hit.numel()
     cout, cin, kh, kw = layer.weight.shape
-    if _attribute(layer.node, "group", 1) != 1:
-        return 0, 0  # grouped convolutions: not in these models
     pads = _attribute(layer.node, "pads", [0, 0, 0, 0])
-    a = F.pad(a, (pads[1], pads[3], pads[0], pads[2]))
+    a = F.pad(a, (pads[1], pads[3], pads[0], pads[2]), value=float(layer.zero_point))
     cols = F.unfold(a, (kh, kw), dilation=_attribute(layer.node, "dilations", [1, 1]), stride=_attribute(layer.node, "strides", [1, 1]))
-    cols = cols.view(a.shape[0], cin, kh * kw, -1)[:, : cin // 2 * 2].view(a.shape[0], cin // 2, 2, kh * kw, -1)
-    w = layer.weight[:, : cin // 2 * 2].reshape(cout, cin // 2, 2, kh * kw)
+    cols = cols.view(a.shape[0], cin, kh * kw, -1)
+    w = layer.weight.reshape(cout, cin, kh * kw)
+    if cin % 2:  # im2col, then a GEMM over (tap, channel): pairs run across taps; one pair position per "tap" below
+        k = cin * kh * kw // 2 * 2
+        cols = cols.transpose(1, 2).reshape(a.shape[0], -1, cols.shape[-1])[:, :k].reshape(a.shape[0], k // 2, 2, 1, -1)
+        w = w.transpose(1, 2).reshape(cout, -1)[:, :k].reshape(cout, k // 2, 2, 1)
+    else:
+        cols = cols.view(a.shape[0], cin // 2, 2, kh * kw, -1)
+        w = w.view(cout, cin // 2, 2, kh * kw)
     reachable = 255 * (w[:, :, 0].abs() + w[:, :, 1].abs()) > INT16[1]  # only these (channel, pair, tap) can saturate
     hit = torch.zeros(a.shape[0], cout, cols.shape[-1], dtype=torch.bool)
     for c in torch.nonzero(reachable.flatten(1).any(dim=1)).flatten().tolist():
@@ -93,15 +108,16 @@ def saturated_outputs(layer: Layer, activation: np.ndarray) -> tuple[int, int]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("model", help="an int8 file written by fisheye-infer export --int8")
-    parser.add_argument("--frames", type=int, default=2, help="seeded renders of the file's rig (default 2)")
+    parser.add_argument("--frames", type=int, default=1, help="seeded renders of the file's rig (default 1)")
     args = parser.parse_args()
     meta = read_meta(args.model)
     model = onnx.load(args.model)
-    layers = int8_layers(model)
+    layers, skipped = int8_layers(model)
     if not layers:
         raise SystemExit(f"{args.model}: no int8 convolution or MatMul (is it an int8 file?)")
     print(f"{args.model}: {len(layers)} int8 layers, weights up to |{max(int(layer.weight.abs().max()) for layer in layers)}|, "
-          f"recorded weight bits: {meta.quantization.weight_bits if meta.quantization else None}")
+          f"recorded weight bits: {meta.quantization.weight_bits if meta.quantization else None}"
+          + (f"; not counted: {', '.join(skipped)}" if skipped else ""))
     del model.graph.output[:]
     for name in sorted({layer.activation for layer in layers}):
         model.graph.output.append(helper.make_empty_tensor_value_info(name))

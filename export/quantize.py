@@ -61,7 +61,7 @@ from .trace import TRACE_ROOT
 from .verify import run_onnx
 
 __all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader",
-           "architecture_float", "check_weight_range", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "module_of",
+           "architecture_float", "check_weight_range", "eight_bit_constants", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "module_of",
            "quantize", "quantized_scope", "top_matched"]
 
 #: QuantizeLinear / DequantizeLinear: what a QDQ model adds, and what must stay inside the region.
@@ -75,12 +75,13 @@ CALIBRATION_PERCENTILE = 99.99
 #: Weights are quantized to 7 bits, [-64, 64], not to [-127, 127]. On x86 CPUs without VNNI (AVX2
 #: only, or AVX-512 before Cascade Lake) ONNX Runtime's u8 x s8 kernels multiply with vpmaddubsw,
 #: which adds each pair of neighbouring products in int16 and saturates: 255 x 127 x 2 = 64,770 does
-#: not fit, 255 x 64 x 2 = 32,640 does. So with 7 bits every x86 CPU computes the same integers as
-#: the machine that verified the file. With 8 bits, on the shipped compact FisheyeBEVDet, a third of
-#: the stem's outputs (the image's pixels times the first layer's weights) and up to 1% of other
-#: layers' would saturate on such a CPU (``benchmarks/int8_saturation.py``), while on a VNNI CPU,
-#: whose vpdpbusd adds in int32, 7 bits keep as many of the fp32 top-50 boxes as 8
-#: (``benchmarks/int8.py --weight-bits 8``).
+#: not fit, 255 x 64 x 2 = 32,640 does. So with 7 bits every x86 CPU computes the int8 layers' sums
+#: exactly as the machine that verified the file. With 8 bits, on the shipped compact FisheyeBEVDet,
+#: a third of the stem's outputs (the image's pixels times the first layer's weights) and under 1% of
+#: other layers' would saturate on such a CPU (``benchmarks/int8_saturation.py``), while on a VNNI
+#: CPU, whose vpdpbusd adds in int32, 7 bits keep as many of the fp32 top-50 boxes as 8
+#: (``benchmarks/int8.py --weight-bits 8``). Other constants of quantized nodes keep 8 bits
+#: (``eight_bit_constants``).
 WEIGHT_BITS = 7
 #: The largest weight magnitude for each number of weight bits ONNX Runtime's quantizer writes
 #: (symmetric int8, and its ``reduce_range``).
@@ -284,10 +285,11 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
                     activation_type=QuantType.QUInt8,
                     weight_type=QuantType.QInt8,
                     per_channel=per_channel,
-                    reduce_range=weight_bits == 7,  # the weights' range only; activations keep 8 bits
+                    reduce_range=weight_bits == 7,  # weights; activations keep 8 bits, and so do the constants below
                     calibrate_method=CalibrationMethod.Percentile,
                     extra_options={"WeightSymmetric": True, "ActivationSymmetric": False, "CalibPercentile": CALIBRATION_PERCENTILE,
-                                   "CalibStridedMinMax": 1},  # frame by frame: see FrameReader
+                                   "CalibStridedMinMax": 1,  # frame by frame: see FrameReader
+                                   "TensorQuantOverrides": eight_bit_constants(model, nodes)},
                 )
         except Exception as exc:  # ORT's quantizer raises untyped errors
             raise ExportError(f"int8: quantize_static failed on {src} ({scope}): {exc}") from exc
@@ -311,6 +313,17 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
     finally:
         tmp_out.unlink(missing_ok=True)
     return out
+
+
+def eight_bit_constants(model: onnx.ModelProto, nodes: Sequence[str]) -> dict[str, list[dict[str, bool]]]:
+    """``TensorQuantOverrides`` that keep at 8 bits the constants ``nodes`` read other than weights (a Linear's
+    bias Add): ORT's ``reduce_range`` applies to every quantized initializer, and would cut those u8 constants
+    to [0, 127] although only weights are multiplied in int16 pairs."""
+    chosen = set(nodes)
+    initializers = {i.name for i in model.graph.initializer}
+    return {name: [{"reduce_range": False}] for node in model.graph.node if node.name in chosen
+            for index, name in enumerate(node.input)
+            if name in initializers and not (node.op_type in WEIGHTED_OPS and index >= 1)}
 
 
 def check_weight_range(model: onnx.ModelProto, weight_bits: int = WEIGHT_BITS) -> None:

@@ -116,8 +116,8 @@ class Quantization(_Model):
     scope: str
     calibration_frames: int = 0  # int8 only
     #: int8: the weights' bits. 7 keeps u8 x s8 pair sums within int16, so CPUs without VNNI compute what
-    #: VNNI computes (``export.quantize.WEIGHT_QMAX``); None in int8 files written before it was recorded (8 bits).
-    weight_bits: int | None = None
+    #: VNNI computes (``export.quantize.WEIGHT_BITS``); None in int8 files written before it was recorded (8 bits).
+    weight_bits: Literal[7, 8] | None = None
 
 
 class TensorRTFinding(_Model):

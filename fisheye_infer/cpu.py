@@ -1,11 +1,12 @@
 """What the CPU offers that changes how ONNX Runtime runs an int8 file: its name and instruction-set flags.
 
 ONNX Runtime multiplies u8 activations by s8 weights with VNNI's ``vpdpbusd`` where the CPU has it
-(AVX-512 VNNI or AVX-VNNI), adding in int32. Without it (AVX2 only, or AVX-512 before Cascade
-Lake) it uses ``vpmaddubsw``, which adds each pair of products in int16 and saturates: int8 files
-with 8-bit weights can then give other boxes than on a VNNI CPU. ``export`` writes 7-bit weights,
-which never saturate (``fisheye_infer.export.quantize.WEIGHT_QMAX``); ``int8_saturation_warning``
-names the older files at risk on this CPU.
+(AVX-512 VNNI or AVX-VNNI), adding in int32. Without it but with AVX2 (AVX2-only CPUs, AVX-512
+before Cascade Lake) it uses ``vpmaddubsw``, which adds each pair of products in int16 and
+saturates: int8 files with 8-bit weights can then give other boxes than on a VNNI CPU. (Older x86
+CPUs get SSE2 kernels that widen to int16 before multiplying: exact, and slow.) ``export`` writes
+7-bit weights, which never saturate (``fisheye_infer.export.quantize.WEIGHT_BITS``);
+``int8_saturation_warning`` names the older files at risk on this CPU.
 """
 
 from __future__ import annotations
@@ -31,10 +32,6 @@ class CpuInfo:
     flags: frozenset[str]
 
     @property
-    def x86(self) -> bool:
-        return "sse2" in self.flags
-
-    @property
     def avx512(self) -> bool:
         return "avx512f" in self.flags
 
@@ -46,7 +43,7 @@ class CpuInfo:
 def cpu_info(cpuinfo: Path = Path("/proc/cpuinfo")) -> CpuInfo:
     name, flags = "", ""
     with contextlib.suppress(OSError, IndexError):  # not Linux, or no such line (Arm lists "Features")
-        text = cpuinfo.read_text()
+        text = cpuinfo.read_text(errors="replace")
         with contextlib.suppress(IndexError):
             name = text.split("model name", 1)[1].split(":", 1)[1].split("\n", 1)[0].strip()
         flags = text.split("\nflags", 1)[1].split(":", 1)[1].split("\n", 1)[0]
@@ -57,13 +54,13 @@ def int8_saturation_warning(meta: ArtifactMeta, providers: Iterable[str], cpu: C
     """Why this int8 file may give other boxes on this CPU than where it was verified, or None.
 
     At risk: an int8 file with 8-bit weights (written before weights were limited to 7 bits, which
-    record no ``weight_bits``) run by ONNX Runtime's CPU provider on an x86 CPU without VNNI. Where
-    the flags are unknown (not Linux) nothing is said.
+    record no ``weight_bits``) run by ONNX Runtime's CPU provider on an x86 CPU with AVX2 and without
+    VNNI. Where the flags are unknown (not Linux) nothing is said.
     """
     q = meta.quantization
     if q is None or q.mode != "int8-qdq" or (q.weight_bits or 8) <= 7:
         return None
-    if "CPUExecutionProvider" not in list(providers)[:1] or not cpu.x86 or cpu.vnni:
+    if "CPUExecutionProvider" not in list(providers)[:1] or "avx2" not in cpu.flags or cpu.vnni:
         return None
     return (f"model {meta.model_id}: int8 with {q.weight_bits or 8}-bit weights on a CPU without VNNI ({cpu.name}): ONNX Runtime adds "
             "u8 x s8 products in saturating int16 pairs here, so boxes can differ from the verified ones; export the int8 file "

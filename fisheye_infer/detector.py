@@ -247,7 +247,7 @@ class Detector(FrameDetector):
         check_interface({i.name: i.shape for i in self._session.get_inputs()}, [o.name for o in self._session.get_outputs()], meta, f"model {self.path}")
         check_output_shapes({o.name: o.shape for o in self._session.get_outputs()}, meta, f"model {self.path}")
         super().__init__(describe(meta, self._session.get_providers()), score_threshold=score_threshold, nms=nms, decode_threads=decode_threads)
-        if (saturation := int8_saturation_warning(meta, self._session.get_providers(), cpu_info())) is not None:
+        if meta.quantization is not None and (saturation := int8_saturation_warning(meta, self._session.get_providers(), cpu_info())):
             log.warning(saturation)
         if warmup:
             self.warmup()

@@ -7,6 +7,7 @@ intra-op threads as the machine has cores unless told otherwise.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from collections.abc import Iterator, Sequence
@@ -18,8 +19,8 @@ import onnxruntime as ort
 
 from fisheye_infer.errors import ArtifactError, ConfigError, InferenceError
 
-__all__ = ["PREFERRED_PROVIDERS", "Provider", "available_providers", "resolve_providers", "provider_name", "session_options", "create_session",
-           "open_session", "check_started", "map_ort_errors", "usable_cpus"]
+__all__ = ["PREFERRED_PROVIDERS", "Provider", "available_providers", "resolve_providers", "parse_providers", "provider_name", "session_options",
+           "create_session", "open_session", "check_started", "map_ort_errors", "usable_cpus"]
 
 log = logging.getLogger("fisheye_infer")
 
@@ -52,6 +53,34 @@ def resolve_providers(providers: str | Sequence[Provider] | None) -> list[Provid
     if missing:
         raise ConfigError(f"providers: {', '.join(missing)} not offered by the installed onnxruntime (available: {', '.join(installed)})")
     return wanted
+
+
+def parse_providers(text: str) -> str | list[Provider]:
+    """Providers as a command line or an environment variable gives them, checked (``resolve_providers``):
+    ``auto``; names separated by commas; or a JSON list of names and ``[name, {option: value}]`` pairs, for
+    provider options (``[["TensorrtExecutionProvider", {"trt_engine_cache_enable": "1"}], "CPUExecutionProvider"]``).
+    """
+    text = text.strip()
+    if text.startswith("["):
+        try:
+            entries = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"providers: not a JSON list ({exc})") from None
+        if not isinstance(entries, list):
+            raise ConfigError(f"providers: expected a JSON list, got {text[:80]}")
+        wanted: list[Provider] = [tuple(e) if isinstance(e, list) else e for e in entries]
+    else:
+        wanted = [name.strip() for name in text.split(",") if name.strip()]
+    if wanted == ["auto"]:
+        return "auto"
+    if not wanted:
+        raise ConfigError("providers: none given (names separated by commas, a JSON list, or 'auto')")
+    for p in wanted:
+        if isinstance(p, tuple) and len(p) == 2 and isinstance(p[1], dict):
+            bad = [k for k, v in p[1].items() if not isinstance(v, str | int | float | bool)]
+            if bad:
+                raise ConfigError(f"providers: {p[0]} option {bad[0]!r}: expected a string, number or boolean")
+    return resolve_providers(wanted)
 
 
 def provider_name(provider: Provider) -> str:

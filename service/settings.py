@@ -8,7 +8,7 @@
 | ``model_path`` | required | the ONNX file written by ``fisheye-infer export`` |
 | ``host`` / ``port`` | 127.0.0.1 / 8000 | where uvicorn listens; loopback unless told otherwise |
 | ``threads`` | all cores | ONNX Runtime intra-op threads |
-| ``providers`` | CPU | ONNX Runtime execution providers in order (``CUDAExecutionProvider,CPUExecutionProvider``), or ``auto`` |
+| ``providers`` | CPU | execution providers in order (``CUDAExecutionProvider,CPUExecutionProvider``; a JSON list for provider options), or ``auto`` |
 | ``workers`` | 1 | inference threads calling the Detector |
 | ``queue_size`` | 8 | requests admitted and not yet running; beyond it: 503 + Retry-After |
 | ``max_body_bytes`` | 32 MiB | request body and WebSocket message size (413 beyond) |
@@ -39,6 +39,9 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 __all__ = ["ServiceSettings", "MIN_API_KEY_LENGTH"]
 
+#: A provider by name, or with its options (``fisheye_infer.session.Provider``, as settings can hold it).
+ProviderSetting = str | tuple[str, dict[str, str | int | float | bool]]
+
 MIN_API_KEY_LENGTH = 16
 
 
@@ -51,8 +54,9 @@ class ServiceSettings(BaseSettings):
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=0, le=65535)
     threads: int | None = Field(default=None, ge=1, description="ONNX Runtime intra-op threads (default: all cores)")
-    providers: Annotated[list[str], NoDecode] = Field(default_factory=list, description="ONNX Runtime execution providers in order of "
-                                                      "preference, or ['auto'] for the installed accelerated ones (default: CPU)")
+    providers: Annotated[list[ProviderSetting], NoDecode] = Field(
+        default_factory=list, description="ONNX Runtime execution providers in order of preference (names, or (name, options) pairs), "
+                                          "or ['auto'] for the installed accelerated ones (default: CPU)")
     workers: int = Field(default=1, ge=1, le=16, description="inference threads calling the Detector")
     queue_size: int = Field(default=8, ge=1, description="requests admitted and not yet running")
     max_body_bytes: int = Field(default=32 * 1024 * 1024, ge=1024)
@@ -71,20 +75,30 @@ class ServiceSettings(BaseSettings):
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     warmup: bool = True
 
-    @field_validator("cors_origins", "providers", mode="before")
+    @field_validator("cors_origins", mode="before")
     @classmethod
     def _split_list(cls, value: object) -> object:
-        """Accept ``FISHEYE_CORS_ORIGINS=https://a,https://b`` (``FISHEYE_PROVIDERS=CUDAExecutionProvider,CPUExecutionProvider``)
-        as well as a JSON list."""
+        """Accept ``FISHEYE_CORS_ORIGINS=https://a,https://b`` as well as a JSON list."""
         if isinstance(value, str):
             if value.lstrip().startswith("["):
                 return json.loads(value)
             return [v.strip() for v in value.split(",") if v.strip()]
         return value
 
+    @field_validator("providers", mode="before")
+    @classmethod
+    def _parse_providers(cls, value: object) -> object:
+        """``FISHEYE_PROVIDERS`` / ``--providers`` text as the command line reads it (``session.parse_providers``)."""
+        if isinstance(value, str):
+            from fisheye_infer.session import parse_providers
+
+            parsed = parse_providers(value)
+            return [parsed] if parsed == "auto" else parsed
+        return value
+
     @field_validator("providers")
     @classmethod
-    def _installed_providers(cls, value: list[str]) -> list[str]:
+    def _installed_providers(cls, value: list[ProviderSetting]) -> list[ProviderSetting]:
         """Refused here, before the model loads, when the installed onnxruntime does not offer one."""
         if value == ["auto"]:
             return value
@@ -94,7 +108,7 @@ class ServiceSettings(BaseSettings):
         return value
 
     @property
-    def session_providers(self) -> str | list[str] | None:
+    def session_providers(self) -> str | list[ProviderSetting] | None:
         """``providers`` as ``Detector`` takes it."""
         return None if not self.providers else "auto" if self.providers == ["auto"] else list(self.providers)
 

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from fisheye_infer.session import Provider
 
 __all__ = ["NEEDS_EXPORT", "NEEDS_SERVE", "NEEDS_RAY_SERVE", "missing_extra", "positive_int", "positive_ints", "int_list", "csv_list", "int_pair",
            "providers_arg", "PROVIDERS_HELP", "RIG_HELP"]
@@ -12,6 +16,7 @@ NEEDS_EXPORT = "this command needs the export extra: pip install 'fisheye-infer[
 NEEDS_SERVE = "fisheye-infer serve needs the serve extra: pip install 'fisheye-infer[serve]'"
 NEEDS_RAY_SERVE = "fisheye-infer serve --ray needs the ray extra: pip install 'fisheye-infer[ray]'"
 PROVIDERS_HELP = ("ONNX Runtime execution providers, comma-separated in order of preference (CUDAExecutionProvider,CPUExecutionProvider), "
+                  "a JSON list with provider options ('[[\"CUDAExecutionProvider\", {\"device_id\": 1}], \"CPUExecutionProvider\"]'), "
                   "or 'auto' for the installed accelerated ones, then CPU (default: CPU)")
 RIG_HELP = "rig file (.json/.yaml), folder with calib_results.txt + lidar2cam.json, or 'default'"
 
@@ -90,16 +95,12 @@ class ArchChoices:
         return iter(self._names() or ())
 
 
-def providers_arg(text: str) -> str | list[str]:
-    """``auto`` or comma-separated provider names, checked against the installed onnxruntime here,
-    so a typo or a CPU-only onnxruntime is a usage error that lists what is available."""
-    if text.strip() == "auto":
-        return "auto"
-    from fisheye_infer.session import resolve_providers
+def providers_arg(text: str) -> str | list[Provider]:
+    """``session.parse_providers``, checked against the installed onnxruntime here, so a typo or a
+    CPU-only onnxruntime is a usage error that lists what is available."""
+    from fisheye_infer.session import parse_providers
 
-    names = csv_list(text)
     try:
-        resolve_providers(names)
+        return parse_providers(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc).removeprefix("providers: ")) from None
-    return names

@@ -28,6 +28,7 @@ from fisheye_infer.export.quantize import (
     FrameReader,
     architecture_float,
     check_weight_range,
+    eight_bit_constants,
     image_region,
     int8_nodes,
     int8_path_for,
@@ -378,6 +379,43 @@ def _dequantize_graph(weight: np.ndarray, zero_point: np.ndarray) -> onnx.ModelP
     return onnx.helper.make_model(onnx.helper.make_graph([node], "g", [], [out], inits))
 
 
+def test_7_bit_weights_leave_other_constants_at_8_bits(tmp_path: Path) -> None:
+    """A Linear (MatMul + bias Add): ORT's reduce_range would cut the bias's u8 constant to [0, 127] too."""
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+
+    rng = np.random.default_rng(0)
+    inits = [numpy_helper.from_array(rng.normal(size=(8, 6)).astype(np.float32), "W"),
+             numpy_helper.from_array(rng.uniform(0.1, 1.0, size=6).astype(np.float32), "b")]
+    graph = onnx.helper.make_graph(
+        [onnx.helper.make_node("MatMul", ["x", "W"], ["h"], name="mm"), onnx.helper.make_node("Add", ["h", "b"], ["y"], name="add")], "linear",
+        [onnx.helper.make_tensor_value_info("x", onnx.TensorProto.FLOAT, [4, 8])], [onnx.helper.make_tensor_value_info("y", onnx.TensorProto.FLOAT, [4, 6])],
+        inits)
+    model = onnx.helper.make_model(graph, opset_imports=[onnx.helper.make_opsetid("", 18)])
+    assert eight_bit_constants(model, ["mm", "add"]) == {"b": [{"reduce_range": False}]}  # the weight keeps reduce_range
+    onnx.save(model, str(tmp_path / "linear.onnx"))
+
+    class Frames(CalibrationDataReader):
+        def __init__(self) -> None:
+            self.feeds = iter([{"x": rng.normal(size=(4, 8)).astype(np.float32)} for _ in range(4)])
+
+        def get_next(self) -> dict[str, np.ndarray] | None:
+            return next(self.feeds, None)
+
+    def quantized_constants(overrides: dict) -> dict[str, np.ndarray]:
+        out = tmp_path / "linear.int8.onnx"
+        quantize_static(str(tmp_path / "linear.onnx"), str(out), Frames(), quant_format=QuantFormat.QDQ, op_types_to_quantize=["MatMul", "Add"],
+                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True, reduce_range=True,
+                        extra_options={"WeightSymmetric": True, "TensorQuantOverrides": overrides})
+        return {i.name: numpy_helper.to_array(i) for i in onnx.load(str(out)).graph.initializer if i.data_type in (onnx.TensorProto.INT8, onnx.TensorProto.UINT8)}
+
+    plain = quantized_constants({})
+    kept = quantized_constants(eight_bit_constants(model, ["mm", "add"]))
+    bias = next(name for name, v in kept.items() if v.dtype == np.uint8 and v.size == 6)
+    assert plain[bias].max() == 127 and kept[bias].max() == 255  # the bias keeps its 8 bits
+    weight = next(name for name, v in kept.items() if v.dtype == np.int8 and v.size == 48)
+    assert np.abs(kept[weight].astype(np.int32)).max() == WEIGHT_QMAX[7]  # the weight does not
+
+
 def test_check_weight_range_names_a_weight_beyond_7_bits() -> None:
     check_weight_range(_dequantize_graph(np.array([[64, -64], [3, 0]], np.int8), np.zeros(2, np.int8)))
     with pytest.raises(ExportError, match=r"conv.weight_quantized spans \[-100, 3\].*expected 7-bit weights, \[-64, 64\]"):
@@ -407,6 +445,10 @@ def test_saturation_warning_only_for_8_bit_int8_files_on_x86_without_vnni(small_
     assert int8_saturation_warning(old, cpu, WITH_VNNI) is None
     assert int8_saturation_warning(old, ["CUDAExecutionProvider", "CPUExecutionProvider"], AVX2_ONLY) is None
     assert int8_saturation_warning(old, cpu, CpuInfo("an Arm CPU", frozenset())) is None  # flags unknown: nothing said
+    skylake_sp = CpuInfo("AVX-512 without VNNI", frozenset({"sse2", "avx2", "avx512f", "avx512bw"}))
+    assert int8_saturation_warning(old, cpu, skylake_sp) is not None
+    before_avx2 = CpuInfo("SSE4 only", frozenset({"sse2", "ssse3", "sse4_1", "sse4_2", "avx"}))
+    assert int8_saturation_warning(old, cpu, before_avx2) is None  # SSE2 kernels widen to int16 before multiplying: exact
     fp32 = meta.model_copy(update={"quantization": None})
     assert int8_saturation_warning(fp32, cpu, AVX2_ONLY) is None
     half = meta.model_copy(update={"quantization": Quantization(mode="fp16", scope="network")})

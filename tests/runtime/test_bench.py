@@ -17,7 +17,7 @@ from fisheye_infer.graph_stages import STAGES
 def test_bench_writes_every_figure(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "bench.json"
     assert main(["bench", str(small_export.onnx), "--threads", "1", "--batch", "1,2", "--repeat", "2", "--warmup", "1", "--out", str(out),
-                 "--providers", "CPUExecutionProvider"]) == 0
+                 "--providers", '[["CPUExecutionProvider", {"use_arena": "1"}]]']) == 0  # provider options, as JSON
     doc = json.loads(out.read_text())
     assert doc["providers"] == ["CPUExecutionProvider"] and doc["machine"]["cpu_count"] >= 1 and isinstance(doc["machine"]["gpus"], list)
     assert [(r["threads"], r["batch"]) for r in doc["runs"]] == [(1, 1), (1, 2)]
@@ -39,6 +39,13 @@ def test_bench_refuses_bad_options(small_export, capsys: pytest.CaptureFixture[s
         main(["bench", str(small_export.onnx), "--providers", "NoSuchExecutionProvider,CPUExecutionProvider"])
     assert "--providers: NoSuchExecutionProvider not offered by the installed onnxruntime" in (err := capsys.readouterr().err)
     assert "CPUExecutionProvider" in err.split("available:")[1]
+    for text, message in [("[CPUExecutionProvider", "--providers: not a JSON list"),
+                          ('[["CPUExecutionProvider", {"use_arena": [1]}]]', "CPUExecutionProvider option 'use_arena': expected a string, number or boolean"),
+                          ('[["CPUExecutionProvider"]]', "expected a provider name or a (name, options dict) pair, got ('CPUExecutionProvider',)"),
+                          (" , ", "--providers: none given")]:
+        with pytest.raises(SystemExit):
+            main(["bench", str(small_export.onnx), "--providers", text])
+        assert message in capsys.readouterr().err
 
 
 def test_peak_rss_is_the_childs_own_not_its_parents() -> None:

@@ -175,6 +175,30 @@ def test_a_provider_that_does_not_start_is_an_error_not_a_cpu_fallback(small_exp
         Detector(small_export.onnx, threads=1, providers=["CUDAExecutionProvider", "CPUExecutionProvider"])
 
 
+def test_auto_drops_a_provider_that_fails_to_start(small_export, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """onnxruntime-gpu lists TensorRT without its libraries, and creating a session with it raises: 'auto' tries the
+    next provider, a named list does not. No TensorRT here, so the session's creation fails as it does there."""
+    import onnxruntime as ort
+
+    import fisheye_infer.session as session
+
+    real = ort.InferenceSession
+
+    def without_tensorrt(path, options, providers, enable_fallback):  # type: ignore[no-untyped-def]
+        if providers[0] == "TensorrtExecutionProvider":
+            raise RuntimeError("libnvinfer.so.10: cannot open shared object file: No such file or directory")
+        return real(path, options, providers=providers, enable_fallback=enable_fallback)
+
+    monkeypatch.setattr(session, "available_providers", lambda: ["TensorrtExecutionProvider", "CPUExecutionProvider"])
+    monkeypatch.setattr(session.ort, "InferenceSession", without_tensorrt)
+    with caplog.at_level("WARNING", logger="fisheye_infer"):
+        auto = Detector(small_export.onnx, threads=1, providers="auto", warmup=False)
+    assert auto.info.providers == ("CPUExecutionProvider",)
+    assert any("TensorrtExecutionProvider did not start" in r.getMessage() and "libnvinfer" in r.getMessage() for r in caplog.records)
+    with pytest.raises(ArtifactError, match="cannot load it with TensorrtExecutionProvider, CPUExecutionProvider .*libnvinfer"):
+        Detector(small_export.onnx, threads=1, providers=["TensorrtExecutionProvider", "CPUExecutionProvider"])
+
+
 def test_decode_threads_nest_and_are_checked(detector: Detector, small_export) -> None:
     """map_images called from a decode thread runs there (no deadlock on a full pool)."""
     nested = list(detector.map_images(lambda i: sum(detector.map_images(lambda j: i * j, range(4))), range(16)))

@@ -17,8 +17,9 @@ def test_defaults_listen_on_loopback_without_microbatching() -> None:
     assert s.session_providers is None  # the Detector's default: CPU
 
 
-@pytest.mark.parametrize("value, providers", [("CPUExecutionProvider", ["CPUExecutionProvider"]), ("auto", "auto"),
-                                              ('["CPUExecutionProvider"]', ["CPUExecutionProvider"])])
+@pytest.mark.parametrize("value, providers", [("CPUExecutionProvider", ["CPUExecutionProvider"]), ("auto", "auto"), ('["auto"]', "auto"),
+                                              ('["CPUExecutionProvider"]', ["CPUExecutionProvider"]),
+                                              ('[["CPUExecutionProvider", {"use_arena": "1", "n": 2}]]', [("CPUExecutionProvider", {"use_arena": "1", "n": 2})])])
 def test_providers_from_the_environment(monkeypatch: pytest.MonkeyPatch, value: str, providers: object) -> None:
     monkeypatch.setenv("FISHEYE_PROVIDERS", value)
     assert ServiceSettings(model_path="m.onnx").session_providers == providers
@@ -48,6 +49,8 @@ def test_environment_with_prefix(monkeypatch: pytest.MonkeyPatch) -> None:
         # refused before the model loads, naming what the installed onnxruntime offers
         ({"providers": "CUDAExecutionProviderX,CPUExecutionProvider"},
          pytest.raises(ValidationError, match=r"providers: CUDAExecutionProviderX not offered by the installed onnxruntime \(available: .*CPUExecutionProvider")),
+        ({"providers": '[["CUDAExecutionProviderX", {"device_id": 1}]]'}, pytest.raises(ValidationError, match="CUDAExecutionProviderX not offered")),
+        ({"providers": "auto,CPUExecutionProvider"}, pytest.raises(ValidationError, match="'auto' stands alone")),
     ],
 )
 def test_unsafe_combinations_are_refused(overrides: dict[str, Any], expectation) -> None:
