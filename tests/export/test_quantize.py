@@ -457,7 +457,7 @@ def test_saturation_warning_only_for_8_bit_int8_files_on_x86_without_vnni(small_
 
 def test_detector_warns_about_an_8_bit_int8_file_on_a_cpu_without_vnni(small_int8: Int8Result, tmp_path: Path,
                                                                         monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
-    """Files written before weights were limited to 7 bits record no ``weight_bits``; this machine's CPU stands in for one without VNNI."""
+    """Files written before weights were limited to 7 bits record no ``weight_bits``; the CPU read is an AVX2-only one's flags."""
     meta = small_int8.meta
     assert meta.quantization is not None
     proto = onnx.load(str(small_int8.path))
