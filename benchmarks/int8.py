@@ -66,7 +66,7 @@ def main() -> None:
     parser.add_argument("--keep-float", action="append", default=[], metavar="MODULES",
                         help="also measure the network scope with these modules float32 instead of the architecture's "
                              "(comma-separated state-dict prefixes, '' for none; repeatable): how int8_float was chosen")
-    parser.add_argument("--weight-bits", type=int, action="append", default=[], choices=(8,),
+    parser.add_argument("--weight-bits", type=int, choices=(8,),
                         help="also measure the network scope with 8-bit weights instead of 7 (which every x86 CPU adds alike)")
     parser.add_argument("--threads", default="1,2", help="thread counts to time (default 1,2)")
     parser.add_argument("--rounds", type=int, default=5, help="alternated timing rounds (default 5)")
@@ -86,7 +86,8 @@ def main() -> None:
     paths: dict[str, Path] = {"fp32": fp32_path}
     variants = [("network", "network", None, WEIGHT_BITS), ("trunk", "trunk", None, WEIGHT_BITS)]
     variants += [(f"network, float: {m or 'none'}", "network", tuple(p for p in m.split(",") if p), WEIGHT_BITS) for m in args.keep_float]
-    variants += [(f"network, {bits}-bit weights", "network", None, bits) for bits in args.weight_bits]
+    if args.weight_bits:
+        variants.append((f"network, {args.weight_bits}-bit weights", "network", None, args.weight_bits))
     for i, (name, scope, keep_float, bits) in enumerate(variants):
         t0 = time.perf_counter()
         result = export_int8(fp32_path, out / f"model.int8-{i}.onnx", scope=scope, keep_float=keep_float, calib_frames=args.calib_frames,

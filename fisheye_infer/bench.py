@@ -116,7 +116,7 @@ def machine() -> dict[str, Any]:
 
     cpu = cpu_info()
     return {"cpu": cpu.name, "cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-            "onnxruntime": ort.__version__, "avx512": cpu.avx512, "vnni": cpu.vnni, "avx2": "avx2" in cpu.flags, "gpus": _nvidia_gpus()}
+            "onnxruntime": ort.__version__, "avx512": cpu.avx512, "vnni": cpu.vnni, "avx2": cpu.avx2, "gpus": _nvidia_gpus()}
 
 
 def _nvidia_gpus() -> list[str]:

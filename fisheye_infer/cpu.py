@@ -32,6 +32,10 @@ class CpuInfo:
     flags: frozenset[str]
 
     @property
+    def avx2(self) -> bool:
+        return "avx2" in self.flags
+
+    @property
     def avx512(self) -> bool:
         return "avx512f" in self.flags
 
@@ -60,7 +64,7 @@ def int8_saturation_warning(meta: ArtifactMeta, providers: Iterable[str], cpu: C
     q = meta.quantization
     if q is None or q.mode != "int8-qdq" or (q.weight_bits or 8) <= 7:
         return None
-    if "CPUExecutionProvider" not in list(providers)[:1] or "avx2" not in cpu.flags or cpu.vnni:
+    if "CPUExecutionProvider" not in list(providers)[:1] or not cpu.avx2 or cpu.vnni:
         return None
     return (f"model {meta.model_id}: int8 with {q.weight_bits or 8}-bit weights on a CPU without VNNI ({cpu.name}): ONNX Runtime adds "
             "u8 x s8 products in saturating int16 pairs here, so boxes can differ from the verified ones; export the int8 file "
