@@ -111,7 +111,7 @@ def main() -> None:
     from fisheye_infer.cpu import cpu_info
 
     cpu = cpu_info()
-    print(f"CPU: {cpu.name}; AVX2: {cpu.avx2}, AVX-512: {cpu.avx512}, VNNI: {cpu.vnni}")
+    print(f"CPU: {cpu.label}; AVX2: {cpu.avx2}, AVX-512: {cpu.avx512}, VNNI: {cpu.vnni}")
     results = measure(args.fp32, args.int8, args.isa.split(","), [int(t) for t in args.threads.split(",")], args.rounds, args.repeat)
     print(f"\nOpenVINO, medians of {args.rounds} x {args.repeat} calls, files alternated; one process per ISA\n")
     print("| ISA cap | threads | fp32 ms | int8 ms | int8 speed-up | int8 convolution kernels | AVX-512/AMX kernels left |\n|---|---|---|---|---|---|---|")

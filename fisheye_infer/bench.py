@@ -115,7 +115,7 @@ def machine() -> dict[str, Any]:
     import onnxruntime as ort
 
     cpu = cpu_info()
-    return {"cpu": cpu.name, "cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
+    return {"cpu": cpu.label, "cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
             "onnxruntime": ort.__version__, "avx512": cpu.avx512, "vnni": cpu.vnni, "avx2": cpu.avx2, "gpus": _nvidia_gpus()}
 
 

@@ -10,6 +10,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from fisheye_infer.export.int8_rewrites import (
     data_movement_on_quantized_values,
+    neighbour_swap_as_concat,
     stem_as_space_to_depth,
     upsample_as_depth_to_space,
 )
@@ -202,6 +203,51 @@ def test_moves_in_a_row_do_not_reuse_a_name() -> None:
     outputs = [o for n in model.graph.node for o in n.output]
     assert len(outputs) == len(set(outputs))
     np.testing.assert_array_equal(_run(model, x), before)
+
+
+# -- a neighbouring-axes swap as Split + Concat ----------------------------------------------------
+
+def _swap(shape: list[int | str], axis: int, elem: int = TensorProto.UINT8) -> onnx.ModelProto:
+    perm = list(range(len(shape)))
+    perm[axis], perm[axis + 1] = axis + 1, axis
+    graph = helper.make_graph([helper.make_node("Transpose", ["x"], ["y"], name="swap", perm=perm)], "g",
+                              [helper.make_tensor_value_info("x", elem, shape)], [helper.make_tensor_value_info("y", elem, None)])
+    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+
+
+@pytest.mark.parametrize(("shape", "axis"), [
+    (["n", 40, 2, 400, 2, 3], 2),   # the stem's 2x2 blocks: the rows of a block before the block's column
+    (["n", 3, 300, 80], 1),         # three slices, the last axis moved along
+    ([2, 4, 20000], 1),             # the innermost axes: runs of one value
+])
+def test_neighbour_swap_as_concat_gives_the_same_values(shape: list[int | str], axis: int) -> None:
+    model = _swap(shape, axis)
+    x = {"x": RNG.integers(0, 256, [2 if d == "n" else d for d in shape], dtype=np.uint8)}
+    before = _run(model, x)
+    assert neighbour_swap_as_concat(model) == ["swap"]
+    ops = _ops(model)
+    assert "Transpose" not in ops and ops[0] == "Split" and ops[-1] == "Concat" and ops.count("Reshape") == shape[axis]
+    assert model.graph.node[-1].output[0] == "y"  # the graph's output keeps its name
+    np.testing.assert_array_equal(_run(model, x), before)
+
+
+@pytest.mark.parametrize(("shape", "axis", "why"), [
+    (["n", 40, 8, 400, 6], 2, "eight slices: more than SWAP_MAX_SLICES"),
+    (["n", 4, 100, 16], 1, "6,400 values a batch item: Transpose is as fast"),
+    (["n", 40, 2, "w", 6], 2, "a dimension after the swap is unknown"),
+])
+def test_neighbour_swap_left_alone(shape: list[int | str], axis: int, why: str) -> None:
+    model = _swap(shape, axis)
+    assert neighbour_swap_as_concat(model) == [], why
+    assert _ops(model) == ["Transpose"]
+
+
+def test_other_permutations_are_left_alone() -> None:
+    graph = helper.make_graph([helper.make_node("Transpose", ["x"], ["y"], perm=[0, 2, 3, 1])], "g",
+                              [helper.make_tensor_value_info("x", TensorProto.UINT8, [1, 2, 400, 400])],
+                              [helper.make_tensor_value_info("y", TensorProto.UINT8, None)])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    assert neighbour_swap_as_concat(model) == []
 
 
 def _with_output(model: onnx.ModelProto, name: str) -> onnx.ModelProto:

@@ -20,7 +20,7 @@ from fisheye_infer.errors import ExportError, ParityError
 from fisheye_infer.export import exporter as exporter_module
 from fisheye_infer.export.exporter import Int8Result, export, export_int8
 from fisheye_infer.export.graph import save_model, set_metadata
-from fisheye_infer.export.int8_rewrites import before_quantization
+from fisheye_infer.export.int8_rewrites import before_quantization, neighbour_swap_as_concat
 from fisheye_infer.export.quantize import (
     QUANT_OPS,
     WEIGHT_QMAX,
@@ -77,6 +77,7 @@ def test_network_scope_quantizes_the_weighted_layers_and_nothing_else(small_expo
     fp32, model = _named(small_export.onnx), onnx.load(str(small_int8.path))
     keep_float = architecture_float(small_export.onnx)
     assert len(before_quantization(fp32, int8_nodes(fp32, "network", keep_float))) == 2  # the stem and the upsampling, as quantize does
+    assert len(neighbour_swap_as_concat(fp32)) == 1  # the stem's blocks gathered by Split + Concat, as after quantization
     assert keep_float == ("bbox_head.heatmap_head.1", "bbox_head.prediction_heads", "bbox_head.decoder", "bbox_head.class_encoding")
     chosen = set(int8_nodes(fp32, "network", keep_float))
     weighted = {n.name for n in fp32.graph.node if n.name in chosen and n.op_type in WEIGHTED_OPS}
@@ -96,8 +97,8 @@ def test_network_scope_quantizes_the_weighted_layers_and_nothing_else(small_expo
 
 
 def test_int8_file_runs_the_stem_over_blocks_and_upsamples_without_convtranspose(small_export, small_int8: Int8Result) -> None:
-    """The stem convolution reads 12 channels (2 x 2 blocks of 3) through uint8 data movement; the upsampling is an
-    int8 1x1 convolution whose DepthToSpace reads uint8; the fp32 file keeps its own form."""
+    """The stem convolution reads 12 channels (2 x 2 blocks of 3) through uint8 data movement, the blocks gathered by
+    Split + Concat; the upsampling is an int8 1x1 convolution whose DepthToSpace reads uint8; the fp32 file keeps its own form."""
     fp32, model = onnx.load(str(small_export.onnx)), onnx.load(str(small_int8.path))
     assert "ConvTranspose" in _ops(fp32) and "ConvTranspose" not in _ops(model)
     inits = {i.name: i for i in model.graph.initializer}
@@ -107,10 +108,10 @@ def test_int8_file_runs_the_stem_over_blocks_and_upsamples_without_convtranspose
     assert list(weights[convs[0].input[1]].dims[1:]) == [12, 4, 4]  # 7x7 stride 2 over 3 channels -> 4x4 over 12
     to_space = next(n for n in model.graph.node if n.op_type == "DepthToSpace")
     assert producers[to_space.input[0]].op_type == "QuantizeLinear"
-    movement = [producers[convs[0].input[0]]]  # DequantizeLinear <- Transpose <- Reshape <- Transpose <- Reshape ... <- QuantizeLinear
+    movement = [producers[convs[0].input[0]]]  # DequantizeLinear <- Transpose <- Reshape <- Concat <- Reshape <- Split <- Reshape <- QuantizeLinear
     while movement[-1].op_type != "QuantizeLinear":
         movement.append(producers[movement[-1].input[0]])
-    assert [n.op_type for n in movement][1:5] == ["Transpose", "Reshape", "Transpose", "Reshape"]
+    assert [n.op_type for n in movement][1:7] == ["Transpose", "Reshape", "Concat", "Reshape", "Split", "Reshape"]
 
 
 def test_layers_kept_float_keep_their_form(small_export, tmp_path: Path) -> None:

@@ -10,6 +10,8 @@ from fisheye_infer.cpu import cpu_info
 
 X86 = """processor\t: 0
 vendor_id\t: GenuineIntel
+cpu family\t: 6
+model\t\t: 158
 model name\t: Intel(R) Core(TM) i7-7700 CPU @ 3.60GHz
 flags\t\t: fpu vme sse sse2 ssse3 fma sse4_1 sse4_2 avx avx2 {extra}
 vmx flags\t: vnmi preemption_timer avx512_vnni_lookalike
@@ -38,6 +40,7 @@ def test_cpu_info_reads_the_flags_line(tmp_path: Path, extra: str, avx512: bool,
     path.write_text(X86.format(extra=extra))
     cpu = cpu_info(path)
     assert cpu.name == "Intel(R) Core(TM) i7-7700 CPU @ 3.60GHz"
+    assert cpu.label == "Intel(R) Core(TM) i7-7700 CPU @ 3.60GHz (family 6, model 158)"  # 'model name' is not 'model'
     assert cpu.avx2
     assert (cpu.avx512, cpu.vnni) == (avx512, vnni)
     assert "vnmi" not in cpu.flags  # the 'vmx flags' line is another list
@@ -48,5 +51,6 @@ def test_cpu_info_without_x86_flags(tmp_path: Path) -> None:
     path.write_text(ARM)
     cpu = cpu_info(path)
     assert not cpu.vnni and cpu.flags == frozenset()
+    assert cpu.label == cpu.name  # no family and model numbers to add
     missing = cpu_info(tmp_path / "absent")
     assert missing.flags == frozenset() and missing.name
