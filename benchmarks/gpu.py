@@ -149,7 +149,7 @@ def main() -> int:
 
 def report(result: dict[str, Any]) -> str:
     m = result["machine"]
-    lines = [f"GPU: {', '.join(m['gpus']) or 'none'}; CPU: {m['cpu']} ({m['cpu_count']} cores); onnxruntime {result['onnxruntime']}",
+    lines = [f"GPU: {', '.join(m['gpus']) or 'none'}; CPU: {m['cpu']}, {m['cpu_count']} cores; onnxruntime {result['onnxruntime']}",
              "file | providers | top-50 matched vs fp32 on CPU | max box m / score | run b1 ms (numpy / bound) | run b4 ms (numpy / bound)"]
     for kind, r in result["files"].items():
         p = r["parity_vs_fp32_cpu"]

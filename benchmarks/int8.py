@@ -113,7 +113,7 @@ def main() -> None:
 
     frame = next(iter(Fisheye3DOD(data, "val")))
     images, valid = stack_frames([load_frame(dict(frame.image_paths), fp32.info.cameras, fp32.info.image_size)], fp32.info.image_size)
-    print(f"\n## Latency, one frame ({host['cpu']}; median of {args.rounds} x {args.repeat} calls per file, files alternated)\n")
+    print(f"\n## Latency, one frame ({host['cpu']}, {host['cpu_count']} cores; median of {args.rounds} x {args.repeat} calls per file, files alternated)\n")
     print("| threads | " + " | ".join(f"{name} ms" for name in paths) + " | " + " | ".join(f"{name} speed-up" for name in paths if name != "fp32") + " |")
     print("|---" * (2 * len(paths)) + "|")
     figures["latency_ms"] = {}

@@ -37,17 +37,11 @@ import numpy as np
 
 from fisheye_infer.artifact import read_meta
 from fisheye_infer.batch import BatchOptions, dataset_frames, detect_frames
+from fisheye_infer.cpu import cpu_info
 from fisheye_infer.detector import Detector
 from fisheye_infer.eval.dataset import Fisheye3DOD
 from fisheye_infer.service.settings import ServiceSettings
 from fisheye_infer.synth import Renderer, random_scene, synthesize
-
-
-def cpu_model() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown"
 
 
 def free_port() -> int:
@@ -160,7 +154,7 @@ def main() -> int:
     finally:
         ray.shutdown()
     medians = {k: statistics.median(v) for k, v in runs.items()}
-    doc = {"model": str(args.model), "architecture": meta.architecture, "image_size": meta.image_size, "cpu": cpu_model(), "cpus": cpus,
+    doc = {"model": str(args.model), "architecture": meta.architecture, "image_size": meta.image_size, "cpu": cpu_info().label, "cpus": cpus,
            "ray": ray.__version__, "repeats": args.repeats, "frames": args.frames, "duration_s": args.duration, "clients": args.clients,
            "runs_frames_per_s": runs, "median_frames_per_s": medians}
     args.out.parent.mkdir(parents=True, exist_ok=True)

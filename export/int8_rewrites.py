@@ -16,11 +16,12 @@ same products and sums, in another arrangement); only float rounding order may d
   QuantizeLinear / DequantizeLinear moves to the uint8 side of it (it only permutes values, and
   per-tensor (de)quantization acts on each value alike), so it moves a quarter of the bytes, and
   a Concat after it reads only dequantized values again (ONNX Runtime then runs it in uint8).
-- ``neighbour_swap_as_concat``: a large Transpose that exchanges two neighbouring axes, the outer
-  of a few entries (the stem's 2x2 blocks: rows of a block before the block's column), becomes a
-  Split along that axis and a Concat of the slices one axis further in. ONNX Runtime's Transpose
-  moves such a tensor value by value; Concat copies each contiguous run at once (the shipped
-  model's 4 x 320 x 320 frame: 3.4 -> 1.0 ms on one thread; full size, 800 x 800: 11 -> 4.6 ms).
+- ``neighbour_swap_as_concat``: a large uint8 Transpose that exchanges two neighbouring axes, the
+  outer of a few entries (the stem's 2x2 blocks: rows of a block before the block's column),
+  becomes a Split along that axis and a Concat of the slices one axis further in. ONNX Runtime's
+  Transpose moves such a tensor value by value; Concat copies each contiguous run (here six
+  values) at once: the shipped model's 4 x 320 x 320 frame 3.4 -> 1.0 ms on one thread, full size
+  (800 x 800) 11 -> 4.6 ms.
 """
 
 from __future__ import annotations
@@ -42,10 +43,11 @@ __all__ = ["before_quantization", "after_quantization", "stem_as_space_to_depth"
 STEM_MAX_CHANNELS = 4
 #: Ops that only move values; a per-tensor quantization commutes with them.
 DATA_MOVEMENT = ("Reshape", "Transpose", "DepthToSpace", "SpaceToDepth")
-#: A neighbouring-axes Transpose becomes Split + Concat when its outer axis has at most this many
-#: entries (one slice each) and a batch item holds at least ``SWAP_MIN_VALUES`` values; on small
-#: tensors the two forms take the same time.
+#: A uint8 neighbouring-axes Transpose becomes Split + Concat when its outer axis has at most this
+#: many entries (one slice each), each copy moves at least ``SWAP_MIN_RUN`` contiguous values, and a
+#: batch item holds at least ``SWAP_MIN_VALUES`` values; elsewhere Transpose is as fast or faster.
 SWAP_MAX_SLICES = 4
+SWAP_MIN_RUN = 2
 SWAP_MIN_VALUES = 1 << 16
 
 
@@ -309,27 +311,33 @@ def _movement_chain(value: str, producers: dict[str, onnx.NodeProto], readers: d
 
 
 def neighbour_swap_as_concat(model: onnx.ModelProto) -> list[str]:
-    """Rewrite a Transpose that exchanges axes ``a`` and ``a + 1`` as Split + Concat; returns the Transposes.
+    """Rewrite a uint8 Transpose that exchanges axes ``a`` and ``a + 1`` as Split + Concat; returns their names.
 
     Slice ``j`` of the input along ``a`` is ``x[..., j:j+1, :, ...]``; moving its unit axis one place
     further in is a Reshape (the values keep their order), and concatenating the slices along
     ``a + 1`` puts ``x[..., j, i, ...]`` at ``[..., i, j, ...]``: the transposed tensor. Only where
-    ``a`` has 2 to ``SWAP_MAX_SLICES`` entries, the dimensions from ``a`` on are known, and a batch
-    item holds at least ``SWAP_MIN_VALUES`` values; dimensions before ``a`` are copied (Reshape's 0).
+    that was measured faster: uint8 values (ONNX Runtime's float Transpose is as fast or faster),
+    ``a`` after the batch axis with 2 to ``SWAP_MAX_SLICES`` entries, contiguous runs of at least
+    ``SWAP_MIN_RUN`` values behind ``a + 1`` (with runs of one value Concat is slower), the
+    dimensions from ``a`` on known, and at least ``SWAP_MIN_VALUES`` values per batch item.
+    Dimensions before ``a`` are copied (Reshape's 0), so the batch may be symbolic.
     """
     graph = model.graph
+    inferred = onnx.shape_inference.infer_shapes(model).graph
+    uint8 = {v.name for v in [*inferred.value_info, *inferred.input] if v.type.tensor_type.elem_type == onnx.TensorProto.UINT8}
     shapes = static_shapes(model)
     taken = _value_names(graph)
+    names = {n.name for n in graph.node}
     changed: list[str] = []
-    for node in [n for n in graph.node if n.op_type == "Transpose"]:
+    for node in [n for n in graph.node if n.op_type == "Transpose" and n.input[0] in uint8]:
         perm = list(_attrs(node).get("perm", []))
         moved = [i for i, p in enumerate(perm) if p != i]
         shape = shapes.get(node.input[0])
-        if len(moved) != 2 or moved[1] != moved[0] + 1 or shape is None or len(shape) != len(perm):
+        if len(moved) != 2 or moved[1] != moved[0] + 1 or moved[0] == 0 or shape is None or len(shape) != len(perm):
             continue
         a = moved[0]
         tail = shape[a:]
-        if any(d <= 0 for d in tail) or not 2 <= tail[0] <= SWAP_MAX_SLICES \
+        if any(d <= 0 for d in tail) or not 2 <= tail[0] <= SWAP_MAX_SLICES or math.prod(tail[2:]) < SWAP_MIN_RUN \
                 or math.prod(d for d in shape[1:] if d > 0) < SWAP_MIN_VALUES:
             continue
         name = node.name or node.output[0]
@@ -337,10 +345,10 @@ def neighbour_swap_as_concat(model: onnx.ModelProto) -> list[str]:
         graph.initializer.extend([_int64s(sizes, [1] * tail[0]), _int64s(piece, [0] * a + [tail[1], 1, *tail[2:]])])
         slices = [_fresh(taken, f"{name}.slice{j}") for j in range(tail[0])]
         moved_slices = [_fresh(taken, f"{name}.slice{j}.moved") for j in range(tail[0])]
-        chain = [_like(helper.make_node("Split", [node.input[0], sizes], slices, name=f"{name}.split", axis=a), node)]
-        chain += [_like(helper.make_node("Reshape", [s, piece], [m], name=f"{name}.move{j}"), node)
+        chain = [_like(helper.make_node("Split", [node.input[0], sizes], slices, name=_fresh(names, f"{name}.split"), axis=a), node)]
+        chain += [_like(helper.make_node("Reshape", [s, piece], [m], name=_fresh(names, f"{name}.move{j}")), node)
                   for j, (s, m) in enumerate(zip(slices, moved_slices, strict=True))]
-        chain.append(_like(helper.make_node("Concat", moved_slices, list(node.output), name=name, axis=a + 1), node))
+        chain.append(_like(helper.make_node("Concat", moved_slices, list(node.output), name=node.name, axis=a + 1), node))
         _replace(graph, [node], chain)
         changed.append(name)
     return changed

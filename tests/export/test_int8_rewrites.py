@@ -217,8 +217,8 @@ def _swap(shape: list[int | str], axis: int, elem: int = TensorProto.UINT8) -> o
 
 @pytest.mark.parametrize(("shape", "axis"), [
     (["n", 40, 2, 400, 2, 3], 2),   # the stem's 2x2 blocks: the rows of a block before the block's column
-    (["n", 3, 300, 80], 1),         # three slices, the last axis moved along
-    ([2, 4, 20000], 1),             # the innermost axes: runs of one value
+    (["n", 3, 300, 80], 1),         # three slices, runs of 80 values
+    ([2, 4, 20000, 2], 1),          # a known batch, runs of two values
 ])
 def test_neighbour_swap_as_concat_gives_the_same_values(shape: list[int | str], axis: int) -> None:
     model = _swap(shape, axis)
@@ -231,23 +231,43 @@ def test_neighbour_swap_as_concat_gives_the_same_values(shape: list[int | str], 
     np.testing.assert_array_equal(_run(model, x), before)
 
 
-@pytest.mark.parametrize(("shape", "axis", "why"), [
-    (["n", 40, 8, 400, 6], 2, "eight slices: more than SWAP_MAX_SLICES"),
-    (["n", 4, 100, 16], 1, "6,400 values a batch item: Transpose is as fast"),
-    (["n", 40, 2, "w", 6], 2, "a dimension after the swap is unknown"),
+@pytest.mark.parametrize(("shape", "axis", "elem", "why"), [
+    (["n", 40, 8, 400, 6], 2, TensorProto.UINT8, "eight slices: more than SWAP_MAX_SLICES"),
+    (["n", 4, 100, 16], 1, TensorProto.UINT8, "6,400 values a batch item: Transpose is as fast"),
+    (["n", 400, 2, "w", 200], 2, TensorProto.UINT8, "a dimension after the swap is unknown"),
+    ([2, 4, 40000], 1, TensorProto.UINT8, "runs of one value: Concat is slower"),
+    ([2, 300, 300], 0, TensorProto.UINT8, "the batch axis"),
+    (["n", 40, 2, 400, 2, 3], 2, TensorProto.FLOAT, "float: ONNX Runtime's Transpose is as fast"),
 ])
-def test_neighbour_swap_left_alone(shape: list[int | str], axis: int, why: str) -> None:
-    model = _swap(shape, axis)
+def test_neighbour_swap_left_alone(shape: list[int | str], axis: int, elem: int, why: str) -> None:
+    model = _swap(shape, axis, elem)
     assert neighbour_swap_as_concat(model) == [], why
     assert _ops(model) == ["Transpose"]
 
 
-def test_other_permutations_are_left_alone() -> None:
-    graph = helper.make_graph([helper.make_node("Transpose", ["x"], ["y"], perm=[0, 2, 3, 1])], "g",
+@pytest.mark.parametrize("perm", [[0, 3, 2, 1], [0, 2, 3, 1]])
+def test_other_permutations_are_left_alone(perm: list[int]) -> None:
+    """Two axes exchanged that are not neighbours, and a rotation of three."""
+    graph = helper.make_graph([helper.make_node("Transpose", ["x"], ["y"], perm=perm)], "g",
                               [helper.make_tensor_value_info("x", TensorProto.UINT8, [1, 2, 400, 400])],
                               [helper.make_tensor_value_info("y", TensorProto.UINT8, None)])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
     assert neighbour_swap_as_concat(model) == []
+
+
+def test_unnamed_swaps_get_names_of_their_own() -> None:
+    """Two unnamed Transposes in a row: every value and node name the rewrite makes is new."""
+    nodes = [helper.make_node("Transpose", ["x"], ["t"], perm=[0, 2, 1, 3]), helper.make_node("Transpose", ["t"], ["y"], perm=[0, 2, 1, 3])]
+    graph = helper.make_graph(nodes, "g", [helper.make_tensor_value_info("x", TensorProto.UINT8, ["n", 2, 2, 40000])],
+                              [helper.make_tensor_value_info("y", TensorProto.UINT8, None)])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    x = {"x": RNG.integers(0, 256, (3, 2, 2, 40000), dtype=np.uint8)}
+    before = _run(model, x)
+    assert neighbour_swap_as_concat(model) == ["t", "y"]
+    outputs = [o for n in model.graph.node for o in n.output]
+    named = [n.name for n in model.graph.node if n.name]
+    assert len(outputs) == len(set(outputs)) and len(named) == len(set(named))
+    np.testing.assert_array_equal(_run(model, x), before)
 
 
 def _with_output(model: onnx.ModelProto, name: str) -> onnx.ModelProto:

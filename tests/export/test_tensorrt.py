@@ -204,7 +204,7 @@ def test_int8_file_is_for_onnx_runtime_not_tensorrt(small_export, tmp_path) -> N
     assert report is not None and not report.compatible
     errors = _errors(report)
     assert {"QuantizeLinear", "DequantizeLinear"} <= {e.op_type for e in errors}
-    assert {e.op_type for e in errors} <= {"QuantizeLinear", "DequantizeLinear", "Reshape", "Transpose", "DepthToSpace"}
+    assert {e.op_type for e in errors} <= {"QuantizeLinear", "DequantizeLinear", "Reshape", "Transpose", "DepthToSpace", "Split", "Concat"}
     assert any("zero point" in e.message for e in errors) and any("INT32" in e.message for e in errors)
-    assert all("UINT8" in e.message for e in errors if e.op_type in ("Reshape", "Transpose", "DepthToSpace"))
+    assert all("UINT8" in e.message for e in errors if e.op_type in ("Reshape", "Transpose", "DepthToSpace", "Split", "Concat"))
     assert "int8 file: TensorRT ONNX parser" in result.summary() and "NOT compatible" in result.summary()
