@@ -65,7 +65,7 @@ def cpu_info(cpuinfo: Path = Path("/proc/cpuinfo")) -> CpuInfo:
             key, colon, value = line.partition(":")
             if colon:
                 fields.setdefault(key.strip(), value.strip())
-    # Arm lists "Features", not "flags", and no "model name"
+    # Arm lists "Features", not "flags" (and 64-bit Arm no "model name")
     return CpuInfo(fields.get("model name") or platform.processor() or "unknown", frozenset(fields.get("flags", "").split()),
                    fields.get("cpu family", ""), fields.get("model", ""))
 
