@@ -48,15 +48,14 @@ def build(arch: str, progress: Callable[[str], None]) -> tuple[Path, Path, Path]
 
 def alternate(fns: dict[str, Callable[[], object]], rounds: int, block: int = 3) -> dict[str, float]:
     """Median ms of each function, run in turns so load spikes hit all alike: each round calls every
-    function ``block`` times in a row (one warm-up call each first). Blocks rather than single calls
-    because a runtime's threads spin for a while after a call: ONNX Runtime's and PyTorch's workers
-    would take CPU from whatever runs next, and the first call of a block absorbs that."""
-    for fn in fns.values():
-        fn()
+    function once untimed, then ``block`` times timed. The untimed call takes what the function
+    before it left behind: ONNX Runtime's and PyTorch's worker threads spin for a while after a call
+    and take CPU from whatever runs next (30-40 ms on 2 cores), which is the previous runtime's cost,
+    not this one's."""
     times: dict[str, list[float]] = {k: [] for k in fns}
     for _ in range(rounds):
         for k, fn in fns.items():
-            times[k] += timed(fn, block, warmup=0)
+            times[k] += timed(fn, block, warmup=1)
     return {k: float(np.median(v)) for k, v in times.items()}
 
 

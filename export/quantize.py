@@ -41,6 +41,7 @@ import logging
 import os
 import tempfile
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -60,9 +61,9 @@ from .int8_rewrites import after_quantization, before_quantization
 from .trace import TRACE_ROOT
 from .verify import run_onnx
 
-__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader",
-           "architecture_float", "check_weight_range", "eight_bit_constants", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "module_of",
-           "quantize", "quantized_scope", "top_matched"]
+__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader", "TopMatch",
+           "architecture_float", "check_weight_range", "eight_bit_constants", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "match_top",
+           "module_of", "quantize", "quantized_scope", "top_matched"]
 
 #: QuantizeLinear / DequantizeLinear: what a QDQ model adds, and what must stay inside the region.
 QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
@@ -351,35 +352,51 @@ MATCH_RADIUS_M = 0.5
 MIN_TOP_MATCHED = 0.95
 
 
-def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
-                radius_m: float = MATCH_RADIUS_M) -> tuple[int, int, float, float]:
+@dataclass(frozen=True)
+class TopMatch:
+    """One of a frame's top reference boxes and what the candidate made of it."""
+
+    label: int
+    matched: bool
+    box_diff: float = 0.0  # matched pairs: max abs difference of the 7 box values
+    score_diff: float = 0.0  # matched pairs: abs score difference
+
+
+def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
+              radius_m: float = MATCH_RADIUS_M) -> list[TopMatch]:
     """Match each frame's top-``top_k`` valid reference boxes (by score) to candidate boxes.
 
     A reference box is matched by the nearest unused valid candidate box of the same label whose
     centre lies within ``radius_m`` (bird's-eye distance, as nuScenes' centre distance), greedily
-    in reference score order. Returns (matched, considered, max box abs diff over matched pairs,
-    max score diff over matched pairs).
+    in reference score order. One entry per reference box considered, frame by frame in rank order.
     """
     rb, rs, rl, rv = reference
     cb, cs, cl, cv = candidate
-    matched = considered = 0
-    box_err = score_diff = 0.0
+    found: list[TopMatch] = []
     for f in range(len(rb)):
         order = [i for i in np.argsort(-rs[f], kind="stable") if rv[f][i]][:top_k]
         pool = np.flatnonzero(cv[f])
         used = np.zeros(len(pool), bool)
         for i in order:
-            considered += 1
             same = (cl[f][pool] == rl[f][i]) & ~used
             dist = np.hypot(*(cb[f][pool, :2] - rb[f][i, :2]).T)
             dist[~same] = np.inf
             if len(pool) and dist.min() <= radius_m:
                 j = int(np.argmin(dist))
                 used[j] = True
-                matched += 1
-                box_err = max(box_err, float(box_diff(cb[f][pool[j]], rb[f][i])))
-                score_diff = max(score_diff, abs(float(cs[f][pool[j]]) - float(rs[f][i])))
-    return matched, considered, box_err, score_diff
+                found.append(TopMatch(int(rl[f][i]), True, float(box_diff(cb[f][pool[j]], rb[f][i])), abs(float(cs[f][pool[j]]) - float(rs[f][i]))))
+            else:
+                found.append(TopMatch(int(rl[f][i]), False))
+    return found
+
+
+def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
+                radius_m: float = MATCH_RADIUS_M) -> tuple[int, int, float, float]:
+    """``match_top`` summed: (matched, considered, max box abs diff over matched pairs, max score
+    diff over matched pairs)."""
+    pairs = match_top(reference, candidate, top_k, radius_m)
+    hits = [p for p in pairs if p.matched]
+    return len(hits), len(pairs), max((p.box_diff for p in hits), default=0.0), max((p.score_diff for p in hits), default=0.0)
 
 
 def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray, threads: int = 2,

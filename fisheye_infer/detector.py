@@ -223,7 +223,12 @@ class FrameDetector:
 
 
 class Detector(FrameDetector):
-    """Runs an exported fisheye detector in ONNX Runtime. See the module docstring."""
+    """Runs an exported fisheye detector in ONNX Runtime. See the module docstring.
+
+    ``threads``: ONNX Runtime's intra-op threads (default: the cores this process may use).
+    ``spin=False``: they sleep as soon as a call ends instead of busy-waiting for the next one
+    (``session_options``), for cores shared with other processes or other models.
+    """
 
     def __init__(
         self,
@@ -235,6 +240,7 @@ class Detector(FrameDetector):
         nms: NmsConfig | str | None = None,
         warmup: bool = True,
         decode_threads: int | None = None,
+        spin: bool = True,
     ) -> None:
         check_score_threshold(score_threshold)  # bad options are named before the session is built
         check_nms(nms)
@@ -242,7 +248,7 @@ class Detector(FrameDetector):
         self.path = Path(model_path)
         if not self.path.is_file():
             raise ArtifactError(f"model {self.path}: no such file")
-        self._session = create_session(self.path, threads=threads, providers=providers)
+        self._session = create_session(self.path, threads=threads, providers=providers, spin=spin)
         meta = parse_meta(self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}")
         check_interface({i.name: i.shape for i in self._session.get_inputs()}, [o.name for o in self._session.get_outputs()], meta, f"model {self.path}")
         check_output_shapes({o.name: o.shape for o in self._session.get_outputs()}, meta, f"model {self.path}")

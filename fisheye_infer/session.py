@@ -95,8 +95,14 @@ def usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
-def session_options(threads: int | None = None) -> ort.SessionOptions:
-    """The project's session options (also used by ``fisheye-infer bench`` for stage models)."""
+def session_options(threads: int | None = None, spin: bool = True) -> ort.SessionOptions:
+    """The project's session options (also used by ``fisheye-infer bench`` for stage models).
+
+    ``spin=False``: the intra-op threads sleep as soon as a call ends instead of busy-waiting for
+    the next one (ONNX Runtime's default). Spinning makes back-to-back calls a few percent faster,
+    but burns the cores between calls: on a robot where other processes share them, or in a process
+    that runs several models, that time is taken from the others (``benchmarks/spinning.py``).
+    """
     if threads is not None and threads < 1:
         raise ValueError(f"threads: expected a positive number, got {threads}")
     options = ort.SessionOptions()
@@ -108,18 +114,22 @@ def session_options(threads: int | None = None) -> ort.SessionOptions:
     # Memory-pattern planning keeps a peak-sized block per input shape: FisheyeBEVDet's peak RSS
     # drops from about 980 MB to 610 MB without it, at the same latency (measured on 2 cores).
     options.enable_mem_pattern = False
+    if not spin:
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     return options
 
 
-def create_session(path: str | Path, threads: int | None = None, providers: str | Sequence[Provider] | None = None) -> ort.InferenceSession:
-    """An inference session with the project's defaults; ``threads`` sets intra-op parallelism.
+def create_session(path: str | Path, threads: int | None = None, providers: str | Sequence[Provider] | None = None,
+                   spin: bool = True) -> ort.InferenceSession:
+    """An inference session with the project's defaults; ``threads`` sets intra-op parallelism,
+    ``spin`` whether its threads busy-wait between calls (``session_options``).
 
     Providers named explicitly must start: ONNX Runtime would otherwise fall back to the CPU (a
     CUDA provider without its libraries or a GPU) and say so only in its log. ``"auto"`` takes
     whatever starts, dropping from the front of its list the providers that fail (a warning
     each); ``session.get_providers()`` says what that was.
     """
-    options = session_options(threads)
+    options = session_options(threads, spin)
     wanted = resolve_providers(providers)
     while True:
         try:

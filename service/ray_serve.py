@@ -114,7 +114,7 @@ class FisheyeReplica:
 
     def __init__(self, settings: ServiceSettings, options: RayServeOptions) -> None:
         self.settings = options.replica_settings(settings)
-        self.detector = Detector(self.settings.model_path, threads=self.settings.threads, providers=self.settings.session_providers,
+        self.detector = Detector(self.settings.model_path, threads=self.settings.threads, providers=self.settings.session_providers, spin=self.settings.spin,
                                  warmup=self.settings.warmup, decode_threads=self.settings.threads)  # the replica's CPUs, no more
         self._batched.set_max_batch_size(options.max_batch_size)
         self._batched.set_batch_wait_timeout_s(options.batch_wait_ms / 1e3)

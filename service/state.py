@@ -51,7 +51,8 @@ class Service:
         """Load (unless given) and warm the Detector in a thread, then start the workers."""
         s = self.settings
         if detector is None:
-            detector = await anyio.to_thread.run_sync(partial(Detector, s.model_path, threads=s.threads, providers=s.session_providers, warmup=s.warmup))
+            detector = await anyio.to_thread.run_sync(partial(Detector, s.model_path, threads=s.threads, providers=s.session_providers, warmup=s.warmup,
+                                                             spin=s.spin))
         elif s.warmup and not detector.ready:
             await anyio.to_thread.run_sync(detector.warmup)
         if detector.score_threshold is not None or detector.nms is not None:

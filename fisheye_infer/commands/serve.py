@@ -96,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_ray(args, settings)
     _log_to_stderr(args.log_level)
     print(f"loading {settings.model_path} ...", file=sys.stderr)
-    detector = Detector(settings.model_path, threads=settings.threads, providers=settings.session_providers, warmup=settings.warmup)
+    detector = Detector(settings.model_path, threads=settings.threads, providers=settings.session_providers, warmup=settings.warmup,
+                        spin=settings.spin)
     server = build_server(settings, create_app(settings, detector), log_level=args.log_level)
     server.run()
     return 0 if server.started else 1

@@ -32,6 +32,7 @@ from fisheye_infer.export.quantize import (
     image_region,
     int8_nodes,
     int8_path_for,
+    match_top,
     module_of,
     quantize,
     quantized_scope,
@@ -232,6 +233,15 @@ def test_top_matched_ignores_invalid_and_lower_ranked_boxes() -> None:
     reference[3][0, 1] = False  # not a valid reference box
     matched, considered, _, _ = top_matched(reference, _boxes([(0, 0), (5, 0), (30, 0)], [0, 0, 0]), top_k=1)
     assert (matched, considered) == (1, 1)
+
+
+def test_match_top_reports_each_reference_box_in_rank_order_with_its_label() -> None:
+    reference = _boxes([(0, 0), (10, 0), (20, 0)], [0, 1, 1], [0.5, 0.9, 0.7])
+    candidate = _boxes([(0.1, 0), (10.2, 0), (21, 0)], [0, 1, 1], [0.4, 0.8, 0.7])
+    found = match_top(reference, candidate)
+    assert [(m.label, m.matched) for m in found] == [(1, True), (1, False), (0, True)]  # scores 0.9, 0.7, 0.5
+    assert found[0].box_diff == pytest.approx(0.2) and found[0].score_diff == pytest.approx(0.1)
+    assert found[1].box_diff == 0.0 and top_matched(reference, candidate)[:2] == (2, 3)
 
 
 def test_frame_reader_feeds_one_frame_at_a_time_and_rewinds() -> None:

@@ -89,3 +89,26 @@ def test_metadata_contradicting_the_graph_is_refused_at_load(small_export, tmp_p
     with pytest.raises(ArtifactError) as err:
         Detector(edited, threads=1)
     assert words in str(err.value)
+
+
+def test_spin_false_reaches_the_session_and_changes_no_number(small_export, detector: Detector, frame, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``spin=False`` sets ONNX Runtime's ``session.intra_op.allow_spinning`` to 0 (its threads sleep between calls);
+    the default leaves ONNX Runtime's own behaviour (spinning). The boxes are the same either way."""
+    import fisheye_infer.session as session
+
+    real, seen = session.ort.InferenceSession, []
+
+    def recording(path, options, providers, enable_fallback):  # type: ignore[no-untyped-def]
+        try:
+            seen.append(options.get_session_config_entry("session.intra_op.allow_spinning"))
+        except RuntimeError:  # ONNX Runtime raises for an entry never set
+            seen.append(None)
+        return real(path, options, providers=providers, enable_fallback=enable_fallback)
+
+    monkeypatch.setattr(session.ort, "InferenceSession", recording)
+    calm = Detector(small_export.onnx, threads=1, spin=False)
+    Detector(small_export.onnx, threads=1, warmup=False)
+    assert seen == ["0", None]
+    a, b = detector.detect(frame), calm.detect(frame)
+    np.testing.assert_array_equal(a.boxes, b.boxes)
+    np.testing.assert_array_equal(a.scores, b.scores)

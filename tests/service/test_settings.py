@@ -15,6 +15,12 @@ def test_defaults_listen_on_loopback_without_microbatching() -> None:
     s = ServiceSettings(model_path="m.onnx")
     assert (s.host, s.port, s.api_key, s.microbatching, s.cors_origins) == ("127.0.0.1", 8000, None, False, [])
     assert s.session_providers is None  # the Detector's default: CPU
+    assert s.spin  # ONNX Runtime's default
+
+
+def test_spin_off_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("FISHEYE_SPIN", "false")
+    assert ServiceSettings(model_path="m.onnx").spin is False
 
 
 @pytest.mark.parametrize("value, providers", [("CPUExecutionProvider", ["CPUExecutionProvider"]), ("auto", "auto"), ('["auto"]', "auto"),
