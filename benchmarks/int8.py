@@ -11,7 +11,7 @@
 2. on ``--frames`` frames of the validation stream (``fisheye-infer synth --stream val``): FDS and
    mAP of each file, and the share of the fp32 top-50 boxes per frame each int8 file finds again
    (0.5 m, same label; the export's own criterion is 95%), over all boxes and per class, beside
-   the criterion's floor: the fp32 file against itself with every pixel moved by one grey level;
+   the criterion's floor: the fp32 file against itself with every pixel moved by -1, 0 or +1 grey level;
 3. latency of ``Detector.run_arrays`` on one frame, the files alternated round by round so drift of
    a shared machine falls on all of them alike; medians and the ratio to fp32 at each thread count.
 

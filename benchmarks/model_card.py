@@ -97,8 +97,8 @@ def top50_kept(fp32: Detector, candidate: Detector, data: Path, pixel_noise: boo
             step = np.random.default_rng(k).integers(-1, 2, images.shape)
             seen = np.clip(images.astype(np.int16) + step, 0, 255).astype(np.uint8)
         pairs += match_top(fp32.run_arrays(images, valid), candidate.run_arrays(seen, valid))
-    groups = {"all": pairs} | {name: [p for p in pairs if p.label == label] for label, name in enumerate(fp32.info.classes)}
-    groups = {name: group for name, group in groups.items() if group}
+    per_class = {name: [p for p in pairs if p.label == label] for label, name in enumerate(fp32.info.classes)}
+    groups = {"all": pairs} | {name: group for name, group in per_class.items() if group}
     return Kept({name: sum(p.matched for p in group) for name, group in groups.items()}, {name: len(group) for name, group in groups.items()})
 
 

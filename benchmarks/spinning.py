@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/spinning.py artifacts/int8/model.onnx          # a file benchmarks/int8.py writes
     .venv/bin/python benchmarks/spinning.py MODEL --rate 10 --seconds 5 --rounds 4 --threads 2
 
-After a call, ONNX Runtime's intra-op threads busy-wait for the next one (``session.intra_op.allow_spinning``).
+After a call, ONNX Runtime's intra-op threads spin for a while, ready for the next one (``session.intra_op.allow_spinning``).
 Two measurements, the settings alternated round by round:
 
 1. **a camera's pace**: one Detector called ``--rate`` times a second for ``--seconds``; the median
@@ -25,10 +25,14 @@ from fisheye_infer.bench import machine
 from fisheye_infer.detector import Detector
 
 SETTINGS = {"spin (default)": True, "spin=False": False}
+#: Pause before each measured phase, so that no thread left spinning by the phase before is counted in it.
+SETTLE_S = 0.5
 
 
-def paced(detector: Detector, images: np.ndarray, valid: np.ndarray, rate: float, seconds: float) -> tuple[list[float], float]:
-    """Call latencies (ms) at ``rate`` calls per second, and the process's CPU ms per call."""
+def paced(detector: Detector, images: np.ndarray, valid: np.ndarray, rate: float, seconds: float) -> tuple[list[float], float, float]:
+    """Call latencies (ms) at ``rate`` calls per second; the process's CPU ms per call (every
+    thread's, spinning included); and the cores it kept busy (CPU time over wall time, which holds
+    when the calls are too slow for the rate)."""
     period, latencies = 1.0 / rate, []
     cpu0, start = time.process_time(), time.perf_counter()
     for k in range(max(1, int(rate * seconds))):
@@ -37,7 +41,8 @@ def paced(detector: Detector, images: np.ndarray, valid: np.ndarray, rate: float
         detector.run_arrays(images, valid)
         latencies.append((time.perf_counter() - t0) * 1e3)
     time.sleep(max(0.0, start + len(latencies) * period - time.perf_counter()))  # the last period's spinning counts too
-    return latencies, (time.process_time() - cpu0) * 1e3 / len(latencies)
+    cpu_s, wall_s = time.process_time() - cpu0, time.perf_counter() - start
+    return latencies, cpu_s * 1e3 / len(latencies), cpu_s / wall_s
 
 
 def main() -> None:
@@ -61,12 +66,16 @@ def main() -> None:
 
     latency: dict[str, list[float]] = {name: [] for name in SETTINGS}
     cpu: dict[str, list[float]] = {name: [] for name in SETTINGS}
+    busy: dict[str, list[float]] = {name: [] for name in SETTINGS}
     turns: dict[str, list[float]] = {name: [] for name in SETTINGS}
-    for _ in range(args.rounds):
-        for name in SETTINGS:
-            ms, cpu_ms = paced(detectors[name], images, valid, args.rate, args.seconds)
+    for r in range(args.rounds):
+        for name in list(SETTINGS)[:: 1 if r % 2 == 0 else -1]:  # each setting first in every other round
+            time.sleep(SETTLE_S)
+            ms, cpu_ms, cores = paced(detectors[name], images, valid, args.rate, args.seconds)
             latency[name] += ms
             cpu[name].append(cpu_ms)
+            busy[name].append(cores)
+            time.sleep(SETTLE_S)
             for _ in range(args.calls):
                 for detector in pairs[name]:
                     t0 = time.perf_counter()
@@ -75,8 +84,7 @@ def main() -> None:
     print(f"\nmedians over {args.rounds} alternated rounds; paced: {args.rate:g} calls/s for {args.seconds:g} s; two models: {args.calls} calls each in turn\n")
     print("| setting | paced: latency ms | paced: CPU ms per frame | paced: cores busy | two models in turn: latency ms |\n|---|---|---|---|---|")
     for name in SETTINGS:
-        busy = float(np.median(cpu[name])) * args.rate / 1e3
-        print(f"| {name} | {np.median(latency[name]):.1f} | {np.median(cpu[name]):.1f} | {busy:.2f} | {np.median(turns[name]):.1f} |")
+        print(f"| {name} | {np.median(latency[name]):.1f} | {np.median(cpu[name]):.1f} | {np.median(busy[name]):.2f} | {np.median(turns[name]):.1f} |")
 
 
 if __name__ == "__main__":

@@ -396,7 +396,10 @@ def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray]
     diff over matched pairs)."""
     pairs = match_top(reference, candidate, top_k, radius_m)
     hits = [p for p in pairs if p.matched]
-    return len(hits), len(pairs), max((p.box_diff for p in hits), default=0.0), max((p.score_diff for p in hits), default=0.0)
+    box = score = 0.0
+    for p in hits:  # folded from 0 as max(so_far, new): the order and NaN handling of the running maximum it replaced
+        box, score = max(box, p.box_diff), max(score, p.score_diff)
+    return len(hits), len(pairs), box, score
 
 
 def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray, threads: int = 2,

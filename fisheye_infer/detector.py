@@ -226,7 +226,7 @@ class Detector(FrameDetector):
     """Runs an exported fisheye detector in ONNX Runtime. See the module docstring.
 
     ``threads``: ONNX Runtime's intra-op threads (default: the cores this process may use).
-    ``spin=False``: they sleep as soon as a call ends instead of busy-waiting for the next one
+    ``spin=False``: they sleep as soon as a call ends instead of spinning for a while first
     (``session_options``), for cores shared with other processes or other models.
     """
 
@@ -245,6 +245,8 @@ class Detector(FrameDetector):
         check_score_threshold(score_threshold)  # bad options are named before the session is built
         check_nms(nms)
         _check_decode_threads(decode_threads)
+        if not isinstance(spin, bool):  # "false" would be truthy and leave spinning on
+            raise OptionError(f"spin: expected True or False, got {type(spin).__name__} {spin!r}")
         self.path = Path(model_path)
         if not self.path.is_file():
             raise ArtifactError(f"model {self.path}: no such file")

@@ -98,10 +98,10 @@ def usable_cpus() -> int:
 def session_options(threads: int | None = None, spin: bool = True) -> ort.SessionOptions:
     """The project's session options (also used by ``fisheye-infer bench`` for stage models).
 
-    ``spin=False``: the intra-op threads sleep as soon as a call ends instead of busy-waiting for
-    the next one (ONNX Runtime's default). Spinning makes back-to-back calls a few percent faster,
-    but burns the cores between calls: on a robot where other processes share them, or in a process
-    that runs several models, that time is taken from the others (``benchmarks/spinning.py``).
+    ``spin=False``: the intra-op threads sleep as soon as a call ends. By default (ONNX Runtime's)
+    they spin for a while first, ready for the next call: a call a few percent faster, for tens of
+    milliseconds of CPU time after every call, taken from whatever else shares the cores (other
+    processes on a robot, another model in the same process; ``benchmarks/spinning.py``).
     """
     if threads is not None and threads < 1:
         raise ValueError(f"threads: expected a positive number, got {threads}")
@@ -122,7 +122,7 @@ def session_options(threads: int | None = None, spin: bool = True) -> ort.Sessio
 def create_session(path: str | Path, threads: int | None = None, providers: str | Sequence[Provider] | None = None,
                    spin: bool = True) -> ort.InferenceSession:
     """An inference session with the project's defaults; ``threads`` sets intra-op parallelism,
-    ``spin`` whether its threads busy-wait between calls (``session_options``).
+    ``spin`` whether its threads spin for a while after a call (``session_options``).
 
     Providers named explicitly must start: ONNX Runtime would otherwise fall back to the CPU (a
     CUDA provider without its libraries or a GPU) and say so only in its log. ``"auto"`` takes

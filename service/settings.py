@@ -8,7 +8,7 @@
 | ``model_path`` | required | the ONNX file written by ``fisheye-infer export`` |
 | ``host`` / ``port`` | 127.0.0.1 / 8000 | where uvicorn listens; loopback unless told otherwise |
 | ``threads`` | all cores | ONNX Runtime intra-op threads |
-| ``spin`` | true | whether those threads busy-wait between calls (false: they sleep, leaving the cores to other processes) |
+| ``spin`` | true | whether those threads spin for a while after a call (false: they sleep at once, leaving the cores to other processes) |
 | ``providers`` | CPU | execution providers in order (``CUDAExecutionProvider,CPUExecutionProvider``; a JSON list for provider options), or ``auto`` |
 | ``workers`` | 1 | inference threads calling the Detector |
 | ``queue_size`` | 8 | requests admitted and not yet running; beyond it: 503 + Retry-After |
@@ -55,7 +55,8 @@ class ServiceSettings(BaseSettings):
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=0, le=65535)
     threads: int | None = Field(default=None, ge=1, description="ONNX Runtime intra-op threads (default: all cores)")
-    spin: bool = Field(default=True, description="ONNX Runtime's threads busy-wait between calls (false: they sleep, leaving the cores to other processes)")
+    spin: bool = Field(default=True, description="ONNX Runtime's threads spin for a while after a call "
+                                                 "(false: they sleep at once, leaving the cores to other processes)")
     providers: Annotated[list[ProviderSetting], NoDecode] = Field(
         default_factory=list, description="ONNX Runtime execution providers in order of preference (names, or (name, options) pairs), "
                                           "or ['auto'] for the installed accelerated ones (default: CPU)")

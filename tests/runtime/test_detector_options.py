@@ -53,7 +53,7 @@ def test_detect_options_are_checked_at_the_boundary(detector: Detector, frame, o
         detector.detect(frame, **options)
 
 
-@pytest.mark.parametrize("options", [{"score_threshold": 1.5}, {"nms": "rotated-bev"}])
+@pytest.mark.parametrize("options", [{"score_threshold": 1.5}, {"nms": "rotated-bev"}, {"spin": "false"}])
 def test_detector_options_are_checked_at_construction(small_export, options: dict[str, Any]) -> None:
     with pytest.raises(OptionError):
         Detector(small_export.onnx, threads=1, warmup=False, **options)
@@ -91,9 +91,10 @@ def test_metadata_contradicting_the_graph_is_refused_at_load(small_export, tmp_p
     assert words in str(err.value)
 
 
-def test_spin_false_reaches_the_session_and_changes_no_number(small_export, detector: Detector, frame, monkeypatch: pytest.MonkeyPatch) -> None:
-    """``spin=False`` sets ONNX Runtime's ``session.intra_op.allow_spinning`` to 0 (its threads sleep between calls);
-    the default leaves ONNX Runtime's own behaviour (spinning). The boxes are the same either way."""
+def test_spin_false_reaches_the_session_and_changes_no_number(small_export, frame, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``spin=False`` sets ONNX Runtime's ``session.intra_op.allow_spinning`` to 0 (its threads sleep after a call);
+    the default leaves ONNX Runtime's own behaviour (spinning). Two threads, so that there is a pool to spin;
+    the boxes are the same either way."""
     import fisheye_infer.session as session
 
     real, seen = session.ort.InferenceSession, []
@@ -106,9 +107,9 @@ def test_spin_false_reaches_the_session_and_changes_no_number(small_export, dete
         return real(path, options, providers=providers, enable_fallback=enable_fallback)
 
     monkeypatch.setattr(session.ort, "InferenceSession", recording)
-    calm = Detector(small_export.onnx, threads=1, spin=False)
-    Detector(small_export.onnx, threads=1, warmup=False)
+    calm = Detector(small_export.onnx, threads=2, spin=False)
+    spinning = Detector(small_export.onnx, threads=2)
     assert seen == ["0", None]
-    a, b = detector.detect(frame), calm.detect(frame)
+    a, b = spinning.detect(frame), calm.detect(frame)
     np.testing.assert_array_equal(a.boxes, b.boxes)
     np.testing.assert_array_equal(a.scores, b.scores)

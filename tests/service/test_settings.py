@@ -18,9 +18,26 @@ def test_defaults_listen_on_loopback_without_microbatching() -> None:
     assert s.spin  # ONNX Runtime's default
 
 
-def test_spin_off_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_spin_off_from_the_environment_reaches_the_session_the_service_opens(small_export, monkeypatch: pytest.MonkeyPatch) -> None:
+    import anyio
+
+    import fisheye_infer.session as session
+    from fisheye_infer.service.state import Service
+
+    real, seen = session.ort.InferenceSession, []
+
+    def recording(path, options, providers, enable_fallback):  # type: ignore[no-untyped-def]
+        seen.append(options.get_session_config_entry("session.intra_op.allow_spinning"))
+        return real(path, options, providers=providers, enable_fallback=enable_fallback)
+
     monkeypatch.setenv("FISHEYE_SPIN", "false")
-    assert ServiceSettings(model_path="m.onnx").spin is False
+    settings = ServiceSettings(model_path=small_export.onnx, threads=2, warmup=False)
+    assert settings.spin is False
+    monkeypatch.setattr(session.ort, "InferenceSession", recording)
+    service = Service(settings)
+    anyio.run(service.start)
+    anyio.run(service.stop)
+    assert seen == ["0"]
 
 
 @pytest.mark.parametrize("value, providers", [("CPUExecutionProvider", ["CPUExecutionProvider"]), ("auto", "auto"), ('["auto"]', "auto"),
