@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
+from compare import timed  # noqa: E402
 from model_card import RANGES, add_model_arguments, heldout, run, top50_kept, trained_model  # noqa: E402
 
 from fisheye_infer.bench import machine  # noqa: E402
@@ -44,18 +45,18 @@ PIXEL_NOISE = "fp32, pixels +-1"
 
 
 def latency(paths: dict[str, Path], images: np.ndarray, valid: np.ndarray, threads: int, rounds: int, repeat: int) -> dict[str, float]:
-    """Median ms per ``run_arrays`` call for each file, the files alternated round by round."""
+    """Median ms per ``run_arrays`` call for each file, the files alternated round by round.
+
+    Each round's first call of a file is not timed: it pays for the previous file's threads, which
+    spin for a while after their last call (as ``make bench``'s rounds).
+    """
     detectors = {name: Detector(path, threads=threads) for name, path in paths.items()}
     times: dict[str, list[float]] = {name: [] for name in paths}
     for detector in detectors.values():
-        for _ in range(2):
-            detector.run_arrays(images, valid)
+        detector.run_arrays(images, valid)
     for _ in range(rounds):
         for name, detector in detectors.items():
-            for _ in range(repeat):
-                t0 = time.perf_counter()
-                detector.run_arrays(images, valid)
-                times[name].append((time.perf_counter() - t0) * 1e3)
+            times[name] += timed(lambda d=detector: d.run_arrays(images, valid), repeat, warmup=1)  # type: ignore[misc]
     return {name: float(np.median(t)) for name, t in times.items()}
 
 

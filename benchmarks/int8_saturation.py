@@ -12,7 +12,7 @@ the outputs for which at least one pair leaves [-32768, 32767]. Pairs are taken 
 take them: neighbouring input channels at one kernel tap (tap by tap, channel by channel, when the
 channel count is odd), neighbouring rows of a MatMul's weight. Grouped convolutions and Gemm are
 listed, not counted. The export's 7-bit weights
-(``export.quantize.WEIGHT_BITS``) make that impossible (2 x 255 x 64 = 32,640), so such a file prints
+(``fisheye_infer.artifact.WEIGHT_BITS``) make that impossible (2 x 255 x 64 = 32,640), so such a file prints
 zero everywhere; files with 8-bit weights (``benchmarks/int8.py --weight-bits 8``, or written before
 7 bits) show where the CPUs disagree.
 """

@@ -50,7 +50,7 @@ from onnx import numpy_helper
 from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType, quantize_static
 
 from fisheye_infer import graph_stages
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, ParityReport
+from fisheye_infer.artifact import CALIBRATION_PERCENTILE, INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, WEIGHT_BITS, WEIGHT_QMAX, ParityReport
 from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ArtifactError, ExportError
 from fisheye_infer.geometry.tables import PREFIX as GEOMETRY_PREFIX
@@ -68,25 +68,21 @@ __all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS"
 #: QuantizeLinear / DequantizeLinear: what a QDQ model adds, and what must stay inside the region.
 QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
 
-#: Activation ranges clip the calibration frames' values at this percentile (both tails): on the
-#: trained compact FisheyeBEVDet, 92.6% of the fp32 top-50 boxes kept instead of 90.2% with the
-#: plain min/max, and FDS 0.002 closer.
-CALIBRATION_PERCENTILE = 99.99
+# Activation ranges clip the calibration frames' values at ``CALIBRATION_PERCENTILE`` (from
+# fisheye_infer.artifact) of their magnitudes: on the compact FisheyeBEVDet after 14,000 steps,
+# 92.6% of the fp32 top-50 boxes kept instead of 90.2% with the plain min/max, and FDS 0.002 closer.
 
-#: Weights are quantized to 7 bits, [-64, 64], not to [-127, 127]. On x86 CPUs without VNNI (AVX2
-#: only, or AVX-512 before Cascade Lake) ONNX Runtime's u8 x s8 kernels multiply with vpmaddubsw,
-#: which adds each pair of neighbouring products in int16 and saturates: 255 x 127 x 2 = 64,770 does
-#: not fit, 255 x 64 x 2 = 32,640 does. So with 7 bits every x86 CPU computes the int8 layers' sums
-#: exactly as the machine that verified the file. With 8 bits, on the shipped compact FisheyeBEVDet,
-#: a third of the stem's outputs (the image's pixels times the first layer's weights) and under 1% of
-#: other layers' would saturate on such a CPU (``benchmarks/int8_saturation.py``), while on a VNNI
-#: CPU, whose vpdpbusd adds in int32, 7 bits keep as many of the fp32 top-50 boxes as 8
-#: (``benchmarks/int8.py --weight-bits 8``). Other constants of quantized nodes keep 8 bits
-#: (``eight_bit_constants``).
-WEIGHT_BITS = 7
-#: The largest weight magnitude for each number of weight bits ONNX Runtime's quantizer writes
-#: (symmetric int8, and its ``reduce_range``).
-WEIGHT_QMAX = {7: 64, 8: 127}
+# Weights are quantized to 7 bits, [-64, 64], not to [-127, 127] (``WEIGHT_BITS``, ``WEIGHT_QMAX``,
+# from fisheye_infer.artifact). On x86 CPUs without VNNI (AVX2 only, or AVX-512 before Cascade
+# Lake) ONNX Runtime's u8 x s8 kernels multiply with vpmaddubsw,
+# which adds each pair of neighbouring products in int16 and saturates: 255 x 127 x 2 = 64,770 does
+# not fit, 255 x 64 x 2 = 32,640 does. So with 7 bits every x86 CPU computes the int8 layers' sums
+# exactly as the machine that verified the file. With 8 bits, on the shipped compact FisheyeBEVDet,
+# a third of the stem's outputs (the image's pixels times the first layer's weights) and under 1% of
+# other layers' would saturate on such a CPU (``benchmarks/int8_saturation.py``), while on a VNNI
+# CPU, whose vpdpbusd adds in int32, 7 bits keep as many of the fp32 top-50 boxes as 8
+# (``benchmarks/int8.py --weight-bits 8``). Other constants of quantized nodes keep 8 bits
+# (``eight_bit_constants``).
 
 #: What ``int8_nodes`` may cover: ``network`` (trunk + every weighted layer beyond it) or ``trunk``.
 SCOPES = ("network", "trunk")

@@ -21,6 +21,9 @@ from fisheye_infer.geometry.kinds import GeometryParams
 from fisheye_infer.rig import Rig
 
 __all__ = [
+    "CALIBRATION_PERCENTILE",
+    "WEIGHT_BITS",
+    "WEIGHT_QMAX",
     "ARTIFACT_SCHEMA_VERSION",
     "METADATA_KEY",
     "INPUT_IMAGES",
@@ -109,6 +112,16 @@ class ParityReport(_Model):
     replayed: ReplayedChoice | None = None  # fp16: the fp32 file at the fp16 file's own top-k choice
 
 
+#: The int8 file's weight bits and the largest weight magnitude for each (symmetric S8, 7 bits being
+#: ONNX Runtime's ``reduce_range``); ``export.quantize`` says why 7 is the default, and the
+#: quantization-aware training (``models.training.qat``) rounds to the same grid.
+WEIGHT_BITS = 7
+WEIGHT_QMAX = {7: 64, 8: 127}
+#: The int8 file's activation ranges: ONNX Runtime's percentile calibration, at this percentile of
+#: each tensor's magnitudes (then clipped to its minimum and maximum).
+CALIBRATION_PERCENTILE = 99.99
+
+
 class Quantization(_Model):
     """A reduced-precision file derived from a verified fp32 file: what was reduced and how."""
 
@@ -116,7 +129,7 @@ class Quantization(_Model):
     scope: str
     calibration_frames: int = 0  # int8 only
     #: int8: the weights' bits. 7 keeps u8 x s8 pair sums within int16, so CPUs without VNNI compute what
-    #: VNNI computes (``export.quantize.WEIGHT_BITS``); None in int8 files written before it was recorded (8 bits).
+    #: VNNI computes (``WEIGHT_BITS``); None in int8 files written before it was recorded (8 bits).
     weight_bits: Literal[7, 8] | None = None
 
 

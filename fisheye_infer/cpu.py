@@ -5,7 +5,7 @@ ONNX Runtime multiplies u8 activations by s8 weights with VNNI's ``vpdpbusd`` wh
 before Cascade Lake) it uses ``vpmaddubsw``, which adds each pair of products in int16 and
 saturates: int8 files with 8-bit weights can then give other boxes than on a VNNI CPU. (Older x86
 CPUs get SSE2 kernels that widen to int16 before multiplying: exact, and slow.) ``export`` writes
-7-bit weights, which never saturate (``fisheye_infer.export.quantize.WEIGHT_BITS``);
+7-bit weights, which never saturate (``fisheye_infer.artifact.WEIGHT_BITS``);
 ``int8_saturation_warning`` names the older files at risk on this CPU.
 """
 

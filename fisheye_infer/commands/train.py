@@ -1,6 +1,8 @@
 """``fisheye-infer train``: train a FisheyeBEVDet on synthetic frames (torch is imported only when the command runs).
 
     fisheye-infer train --out runs/compact [--until 1000] [--resume]
+    fisheye-infer train --out runs/tuned --init runs/compact/model.pth --seed 1 --lr 5e-5 --steps 2500
+    fisheye-infer train --out runs/qat --init runs/compact/model.pth --qat 0.5 --device cuda --workers 7 --batch-size 8
 """
 
 from __future__ import annotations
@@ -30,6 +32,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)")
     parser.add_argument("--depth-weight", type=float, default=3.0,
                         help="weight of the depth loss against the frames' true ray depths (default 3, as BEVDepth; 0: the official losses alone)")
+    parser.add_argument("--qat", type=float, default=0.0,
+                        help="share of steps whose forward rounds weights and activations as the int8 file will "
+                             "(quantization-aware training; default 0: float only)")
+    parser.add_argument("--device", default="cpu", help="where the model trains: cpu (default), cuda, cuda:1, ...")
+    parser.add_argument("--workers", type=int, default=0,
+                        help="processes rendering the next steps' frames while a step trains (default 0: rendered in the loop)")
+    parser.add_argument("--init", help="start from this checkpoint's weights (a model.pth of the same configuration and rig): "
+                                       "a fine-tuning run with its own optimiser and schedule")
     parser.set_defaults(run=run)
 
 
@@ -51,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise ConfigError(f"--threads: expected at least 1, got {args.threads}")
     if args.resume:
+        if args.init:
+            raise ConfigError("--resume continues from the run folder's checkpoint.pth; leave out --init")
         if args.config or args.rig:
             raise ConfigError("--resume takes the configuration and rig from the run folder; leave out --config and --rig")
         if not (out / "config.py").is_file() or not (out / "rig.json").is_file():
@@ -72,11 +84,11 @@ def run(args: argparse.Namespace) -> int:
             rig = compact_rig()
     options = TrainOptions(steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                            checkpoint_every=args.checkpoint_every, val_frames=args.val_frames,
-                           depth_weight=args.depth_weight)
+                           depth_weight=args.depth_weight, init=args.init or "", qat=args.qat)
     previous = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:
-        trainer = Trainer(config, rig, out, options)
+        trainer = Trainer(config, rig, out, options, device=args.device, workers=args.workers)
         path = trainer.run(resume=args.resume, until=args.until)
     finally:
         torch.set_num_threads(previous)

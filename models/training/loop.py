@@ -45,9 +45,10 @@ from fisheye_infer.synth_splits import Sample, SyntheticFrames
 from .compact import write_config
 from .depth import DepthTargets, depth_loss
 from .losses import LossConfig, TransFusionLoss
+from .qat import FakeQuant
 from .targets import HeadGrid
 
-__all__ = ["TrainOptions", "Trainer", "collate", "init_for_training", "lr_factor", "HEATMAP_PRIOR"]
+__all__ = ["TrainOptions", "Trainer", "StepBatches", "collate", "training_device", "init_for_training", "lr_factor", "HEATMAP_PRIOR"]
 
 ARCH = "fisheye-bevdet"
 #: Initial bias of both heatmap classifiers (the official init: sigmoid(-2.19) = 0.1).
@@ -58,6 +59,45 @@ TERMS = ("loss", "loss_heatmap", "loss_cls", "loss_bbox", "loss_depth", "matched
 def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
     """Samples -> images B x N x H x W x 3 uint8, and per-frame boxes and labels."""
     return (np.stack([s.images for s in samples]), [s.boxes for s in samples], [s.labels for s in samples])
+
+
+#: One step's frames and their depth targets (B*N x H x W bins).
+Batch = tuple[list[Sample], np.ndarray]
+
+
+class StepBatches(torch.utils.data.Dataset[Batch]):
+    """Step ``s`` -> frames ``s*B .. s*B+B-1`` of ``frames`` with their depth targets: what one step
+    trains on, rendered where it is asked for (in the loop, or ahead in ``DataLoader`` workers)."""
+
+    def __init__(self, frames: SyntheticFrames, depth_targets: DepthTargets, batch_size: int) -> None:
+        self.frames, self.depth_targets, self.batch_size = frames, depth_targets, batch_size
+
+    def __getitem__(self, step: int) -> Batch:
+        samples = [self.frames[step * self.batch_size + i] for i in range(self.batch_size)]
+        return samples, np.concatenate([self.depth_targets(s.scene) for s in samples])
+
+
+def training_device(name: str) -> torch.device:
+    """``name`` as a torch device this machine has; a ``ConfigError`` that says what is wrong otherwise."""
+    try:
+        device = torch.device(name)
+    except RuntimeError as exc:
+        raise ConfigError(f"--device {name!r}: not a torch device ({exc})") from None
+    if device.type == "cuda" and (not torch.cuda.is_available() or (device.index or 0) >= torch.cuda.device_count()):
+        raise ConfigError(f"--device {name}: no such CUDA device here (torch {torch.__version__} sees {torch.cuda.device_count()} GPU(s))")
+    if device.type not in ("cpu", "cuda"):
+        raise ConfigError(f"--device {name}: expected cpu or cuda[:N]")
+    return device
+
+
+def _as_is(batch: Batch) -> Batch:
+    return batch
+
+
+def _one_thread_worker(_: int) -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # each worker renders one step; many workers, not many threads each
 
 
 class _DepthProbe:
@@ -80,12 +120,19 @@ class _DepthProbe:
 
 @dataclass(frozen=True)
 class TrainOptions:
-    """What a run is made of; all of it is stored in the checkpoint and must match on ``--resume``.
+    """What a run is made of; all of it is stored in the checkpoint and, but ``steps`` and ``init``,
+    must match on ``--resume``.
 
-    ``steps`` may grow on resume (a run can be continued further; the cosine then stretches to the
-    new end from the step it resumes at); everything else is fixed. ``depth_weight`` weighs the
+    ``steps`` may change on resume, down to the step reached (a run can be continued further, or
+    ended sooner; the cosine then stretches or shrinks to the new end from the step it resumes at);
+    ``init`` is the run's own. ``depth_weight`` weighs the
     depth loss against the synthetic frames' true ray depths (``depth.py``; 0 trains with the
-    official losses alone).
+    official losses alone). ``init`` starts from the weights of a checkpoint (one ``model.pth`` of
+    a run, with this configuration and rig) instead of the seeded initialiser: a fine-tuning run,
+    with its own optimiser, warm-up and schedule. ``qat`` is the share of steps whose forward
+    rounds as the int8 file will (``qat.FakeQuant``; which steps is seeded): 0 trains the float
+    model alone, 1 the int8 simulation alone, between the two both (the shipped model's model card
+    says what 0.5 changed).
     """
 
     steps: int = 8000
@@ -98,6 +145,8 @@ class TrainOptions:
     checkpoint_every: int = 100
     val_frames: int = 4
     depth_weight: float = 3.0
+    init: str = ""
+    qat: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "checkpoint_every"):
@@ -107,6 +156,8 @@ class TrainOptions:
             raise ConfigError(f"--lr: expected a positive learning rate, got {self.lr}")
         if not self.depth_weight >= 0:
             raise ConfigError(f"--depth-weight: expected 0 or more, got {self.depth_weight}")
+        if not 0 <= self.qat <= 1:
+            raise ConfigError(f"--qat: expected a share of steps in [0, 1], got {self.qat}")
         if self.val_frames < 0 or self.warmup_steps < 0:
             raise ConfigError(f"--val-frames / warm-up steps: expected 0 or more, got {self.val_frames} / {self.warmup_steps}")
 
@@ -143,10 +194,16 @@ class Trainer:
     """
 
     def __init__(self, config: Any, rig: Rig, out: str | Path, options: TrainOptions = TrainOptions(),
-                 loss: LossConfig = LossConfig()) -> None:  # noqa: B008 (frozen dataclasses)
-        from fisheye_infer.models import create_model
+                 loss: LossConfig = LossConfig(), device: str = "cpu", workers: int = 0) -> None:  # noqa: B008 (frozen dataclasses)
+        """``device``: where the model trains (``cpu``, ``cuda``, ``cuda:1``); ``workers``: processes
+        that render the next steps' frames while this one trains (0: rendered in the loop). Neither
+        changes what a step trains on."""
+        from fisheye_infer.models import create_model, get_model_entry
 
+        if workers < 0:
+            raise ConfigError(f"--workers: expected 0 or more, got {workers}")
         self.config, self.rig, self.out, self.options = config, rig, Path(out), options
+        self.device, self.workers = training_device(device), workers
         rig.require(rig.names, (config.image.width, config.image.height))
         torch.manual_seed(options.seed)
         self.model = create_model(ARCH, config, rig)
@@ -157,8 +214,12 @@ class Trainer:
         self.val_frames = SyntheticFrames(rig, "val", options.seed, bev_range=bev_range)
         self.loss = TransFusionLoss(self.model.bbox_head, grid, loss)
         vt = self.model.view_transform
-        self.depth_targets = DepthTargets(vt.geometry, config.view_transform)
+        depth_targets = DepthTargets(vt.geometry, config.view_transform)
+        self.train_batches = StepBatches(self.train_frames, depth_targets, options.batch_size)
+        self.val_batches = StepBatches(self.val_frames, depth_targets, 1)
         self.depth_probe = _DepthProbe(vt)
+        self.fake_quant = FakeQuant(self.model, get_model_entry(ARCH).int8_float) if options.qat else None
+        self.model.to(self.device)
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
         self.step = 0
 
@@ -170,9 +231,11 @@ class Trainer:
 
     def save(self) -> Path:
         """Write ``model.pth`` (official format) and ``checkpoint.pth`` (plus optimiser state) for the current step."""
-        state = {k: v.detach().clone().contiguous() for k, v in self.model.official_state_dict().items()}
+        state = {k: v.detach().cpu().contiguous() for k, v in self.model.official_state_dict().items()}
         meta = self._meta()
-        _atomic_save({"state_dict": state, "meta": meta, "optimizer": self.optimizer.state_dict()}, self.out / "checkpoint.pth")
+        fake_quant = self.fake_quant.state() if self.fake_quant is not None else {}
+        _atomic_save({"state_dict": state, "meta": meta, "optimizer": self.optimizer.state_dict(), "fake_quant": fake_quant},
+                     self.out / "checkpoint.pth")
         _atomic_save({"state_dict": state, "meta": meta}, self.out / "model.pth")
         return self.out / "model.pth"
 
@@ -185,59 +248,93 @@ class Trainer:
             raise CheckpointError(f"--resume: {path} does not exist (start the run without --resume)")
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
         meta = ckpt.get("meta", {})
-        if meta.get("config") != self.config.to_dict():
-            raise CheckpointError(f"--resume: {path} was trained with another model configuration")
-        if meta.get("rig_hash") != self.rig.hash:
-            raise CheckpointError(f"--resume: {path} was trained for rig {meta.get('rig')!r} ({meta.get('rig_hash')}), "
-                                  f"not {self.rig.name!r} ({self.rig.hash})")
-        saved = dict(meta.get("train_options", {}))
+        self._check_origin(meta, f"--resume: {path}", recorded=True)
+        saved = {"init": "", "qat": 0.0, **meta.get("train_options", {})}  # runs before fine-tuning and int8 simulation
         mine = dataclasses.asdict(self.options)
-        differ = [f"{k}: saved {saved.get(k)!r}, given {v!r}" for k, v in mine.items() if k != "steps" and saved.get(k) != v]
+        differ = [f"{k}: saved {saved.get(k)!r}, given {v!r}" for k, v in mine.items()
+                  if k not in ("steps", "init") and saved.get(k) != v]
         if differ:
             raise CheckpointError(f"--resume: {path} was made with other options ({'; '.join(differ)})")
+        self.options = dataclasses.replace(self.options, init=saved["init"])  # the weights come from checkpoint.pth
         load_official_state_dict(self.model, ckpt["state_dict"], geometry="rig", context=str(path))
         self.optimizer.load_state_dict(ckpt["optimizer"])
+        if self.fake_quant is not None:
+            self.fake_quant.load_state(ckpt.get("fake_quant", {}), self.device)
         self.step = int(meta["step"])
+        if self.options.steps < self.step:
+            raise ConfigError(f"--steps {self.options.steps}: the run in {self.out} is already at step {self.step}")
         return self.step
+
+    def load_init(self) -> None:
+        """Start from the weights of ``options.init``; refuse a checkpoint of another configuration or rig."""
+        from fisheye_infer.models import load_checkpoint, load_official_state_dict
+
+        path = Path(self.options.init)
+        if not path.is_file():
+            raise CheckpointError(f"--init: {path} does not exist")
+        state_dict, meta = load_checkpoint(path)
+        self._check_origin(meta, f"--init: {path}", recorded=False)
+        load_official_state_dict(self.model, state_dict, geometry="rig", context=f"--init {path}")
+
+    def _check_origin(self, meta: dict[str, Any], what: str, recorded: bool) -> None:
+        """Refuse a checkpoint whose ``meta`` names another configuration or rig than this run's
+        (``recorded``: both must be there, as in this loop's own checkpoints)."""
+        mine = self.config.to_dict()
+        if (recorded or "config" in meta) and meta.get("config") != mine:
+            theirs = meta.get("config") or {}
+            sections = sorted(k for k in {*mine, *theirs} if mine.get(k) != theirs.get(k))
+            raise CheckpointError(f"{what} was trained with another model configuration (differs in: {', '.join(sections)})")
+        if (recorded or "rig_hash" in meta) and meta.get("rig_hash") != self.rig.hash:
+            raise CheckpointError(f"{what} was trained for rig {meta.get('rig')!r} ({meta.get('rig_hash')}), "
+                                  f"not {self.rig.name!r} ({self.rig.hash})")
 
     # -- training ---------------------------------------------------------------------------
 
-    def _losses(self, samples: list[Sample]) -> dict[str, torch.Tensor]:
-        """The official terms plus the weighted depth loss, for one forward over ``samples``."""
+    def _losses(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """The official terms plus the weighted depth loss, for one forward over a step's frames."""
+        samples, depth = batch
         images, boxes, labels = collate(samples)
-        terms = self.loss(self.model.forward_raw(torch.from_numpy(images)), boxes, labels)
-        target = torch.from_numpy(np.concatenate([self.depth_targets(s.scene) for s in samples]))
-        terms["loss_depth"] = depth_loss(self.depth_probe.probs(), target)
+        terms = self.loss(self.model.forward_raw(torch.from_numpy(images).to(self.device)), boxes, labels)
+        terms["loss_depth"] = depth_loss(self.depth_probe.probs(), torch.from_numpy(depth).to(self.device))
         if self.options.depth_weight:
             terms["loss"] = terms["loss"] + self.options.depth_weight * terms["loss_depth"]
         return terms
 
-    def train_step(self) -> dict[str, float]:
-        """One optimiser step on the next batch; returns the loss terms, the learning rate and the seconds it took."""
+    def int8_step(self, step: int) -> bool:
+        """Whether step ``step``'s forward simulates the int8 file (a seeded draw at rate ``options.qat``)."""
+        return self.fake_quant is not None and bool(np.random.default_rng([self.options.seed, step]).random() < self.options.qat)
+
+    def train_step(self, batch: Batch | None = None) -> dict[str, float]:
+        """One optimiser step on the next step's frames (``batch``, or rendered here); returns the loss
+        terms, the learning rate and the seconds it took."""
         start, cpu = time.perf_counter(), time.process_time()
-        b = self.options.batch_size
-        samples = [self.train_frames[self.step * b + i] for i in range(b)]
+        batch = self.train_batches[self.step] if batch is None else batch
         for group in self.optimizer.param_groups:
             group["lr"] = self.options.lr * lr_factor(self.step, self.options.steps, self.options.warmup_steps)
+        int8 = self.int8_step(self.step)
+        if self.fake_quant is not None:
+            self.fake_quant.enabled = int8
         self.model.train()
-        terms = self._losses(samples)
+        terms = self._losses(batch)
         self.optimizer.zero_grad(set_to_none=True)
         terms["loss"].backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.options.grad_clip)
         self.optimizer.step()
         self.step += 1
         row = {k: float(terms[k].detach()) for k in TERMS}
-        row.update(step=self.step, lr=self.optimizer.param_groups[0]["lr"], grad_norm=float(grad_norm),
+        row.update(step=self.step, lr=self.optimizer.param_groups[0]["lr"], grad_norm=float(grad_norm), int8=int8,
                    seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu)
         return row
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
-        """Mean loss terms on the first ``val_frames`` validation frames, with the model in inference mode."""
+        """Mean loss terms on the first ``val_frames`` validation frames, with the model in inference mode (float)."""
         self.model.eval()
+        if self.fake_quant is not None:
+            self.fake_quant.enabled = False
         sums = dict.fromkeys(TERMS, 0.0)
         for i in range(self.options.val_frames):
-            terms = self._losses([self.val_frames[i]])
+            terms = self._losses(self.val_batches[i])
             for k in TERMS:
                 sums[k] += float(terms[k]) / self.options.val_frames
         return sums
@@ -249,14 +346,16 @@ class Trainer:
         if resume:
             self.resume()
         else:
+            if self.options.init:
+                self.load_init()
             write_config(self.config, self.out / "config.py")
             self.rig.save(self.out / "rig.json")
             (self.out / "log.jsonl").write_text("")
         stop = self.options.steps if until is None else min(int(until), self.options.steps)
         bar = ProgressBar(self.options.steps, self.step, progress)
         with (self.out / "log.jsonl").open("a") as log:
-            while self.step < stop:
-                row = self.train_step()
+            for batch in self._batches(stop):
+                row = self.train_step(batch)
                 log.write(json.dumps(row) + "\n")
                 log.flush()
                 bar.update(row)
@@ -267,7 +366,15 @@ class Trainer:
                         bar.note(f"step {self.step}: validation loss {val['loss']:.3f} (matched IoU {val['matched_iou']:.2f})")
                     bar.note(f"step {self.step}: wrote {self.save()}")
         bar.close()
+        if self.fake_quant is not None:
+            self.fake_quant.enabled = False  # the trained model, as the checkpoint holds it
         return self.out / "model.pth"
+
+    def _batches(self, stop: int) -> torch.utils.data.DataLoader[Batch]:
+        """The frames of steps ``self.step`` .. ``stop - 1``, in order, rendered ahead by ``workers`` processes."""
+        ahead = {"multiprocessing_context": "spawn", "prefetch_factor": 4, "worker_init_fn": _one_thread_worker} if self.workers else {}
+        return torch.utils.data.DataLoader(self.train_batches, batch_size=None, sampler=range(self.step, stop),
+                                           num_workers=self.workers, collate_fn=_as_is, **ahead)  # type: ignore[arg-type]
 
 
 class ProgressBar:
