@@ -372,9 +372,10 @@ class Trainer:
 
     def _batches(self, stop: int) -> torch.utils.data.DataLoader[Batch]:
         """The frames of steps ``self.step`` .. ``stop - 1``, in order, rendered ahead by ``workers`` processes."""
-        ahead = {"multiprocessing_context": "spawn", "prefetch_factor": 4, "worker_init_fn": _one_thread_worker} if self.workers else {}
+        workers = self.workers if stop > self.step else 0  # nothing left to render: no processes to start
+        ahead = {"multiprocessing_context": "spawn", "prefetch_factor": 4, "worker_init_fn": _one_thread_worker} if workers else {}
         return torch.utils.data.DataLoader(self.train_batches, batch_size=None, sampler=range(self.step, stop),
-                                           num_workers=self.workers, collate_fn=_as_is, **ahead)  # type: ignore[arg-type]
+                                           num_workers=workers, collate_fn=_as_is, **ahead)  # type: ignore[arg-type]
 
 
 class ProgressBar:
