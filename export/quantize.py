@@ -74,9 +74,9 @@ QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
 
 # Weights are quantized to 7 bits, [-64, 64], not to [-127, 127] (``WEIGHT_BITS``, ``WEIGHT_QMAX``,
 # from fisheye_infer.artifact). On x86 CPUs without VNNI (AVX2 only, or AVX-512 before Cascade
-# Lake) ONNX Runtime's u8 x s8 kernels multiply with vpmaddubsw,
-# which adds each pair of neighbouring products in int16 and saturates: 255 x 127 x 2 = 64,770 does
-# not fit, 255 x 64 x 2 = 32,640 does. So with 7 bits every x86 CPU computes the int8 layers' sums
+# Lake) ONNX Runtime's u8 x s8 kernels multiply with vpmaddubsw, which adds each pair of
+# neighbouring products in int16 and saturates: 255 x 127 x 2 = 64,770 does not fit,
+# 255 x 64 x 2 = 32,640 does. So with 7 bits every x86 CPU computes the int8 layers' sums
 # exactly as the machine that verified the file. With 8 bits, on the shipped compact FisheyeBEVDet,
 # a third of the stem's outputs (the image's pixels times the first layer's weights) and under 1% of
 # other layers' would saturate on such a CPU (``benchmarks/int8_saturation.py``), while on a VNNI
