@@ -10,8 +10,9 @@
    seeded renders of the rig; add ``--calib-images`` for frames of your own);
 2. on ``--frames`` frames of the validation stream (``fisheye-infer synth --stream val``): FDS and
    mAP of each file, and the share of the fp32 top-50 boxes per frame each int8 file finds again
-   (0.5 m, same label; the export's own criterion is 95%), over all boxes and per class, beside
-   the criterion's floor: the fp32 file against itself with every pixel moved by -1, 0 or +1 grey level;
+   (0.5 m, same label; the export's own criterion is 95%), over all boxes, per class and per band
+   of the fp32 box's score, beside the criterion's floor: the fp32 file against itself with every
+   pixel moved by -1, 0 or +1 grey level;
 3. latency of ``Detector.run_arrays`` on one frame, the files alternated round by round so drift of
    a shared machine falls on all of them alike; medians and the ratio to fp32 at each thread count.
 
@@ -33,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from compare import timed  # noqa: E402
-from model_card import RANGES, add_model_arguments, heldout, run, top50_kept, trained_model  # noqa: E402
+from model_card import RANGES, SCORE_BANDS, add_model_arguments, heldout, run, top50_kept, trained_model  # noqa: E402
 
 from fisheye_infer.bench import machine  # noqa: E402
 from fisheye_infer.detector import Detector  # noqa: E402
@@ -112,21 +113,28 @@ def main() -> None:
     for name, report in reports.items():
         near, far = (report.distance[label] for label in RANGES)
         share = kept[name].share() if name in kept else 1.0
-        per_class = {c: kept[name].share(c) for c in kept[name].considered} if name in kept else {}
+        per_class = {c: kept[name].share(c) for c in kept[name].classes} if name in kept else {}
+        per_score = {band: kept[name].share(band) for band in SCORE_BANDS} if name in kept else {}
         delta = near.FDS - reports["fp32"].distance[RANGES[0]].FDS
         print(f"| {name} | {near.FDS:.4f} | {near.mAP:.4f} | {far.FDS:.4f} | {far.mAP:.4f} | {delta:+.4f} | {share:.1%} |")
         figures["files"][name] = {"path": str(paths[name]), "MB": paths[name].stat().st_size / 1e6, "top50_kept": share,
-                                  "top50_kept_per_class": per_class,
+                                  "top50_kept_per_class": per_class, "top50_kept_per_score": per_score,
                                   **{f"{m} {label}": getattr(report.distance[label], m) for label in RANGES for m in ("FDS", "mAP")}}
 
     kept[PIXEL_NOISE] = top50_kept(fp32, fp32, data, pixel_noise=True)
     figures["top50_kept_fp32_pixel_noise"] = {c: kept[PIXEL_NOISE].share(c) for c in kept[PIXEL_NOISE].considered}
-    classes = list(kept[PIXEL_NOISE].considered)
+    classes = kept[PIXEL_NOISE].classes
     print(f"\n## top-50 kept per class (the fp32 boxes of each class over {args.frames} frames; last row: the criterion's floor)\n")
     print("| file | " + " | ".join(classes) + " |\n" + "|---" * (len(classes) + 1) + "|")
     print("| fp32 boxes | " + " | ".join(str(kept[PIXEL_NOISE].considered[c]) for c in classes) + " |")
     for name, k in kept.items():
         print(f"| {name} | " + " | ".join(f"{k.share(c):.1%}" for c in classes) + " |")
+    bands = list(SCORE_BANDS)
+    print("\n## top-50 kept by the fp32 box's score (what a detection threshold keeps; same boxes)\n")
+    print("| file | " + " | ".join(bands) + " |\n" + "|---" * (len(bands) + 1) + "|")
+    print("| fp32 boxes | " + " | ".join(str(kept[PIXEL_NOISE].considered[b]) for b in bands) + " |")
+    for name, k in kept.items():
+        print(f"| {name} | " + " | ".join(f"{k.share(b):.1%}" for b in bands) + " |")
 
     frame = next(iter(Fisheye3DOD(data, "val")))
     images, valid = stack_frames([load_frame(dict(frame.image_paths), fp32.info.cameras, fp32.info.image_size)], fp32.info.image_size)

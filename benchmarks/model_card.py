@@ -68,15 +68,25 @@ def run(detector: FrameDetector, data: Path, cameras: list[str]) -> tuple[Metric
     return evaluate_results(gt, pred), (gt, pred)
 
 
+#: Bands of the fp32 box's score that ``Kept`` also counts by: what a detection threshold keeps.
+SCORE_BANDS = {"score >= 0.3": (0.3, math.inf), "0.15-0.3": (0.15, 0.3), "0.05-0.15": (0.05, 0.15), "< 0.05": (-math.inf, 0.05)}
+
+
 @dataclass(frozen=True)
 class Kept:
-    """How many of the fp32 file's top-50 boxes another file found again, over all boxes ("all") and per class."""
+    """How many of the fp32 file's top-50 boxes another file found again: over all boxes ("all"),
+    per class (by name) and per band of the fp32 box's score (``SCORE_BANDS``)."""
 
     matched: dict[str, int]
     considered: dict[str, int]
 
     def share(self, name: str = "all") -> float:
         return self.matched[name] / max(self.considered[name], 1)
+
+    @property
+    def classes(self) -> list[str]:
+        """"all" and the classes with boxes, in the file's class order."""
+        return [name for name in self.considered if name not in SCORE_BANDS]
 
 
 def top50_kept(fp32: Detector, candidate: Detector, data: Path, pixel_noise: bool = False) -> Kept:
@@ -98,7 +108,8 @@ def top50_kept(fp32: Detector, candidate: Detector, data: Path, pixel_noise: boo
             seen = np.clip(images.astype(np.int16) + step, 0, 255).astype(np.uint8)
         pairs += match_top(fp32.run_arrays(images, valid), candidate.run_arrays(seen, valid))
     per_class = {name: [p for p in pairs if p.label == label] for label, name in enumerate(fp32.info.classes)}
-    groups = {"all": pairs} | {name: group for name, group in per_class.items() if group}
+    per_band = {band: [p for p in pairs if low <= p.score < high] for band, (low, high) in SCORE_BANDS.items()}
+    groups = {"all": pairs} | {name: group for name, group in per_class.items() if group} | per_band
     return Kept({name: sum(p.matched for p in group) for name, group in groups.items()}, {name: len(group) for name, group in groups.items()})
 
 
@@ -200,8 +211,10 @@ def main() -> None:
     for label in RANGES:
         a, b = full.distance[label].FDS, int8_report.distance[label].FDS
         print(f"| {label} | {a:.3f} | {b:.3f} | {b - a:+.3f} | {kept.share():.1%} |")
-    print("\ntop-50 kept per class: " + ", ".join(f"{name} {kept.share(name):.1%} of {kept.considered[name]}" for name in kept.considered if name != "all"))
-    figures["int8"] = {"top50_kept": kept.share(), "top50_kept_per_class": {name: kept.share(name) for name in kept.considered},
+    print("\ntop-50 kept per class: " + ", ".join(f"{name} {kept.share(name):.1%} of {kept.considered[name]}" for name in kept.classes if name != "all"))
+    print("top-50 kept by the fp32 box's score: " + ", ".join(f"{band} {kept.share(band):.1%} of {kept.considered[band]}" for band in SCORE_BANDS))
+    figures["int8"] = {"top50_kept": kept.share(), "top50_kept_per_class": {name: kept.share(name) for name in kept.classes},
+                       "top50_kept_per_score": {band: kept.share(band) for band in SCORE_BANDS},
                        **{f"FDS {label}": int8_report.distance[label].FDS for label in RANGES}}
     path = out / "figures.json"
     path.write_text(json.dumps(figures, indent=1) + "\n")

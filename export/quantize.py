@@ -356,6 +356,7 @@ class TopMatch:
     matched: bool
     box_diff: float = 0.0  # matched pairs: max abs difference of the 7 box values
     score_diff: float = 0.0  # matched pairs: abs score difference
+    score: float = 0.0  # the reference box's own score
 
 
 def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
@@ -380,9 +381,10 @@ def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], 
             if len(pool) and dist.min() <= radius_m:
                 j = int(np.argmin(dist))
                 used[j] = True
-                found.append(TopMatch(int(rl[f][i]), True, float(box_diff(cb[f][pool[j]], rb[f][i])), abs(float(cs[f][pool[j]]) - float(rs[f][i]))))
+                found.append(TopMatch(int(rl[f][i]), True, float(box_diff(cb[f][pool[j]], rb[f][i])),
+                                      abs(float(cs[f][pool[j]]) - float(rs[f][i])), float(rs[f][i])))
             else:
-                found.append(TopMatch(int(rl[f][i]), False))
+                found.append(TopMatch(int(rl[f][i]), False, score=float(rs[f][i])))
     return found
 
 
