@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from compare import timed  # noqa: E402
-from model_card import RANGES, SCORE_BANDS, add_model_arguments, heldout, run, top50_kept, trained_model  # noqa: E402
+from model_card import RANGES, SCORE_BANDS, Kept, add_model_arguments, heldout, run, top50_kept, trained_model  # noqa: E402
 
 from fisheye_infer.bench import machine  # noqa: E402
 from fisheye_infer.detector import Detector  # noqa: E402
@@ -59,6 +59,15 @@ def latency(paths: dict[str, Path], images: np.ndarray, valid: np.ndarray, threa
         for name, detector in detectors.items():
             times[name] += timed(lambda d=detector: d.run_arrays(images, valid), repeat, warmup=1)  # type: ignore[misc]
     return {name: float(np.median(t)) for name, t in times.items()}
+
+
+def print_kept(kept: dict[str, Kept], columns: list[str], title: str) -> None:
+    """A markdown table of the share of the fp32 top-50 boxes each file kept in each group of ``columns``."""
+    print(f"\n## top-50 kept {title}\n")
+    print("| file | " + " | ".join(columns) + " |\n" + "|---" * (len(columns) + 1) + "|")
+    print("| fp32 boxes | " + " | ".join(str(kept[PIXEL_NOISE].considered[c]) for c in columns) + " |")
+    for name, k in kept.items():
+        print(f"| {name} | " + " | ".join(f"{k.share(c):.1%}" for c in columns) + " |")
 
 
 def main() -> None:
@@ -122,19 +131,11 @@ def main() -> None:
                                   **{f"{m} {label}": getattr(report.distance[label], m) for label in RANGES for m in ("FDS", "mAP")}}
 
     kept[PIXEL_NOISE] = top50_kept(fp32, fp32, data, pixel_noise=True)
-    figures["top50_kept_fp32_pixel_noise"] = {c: kept[PIXEL_NOISE].share(c) for c in kept[PIXEL_NOISE].considered}
-    classes = kept[PIXEL_NOISE].classes
-    print(f"\n## top-50 kept per class (the fp32 boxes of each class over {args.frames} frames; last row: the criterion's floor)\n")
-    print("| file | " + " | ".join(classes) + " |\n" + "|---" * (len(classes) + 1) + "|")
-    print("| fp32 boxes | " + " | ".join(str(kept[PIXEL_NOISE].considered[c]) for c in classes) + " |")
-    for name, k in kept.items():
-        print(f"| {name} | " + " | ".join(f"{k.share(c):.1%}" for c in classes) + " |")
-    bands = list(SCORE_BANDS)
-    print("\n## top-50 kept by the fp32 box's score (what a detection threshold keeps; same boxes)\n")
-    print("| file | " + " | ".join(bands) + " |\n" + "|---" * (len(bands) + 1) + "|")
-    print("| fp32 boxes | " + " | ".join(str(kept[PIXEL_NOISE].considered[b]) for b in bands) + " |")
-    for name, k in kept.items():
-        print(f"| {name} | " + " | ".join(f"{k.share(b):.1%}" for b in bands) + " |")
+    floor = kept[PIXEL_NOISE]
+    figures["top50_kept_fp32_pixel_noise"] = {c: floor.share(c) for c in floor.classes}
+    figures["top50_kept_fp32_pixel_noise_per_score"] = {band: floor.share(band) for band in SCORE_BANDS}
+    print_kept(kept, floor.classes, f"per class (the fp32 boxes of each class over {args.frames} frames; last row: the criterion's floor)")
+    print_kept(kept, list(SCORE_BANDS), "by the fp32 box's score (what a detection threshold keeps; same boxes)")
 
     frame = next(iter(Fisheye3DOD(data, "val")))
     images, valid = stack_frames([load_frame(dict(frame.image_paths), fp32.info.cameras, fp32.info.image_size)], fp32.info.image_size)

@@ -50,7 +50,7 @@ from onnx import numpy_helper
 from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType, quantize_static
 
 from fisheye_infer import graph_stages
-from fisheye_infer.artifact import CALIBRATION_PERCENTILE, INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, WEIGHT_BITS, WEIGHT_QMAX, ParityReport
+from fisheye_infer.artifact import CALIBRATION_PERCENTILE, INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, WEIGHT_BITS, WEIGHT_QMAX, ParityReport, under_module
 from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ArtifactError, ExportError
 from fisheye_infer.geometry.tables import PREFIX as GEOMETRY_PREFIX
@@ -163,10 +163,10 @@ def int8_nodes(model: onnx.ModelProto, scope: str = "network", keep_float: Seque
     geometry = {i.name for i in graph.initializer if i.name.startswith(GEOMETRY_PREFIX)}
     modules = {n.name: module_of(n, weights) for n in graph.node}
     for prefix in keep_float:
-        if not any(_within(m, prefix) for m in modules.values()):
+        if not any(under_module(m, prefix) for m in modules.values()):
             raise ExportError(f"int8: keep float32 {prefix!r}: no node of the graph belongs to that module "
                               "(expected a state-dict prefix such as 'img_backbone.conv1' or 'bbox_head')")
-    floats = {name for name, m in modules.items() if any(_within(m, prefix) for prefix in keep_float)}
+    floats = {name for name, m in modules.items() if any(under_module(m, prefix) for prefix in keep_float)}
     trunk = {n.name for n in graph.node if n.name in image and n.op_type in TRUNK_OPS and n.name not in floats}
     region = set(trunk)
     if scope == "network":
@@ -198,10 +198,6 @@ def module_of(node: onnx.NodeProto, weights: set[str] | None = None) -> str:
     return ""
 
 
-def _within(module: str, prefix: str) -> bool:
-    return module == prefix or module.startswith(prefix + ".")
-
-
 def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: Sequence[str] = (),
                     chosen_by: str = "the architecture's int8_float") -> str:
     """A one-line description of what ``quantize`` covers, for the file's metadata; ``chosen_by``
@@ -212,7 +208,7 @@ def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: 
     in_trunk = sum(1 for n in layers if n.name in trunk)
     if scope == "trunk":  # only the float modules inside the trunk change what this scope covers
         weights = {i.name for i in model.graph.initializer}
-        keep_float = [p for p in keep_float if any(_within(module_of(n, weights), p) for n in model.graph.node if n.name in trunk)]
+        keep_float = [p for p in keep_float if any(under_module(module_of(n, weights), p) for n in model.graph.node if n.name in trunk)]
     kept = f"{', '.join(keep_float)} ({chosen_by}), " if keep_float else ""
     if scope == "trunk":
         return (f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's warp; "

@@ -24,6 +24,7 @@ __all__ = [
     "CALIBRATION_PERCENTILE",
     "WEIGHT_BITS",
     "WEIGHT_QMAX",
+    "under_module",
     "ARTIFACT_SCHEMA_VERSION",
     "METADATA_KEY",
     "INPUT_IMAGES",
@@ -120,6 +121,13 @@ WEIGHT_QMAX = {7: 64, 8: 127}
 #: The int8 file's activation ranges: ONNX Runtime's percentile calibration, at this percentile of
 #: each tensor's magnitudes (then clipped to its minimum and maximum).
 CALIBRATION_PERCENTILE = 99.99
+
+
+def under_module(name: str, prefix: str) -> bool:
+    """Whether the module ``name`` is the module ``prefix`` or inside it, as state-dict names nest
+    (``img_backbone.conv1`` is under ``img_backbone``, ``img_backbone_x`` is not): how an int8
+    file's float modules (``keep_float``) are matched, in the export and in its training simulation."""
+    return name == prefix or name.startswith(prefix + ".")
 
 
 class Quantization(_Model):

@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from fisheye_infer.artifact import CALIBRATION_PERCENTILE, WEIGHT_BITS, WEIGHT_QMAX
+from fisheye_infer.artifact import CALIBRATION_PERCENTILE, WEIGHT_BITS, WEIGHT_QMAX, under_module
 
 __all__ = ["FakeQuant", "fake_quant_weight", "fake_quant_activation", "percentile_range"]
 
@@ -105,10 +105,6 @@ _FORWARDS: dict[type[nn.Module], tuple[Callable[..., torch.Tensor], int]] = {
 }
 
 
-def _within(name: str, prefix: str) -> bool:
-    return name == prefix or name.startswith(prefix + ".")
-
-
 class FakeQuant:
     """Simulates int8 rounding in ``model``'s weighted layers outside ``keep_float`` (state-dict prefixes)."""
 
@@ -119,10 +115,10 @@ class FakeQuant:
         self.enabled = True
         names = [name for name, _ in model.named_modules()]
         for prefix in keep_float:
-            if not any(_within(name, prefix) for name in names):
+            if not any(under_module(name, prefix) for name in names):
                 raise ValueError(f"FakeQuant: keep float {prefix!r}: no module of the model has that name")
         self.layers = {name: m for name, m in model.named_modules()
-                       if type(m) in _FORWARDS and not any(_within(name, p) for p in keep_float)}
+                       if type(m) in _FORWARDS and not any(under_module(name, p) for p in keep_float)}
         if not self.layers:
             raise ValueError("FakeQuant: no Conv2d, ConvTranspose2d or Linear layer outside the float modules")
         self.ranges: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
