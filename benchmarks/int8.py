@@ -111,7 +111,8 @@ def main() -> None:
             raise SystemExit(f"int8 {name}: no file written")
         paths[name] = result.path
         print(f"int8 {name}: {result.meta.quantization.scope if result.meta.quantization else ''} ({time.perf_counter() - t0:.0f} s; "
-              f"its own check: {result.parity.top_matched_fraction:.1%} of top-50 -> {'passed' if result.parity.passed else 'refused without --force'})")
+              f"its own check on {result.parity.frames} frames: {result.parity.top_matched_fraction:.1%} +- "
+              f"{result.parity.top_matched_standard_error or 0.0:.1%} of top-50 -> {'passed' if result.parity.passed else 'refused without --force'})")
 
     figures: dict[str, Any] = {"machine": host, "checkpoint": str(ckpt), "frames": args.frames, "files": {}}
     reports = {name: run(Detector(path, threads=1), data, list(rig.names))[0] for name, path in paths.items()}

@@ -29,7 +29,7 @@ import onnxruntime as ort
 import torch
 
 from fisheye_infer._version import __version__
-from fisheye_infer.artifact import RANKING_OUTPUTS, ArtifactMeta, Normalisation, ParityReport, Quantization
+from fisheye_infer.artifact import COMPARE_FRAMES, MIN_TOP_MATCHED, RANKING_OUTPUTS, ArtifactMeta, Normalisation, ParityReport, Quantization
 from fisheye_infer.errors import CheckpointError, ExportError, ParityError, RigError
 from fisheye_infer.preprocess import frames_from_paths, prepare_batch
 from fisheye_infer.rig import Rig, resolve_rig
@@ -38,7 +38,7 @@ from fisheye_infer.synth import Renderer, random_scene
 from .fp16 import to_float16
 from .fp16_parity import fp16_parity
 from .graph import REBAKE_WEIGHTS_KEY, encode_arrays, save_model, set_metadata, without_outputs
-from .quantize import MIN_TOP_MATCHED, SCOPES, WEIGHT_BITS, FrameReader, architecture_float, int8_parity, int8_path_for, quantize, quantized_scope
+from .quantize import SCOPES, WEIGHT_BITS, FrameReader, architecture_float, int8_parity, int8_path_for, quantize, quantized_scope
 from .tensorrt_check import check_tensorrt
 from .trace import OPSET, trace_to_onnx
 from .verify import verify
@@ -75,8 +75,8 @@ class Int8Result(ReducedResult):
                else "not quantized")
         return "\n".join([
             f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
-            f"int8 vs the fp32 ONNX file on {p.frames} frames: {p.top_matched_fraction:.1%} of the top-50 boxes matched within "
-            f"{p.tolerance_box_m:g} m with the same label (need {MIN_TOP_MATCHED:.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+            f"int8 vs the fp32 ONNX file on {p.frames} frames: {_kept(p)} of the top-50 boxes matched within "
+            f"{p.tolerance_box_m:g} m with the same label (need {_needed(p):.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
             *_tensorrt_lines(self.meta, "int8 file: "),
         ])
 
@@ -88,8 +88,8 @@ class Fp16Result(ReducedResult):
         p, q = self.parity, self.meta.quantization
         lines = [
             f"fp16 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {q.scope if q else 'not reduced'})",
-            f"fp16 vs the fp32 ONNX file on {p.frames} frames ({p.evaluated_with}): {p.top_matched_fraction or 0.0:.1%} of the top-50 boxes matched within "
-            f"{p.tolerance_box_m:g} m with the same label (need {MIN_TOP_MATCHED:.0%}; matched max |box| {p.max_box_abs_diff_m:.3f} m, "
+            f"fp16 vs the fp32 ONNX file on {p.frames} frames ({p.evaluated_with}): {_kept(p)} of the top-50 boxes matched within "
+            f"{p.tolerance_box_m:g} m with the same label (need {_needed(p):.0%}; matched max |box| {p.max_box_abs_diff_m:.3f} m, "
             f"|score| {p.max_score_abs_diff:.4f}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
         ]
         if p.replayed is not None:
@@ -98,6 +98,16 @@ class Fp16Result(ReducedResult):
                          f"{r.max_box_abs_diff_m:.3f} m, |score| {r.max_score_abs_diff:.4f}; dense scores max |diff| {p.max_rank_score_abs_diff or 0.0:.4f}")
         lines += [f"  {problem}" for problem in p.problems]
         return "\n".join(lines + _tensorrt_lines(self.meta, "fp16 file: "))
+
+
+def _kept(p: ParityReport) -> str:
+    """"91.2% +- 1.1%": the share of the fp32 top-50 boxes found again and its standard error over the frames."""
+    spread = f" +- {p.top_matched_standard_error:.1%}" if p.top_matched_standard_error else ""
+    return f"{p.top_matched_fraction or 0.0:.1%}{spread}"
+
+
+def _needed(p: ParityReport) -> float:
+    return p.min_top_matched if p.min_top_matched is not None else MIN_TOP_MATCHED  # files written before the bar was recorded
 
 
 def _tensorrt_lines(meta: ArtifactMeta, prefix: str = "") -> list[str]:
@@ -307,6 +317,8 @@ def export(
     int8_scope: str = "network",
     int8_float: Sequence[str] | None = None,
     fp16: bool = False,
+    compare_frames: int = COMPARE_FRAMES,
+    min_kept: float = MIN_TOP_MATCHED,
     progress: Callable[[str], None] = print,
 ) -> ExportResult:
     """Export ``ckpt`` to ``out``; see the module docstring. Raises ``ParityError`` when parity fails.
@@ -317,6 +329,8 @@ def export(
     (``model.onnx`` -> ``model.int8.onnx``) quantized over ``int8_scope`` (``quantize.SCOPES``), with
     the modules of ``int8_float`` left float32 (default: the architecture's ``int8_float``);
     ``out`` always stays the verified fp32 file. ``fp16``: likewise ``export_fp16``'s file (``model.fp16.onnx``), for GPU execution providers.
+    Each reduced file is compared with the fp32 file on ``compare_frames`` seeded frames (plus
+    ``verify_images``) and written when it finds ``min_kept`` of the fp32 top-50 boxes again.
     Every file's metadata carries ``check_tensorrt``'s verdict on its graph (``tensorrt``).
     """
     start = time.perf_counter()
@@ -332,6 +346,8 @@ def export(
         raise ExportError("--calib-frames 0 without --calib-images: int8 calibration needs at least one frame")
     if calib_images is not None and not Path(calib_images).exists():
         raise ExportError(f"--calib-images {calib_images}: no such file or folder")
+    if int8 or fp16:
+        _check_comparison(compare_frames, verify_images, min_kept)
     progress(f"[1/5] reading {ckpt}")
     loaded = open_checkpoint(ckpt, arch=arch, config=config, rig=rig, geometry=geometry, allow_pickle=allow_pickle,
                         progress=lambda name, r: progress(f"[2/5] building {name} for rig {r.name!r} ({r.hash}) and loading the checkpoint strictly"))
@@ -391,20 +407,22 @@ def export(
         raise ParityError(f"the ONNX graph disagrees with PyTorch beyond tolerance; no file written (use --force to keep it)\n{result.summary()}")
     if int8 and written is not None:
         quant = export_int8(written, calib_images=calib_images, calib_frames=calib_frames, scope=int8_scope, keep_float=int8_float,
-                            frames=frames, verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
+                            frames=compare_frames, verify_images=verify_images, min_kept=min_kept, threads=threads[-1], force=force,
+                            progress=progress)
         result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes,
                               result.initializer_bytes, result.geometry_bytes, quant)
         if not quant.parity.passed and not force:
             raise ParityError("the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written "
                               "(keep more layers float32 with --int8-float or --int8-scope trunk, calibrate on your own frames "
-                              f"with --calib-images, or use --force to keep it)\n{result.summary()}")
+                              f"with --calib-images, accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}")
     if fp16 and written is not None:
-        half = export_fp16(written, frames=frames, verify_images=verify_images, threads=threads[-1], force=force, progress=progress)
+        half = export_fp16(written, frames=compare_frames, verify_images=verify_images, min_kept=min_kept, threads=threads[-1], force=force,
+                           progress=progress)
         result = ExportResult(result.path, result.meta, result.parity, time.perf_counter() - start, result.file_bytes,
                               result.initializer_bytes, result.geometry_bytes, result.int8, half)
         if not half.parity.passed and not force:
             raise ParityError("the fp16 file finds too few of the fp32 file's boxes; fp32 file kept, no fp16 file written "
-                              f"(use --force to keep it)\n{result.summary()}")
+                              f"(accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}")
     return result
 
 
@@ -418,23 +436,25 @@ def export_fp16(
     fp32_path: str | Path,
     out: str | Path | None = None,
     *,
-    frames: int = 2,
+    frames: int = COMPARE_FRAMES,
     verify_images: str | Path | None = None,
+    min_kept: float = MIN_TOP_MATCHED,
     threads: int = 2,
     force: bool = False,
     progress: Callable[[str], None] = print,
 ) -> Fp16Result:
     """A verified fp32 file -> its float16 file for GPU execution providers; see ``fp16`` and ``fp16_parity``.
 
-    Evidence: the fp16 file against the fp32 file on the same verification frames as the fp32
-    export, in ONNX Runtime's CPU execution provider; the file is written only when
-    ``MIN_TOP_MATCHED`` of the fp32 top-50 boxes are found again (or with ``force``). Its metadata
+    Evidence: the fp16 file against the fp32 file on ``frames`` seeded frames (the fp32 export's
+    verification frames and more) plus ``verify_images``, in ONNX Runtime's CPU execution provider;
+    the file is written only when ``min_kept`` of the fp32 top-50 boxes are found again (or with ``force``). Its metadata
     carries a ``Quantization(mode="fp16")`` record, the ``ParityReport`` (``reference="fp32-onnx"``)
     and ``check_tensorrt``'s verdict on the fp16 graph.
     """
     start = time.perf_counter()
     src = Path(fp32_path)
     out = Path(out) if out is not None else fp16_path_for(src)
+    _check_comparison(frames, verify_images, min_kept)
     meta = _fp32_meta(src, "fp16", "already a reduced-precision file")
     progress("fp16 [1/2] converting weights and compute to float16 (geometry tables, index arithmetic and the interface stay as in fp32)")
     proto, plan = to_float16(onnx.load(str(src)))
@@ -442,7 +462,7 @@ def export_fp16(
     try:
         save_model(proto, tmp)
         batch = _comparison_frames(meta, frames, verify_images, "fp16 [2/2]", progress)
-        parity = fp16_parity(src, tmp, batch, threads=threads)
+        parity = fp16_parity(src, tmp, batch, threads=threads, min_fraction=min_kept)
         written, half_meta = _write_reduced(proto, meta, parity, Quantization(mode="fp16", scope=plan.scope()), tmp, out, force)
     finally:
         tmp.unlink(missing_ok=True)
@@ -457,8 +477,9 @@ def export_int8(
     calib_frames: int = 8,
     scope: str = "network",
     keep_float: Sequence[str] | None = None,
-    frames: int = 2,
+    frames: int = COMPARE_FRAMES,
     verify_images: str | Path | None = None,
+    min_kept: float = MIN_TOP_MATCHED,
     threads: int = 2,
     force: bool = False,
     weight_bits: int = WEIGHT_BITS,
@@ -470,14 +491,15 @@ def export_int8(
 
     Calibration: ``calib_frames`` seeded synthetic renders of the file's own rig (seeds from
     ``CALIBRATION_SEED``, disjoint from the verification seeds) plus the user's frames from
-    ``calib_images``. Evidence: the int8 file against the fp32 file on the same verification
-    frames as the fp32 export; the file is written only when ``MIN_TOP_MATCHED`` of the fp32
-    top-50 boxes are found again (or with ``force``). The result carries a ``ParityReport``
+    ``calib_images``. Evidence: the int8 file against the fp32 file on ``frames`` seeded frames
+    (the fp32 export's verification frames and more) plus ``verify_images``; the file is written
+    only when ``min_kept`` of the fp32 top-50 boxes are found again (or with ``force``). The result carries a ``ParityReport``
     with ``reference="fp32-onnx"`` and a ``Quantization`` record in its metadata.
     """
     start = time.perf_counter()
     src = Path(fp32_path)
     out = Path(out) if out is not None else int8_path_for(src)
+    _check_comparison(frames, verify_images, min_kept)
     meta = _fp32_meta(src, "int8", "already quantized")
     progress(f"int8 [1/3] rendering {calib_frames} calibration frame(s){' + ' + str(calib_images) if calib_images else ''}")
     calibration = verification_frames(meta.rig, calib_frames, seed=CALIBRATION_SEED, images=calib_images)
@@ -490,7 +512,7 @@ def export_int8(
         proto = onnx.load(str(tmp))
         covered = quantized_scope(onnx.load(str(src), load_external_data=False), scope, keep_float, chosen_by)
         batch = _comparison_frames(meta, frames, verify_images, "int8 [3/3]", progress)
-        parity = int8_parity(src, tmp, batch, threads=threads)
+        parity = int8_parity(src, tmp, batch, threads=threads, min_fraction=min_kept)
         quantization = Quantization(mode="int8-qdq", scope=covered, calibration_frames=len(calibration), weight_bits=weight_bits)
         written, quant_meta = _write_reduced(proto, meta, parity, quantization, tmp, out, force)
     finally:
@@ -511,9 +533,17 @@ def _fp32_meta(src: Path, kind: str, already: str) -> ArtifactMeta:
     return meta
 
 
+def _check_comparison(frames: int, verify_images: str | Path | None, min_kept: float) -> None:
+    """Refuse a reduced file's comparison that could not judge it, before anything is computed."""
+    if frames < 0 or (frames == 0 and verify_images is None):
+        raise ExportError(f"--compare-frames {frames}: expected 1 or more seeded frames (or 0 with --verify-images)")
+    if not 0.0 < min_kept <= 1.0:
+        raise ExportError(f"--min-kept {min_kept}: expected a share of the fp32 top-50 boxes in (0, 1], e.g. 0.9")
+
+
 def _comparison_frames(meta: ArtifactMeta, frames: int, verify_images: str | Path | None, step: str,
                        progress: Callable[[str], None]) -> np.ndarray:
-    """The fp32 export's own verification frames, which the reduced file is compared on."""
+    """The frames a reduced file is compared on: seeded renders (the first ones are the fp32 export's own), then the user's."""
     progress(f"{step} comparing with the fp32 file on {frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''}")
     return verification_frames(meta.rig, frames, images=verify_images)
 

@@ -27,13 +27,13 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ParityReport, ReplayedChoice
+from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, MIN_TOP_MATCHED, OUTPUTS, RANKING_OUTPUTS, ParityReport, ReplayedChoice
 from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ExportError
 from fisheye_infer.session import Provider, open_session, provider_name, resolve_providers
 
 from .graph import with_outputs
-from .quantize import MATCH_RADIUS_M, MIN_TOP_MATCHED, top_matched
+from .quantize import MATCH_RADIUS_M, top_matched
 
 __all__ = ["evaluated_with", "fp16_parity", "replay_choice"]
 
@@ -119,22 +119,22 @@ def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray
     full = _run(_session(_with_ranking(fp32), threads), frames)
     replayed = _run(_session(replay_choice(fp32), threads), frames, half[_INDICES])
     ref, cand, at_choice = ([o[k] for k in OUTPUTS] for o in (full, half, replayed))
-    matched, considered, box, score = top_matched(ref, cand)
-    fraction = matched / considered if considered else 1.0
-    r_matched, r_considered, _, _ = top_matched(at_choice, cand)
+    kept = top_matched(ref, cand)
+    at_own_choice = top_matched(at_choice, cand)
     k = half[_INDICES].shape[1]
     ties = _ties(full[_SCORES], k)
     problems = (f"the fp32 file's dense scores tie: up to {ties} of them equal the {k}-th largest, so which tied cells its top-{k} keeps "
                 "is not defined; the replayed comparison measures float16 alone",) if ties > 1 else ()
     return ParityReport(
-        frames=len(frames), threads=(threads,), max_box_abs_diff_m=box, max_score_abs_diff=score,
+        frames=len(frames), threads=(threads,), max_box_abs_diff_m=kept.max_box_diff, max_score_abs_diff=kept.max_score_diff,
         max_rank_score_abs_diff=float(np.abs(full[_SCORES].astype(np.float64) - half[_SCORES]).max()),
         labels_equal=bool(np.array_equal(ref[2], cand[2])),
         order_equal=bool(np.array_equal(full[_INDICES], half[_INDICES])),
-        valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=considered - matched,
-        tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=fraction >= min_fraction,
-        reference="fp32-onnx", top_matched_fraction=fraction, evaluated_with=evaluated_with(session.get_providers()), problems=problems,
-        replayed=ReplayedChoice(top_matched_fraction=r_matched / r_considered if r_considered else 1.0,
+        valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=kept.considered - kept.matched,
+        tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=kept.fraction >= min_fraction,
+        reference="fp32-onnx", top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error, min_top_matched=min_fraction,
+        evaluated_with=evaluated_with(session.get_providers()), problems=problems,
+        replayed=ReplayedChoice(top_matched_fraction=at_own_choice.fraction,
                                 max_box_abs_diff_m=float(box_diff(at_choice[0], cand[0]).max()),
                                 max_score_abs_diff=float(np.abs(at_choice[1].astype(np.float64) - cand[1]).max()),
                                 labels_equal=bool(np.array_equal(at_choice[2], cand[2]))),

@@ -50,7 +50,17 @@ from onnx import numpy_helper
 from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType, quantize_static
 
 from fisheye_infer import graph_stages
-from fisheye_infer.artifact import CALIBRATION_PERCENTILE, INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, WEIGHT_BITS, WEIGHT_QMAX, ParityReport, under_module
+from fisheye_infer.artifact import (
+    CALIBRATION_PERCENTILE,
+    INPUT_CAMERA_VALID,
+    INPUT_IMAGES,
+    MIN_TOP_MATCHED,
+    OUTPUTS,
+    WEIGHT_BITS,
+    WEIGHT_QMAX,
+    ParityReport,
+    under_module,
+)
 from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ArtifactError, ExportError
 from fisheye_infer.geometry.tables import PREFIX as GEOMETRY_PREFIX
@@ -61,7 +71,7 @@ from .int8_rewrites import after_quantization, before_quantization
 from .trace import TRACE_ROOT
 from .verify import run_onnx
 
-__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader", "TopMatch",
+__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader", "TopMatch", "TopMatched",
            "architecture_float", "check_weight_range", "eight_bit_constants", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "match_top",
            "module_of", "quantize", "quantized_scope", "top_matched"]
 
@@ -341,7 +351,6 @@ def check_weight_range(model: onnx.ModelProto, weight_bits: int = WEIGHT_BITS) -
 
 TOP_K = 50
 MATCH_RADIUS_M = 0.5
-MIN_TOP_MATCHED = 0.95
 
 
 @dataclass(frozen=True)
@@ -353,6 +362,7 @@ class TopMatch:
     box_diff: float = 0.0  # matched pairs: max abs difference of the 7 box values
     score_diff: float = 0.0  # matched pairs: abs score difference
     score: float = 0.0  # the reference box's own score
+    frame: int = 0  # which frame the reference box is in
 
 
 def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
@@ -378,22 +388,49 @@ def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], 
                 j = int(np.argmin(dist))
                 used[j] = True
                 found.append(TopMatch(int(rl[f][i]), True, float(box_diff(cb[f][pool[j]], rb[f][i])),
-                                      abs(float(cs[f][pool[j]]) - float(rs[f][i])), float(rs[f][i])))
+                                      abs(float(cs[f][pool[j]]) - float(rs[f][i])), float(rs[f][i]), f))
             else:
-                found.append(TopMatch(int(rl[f][i]), False, score=float(rs[f][i])))
+                found.append(TopMatch(int(rl[f][i]), False, score=float(rs[f][i]), frame=f))
     return found
 
 
+@dataclass(frozen=True)
+class TopMatched:
+    """``match_top`` summed over the frames."""
+
+    matched: int
+    considered: int
+    standard_error: float  # of ``fraction``, from how it varies between frames (boxes of one frame are not independent)
+    max_box_diff: float  # over matched pairs
+    max_score_diff: float  # over matched pairs
+
+    @property
+    def fraction(self) -> float:
+        return self.matched / self.considered if self.considered else 1.0
+
+
 def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
-                radius_m: float = MATCH_RADIUS_M) -> tuple[int, int, float, float]:
-    """``match_top`` summed: (matched, considered, max box abs diff over matched pairs, max score
-    diff over matched pairs)."""
+                radius_m: float = MATCH_RADIUS_M) -> TopMatched:
+    """``match_top`` summed, with the standard error of the share kept.
+
+    The error is the ratio estimator's over frames as clusters: sqrt(F / (F - 1) * sum_f (m_f -
+    p c_f)^2) / C, with m_f of c_f boxes kept in frame f, C = sum_f c_f and p the share kept; 0 for
+    one frame, where it cannot be estimated.
+    """
     pairs = match_top(reference, candidate, top_k, radius_m)
-    hits = [p for p in pairs if p.matched]
+    frames = len(reference[0])
+    kept = np.zeros(frames)
+    seen = np.zeros(frames)
     box = score = 0.0
-    for p in hits:  # folded from 0 as max(so_far, new): the order and NaN handling of the running maximum it replaced
-        box, score = max(box, p.box_diff), max(score, p.score_diff)
-    return len(hits), len(pairs), box, score
+    for p in pairs:
+        seen[p.frame] += 1
+        if p.matched:
+            kept[p.frame] += 1
+            box, score = max(box, p.box_diff), max(score, p.score_diff)
+    total = seen.sum()
+    share = kept.sum() / total if total else 1.0
+    spread = float(np.sqrt(frames / (frames - 1) * np.sum((kept - share * seen) ** 2)) / total) if frames > 1 and total else 0.0
+    return TopMatched(int(kept.sum()), int(total), spread, box, score)
 
 
 def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray, threads: int = 2,
@@ -404,18 +441,14 @@ def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray
     least ``min_fraction`` of the fp32 top-50 boxes found again within 0.5 m with the same label.
     """
     valid = np.ones(frames.shape[:2], bool)
-    runs = []
-    for path in (fp32_path, int8_path):
-        outs = [run_onnx(path, frames[i : i + 1], valid[i : i + 1], threads) for i in range(len(frames))]
-        runs.append([np.concatenate([o[k] for o in outs]) for k in OUTPUTS])
-    ref, cand = runs
-    matched, considered, box, score = top_matched(ref, cand)
-    fraction = matched / considered if considered else 1.0
+    ref, cand = ([run_onnx(path, frames, valid, threads, per_frame=True)[k] for k in OUTPUTS] for path in (fp32_path, int8_path))
+    kept = top_matched(ref, cand)
     return ParityReport(
-        frames=len(frames), threads=(threads,), max_box_abs_diff_m=box, max_score_abs_diff=score,
+        frames=len(frames), threads=(threads,), max_box_abs_diff_m=kept.max_box_diff, max_score_abs_diff=kept.max_score_diff,
         labels_equal=bool(np.array_equal(ref[2], cand[2])),
         order_equal=bool(np.array_equal(ref[2], cand[2]) and np.allclose(ref[0], cand[0], atol=MATCH_RADIUS_M)),
-        valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=considered - matched,
-        tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=fraction >= min_fraction,
-        reference="fp32-onnx", top_matched_fraction=fraction,
+        valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=kept.considered - kept.matched,
+        tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=kept.fraction >= min_fraction,
+        reference="fp32-onnx", top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error,
+        min_top_matched=min_fraction,
     )

@@ -109,13 +109,18 @@ def run_torch(model: nn.Module, images: np.ndarray, valid: np.ndarray) -> Output
     return {k: out[k].cpu().numpy() for k in PROBE}
 
 
-def run_onnx(path: str | Path, images: np.ndarray, valid: np.ndarray, threads: int, outputs: Sequence[str] = OUTPUTS) -> Outputs:
+def run_onnx(path: str | Path, images: np.ndarray, valid: np.ndarray, threads: int, outputs: Sequence[str] = OUTPUTS, *,
+             per_frame: bool = False) -> Outputs:
+    """``outputs`` of the file on the batch, in ONNX Runtime's CPU provider. ``per_frame``: each frame
+    run alone (batch 1, as a deployed detector runs; batch-1 memory) in the one session, concatenated."""
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.log_severity_level = 3
     session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    return dict(zip(outputs, session.run(list(outputs), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})))
+    batches = [slice(i, i + 1) for i in range(len(images))] if per_frame else [slice(None)]
+    runs = [session.run(list(outputs), {INPUT_IMAGES: images[b], INPUT_CAMERA_VALID: valid[b]}) for b in batches]
+    return {name: np.concatenate([r[k] for r in runs]) for k, name in enumerate(outputs)}
 
 
 @dataclass(frozen=True)
@@ -262,8 +267,7 @@ def _verify(path: Path, checked: Path, model: nn.Module, frames: np.ndarray, val
     reference = Reference(model, frames, valid)
     diffs = []
     for t in threads:
-        singles = [run_onnx(checked, frames[i : i + 1], valid[i : i + 1], t, PROBE) for i in range(len(frames))]
-        diffs.append(compare_run(reference, {k: np.concatenate([s[k] for s in singles]) for k in PROBE}))
+        diffs.append(compare_run(reference, run_onnx(checked, frames, valid, t, PROBE, per_frame=True)))
     batched = run_onnx(checked, frames, valid, threads[-1], PROBE)
     diffs.append(compare_run(reference, batched))
     written_equal = _outputs_equal(run_onnx(path, frames, valid, threads[-1]), batched)

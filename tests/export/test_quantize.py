@@ -224,15 +224,32 @@ _TWO = _boxes([(0, 0), (10, 0)], [0, 1])
     ],
 )
 def test_top_matched_counts_same_label_within_radius(reference: list[np.ndarray], candidate: list[np.ndarray], expected: int) -> None:
-    matched, considered, _, _ = top_matched(reference, candidate)
-    assert (matched, considered) == (expected, 2)
+    kept = top_matched(reference, candidate)
+    assert (kept.matched, kept.considered) == (expected, 2)
 
 
 def test_top_matched_ignores_invalid_and_lower_ranked_boxes() -> None:
     reference = _boxes([(0, 0), (5, 0), (9, 0)], [0, 0, 0])
     reference[3][0, 1] = False  # not a valid reference box
-    matched, considered, _, _ = top_matched(reference, _boxes([(0, 0), (5, 0), (30, 0)], [0, 0, 0]), top_k=1)
-    assert (matched, considered) == (1, 1)
+    kept = top_matched(reference, _boxes([(0, 0), (5, 0), (30, 0)], [0, 0, 0]), top_k=1)
+    assert (kept.matched, kept.considered) == (1, 1)
+
+
+def _frames(*frames: list[np.ndarray]) -> list[np.ndarray]:
+    return [np.concatenate(parts) for parts in zip(*frames, strict=True)]
+
+
+def test_top_matched_standard_error_comes_from_the_spread_between_frames() -> None:
+    """Both boxes kept in one frame, none in the other: share 1/2, and sqrt(2 / 1 * (1^2 + 1^2)) / 4 = 0.5;
+    one box of two kept in each frame: the same share, with no spread between frames."""
+    reference = _frames(_TWO, _TWO)
+    hit, miss = _boxes([(0, 0), (10, 0)], [0, 1]), _boxes([(0, 0), (10, 0)], [2, 2])
+    half = _boxes([(0, 0), (10, 0)], [0, 2])
+    uneven, even = top_matched(reference, _frames(hit, miss)), top_matched(reference, _frames(half, half))
+    assert (uneven.fraction, uneven.standard_error) == (0.5, pytest.approx(0.5))
+    assert (even.fraction, even.standard_error) == (0.5, 0.0)
+    assert top_matched(_TWO, miss).standard_error == 0.0  # one frame: not estimated
+    assert [m.frame for m in match_top(reference, _frames(hit, miss))] == [0, 0, 1, 1]
 
 
 def test_match_top_reports_each_reference_box_in_rank_order_with_its_label() -> None:
@@ -242,7 +259,7 @@ def test_match_top_reports_each_reference_box_in_rank_order_with_its_label() -> 
     assert [(m.label, m.matched) for m in found] == [(1, True), (1, False), (0, True)]  # scores 0.9, 0.7, 0.5
     assert [m.score for m in found] == pytest.approx([0.9, 0.7, 0.5])  # the reference's, matched or not
     assert found[0].box_diff == pytest.approx(0.2) and found[0].score_diff == pytest.approx(0.1)
-    assert found[1].box_diff == 0.0 and top_matched(reference, candidate)[:2] == (2, 3)
+    assert found[1].box_diff == 0.0 and (top_matched(reference, candidate).matched, top_matched(reference, candidate).considered) == (2, 3)
 
 
 def test_frame_reader_feeds_one_frame_at_a_time_and_rewinds() -> None:
@@ -329,6 +346,32 @@ def test_quantizing_an_int8_file_is_refused(small_int8: Int8Result, tmp_path: Pa
 def test_int8_options_need_int8(option: list[str], capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert main(["export", "--ckpt", "x.pth", "--out", str(tmp_path / "m.onnx"), *option]) == 2
     assert "--int8" in capsys.readouterr().err
+
+
+def test_min_kept_is_the_bar_the_int8_file_is_written_at(small_export, small_int8: Int8Result, tmp_path: Path) -> None:
+    """The share found again decides against ``min_kept`` (recorded in the metadata, named in the summary), not a fixed 95%."""
+    kept = small_int8.parity.top_matched_fraction
+    assert small_int8.parity.min_top_matched == 0.95 and small_int8.parity.top_matched_standard_error is not None and kept > 0.0
+    options = {"calib_frames": 2, "frames": 2, "progress": lambda _: None}
+    lower = export_int8(small_export.onnx, tmp_path / "low.int8.onnx", min_kept=kept, **options)
+    assert lower.path is not None and read_meta(lower.path).parity.min_top_matched == kept
+    assert lower.parity.top_matched_fraction == kept  # the same quantization and frames
+    strict = export_int8(small_export.onnx, tmp_path / "strict.int8.onnx", min_kept=1.0, **options)
+    assert (strict.path is None) == (kept < 1.0) and "need 100%" in strict.summary()
+
+
+@pytest.mark.parametrize(("option", "named"), [(["--min-kept", "1.5"], "--min-kept 1.5"), (["--min-kept", "0"], "--min-kept 0"),
+                                                (["--compare-frames", "0"], "--compare-frames 0")])
+def test_export_refuses_a_comparison_that_cannot_judge(option: list[str], named: str, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    """Checked before the checkpoint is read (``x.pth`` does not exist)."""
+    assert main(["export", "--ckpt", "x.pth", "--out", str(tmp_path / "m.onnx"), "--int8", *option]) == 1
+    assert named in capsys.readouterr().err and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("option", [["--compare-frames", "8"], ["--min-kept", "0.9"]], ids=["compare-frames", "min-kept"])
+def test_comparison_options_need_a_reduced_file(option: list[str], capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["export", "--ckpt", "x.pth", "--out", str(tmp_path / "m.onnx"), *option]) == 2
+    assert "need --int8 or --fp16" in capsys.readouterr().err
 
 
 def test_export_with_int8_writes_both_files(small_export, small_bevdet_config, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
