@@ -35,6 +35,7 @@ from fisheye_infer.detector import Detector, FrameDetector
 from fisheye_infer.eval.dataset import Fisheye3DOD
 from fisheye_infer.eval.evaluate import detect_dataset, evaluate_results
 from fisheye_infer.eval.metrics import EvalConfig, MetricsReport
+from fisheye_infer.export.quantize import SCORE_BANDS, match_top, per_score_band
 from fisheye_infer.rig import Rig
 from fisheye_infer.synth_splits import SyntheticFrames, write_split
 
@@ -68,10 +69,6 @@ def run(detector: FrameDetector, data: Path, cameras: list[str]) -> tuple[Metric
     return evaluate_results(gt, pred), (gt, pred)
 
 
-#: Bands of the fp32 box's score that ``Kept`` also counts by: what a detection threshold keeps.
-SCORE_BANDS = {"score >= 0.3": (0.3, math.inf), "0.15-0.3": (0.15, 0.3), "0.05-0.15": (0.05, 0.15), "< 0.05": (-math.inf, 0.05)}
-
-
 @dataclass(frozen=True)
 class Kept:
     """How many of the fp32 file's top-50 boxes another file found again: over all boxes ("all"),
@@ -96,7 +93,6 @@ def top50_kept(fp32: Detector, candidate: Detector, data: Path, pixel_noise: boo
     frame). With the fp32 file as ``candidate`` that is the criterion's floor: how many boxes the
     model itself moves for the smallest change of its input.
     """
-    from fisheye_infer.export.quantize import match_top
     from fisheye_infer.preprocess import load_frame, stack_frames
 
     pairs = []
@@ -108,8 +104,7 @@ def top50_kept(fp32: Detector, candidate: Detector, data: Path, pixel_noise: boo
             seen = np.clip(images.astype(np.int16) + step, 0, 255).astype(np.uint8)
         pairs += match_top(fp32.run_arrays(images, valid), candidate.run_arrays(seen, valid))
     per_class = {name: [p for p in pairs if p.label == label] for label, name in enumerate(fp32.info.classes)}
-    per_band = {band: [p for p in pairs if low <= p.score < high] for band, (low, high) in SCORE_BANDS.items()}
-    groups = {"all": pairs} | {name: group for name, group in per_class.items() if group} | per_band
+    groups = {"all": pairs} | {name: group for name, group in per_class.items() if group} | per_score_band(pairs)
     return Kept({name: sum(p.matched for p in group) for name, group in groups.items()}, {name: len(group) for name, group in groups.items()})
 
 

@@ -77,6 +77,7 @@ class Int8Result(ReducedResult):
             f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
             f"int8 vs the fp32 ONNX file on {p.frames} frames: {_kept(p)} of the top-50 boxes matched within "
             f"{p.tolerance_box_m:g} m with the same label (need {_needed(p):.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+            *_by_score_lines(p),
             *_tensorrt_lines(self.meta, "int8 file: "),
         ])
 
@@ -91,6 +92,7 @@ class Fp16Result(ReducedResult):
             f"fp16 vs the fp32 ONNX file on {p.frames} frames ({p.evaluated_with}): {_kept(p)} of the top-50 boxes matched within "
             f"{p.tolerance_box_m:g} m with the same label (need {_needed(p):.0%}; matched max |box| {p.max_box_abs_diff_m:.3f} m, "
             f"|score| {p.max_score_abs_diff:.4f}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+            *_by_score_lines(p),
         ]
         if p.replayed is not None:
             r = p.replayed
@@ -104,6 +106,14 @@ def _kept(p: ParityReport) -> str:
     """"91.2% +- 1.1%": the share of the fp32 top-50 boxes found again and its standard error over the frames."""
     spread = f" +- {p.top_matched_standard_error:.1%}" if p.top_matched_standard_error else ""
     return f"{p.top_matched_fraction or 0.0:.1%}{spread}"
+
+
+def _by_score_lines(p: ParityReport) -> list[str]:
+    """The share kept per band of the fp32 box's score: what a detection threshold would keep."""
+    if not p.top_matched_by_score:
+        return []
+    bands = [f"{band} {m / c:.1%} of {c}" for band, (m, c) in p.top_matched_by_score.items() if c]
+    return ["  by the fp32 box's score: " + ", ".join(bands)]
 
 
 def _needed(p: ParityReport) -> float:

@@ -38,6 +38,7 @@ import ast
 import contextlib
 import io
 import logging
+import math
 import os
 import tempfile
 from collections.abc import Iterator, Sequence
@@ -71,9 +72,9 @@ from .int8_rewrites import after_quantization, before_quantization
 from .trace import TRACE_ROOT
 from .verify import run_onnx
 
-__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader", "TopMatch", "TopMatched",
-           "architecture_float", "check_weight_range", "eight_bit_constants", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "match_top",
-           "module_of", "quantize", "quantized_scope", "top_matched"]
+__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "SCORE_BANDS", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader",
+           "TopMatch", "TopMatched", "architecture_float", "check_weight_range", "eight_bit_constants", "image_region", "int8_nodes", "int8_parity",
+           "int8_path_for", "match_top", "module_of", "per_score_band", "quantize", "quantized_scope", "top_matched"]
 
 #: QuantizeLinear / DequantizeLinear: what a QDQ model adds, and what must stay inside the region.
 QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
@@ -351,6 +352,9 @@ def check_weight_range(model: onnx.ModelProto, weight_bits: int = WEIGHT_BITS) -
 
 TOP_K = 50
 MATCH_RADIUS_M = 0.5
+#: Bands of the reference box's score the share kept is also counted by: what a detection threshold
+#: keeps. Low-scoring boxes fill most of a top-50 and move first.
+SCORE_BANDS = {"score >= 0.3": (0.3, math.inf), "0.15-0.3": (0.15, 0.3), "0.05-0.15": (0.05, 0.15), "< 0.05": (-math.inf, 0.05)}
 
 
 @dataclass(frozen=True)
@@ -394,6 +398,11 @@ def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], 
     return found
 
 
+def per_score_band(pairs: Sequence[TopMatch]) -> dict[str, list[TopMatch]]:
+    """``pairs`` grouped by the band of ``SCORE_BANDS`` their reference box's score falls in."""
+    return {band: [p for p in pairs if low <= p.score < high] for band, (low, high) in SCORE_BANDS.items()}
+
+
 @dataclass(frozen=True)
 class TopMatched:
     """``match_top`` summed over the frames."""
@@ -403,6 +412,7 @@ class TopMatched:
     standard_error: float  # of ``fraction``, from how it varies between frames (boxes of one frame are not independent)
     max_box_diff: float  # over matched pairs
     max_score_diff: float  # over matched pairs
+    by_score: dict[str, tuple[int, int]]  # (matched, considered) per band of ``SCORE_BANDS``
 
     @property
     def fraction(self) -> float:
@@ -430,7 +440,8 @@ def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray]
     total = seen.sum()
     share = kept.sum() / total if total else 1.0
     spread = float(np.sqrt(frames / (frames - 1) * np.sum((kept - share * seen) ** 2)) / total) if frames > 1 and total else 0.0
-    return TopMatched(int(kept.sum()), int(total), spread, box, score)
+    bands = {band: (sum(p.matched for p in group), len(group)) for band, group in per_score_band(pairs).items()}
+    return TopMatched(int(kept.sum()), int(total), spread, box, score, bands)
 
 
 def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray, threads: int = 2,
@@ -450,5 +461,5 @@ def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray
         valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=kept.considered - kept.matched,
         tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=kept.fraction >= min_fraction,
         reference="fp32-onnx", top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error,
-        min_top_matched=min_fraction,
+        top_matched_by_score=kept.by_score, min_top_matched=min_fraction,
     )

@@ -110,6 +110,7 @@ class ParityReport(_Model):
     reference: str = "pytorch"  # "pytorch-float64", or "fp32-onnx" for an int8/fp16 file: what the numbers compare against
     top_matched_fraction: float | None = None  # int8/fp16: fraction of top boxes matched within 0.5 m and same label
     top_matched_standard_error: float | None = None  # int8/fp16: of that fraction, from its spread over the frames
+    top_matched_by_score: dict[str, tuple[int, int]] | None = None  # int8/fp16: (matched, considered) per band of the fp32 box's score
     min_top_matched: float | None = None  # int8/fp16: the fraction the file had to reach
     evaluated_with: str | None = None  # fp16: what ran the candidate (ONNX Runtime's CPU execution provider)
     replayed: ReplayedChoice | None = None  # fp16: the fp32 file at the fp16 file's own top-k choice

@@ -252,6 +252,12 @@ def test_top_matched_standard_error_comes_from_the_spread_between_frames() -> No
     assert [m.frame for m in match_top(reference, _frames(hit, miss))] == [0, 0, 1, 1]
 
 
+def test_top_matched_counts_by_the_reference_score() -> None:
+    reference = _boxes([(0, 0), (10, 0), (20, 0), (30, 0)], [0, 0, 0, 0], [0.5, 0.2, 0.1, 0.01])
+    candidate = _boxes([(0, 0), (10, 5), (20, 0), (30, 5)], [0, 0, 0, 0])  # the 2nd and 4th moved 5 m
+    assert top_matched(reference, candidate).by_score == {"score >= 0.3": (1, 1), "0.15-0.3": (0, 1), "0.05-0.15": (1, 1), "< 0.05": (0, 1)}
+
+
 def test_match_top_reports_each_reference_box_in_rank_order_with_its_label() -> None:
     reference = _boxes([(0, 0), (10, 0), (20, 0)], [0, 1, 1], [0.5, 0.9, 0.7])
     candidate = _boxes([(0.1, 0), (10.2, 0), (21, 0)], [0, 1, 1], [0.4, 0.8, 0.7])
@@ -355,6 +361,7 @@ def test_min_kept_is_the_bar_the_int8_file_is_written_at(small_export, small_int
     options = {"calib_frames": 2, "frames": 2, "progress": lambda _: None}
     lower = export_int8(small_export.onnx, tmp_path / "low.int8.onnx", min_kept=kept, **options)
     assert lower.path is not None and read_meta(lower.path).parity.min_top_matched == kept
+    assert read_meta(lower.path).parity.top_matched_by_score == lower.parity.top_matched_by_score and "by the fp32 box's score" in lower.summary()
     assert lower.parity.top_matched_fraction == kept  # the same quantization and frames
     strict = export_int8(small_export.onnx, tmp_path / "strict.int8.onnx", min_kept=1.0, **options)
     assert (strict.path is None) == (kept < 1.0) and "need 100%" in strict.summary()
