@@ -205,34 +205,35 @@ def verification_frames(rig: Rig, count: int, seed: int = 0, images: str | Path 
     return batch
 
 
-def infer_architecture(state_dict: Mapping[str, object]) -> str:
-    """The registered architecture whose signature keys the checkpoint holds; refuse ambiguity."""
+def infer_architecture(state_dict: Mapping[str, object], config: str | Path | object | None = None) -> str:
+    """The registered architecture the checkpoint's keys (narrowed down by ``config``, where given) name; refuse ambiguity."""
     from fisheye_infer.models import list_models, matching_architectures
 
-    matches = matching_architectures(state_dict)
+    matches = matching_architectures(state_dict, config)
     if len(matches) == 1:
         return matches[0]
     if not matches:
         sample = ", ".join(list(state_dict)[:5])
+        if config is not None and matching_architectures(state_dict):
+            raise ExportError(f"the checkpoint fits {', '.join(matching_architectures(state_dict))}, but the configuration "
+                              f"({config if isinstance(config, (str, Path)) else type(config).__name__}) fits none of them")
         raise ExportError(f"cannot tell the architecture from the checkpoint's keys (first keys: {sample}); pass --arch ({', '.join(list_models())})")
-    raise ExportError(f"the checkpoint fits several architectures ({', '.join(matches)}); pass --arch")
+    raise ExportError(f"the checkpoint fits several architectures ({', '.join(matches)}); pass --config (the official config "
+                      "file it was trained with) or --arch")
 
 
-def _architecture(state_dict: Mapping[str, object], arch: str | None, ckpt: Path) -> str:
-    """``arch`` if given and not contradicted by the checkpoint's keys, else the one the keys name."""
-    from fisheye_infer.models import list_models
+def _architecture(state_dict: Mapping[str, object], arch: str | None, ckpt: Path, config: str | Path | object | None) -> str:
+    """``arch`` if given and not contradicted by the checkpoint's keys, else the one the keys (and ``config``) name."""
+    from fisheye_infer.models import list_models, matching_architectures
 
     if arch is None:
-        return infer_architecture(state_dict)
+        return infer_architecture(state_dict, config)
     if arch not in list_models():
         raise ExportError(f"architecture {arch!r} cannot be exported (known: {', '.join(list_models())})")
-    try:
-        found = infer_architecture(state_dict)
-    except ExportError:  # keys of no known architecture: strict loading names what is wrong
-        return arch
-    if found != arch:
-        raise ExportError(f"--arch {arch}: checkpoint {ckpt.name} holds a {found} model (its keys say so); "
-                          f"pass --arch {found} or omit --arch")
+    found = matching_architectures(state_dict)
+    if found and arch not in found:  # keys of no known architecture: strict loading names what is wrong
+        raise ExportError(f"--arch {arch}: checkpoint {ckpt.name} holds a {' or '.join(found)} model (its keys say so); "
+                          f"pass --arch {found[0] if len(found) == 1 else '...'} or omit --arch")
     return arch
 
 
@@ -282,7 +283,7 @@ def open_checkpoint(
 
     ckpt = Path(ckpt)
     state_dict, _ = load_checkpoint(ckpt, allow_pickle=allow_pickle)
-    name = _architecture(state_dict, arch, ckpt)
+    name = _architecture(state_dict, arch, ckpt, config)
     entry = get_model_entry(name)
     cfg = entry.config_cls.from_mmdet3d_config(Path(config)) if isinstance(config, (str, Path)) else config
     the_rig = rig if isinstance(rig, Rig) else resolve_rig(rig)

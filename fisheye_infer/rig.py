@@ -8,6 +8,8 @@ A rig is read from
 - an OCam ``calib_results.txt`` shared by all cameras plus a ``lidar2cam.json``,
 - Fisheye3DOD ``sensor_metadata.txt`` files (CARLA poses, "compat" or "exact" convention),
 - the project's own rig file (JSON or YAML, with ``schema_version``),
+- a pinhole camera list (``{"cameras": [{"name", "width", "height", "K", "distortion": "none",
+  "lidar2cam"}, ...]}``, the layout of ``rig-pinhole6/cameras.json``),
 and written to the rig file. ``Rig.hash`` is a stable content hash that ties an exported model
 to the rig its geometry tables were computed for.
 """
@@ -31,11 +33,14 @@ from fisheye_infer.camera import AnyCameraModel, OCamModel
 from fisheye_infer.carla import Convention, cam2lidar_from_poses, read_sensor_metadata
 from fisheye_infer.errors import CameraModelError, RigError
 
-__all__ = ["Rig", "RigCamera", "FISHEYE3DOD_CAMERAS", "RIG_SCHEMA_VERSION", "default_rig", "resolve_rig"]
+__all__ = ["Rig", "RigCamera", "FISHEYE3DOD_CAMERAS", "PINHOLE_CAMERAS", "RIG_SCHEMA_VERSION", "default_rig", "resolve_rig"]
 
 RIG_SCHEMA_VERSION: Final = 1
 #: The detectors' input order for Fisheye3DOD.
 FISHEYE3DOD_CAMERAS = ("fisheye_camera_front", "fisheye_camera_left", "fisheye_camera_right", "fisheye_camera_rear")
+#: The six nuScenes-like pinhole cameras in the pinhole baselines' input order (rear_right before rear_left).
+PINHOLE_CAMERAS = ("nu_rgb_camera_front", "nu_rgb_camera_front_left", "nu_rgb_camera_front_right", "nu_rgb_camera_rear",
+                   "nu_rgb_camera_rear_right", "nu_rgb_camera_rear_left")
 _RIGID_TOLERANCE = 1e-4
 
 
@@ -195,7 +200,37 @@ class Rig(BaseModel):
             raise RigError(f"rig file {path}: not valid {'YAML' if path.suffix.lower() in ('.yaml', '.yml') else 'JSON'}: {exc}") from exc
         if isinstance(data, dict) and data.get("schema_version", RIG_SCHEMA_VERSION) != RIG_SCHEMA_VERSION:
             raise RigError(f"rig file {path}: schema_version {data.get('schema_version')!r} is not supported (expected {RIG_SCHEMA_VERSION})")
+        if _is_pinhole_list(data):
+            return cls.from_pinhole_list(data, source=f"rig file {path}", name=path.parent.name or path.stem)
         return cls.from_dict(data, source=f"rig file {path}")
+
+    @classmethod
+    def from_pinhole_list(cls, data: dict[str, Any], source: str = "cameras", name: str = "rig") -> Rig:
+        """Distortion-free cameras given as ``K`` (3x3 pixel intrinsics) and ``lidar2cam`` (4x4), in list order.
+
+        ``cam2lidar`` is ``inv(lidar2cam)`` in float64. A camera with distortion, skew or a K whose
+        last row is not (0, 0, 1) is refused by name: the pinhole detectors take ideal pinhole images.
+        """
+        models: dict[str, Any] = {}
+        cam2lidar: dict[str, np.ndarray] = {}
+        for i, cam in enumerate(data["cameras"]):
+            label = f"{source}: camera '{cam.get('name', f'#{i}')}'"
+            k = np.asarray(cam.get("K"), dtype=np.float64)
+            lidar2cam = np.asarray(cam.get("lidar2cam"), dtype=np.float64)
+            if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+                raise RigError(f"{label} (K): expected a finite 3x3 matrix, got shape {k.shape}")
+            if k[0, 1] != 0 or k[1, 0] != 0 or not np.array_equal(k[2], (0.0, 0.0, 1.0)):
+                raise RigError(f"{label} (K): expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {k.tolist()}")
+            if cam.get("distortion", "none") not in ("none", None):
+                raise RigError(f"{label} (distortion): {cam.get('distortion')!r} is not supported; expected 'none' (an ideal pinhole)")
+            if lidar2cam.shape != (4, 4) or not np.all(np.isfinite(lidar2cam)):
+                raise RigError(f"{label} (lidar2cam): expected a finite 4x4 matrix, got shape {lidar2cam.shape}")
+            if "name" not in cam or "width" not in cam or "height" not in cam:
+                raise RigError(f"{label}: expected the fields name, width, height, K, lidar2cam")
+            models[cam["name"]] = {"type": "pinhole", "width": cam["width"], "height": cam["height"],
+                                   "fx": k[0, 0], "fy": k[1, 1], "cx": k[0, 2], "cy": k[1, 2]}
+            cam2lidar[cam["name"]] = np.linalg.inv(lidar2cam)
+        return cls.from_cameras(models, cam2lidar, name=name)
 
     def save(self, path: str | Path) -> Path:
         """Write the rig file; YAML for ``.yaml``/``.yml``, JSON otherwise."""
@@ -266,16 +301,23 @@ class Rig(BaseModel):
 
     def describe(self) -> str:
         """A human-readable table: camera, model, image size, position and heading."""
+        width = max(24, *(len(n) for n in self.names))
         lines = [f"rig {self.name!r}  hash {self.hash}  frame: lidar (x forward, y left, z up)"]
-        lines.append(f"  {'camera':<24} {'model':<15} {'image':>9} {'fov':>6}   {'position x, y, z (m)':<26} {'heading':>8}")
+        lines.append(f"  {'camera':<{width}} {'model':<15} {'image':>9} {'fov':>6}   {'position x, y, z (m)':<26} {'heading':>8}")
         for cam in self.cameras:
-            x, y, z = cam.position
+            x, y, z = np.round(cam.position, 3) + 0.0  # no "-0.000"
             fov = getattr(cam.model, "fov", None)
             lines.append(
-                f"  {cam.name:<24} {cam.model.type:<15} {cam.model.width:>4}x{cam.model.height:<4} {fov if fov is not None else '-':>6}"
-                f"   {x:>7.3f}, {y:>7.3f}, {z:>7.3f}     {math.degrees(cam.heading):>7.1f}°"
+                f"  {cam.name:<{width}} {cam.model.type:<15} {cam.model.width:>4}x{cam.model.height:<4} {fov if fov is not None else '-':>6}"
+                f"   {x:>7.3f}, {y:>7.3f}, {z:>7.3f}     {round(math.degrees(cam.heading), 1) + 0.0:>7.1f}°"
             )
         return "\n".join(lines)
+
+
+def _is_pinhole_list(data: Any) -> bool:
+    """A camera list with ``K`` and ``lidar2cam`` per camera (not the project's rig schema)."""
+    cams = data.get("cameras") if isinstance(data, dict) else None
+    return isinstance(cams, list) and bool(cams) and all(isinstance(c, dict) and "K" in c and "lidar2cam" in c for c in cams)
 
 
 def _canonical(value: Any) -> Any:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fisheye_infer.camera import OCamModel, incidence_angle
+from fisheye_infer.camera import OCamModel, Pinhole, incidence_angle
 from fisheye_infer.carla import CarlaPose, Convention
 from fisheye_infer.errors import RigError
 from fisheye_infer.records import CLASSES
@@ -319,31 +319,36 @@ def synthesize(
 
 
 def resized_rig(rig: Rig, scale: float) -> Rig:
-    """The same rig with every OCam image scaled by ``scale`` (e.g. 0.25: 800x800 -> 200x200).
+    """The same rig with every image scaled by ``scale`` (e.g. 0.25: 800x800 -> 200x200); OCam and pinhole models.
 
-    Pixel centres stay at integers: u' + 1/2 = s (u + 1/2). Image radii scale by s, so invpol
-    is multiplied by s and pol's i-th coefficient by s^(1-i).
+    Pixel centres stay at integers: u' + 1/2 = s (u + 1/2). Image radii scale by s, so an OCam
+    model's invpol is multiplied by s and pol's i-th coefficient by s^(1-i); a pinhole's focal
+    lengths are multiplied by s.
     """
     if not scale > 0:
         raise ValueError(f"scale: expected a positive factor, got {scale}")
     cameras = []
     for cam in rig.cameras:
         m = cam.model
-        if not isinstance(m, OCamModel):
-            raise RigError(f"camera '{cam.name}': only OCam models can be resized, got {m.type}")
+        if not isinstance(m, (OCamModel, Pinhole)):
+            raise RigError(f"camera '{cam.name}': only OCam and pinhole models can be resized, got {m.type}")
         width, height = round(m.width * scale), round(m.height * scale)
         if width < 1 or height < 1 or abs(width / m.width - height / m.height) > 1e-9:
             raise ValueError(f"scale: {scale} does not give a whole image with the same aspect ({m.width}x{m.height} -> {width}x{height})")
         s = width / m.width
-        resized = m.model_copy(
-            update={
-                "pol": tuple(p * s ** (1 - i) for i, p in enumerate(m.pol)),
-                "invpol": tuple(p * s for p in m.invpol),
-                "center_row": (m.center_row + 0.5) * s - 0.5,
-                "center_col": (m.center_col + 0.5) * s - 0.5,
-                "width": width,
-                "height": height,
-            }
-        )
+        size = {"width": width, "height": height}
+        resized: OCamModel | Pinhole
+        if isinstance(m, Pinhole):
+            resized = m.model_copy(update={"fx": m.fx * s, "fy": m.fy * s, "cx": (m.cx + 0.5) * s - 0.5, "cy": (m.cy + 0.5) * s - 0.5, **size})
+        else:
+            resized = m.model_copy(
+                update={
+                    "pol": tuple(p * s ** (1 - i) for i, p in enumerate(m.pol)),
+                    "invpol": tuple(p * s for p in m.invpol),
+                    "center_row": (m.center_row + 0.5) * s - 0.5,
+                    "center_col": (m.center_col + 0.5) * s - 0.5,
+                    **size,
+                }
+            )
         cameras.append({"name": cam.name, "model": resized.model_dump(), "cam2lidar": cam.cam2lidar})
     return Rig.from_dict({"name": f"{rig.name}@x{scale:g}", "cameras": cameras})

@@ -13,6 +13,7 @@ from .config import ModelConfig, Preprocessing
 from .cyl_config import BEVDetCylConfig, CylPETRConfig
 from .mmconfig import read_mmdet3d_config
 from .petr_config import PETRConfig
+from .pinhole_config import PerspBEVDetConfig, PerspPETRConfig, PinholeBEVDetConfig, PinholePETRConfig
 from .registry import ModelEntry, create_model, get_model_entry, list_models, matching_architectures, register_model
 from .synthetic import calibrated_checkpoint, make_checkpoint
 
@@ -24,6 +25,10 @@ __all__ = [
     "ModelConfig",
     "ModelEntry",
     "PETRConfig",
+    "PerspBEVDetConfig",
+    "PerspPETRConfig",
+    "PinholeBEVDetConfig",
+    "PinholePETRConfig",
     "Preprocessing",
     "check_keys",
     "calibrated_checkpoint",

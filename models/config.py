@@ -131,9 +131,17 @@ def build_section(kind: type, values: Mapping[str, Any], where: str) -> Any:
 
 
 def _section_types(cls: type) -> dict[str, type]:
-    """Field name -> section class, for the fields whose default is a section dataclass."""
-    return {f.name: f.default_factory for f in dataclasses.fields(cls)  # type: ignore[misc]
-            if f.default_factory is not dataclasses.MISSING and dataclasses.is_dataclass(f.default_factory)}
+    """Field name -> section class, for the fields whose default is a section dataclass (a class, or a
+    factory such as ``lambda: ImageConfig(height=720)`` that builds one)."""
+    out = {}
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        factory = f.default_factory
+        if factory is dataclasses.MISSING:
+            continue
+        kind = factory if isinstance(factory, type) else type(factory())
+        if dataclasses.is_dataclass(kind):
+            out[f.name] = kind
+    return out
 
 
 class ModelConfig:
@@ -165,6 +173,11 @@ class ModelConfig:
     @property
     def num_cameras(self) -> int:
         return len(self.image.camera_names)
+
+    @property
+    def num_views(self) -> int:
+        """Images the backbone sees per frame: one per camera, unless a front end makes several of each."""
+        return self.num_cameras
 
     @property
     def num_classes(self) -> int:

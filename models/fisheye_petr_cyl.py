@@ -9,29 +9,26 @@ before normalisation; here that is the first op of the graph (``geom.rectify.*``
 model takes raw uint8 fisheye frames like FisheyePETR. After it: the same ResNet-18 + FPN (P3
 25 x 50) and :class:`~.petr_head.CylindricalPETRHead`. The checkpoint holds no geometry
 tensor: its keys are FisheyePETR's minus ``frustum``, ``sphere_grid_3d``, ``sphere_grid_2d`` and
-``unvalid_area``, and every geometry table comes from the rig.
+``unvalid_area``, and every geometry table comes from the rig (:mod:`.resampled_petr`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
 import torch
 
-from fisheye_infer.errors import CheckpointError
 from fisheye_infer.geometry.tables import RECTIFY
 from fisheye_infer.rig import Rig
 
-from .checkpoint import GEOMETRY_POLICIES, GeometryReport, KeySpec
 from .cyl_config import CylPETRConfig
 from .cylindrical import check_rig_image_size, rectify
-from .fisheye_petr import _HEAD, SIGNATURE_KEYS, FisheyePETR, checkpoint_filter_fn
+from .fisheye_petr import _HEAD, SIGNATURE_KEYS, checkpoint_filter_fn
 from .petr_config import PETRConfig
 from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, CylindricalPETRHead
 from .registry import register_model
 from .resample import taps_for
+from .resampled_petr import ResampledPETR
 
 __all__ = ["FisheyePETRCyl"]
 
@@ -39,7 +36,7 @@ __all__ = ["FisheyePETRCyl"]
 @register_model("fisheye-petr-cyl", manifest="fisheye_petr_cyl_keys.json", checkpoint_filter=checkpoint_filter_fn,
                 signature_keys=SIGNATURE_KEYS, absent_keys=(_HEAD + "sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
                 int8_float=INT8_FLOAT)
-class FisheyePETRCyl(FisheyePETR):
+class FisheyePETRCyl(ResampledPETR):
     """Rectification -> normalisation -> ResNet-18 -> FPN (P3 only) -> CylindricalPETRHead -> NMS-free decoding.
 
     Degrees as radians: the released config passes ``horizontal_range=(-110, 110)`` and
@@ -65,8 +62,6 @@ class FisheyePETRCyl(FisheyePETR):
     def _build_head(self, cfg: PETRConfig, geometry: Any) -> CylindricalPETRHead:
         return CylindricalPETRHead(cfg, geometry)
 
-    # -- forward --------------------------------------------------------------------------
-
     def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """uint8 B x N x H x W x 3 raw fisheye (BGR) -> float B x N x 3 x Hc x Wc normalised cylinder images.
 
@@ -79,33 +74,3 @@ class FisheyePETRCyl(FisheyePETR):
         if self.config.image.bgr_to_rgb:
             x = x[:, :, [2, 1, 0]]
         return (x - self.pixel_mean) / self.pixel_std
-
-    def forward_features(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """Raw images (any size: they are rectified to the configured cylinder) -> P3 B x N x C x H x W."""
-        b, n = images.shape[:2]
-        x = self.normalize(images, tables)
-        p3 = self.img_neck(self.img_backbone(x.reshape(b * n, *x.shape[2:])))[0]
-        return p3.reshape(b, n, *p3.shape[1:])
-
-    def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                cam2lidar: Any = None, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
-        """As :meth:`FisheyePETR.forward`; ``tables`` also supplies the rectification grid."""
-        self._check_images(images, camera_valid)
-        tables = tables or self.geometry_tables()
-        return self.pts_bbox_head(self.forward_features(images, tables), camera_valid, cam2lidar, tables)
-
-    # -- official checkpoint ----------------------------------------------------------------
-
-    def official_geometry_specs(self) -> dict[str, KeySpec]:
-        """None: the cylindrical head stores no geometry tensor."""
-        return {}
-
-    def _official_tables(self, geometry: Any) -> dict[str, np.ndarray]:
-        return {}
-
-    def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
-        """Nothing to compare: the tables always come from the rig, whatever the (valid) policy."""
-        if policy not in GEOMETRY_POLICIES:
-            raise CheckpointError(f"geometry={policy!r} is not a geometry policy (use one of {', '.join(GEOMETRY_POLICIES)})")
-        self.set_geometry(self.rig_geometry)
-        return GeometryReport("rig", ())

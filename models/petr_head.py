@@ -28,6 +28,7 @@ from torch import nn
 from fisheye_infer.errors import CheckpointError, ConfigError
 from fisheye_infer.geometry.cyl_petr import CylPETRGeometry
 from fisheye_infer.geometry.petr import PETRGeometry
+from fisheye_infer.geometry.pinhole_petr import PinholePETRGeometry
 from fisheye_infer.geometry.tables import PETR_KEY_MASK, PETR_KEY_POS, WARP
 
 from .petr_config import PETRConfig
@@ -37,7 +38,10 @@ from .ranking import TopK
 from .resample import resample, taps_for
 from .table_buffers import install_tables, installed_tables
 
-__all__ = ["FisheyePETRHead", "CylindricalPETRHead", "decode_predictions", "SCORE_SEMANTICS", "INT8_FLOAT"]
+__all__ = ["FisheyePETRHead", "RectifiedPETRHead", "CylindricalPETRHead", "decode_predictions", "SCORE_SEMANTICS", "INT8_FLOAT"]
+
+#: The geometry objects a PETR head installs.
+AnyPETRGeometry = PETRGeometry | CylPETRGeometry | PinholePETRGeometry
 
 #: What the scores of a PETR head mean (recorded in an exported file's metadata).
 SCORE_SEMANTICS = "sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time"
@@ -70,7 +74,7 @@ class FisheyePETRHead(nn.Module):
     differ is refused with ``CheckpointError`` naming the first differing key.
     """
 
-    def __init__(self, config: PETRConfig, geometry: PETRGeometry | CylPETRGeometry) -> None:
+    def __init__(self, config: PETRConfig, geometry: AnyPETRGeometry) -> None:
         super().__init__()
         self.config = config
         self.cfg = cfg = config.head
@@ -97,7 +101,7 @@ class FisheyePETRHead(nn.Module):
         self.transformer = PETRTransformer(cfg.num_layers, c, cfg.num_heads, cfg.ffn_dims)
 
         # Calibration-derived tables and the cached embeddings: buffers, but not state-dict keys.
-        n = config.num_cameras
+        n = config.num_views
         self._sampling_names: tuple[str, ...] = ()
         self.register_buffer("unvalid_area", torch.zeros(1, 1, fh, fw), persistent=False)
         self.register_buffer("coords3d", torch.zeros(n, 3 * cfg.depth_num, fh, fw), persistent=False)
@@ -109,16 +113,16 @@ class FisheyePETRHead(nn.Module):
         self.set_geometry(geometry)
 
     # ------------------------------------------------------------------ geometry and caches
-    def _install_sampling(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
+    def _install_sampling(self, geometry: AnyPETRGeometry) -> None:
         """The resampling taps (``geom.warp.*``, or ``geom.rectify.*`` of the cylindrical head) as buffers."""
         self._sampling_names = install_tables(self, geometry.sampling_tables(), self._sampling_names, self.code_weights.device)
 
-    def set_geometry(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
+    def set_geometry(self, geometry: AnyPETRGeometry) -> None:
         """Install a rig's tables (warp grid, key mask, cam2lidar) and recompute the cached embeddings."""
         if tuple(geometry.params.feature_size) != tuple(self.cfg.feature_size):
             raise ConfigError(f"geometry feature_size {tuple(geometry.params.feature_size)} differs from the configuration's "
                               f"head.feature_size {tuple(self.cfg.feature_size)}")
-        geometry.check(self.config.num_cameras)
+        geometry.check(self.config.num_views)
         current = getattr(self, "geometry", None)
         if current is not None and current is not geometry and _same_tables(current, geometry):
             self.geometry = geometry  # same numbers (e.g. a checkpoint storing the rig's tables)
@@ -140,7 +144,7 @@ class FisheyePETRHead(nn.Module):
 
     def key_mask(self) -> torch.Tensor:
         """(1, N, H, W) bool: True where the sampled lens validity is not exactly 1.0."""
-        n = self.config.num_cameras
+        n = self.config.num_views
         return (self.unvalid_area != 0).expand(1, n, *self.unvalid_area.shape[-2:])
 
     def embedding_weights(self) -> dict[str, np.ndarray]:
@@ -156,7 +160,7 @@ class FisheyePETRHead(nn.Module):
         constant coordinates are used; with a (B, N, 4, 4) array the coordinates are recomputed
         per frame (parity path).
         """
-        n, (fh, fw), c = self.config.num_cameras, self.cfg.feature_size, self.cfg.embed_dims
+        n, (fh, fw), c = self.config.num_views, self.cfg.feature_size, self.cfg.embed_dims
         if cam2lidar is None:
             coords = [self.coords3d.cpu().numpy()]
         else:
@@ -240,23 +244,27 @@ class FisheyePETRHead(nn.Module):
         return decode_predictions(cls, preds, self.select, self.cfg.post_center_range)
 
 
-class CylindricalPETRHead(FisheyePETRHead):
-    """The official ``CylindricalPETRHead`` at test time; module names and order are FisheyePETRHead's.
-
-    No feature warp: the images were rectified before the backbone, so P3 (25 x 50) is the key
-    grid; the head holds the image rectification's taps ``geom.rectify.*`` instead, so ``tables()``
-    lists every table of the graph. No key mask, and the key rays lie on the cylinder
-    (:class:`~fisheye_infer.geometry.cyl_petr.CylPETRGeometry`). State-dict keys are
-    FisheyePETRHead's minus the four geometry tensors.
+class RectifiedPETRHead(FisheyePETRHead):
+    """A PETR head without the feature warp: the images were resampled before the backbone (onto a
+    cylinder, into perspective views, or resized and cropped), so P3 is the key grid, and the head
+    holds the image front end's tables (``geom.rectify.*`` or ``geom.resize.*``) so that ``tables()``
+    lists every table of the graph. Module names and order are FisheyePETRHead's; the geometry
+    object says where the keys lie (a cylinder, or the views' ``lidar2img``).
     """
 
     def warp(self, p3: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """No feature warp: B x N x C x H x W features of the rectified images are the keys."""
+        """No feature warp: B x N x C x H x W features of the resampled images are the keys."""
         fh, fw = self.cfg.feature_size
         if tuple(p3.shape[-2:]) != (fh, fw):
             raise ConfigError(f"image features are {tuple(p3.shape[-2:])}, the keys need ({fh}, {fw}): "
-                              "the rectified images do not have the configured cylinder size")
+                              "the resampled images do not have the configured size")
         return p3
+
+
+class CylindricalPETRHead(RectifiedPETRHead):
+    """The official ``CylindricalPETRHead`` at test time: no key mask, and the key rays lie on the cylinder
+    (:class:`~fisheye_infer.geometry.cyl_petr.CylPETRGeometry`). State-dict keys are FisheyePETRHead's
+    minus the four geometry tensors."""
 
 
 def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, select: TopK,
@@ -291,8 +299,10 @@ def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, select: TopK,
             "rank_scores": rank_scores, "rank_indices": idx}
 
 
-def _same_tables(a: PETRGeometry | CylPETRGeometry, b: PETRGeometry | CylPETRGeometry) -> bool:
+def _same_tables(a: AnyPETRGeometry, b: AnyPETRGeometry) -> bool:
     keys = ("grid", "unvalid_area", "cam2lidar") if isinstance(b, PETRGeometry) else ("image_grid", "cam2lidar")
+    if isinstance(b, PinholePETRGeometry):
+        keys = ("image_grid", "lidar2img")
     return type(a) is type(b) and all(np.array_equal(np.asarray(getattr(a, k), np.float64).ravel(),
                                                      np.asarray(getattr(b, k), np.float64).ravel()) for k in keys)
 

@@ -25,6 +25,7 @@ import pkgutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
+from pathlib import Path
 from typing import Any, TypeVar
 
 from torch import nn
@@ -34,9 +35,10 @@ from fisheye_infer.errors import ConfigError
 __all__ = ["ModelEntry", "register_model", "create_model", "list_models", "get_model_entry", "entry_of",
            "matching_architectures", "read_manifest"]
 
-#: The package's architecture modules, one per registered detector, are named ``fisheye_*.py``; they
-#: are imported on first use of the registry, so a new one needs no entry anywhere else.
-_ARCHITECTURE_MODULES = "fisheye_"
+#: The package's architecture modules, one per registered detector, are named ``fisheye_*.py`` (fisheye
+#: input) or ``pinhole_*.py`` (pinhole input); they are imported on first use of the registry, so a new
+#: one needs no entry anywhere else.
+_ARCHITECTURE_MODULES = ("fisheye_", "pinhole_")
 
 M = TypeVar("M", bound=type[nn.Module])
 StateDict = Mapping[str, Any]
@@ -58,10 +60,13 @@ class ModelEntry:
     #: Modules (state-dict prefixes) whose layers stay float32 in the int8 file: where quantizing
     #: them was measured to cost accuracy on a trained model (see ``fisheye_infer.export.quantize``).
     int8_float: tuple[str, ...] = ()
+    #: What tells a checkpoint of this architecture from others with the same keys (a stored table's form).
+    predicate: Callable[[StateDict], bool] | None = None
 
     def matches(self, state_dict: StateDict) -> bool:
-        """Whether a checkpoint's keys are this architecture's."""
-        return all(k in state_dict for k in self.signature_keys) and not any(k in state_dict for k in self.absent_keys)
+        """Whether a checkpoint's keys (and ``predicate``) are this architecture's."""
+        keys = all(k in state_dict for k in self.signature_keys) and not any(k in state_dict for k in self.absent_keys)
+        return keys and (self.predicate is None or self.predicate(state_dict))
 
 
 _REGISTRY: dict[str, ModelEntry] = {}
@@ -70,7 +75,7 @@ _loaded = False
 
 def register_model(name: str, *, manifest: str, signature_keys: tuple[str, ...], checkpoint_filter: Callable[[StateDict], dict[str, Any]],
                    score_semantics: str, absent_keys: tuple[str, ...] = (), ignored_keys: tuple[str, ...] = (),
-                   int8_float: tuple[str, ...] = ()) -> Callable[[M], M]:
+                   int8_float: tuple[str, ...] = (), predicate: Callable[[StateDict], bool] | None = None) -> Callable[[M], M]:
     """Class decorator registering a detector (a class with a ``config_cls``) under ``name``."""
 
     def wrap(builder: M) -> M:
@@ -81,7 +86,7 @@ def register_model(name: str, *, manifest: str, signature_keys: tuple[str, ...],
         if not isinstance(config_cls, type):
             raise ConfigError(f"model '{name}': {builder.__qualname__} has no config_cls")
         _REGISTRY[name] = ModelEntry(name, builder, config_cls, manifest, tuple(signature_keys), tuple(absent_keys), checkpoint_filter,
-                                     tuple(ignored_keys), score_semantics, tuple(int8_float))
+                                     tuple(ignored_keys), score_semantics, tuple(int8_float), predicate)
         return builder
 
     return wrap
@@ -128,9 +133,26 @@ def create_model(name: str, config: Any = None, rig: Any = None, **kwargs: Any) 
     return model.eval()
 
 
-def matching_architectures(state_dict: StateDict) -> list[str]:
-    """The registered architectures whose signature keys a checkpoint holds (and none of whose absent keys)."""
-    return [name for name in list_models() if _REGISTRY[name].matches(state_dict)]
+def matching_architectures(state_dict: StateDict, config: Any = None) -> list[str]:
+    """The registered architectures whose signature keys a checkpoint holds (and none of whose absent keys).
+
+    ``config`` narrows them down where the keys do not (the pinhole and the perspective BEVDet store
+    the same keys): a configuration object keeps the architectures of its class, a path to an
+    official config file those whose reader accepts it.
+    """
+    names = [name for name in list_models() if _REGISTRY[name].matches(state_dict)]
+    if config is None or len(names) < 2:
+        return names
+    if not isinstance(config, (str, Path)):
+        return [n for n in names if type(config) is _REGISTRY[n].config_cls]
+    fitting = []
+    for name in names:
+        try:
+            _REGISTRY[name].config_cls.from_mmdet3d_config(config)
+        except ConfigError:
+            continue
+        fitting.append(name)
+    return fitting
 
 
 def read_manifest(name_or_file: str) -> list[dict[str, Any]]:

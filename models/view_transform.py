@@ -1,7 +1,8 @@
 """Fisheye LSS view transform: warp to an angular grid, predict depth and context, pool into BEV.
 
 All geometry comes from :mod:`fisheye_infer.geometry` (numpy, one source of truth: an
-``LSSGeometry`` or, for the cylindrical baseline, a ``CylLSSGeometry``); this module only holds
+``LSSGeometry``; for the baselines without a feature warp a ``CylLSSGeometry`` or a
+``PinholeLSSGeometry``); this module only holds
 its tables as non-persistent buffers and does the tensor work:
 
 1. ``warp``: the official ``grid_sample`` of the stride-16 features with the constant
@@ -27,6 +28,7 @@ from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.cyl_lss import CylLSSGeometry
 from fisheye_infer.geometry.frustum import frustum_to_lidar
 from fisheye_infer.geometry.lss import LSSGeometry
+from fisheye_infer.geometry.pinhole_lss import PinholeLSSGeometry
 from fisheye_infer.geometry.pooling import BevGrid, voxelise
 from fisheye_infer.geometry.tables import POOL_CELL_ROWS, POOL_COUNTS, WARP, pool_pixels, pool_points
 
@@ -34,7 +36,10 @@ from .bevdet_config import ViewTransformConfig
 from .resample import resample, taps_for
 from .table_buffers import install_tables, installed_tables
 
-__all__ = ["FisheyeLSS", "CylindricalLSS", "pool_reference_torch"]
+#: The geometry objects an LSS view transform installs.
+AnyLSSGeometry = LSSGeometry | CylLSSGeometry | PinholeLSSGeometry
+
+__all__ = ["FisheyeLSS", "RectifiedLSS", "CylindricalLSS", "pool_reference_torch"]
 
 
 def pool_reference_torch(depth: torch.Tensor, ctx: torch.Tensor, points_lidar: np.ndarray,
@@ -60,7 +65,7 @@ def pool_reference_torch(depth: torch.Tensor, ctx: torch.Tensor, points_lidar: n
 class FisheyeLSS(nn.Module):
     """Lift-splat with a constant equirectangular grid and a constant pooling plan."""
 
-    def __init__(self, cfg: ViewTransformConfig, geometry: LSSGeometry | CylLSSGeometry) -> None:
+    def __init__(self, cfg: ViewTransformConfig, geometry: AnyLSSGeometry) -> None:
         super().__init__()
         self.cfg = cfg
         self.in_channels, self.out_channels = cfg.in_channels, cfg.out_channels
@@ -72,7 +77,7 @@ class FisheyeLSS(nn.Module):
 
     # -- geometry -----------------------------------------------------------------------
 
-    def set_geometry(self, geometry: LSSGeometry | CylLSSGeometry) -> None:
+    def set_geometry(self, geometry: AnyLSSGeometry) -> None:
         """Install geometry tables as non-persistent buffers (they are not checkpoint keys of this model)."""
         self._check_geometry(geometry)
         if tuple(geometry.plan.grid_xy) != self.cfg.bev_shape:
@@ -81,7 +86,7 @@ class FisheyeLSS(nn.Module):
         self._num_buckets = len(geometry.plan.bucket_points)
         self.geometry = geometry
 
-    def _check_geometry(self, geometry: LSSGeometry | CylLSSGeometry) -> None:
+    def _check_geometry(self, geometry: AnyLSSGeometry) -> None:
         """Refuse tables whose shapes do not fit the configuration, naming the table."""
         h, w = self.cfg.feature_size
         d = self.num_depth
@@ -184,28 +189,35 @@ class FisheyeLSS(nn.Module):
         return torch.stack(out)
 
 
-class CylindricalLSS(FisheyeLSS):
-    """Lift-splat on cylinder-aligned features with a constant pooling plan (``geom.pool.*``).
+class RectifiedLSS(FisheyeLSS):
+    """Lift-splat on features that need no warp, with a constant pooling plan (``geom.pool.*``).
 
-    :class:`FisheyeLSS` with the warp removed: the images were rectified onto the cylinder before
-    the backbone, so the stride-16 features already sit on the cylinder grid. Built as
-    ``CylindricalLSS(cfg: CylViewTransformConfig, geometry: CylLSSGeometry)``; it also keeps
-    ``geom.rectify.*`` among its tables (read by the model before the backbone), so the model's
+    :class:`FisheyeLSS` with the warp removed: the images were resampled (onto a cylinder, into
+    perspective views, or resized and cropped) before the backbone, so the stride-16 features
+    already sit on the frustum's grid. It keeps the image front end's tables (``geom.rectify.*``
+    or ``geom.resize.*``) among its own, read by the model before the backbone, so the model's
     ``geometry_tables()`` is this module's ``tables()``, as for FisheyeBEVDet.
     """
 
-    def _check_geometry(self, geometry: LSSGeometry | CylLSSGeometry) -> None:
+    def _check_geometry(self, geometry: AnyLSSGeometry) -> None:
         h, w = self.cfg.feature_size
         d = self.num_depth
         if geometry.frustum.shape != (d, h, w, 3):
             raise ConfigError(f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)")
-        if not isinstance(geometry, CylLSSGeometry) or geometry.image_grid.ndim != 3 or geometry.image_grid.shape[-1] != 2:
-            raise ConfigError(f"image rectification grid is {getattr(geometry, 'image_grid', np.empty(0)).shape}, expected (H, W, 2)")
 
     def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """No feature warp: M x C x H x W features of the rectified images are already on the cylinder."""
+        """No feature warp: M x C x H x W features of the resampled images are already on the frustum's grid."""
         h, w = self.cfg.feature_size
         if tuple(feat.shape[-2:]) != (h, w):
-            raise ConfigError(f"image features are {tuple(feat.shape[-2:])}, the cylindrical frustum needs ({h}, {w}): "
-                              "the rectified images do not have the configured cylinder size")
+            raise ConfigError(f"image features are {tuple(feat.shape[-2:])}, the frustum needs ({h}, {w}): "
+                              "the resampled images do not have the configured size")
         return feat
+
+
+class CylindricalLSS(RectifiedLSS):
+    """:class:`RectifiedLSS` on cylinder-rectified images (``CylindricalLSS(cfg: CylViewTransformConfig, geometry: CylLSSGeometry)``)."""
+
+    def _check_geometry(self, geometry: AnyLSSGeometry) -> None:
+        super()._check_geometry(geometry)
+        if not isinstance(geometry, CylLSSGeometry) or geometry.image_grid.ndim != 3 or geometry.image_grid.shape[-1] != 2:
+            raise ConfigError(f"image rectification grid is {getattr(geometry, 'image_grid', np.empty(0)).shape}, expected (H, W, 2)")

@@ -15,8 +15,13 @@ def kit_checkpoint(arch: str, path: Path) -> Path:
     from fisheye_infer.models import calibrated_checkpoint
 
     prefix = arch.replace("-", "_") + "/"
-    with np.load(DATA / "official_geometry.npz") as npz:
-        geometry = {k[len(prefix):]: npz[k] for k in npz.files if k.startswith(prefix)}
-    with np.load(DATA / "checkpoints" / arch / "bn_stats.npz") as stats:
+    folder = DATA / "checkpoints" / arch
+    if (folder / "geometry.npz").is_file():  # the baselines: the official constructor's tables, for their own rig
+        with np.load(folder / "geometry.npz") as npz:
+            geometry = {k: npz[k] for k in npz.files}
+    else:
+        with np.load(DATA / "official_geometry.npz") as npz:
+            geometry = {k[len(prefix):]: npz[k] for k in npz.files if k.startswith(prefix)}
+    with np.load(folder / "bn_stats.npz") as stats:
         calibrated_checkpoint(arch, dict(stats), geometry, path=path)
     return path

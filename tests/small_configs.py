@@ -3,6 +3,11 @@ fraction of the cost. They go with the shipped rig resized by 0.2 (160 x 160 ima
 
 from __future__ import annotations
 
+from pathlib import Path
+
+#: The six-camera pinhole rig of the pinhole baselines (``rig-pinhole6/cameras.json``).
+PINHOLE_RIG = Path(__file__).parent / "data" / "rig-pinhole6" / "cameras.json"
+
 #: BEV-side sections (view transform, BEV encoder, TransFusion head) of a reduced FisheyeBEVDet:
 #: 24 depth bins, a 48 m BEV square of 80x80 cells, narrower encoder and head.
 SMALL_BEV_SECTIONS = {
@@ -25,12 +30,15 @@ def small_bevdet_config():
 def small_configs() -> dict:
     """A reduced configuration and the rig it runs on, by registered architecture: every stage of the
     official graph at a fraction of the cost. An architecture missing here is tested at full size."""
-    from fisheye_infer.models import BEVDetCylConfig, CylPETRConfig, PETRConfig
-    from fisheye_infer.rig import default_rig
+    from fisheye_infer.models import BEVDetCylConfig, CylPETRConfig, PerspBEVDetConfig, PerspPETRConfig, PETRConfig, PinholeBEVDetConfig, PinholePETRConfig
+    from fisheye_infer.rig import default_rig, resolve_rig
     from fisheye_infer.synth import resized_rig
 
     small_head = {"num_query": 40, "max_num": 30, "embed_dims": 64, "num_heads": 4, "ffn_dims": 128, "num_layers": 2}
     cyl_sections = dict(SMALL_BEV_SECTIONS, view_transform={**SMALL_BEV_SECTIONS["view_transform"], "feature_size": (3, 6)})
+    views = lambda size, features: dict(SMALL_BEV_SECTIONS, view_transform={**SMALL_BEV_SECTIONS["view_transform"], "image_size": size,  # noqa: E731
+                                                                           "feature_size": features})
+    pinhole_rig = resized_rig(resolve_rig(PINHOLE_RIG), 0.125)  # six 160x90 cameras
     return {
         "fisheye-bevdet": (small_bevdet_config(), resized_rig(default_rig(), 0.2)),
         "fisheye-bevdet-cyl": (BEVDetCylConfig().replace(cylinder={"height": 48, "width": 96}, **cyl_sections), default_rig()),
@@ -38,4 +46,12 @@ def small_configs() -> dict:
                          resized_rig(default_rig(), 0.08)),
         "fisheye-petr-cyl": (CylPETRConfig().replace(cylinder={"height": 48, "width": 96}, head={"feature_size": (3, 6), **small_head}),
                              default_rig()),
+        # 160x90 -> 100x56 (scale 0.625) -> a 96x48 crop, as the official 1280x720 -> 800x450 -> 800x400
+        "pinhole-bevdet": (PinholeBEVDetConfig().replace(image={"height": 90, "width": 160}, image_aug={"crop": (2, 8)},
+                                                         **views((48, 96), (3, 6))), pinhole_rig),
+        "fisheye-bevdet-persp": (PerspBEVDetConfig().replace(perspective={"size": (48, 48)}, **views((48, 48), (3, 3))), default_rig()),
+        "pinhole-petr": (PinholePETRConfig().replace(image={"height": 90, "width": 160}, image_aug={"crop": (2, 8)},
+                                                     head={"image_size": (48, 96), "feature_size": (3, 6), **small_head}), pinhole_rig),
+        "fisheye-petr-persp": (PerspPETRConfig().replace(perspective={"size": (48, 48)}, head={"image_size": (48, 48), "feature_size": (3, 3),
+                                                                                               **small_head}), default_rig()),
     }

@@ -35,20 +35,11 @@ from fisheye_infer.camera import OCamModel, Pinhole
 from fisheye_infer.carla import CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata
 from fisheye_infer.errors import CameraModelError, DatasetError, RigError
 from fisheye_infer.records import CLASSES, boxes_to_records, gravity_to_bottom
-from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig
+from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
 
 __all__ = ["DatasetError", "Fisheye3DOD", "Frame", "SplitEntry", "PINHOLE_CAMERAS", "read_split", "read_labels", "camera_name", "IMAGESETS"]
 
 IMAGESETS = "ImageSets-2hz"
-#: The nuScenes-like pinhole cameras in the pinhole baselines' input order.
-PINHOLE_CAMERAS = (
-    "nu_rgb_camera_front",
-    "nu_rgb_camera_front_left",
-    "nu_rgb_camera_front_right",
-    "nu_rgb_camera_rear",
-    "nu_rgb_camera_rear_right",
-    "nu_rgb_camera_rear_left",
-)
 _PINHOLE = Pinhole(fx=640.0, fy=640.0, cx=640.0, cy=360.0, width=1280, height=720)  # 90 degree hfov, centre at W/2, H/2
 _SPLIT_FIELDS = ("scene_name", "vehicle_name", "weather", "frame_id", "prev_id", "next_id")
 

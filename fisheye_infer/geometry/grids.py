@@ -34,6 +34,7 @@ __all__ = [
     "cylindrical_image_grid",
     "BilinearTaps",
     "bilinear_taps",
+    "remap_taps",
     "sample_bilinear",
     "invalid_mask",
 ]
@@ -193,6 +194,30 @@ def bilinear_taps(grid: np.ndarray, height: int, width: int) -> BilinearTaps:
     one = np.float32(1.0)
     x = (g[..., 0] + one) * np.float32((width - 1) / 2)
     y = (g[..., 1] + one) * np.float32((height - 1) / 2)
+    return _taps_at(x, y, height, width)
+
+
+def remap_taps(grid: np.ndarray, height: int, width: int) -> BilinearTaps:
+    """The taps ``cv2.remap`` (OpenCV 4.x) reads for a :func:`remap_grid` grid on a ``height`` x ``width`` image.
+
+    The grid's pixel positions are multiples of 1/32 (cv2's fixed-point maps), recovered exactly
+    from the float32 grid (its rounding is below 1e-4 px); the weights are then cv2's own, products
+    of two k/32 fractions, exact in float32. With integer pixel values every product and partial
+    sum of the four taps is exact too, so the resampled image equals cv2's to the bit, where
+    :func:`bilinear_taps` of the same grid (PyTorch's arithmetic) misses it by up to ~0.01 grey levels.
+    """
+    g = np.asarray(grid, dtype=np.float64)
+    if g.ndim != 3 or g.shape[-1] != 2:
+        raise ConfigError(f"grid: expected (H, W, 2), got {g.shape}")
+    step = float(REMAP_SUBPIXELS)
+    x = np.rint((g[..., 0] + 1.0) * (width - 1) / 2 * step) / step
+    y = np.rint((g[..., 1] + 1.0) * (height - 1) / 2 * step) / step
+    return _taps_at(x.astype(np.float32), y.astype(np.float32), height, width)
+
+
+def _taps_at(x: np.ndarray, y: np.ndarray, height: int, width: int) -> BilinearTaps:
+    """Bilinear taps at float32 pixel positions (x, y), in PyTorch's float32 arithmetic and order."""
+    one = np.float32(1.0)
     x0 = np.floor(x)
     y0 = np.floor(y)
     fx = x - x0

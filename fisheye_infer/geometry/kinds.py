@@ -1,6 +1,6 @@
 """The four parameter kinds and their geometry objects: the one path from a rig to the tables.
 
-    geometry = geometry_from_rig(rig, params)      # LSSGeometry, CylLSSGeometry, PETRGeometry or CylPETRGeometry
+    geometry = geometry_from_rig(rig, params)      # one geometry class per parameter kind
     tables = tables_for(rig, params, weights)      # what the model holds and re-baking writes
 
 The PyTorch models build their geometry here and turn ``geometry.tables(...)`` into buffers;
@@ -16,19 +16,23 @@ from fisheye_infer.geometry.cyl_lss import CylLSSGeometry, CylLSSParams
 from fisheye_infer.geometry.cyl_petr import CylPETRGeometry, CylPETRParams
 from fisheye_infer.geometry.lss import LSSGeometry, LSSParams
 from fisheye_infer.geometry.petr import PETRGeometry, PETRParams
+from fisheye_infer.geometry.pinhole_lss import PinholeLSSGeometry, PinholeLSSParams
+from fisheye_infer.geometry.pinhole_petr import PinholePETRGeometry, PinholePETRParams
 from fisheye_infer.rig import Rig
 
 __all__ = ["GeometryParams", "Geometry", "GEOMETRY_KINDS", "geometry_from_rig", "tables_for"]
 
-GeometryParams = LSSParams | PETRParams | CylLSSParams | CylPETRParams
-Geometry = LSSGeometry | PETRGeometry | CylLSSGeometry | CylPETRGeometry
+GeometryParams = LSSParams | PETRParams | CylLSSParams | CylPETRParams | PinholeLSSParams | PinholePETRParams
+Geometry = LSSGeometry | PETRGeometry | CylLSSGeometry | CylPETRGeometry | PinholeLSSGeometry | PinholePETRGeometry
 
 #: parameter kind -> its geometry class
-GEOMETRY_KINDS: dict[str, type[LSSGeometry] | type[PETRGeometry] | type[CylLSSGeometry] | type[CylPETRGeometry]] = {
+GEOMETRY_KINDS: dict[str, type[Geometry]] = {
     "lss": LSSGeometry,
     "petr": PETRGeometry,
     "cyl_lss": CylLSSGeometry,
     "cyl_petr": CylPETRGeometry,
+    "pinhole_lss": PinholeLSSGeometry,
+    "pinhole_petr": PinholePETRGeometry,
 }
 
 

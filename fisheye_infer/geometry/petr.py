@@ -24,7 +24,8 @@ from fisheye_infer.geometry.tables import WARP, Params, key_tables, sampling_tab
 from fisheye_infer.rig import Rig
 
 __all__ = ["DEFAULT_POSITION_RANGE", "PETRParams", "PETRGeometry", "lid_depths", "inverse_sigmoid", "position_coords",
-           "sine_frequencies", "sine_position_encoding", "KeyParams", "key_coords", "key_position_embedding", "check_tables"]
+           "sine_frequencies", "sine_position_encoding", "KeyParams", "EmbeddingParams", "key_coords", "key_position_embedding",
+           "check_tables"]
 
 #: x_min, y_min, z_min, x_max, y_max, z_max in metres (lidar frame).
 DEFAULT_POSITION_RANGE = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0)
@@ -161,7 +162,16 @@ def key_coords(cam2lidar: np.ndarray, params: KeyParams) -> np.ndarray:
     return position_coords(t, params.feature_size, depths=depths, position_range=params.position_range, directions=directions)
 
 
-def key_position_embedding(coords: np.ndarray, mask: np.ndarray, weights: dict[str, np.ndarray], params: KeyParams) -> np.ndarray:
+class EmbeddingParams(Protocol):
+    """What the key embedding's sine encoding reads from a parameter kind."""
+
+    @property
+    def num_feats(self) -> int: ...
+    @property
+    def temperature(self) -> float: ...
+
+
+def key_position_embedding(coords: np.ndarray, mask: np.ndarray, weights: dict[str, np.ndarray], params: EmbeddingParams) -> np.ndarray:
     """(1, N*H*W, C) key embedding: position_encoder(coords) + adapt_pos3d(sine(mask)).
 
     ``weights`` holds ``position_encoder.{0,2}.{weight,bias}`` and ``adapt_pos3d.{0,2}.{weight,bias}``.

@@ -7,9 +7,10 @@ them for a new rig with numpy only; both get them from one geometry object per p
 parameters that define the tables travel in the model's metadata, so a file carries everything
 needed to re-bake it.
 
-Resampling with a constant grid (the feature warp, the cylindrical image rectification) is
-stored as its bilinear taps, :func:`~fisheye_infer.geometry.grids.bilinear_taps` of the grid on
-the sampled source (``Params.source_size``): the graph gathers four rows of the channels-last
+Resampling with a constant grid (the feature warp, the image rectification) is stored as its
+bilinear taps on the sampled source (``Params.source_size``): GridSample's
+(:func:`~fisheye_infer.geometry.grids.bilinear_taps`) for the warp, cv2.remap's
+(:func:`~fisheye_infer.geometry.grids.remap_taps`) for the rectification: the graph gathers four rows of the channels-last
 source per output pixel and weighs them with one batched MatMul: GridSample's bilinear,
 zero-padded, ``align_corners=True`` result, in less time than ONNX Runtime's GridSample kernel.
 
@@ -36,6 +37,13 @@ Cylindrical LSS (fisheye-bevdet-cyl): geom.rectify.* + the geom.pool.* tables ab
 Cylindrical PETR (fisheye-petr-cyl): geom.rectify.* + geom.petr.key_pos + geom.petr.key_mask
 (all False: the official head masks no key).
 
+The pinhole baselines (standard LSS) take raw camera images too; their front end makes the
+views the backbone sees (:mod:`.views`):
+    geom.resize.x.index       (T, Wv)       int64    PIL bicubic resize and crop of pinhole images: the
+    geom.resize.x.high, .low  (T, Wv)       float32  columns each output column reads, and the integer
+    geom.resize.y.*           (T, Hv)                weights split in two exact halves (:mod:`.resize`)
+or geom.rectify.* of the perspective views (fisheye input, the views stacked by yaw), then geom.pool.*.
+
 The cylindrical ranges are used as given: ``azimuth_range`` / ``elevation_range`` hold the
 official ``horizontal_range`` / ``vertical_range`` as the code reads them, in radians, and the
 cylinder's heights are their tangents. The released configs write degrees (``[-110, 110]``,
@@ -50,13 +58,17 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.geometry.grids import bilinear_taps
+from fisheye_infer.geometry.grids import bilinear_taps, remap_taps
 from fisheye_infer.geometry.pooling import PoolingPlan
+from fisheye_infer.geometry.resize import ResizeTaps
 
 __all__ = [
     "PREFIX",
     "WARP",
     "RECTIFY",
+    "RESIZE_X",
+    "RESIZE_Y",
+    "resize_tables",
     "taps_index",
     "taps_weight",
     "POOL_PREFIX",
@@ -76,7 +88,9 @@ __all__ = [
 
 PREFIX = "geom."
 WARP = "geom.warp."  # the feature warp's taps: + "index" / "weight"
-RECTIFY = "geom.rectify."  # the cylindrical image rectification's taps
+RECTIFY = "geom.rectify."  # the image rectification's taps (cylinder, perspective views)
+RESIZE_X = "geom.resize.x."  # PIL's bicubic resize and crop of pinhole images, columns: + "index" / "high" / "low"
+RESIZE_Y = "geom.resize.y."  # the same for rows
 POOL_PREFIX = "geom.pool."
 POOL_COUNTS = "geom.pool.counts"
 POOL_CELL_ROWS = "geom.pool.cell_rows"
@@ -107,12 +121,22 @@ def taps_weight(prefix: str) -> str:
 
 
 def sampling_tables(prefix: str, grid: np.ndarray, source_size: tuple[int, int] | None) -> dict[str, np.ndarray]:
-    """The taps of ``grid`` (H, W, 2) on a ``source_size`` (H, W) source as the tables ``prefix`` (``WARP`` or ``RECTIFY``)."""
+    """The taps of ``grid`` (H, W, 2) on a ``source_size`` (H, W) source as the tables ``prefix``.
+
+    ``WARP``: GridSample's taps (the official feature warp); ``RECTIFY``: cv2.remap's exact taps of
+    a :func:`~fisheye_infer.geometry.grids.remap_grid` grid (the official image rectification).
+    """
     if source_size is None:
         raise ConfigError("geometry parameters: source_size is missing (files exported before the sampling taps held a "
                           "GridSample grid instead); export the checkpoint again to get tables for it")
-    taps = bilinear_taps(grid, *source_size)
+    taps = remap_taps(grid, *source_size) if prefix == RECTIFY else bilinear_taps(grid, *source_size)
     return {taps_index(prefix): taps.index, taps_weight(prefix): taps.weight}
+
+
+def resize_tables(prefix: str, taps: ResizeTaps) -> dict[str, np.ndarray]:
+    """One axis of PIL's resize (:class:`~fisheye_infer.geometry.resize.ResizeTaps`) as the tables ``prefix``."""
+    return {f"{prefix}index": taps.index.astype(np.int64), f"{prefix}high": taps.high.astype(np.float32),
+            f"{prefix}low": taps.low.astype(np.float32)}
 
 
 def pool_tables(plan: PoolingPlan) -> dict[str, np.ndarray]:

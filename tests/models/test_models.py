@@ -49,7 +49,7 @@ def test_entry_describes_the_architecture(built) -> None:  # noqa: ANN001
 def test_strict_load_and_forward(built) -> None:  # noqa: ANN001
     arch, ckpt, config, rig = built
     state_dict = torch.load(ckpt, weights_only=True)["state_dict"]
-    assert infer_architecture(state_dict) == arch
+    assert infer_architecture(state_dict, config) == arch
     model, report = load_model(arch, ckpt, config, rig)
     assert all(c.agrees for c in report.checks)
     w, h = model.config.preprocess.image_size
