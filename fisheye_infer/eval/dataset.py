@@ -13,7 +13,10 @@ Layout (§3 of the dataset description)::
     for frame in data:                     # Frame: token, image paths, rig, ground truth
         dets = detector.detect(frame.image_paths)
 
-Extrinsics are rebuilt per frame from the CARLA poses of each camera and the lidar at that frame,
+The cameras a split is read with are fisheye cameras (the OCam model of ``calib_results.txt``),
+pinhole cameras (``nu_rgb_camera_*``, the official converter's ideal 90-degree pinhole of 1280x720:
+the layout stores no pinhole intrinsics), or both; ``calib_results.txt`` is needed only for fisheye
+cameras. Extrinsics are rebuilt per frame from the CARLA poses of each camera and the lidar at that frame,
 in the "compat" convention the checkpoints were trained with; each ``sensor_metadata.txt`` is
 parsed once per sequence. Label boxes are stored gravity-centred; ``Frame.gt_boxes`` is in the
 runtime layout (z at the bottom face), the same as detector output.
@@ -37,10 +40,12 @@ from fisheye_infer.errors import CameraModelError, DatasetError, RigError
 from fisheye_infer.records import CLASSES, boxes_to_records, gravity_to_bottom
 from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
 
-__all__ = ["DatasetError", "Fisheye3DOD", "Frame", "SplitEntry", "PINHOLE_CAMERAS", "read_split", "read_labels", "camera_name", "IMAGESETS"]
+__all__ = ["DatasetError", "Fisheye3DOD", "Frame", "SplitEntry", "PINHOLE_CAMERAS", "PINHOLE_MODEL", "read_split", "read_labels", "camera_name",
+           "IMAGESETS"]
 
 IMAGESETS = "ImageSets-2hz"
-_PINHOLE = Pinhole(fx=640.0, fy=640.0, cx=640.0, cy=360.0, width=1280, height=720)  # 90 degree hfov, centre at W/2, H/2
+#: The pinhole cameras' model, as the official converter builds it: 90 degree hfov, centre at W/2, H/2.
+PINHOLE_MODEL = Pinhole(fx=640.0, fy=640.0, cx=640.0, cy=360.0, width=1280, height=720)
 _SPLIT_FIELDS = ("scene_name", "vehicle_name", "weather", "frame_id", "prev_id", "next_id")
 
 
@@ -131,7 +136,7 @@ class Frame:
     frame_id: str
     weather: str
     image_paths: dict[str, Path]  # camera -> PNG; fisheye cameras in model order, then pinhole ones
-    rig: Rig  # the fisheye cameras asked for, extrinsics of this frame
+    rig: Rig  # the cameras asked for (fisheye, pinhole or both), extrinsics of this frame
     gt_boxes: np.ndarray  # (K, 7) x, y, z_bottom, l, w, h, yaw, lidar frame
     gt_labels: np.ndarray  # (K,) int64 class ids
     gt_ids: np.ndarray  # (K,) int64 CARLA actor ids, -1 when the label has none
@@ -205,17 +210,19 @@ class Fisheye3DOD:
         self.split, self.convention = split, convention
         self.class_names = tuple(class_names)
         self.cameras = tuple(camera_name(c) for c in cameras)
-        unknown = [c for c in self.cameras if c not in FISHEYE3DOD_CAMERAS]
+        unknown = [c for c in self.cameras if c not in FISHEYE3DOD_CAMERAS + PINHOLE_CAMERAS]
         if unknown or not self.cameras:
-            raise DatasetError(f"cameras: expected a non-empty subset of {', '.join(FISHEYE3DOD_CAMERAS)}, got {list(cameras)}")
+            raise DatasetError(f"cameras: expected a non-empty subset of {', '.join(FISHEYE3DOD_CAMERAS + PINHOLE_CAMERAS)}, got {list(cameras)}")
         self.pinhole_cameras = PINHOLE_CAMERAS if pinhole else ()
-        calib = self.root / "calib_results.txt"
-        if not calib.is_file():
-            raise DatasetError(f"dataset root {self.root}: calib_results.txt not found (one OCam model for every fisheye camera)")
-        try:
-            self.model = OCamModel.from_file(calib, fov=fov)
-        except CameraModelError as exc:
-            raise DatasetError(str(exc)) from exc
+        self.model: OCamModel | None = None
+        if any(c in FISHEYE3DOD_CAMERAS for c in self.cameras):
+            calib = self.root / "calib_results.txt"
+            if not calib.is_file():
+                raise DatasetError(f"dataset root {self.root}: calib_results.txt not found (one OCam model for every fisheye camera)")
+            try:
+                self.model = OCamModel.from_file(calib, fov=fov)
+            except CameraModelError as exc:
+                raise DatasetError(str(exc)) from exc
         entries = read_split(self.root, split)
         if scenes is not None:
             known = {e.scene for e in entries}
@@ -244,14 +251,15 @@ class Fisheye3DOD:
     def _sequence(self, entry: SplitEntry) -> _Sequence:
         key = (entry.scene, entry.vehicle)
         if key not in self._sequences:
-            sensors = (*self.cameras, *self.pinhole_cameras)
+            sensors = tuple(dict.fromkeys((*self.cameras, *self.pinhole_cameras)))
             self._sequences[key] = _Sequence(self.root / entry.scene / entry.vehicle, f"{entry.scene}/{entry.vehicle}", sensors)
         return self._sequences[key]
 
-    def _rig(self, seq: _Sequence, entry: SplitEntry, cameras: Sequence[str], model: Any) -> Rig:
+    def _rig(self, seq: _Sequence, entry: SplitEntry, cameras: Sequence[str]) -> Rig:
         matrices = {c: seq.cam2lidar(c, entry.frame_id, entry.token, self.convention) for c in cameras}
+        models = {c: PINHOLE_MODEL if c in PINHOLE_CAMERAS else self.model for c in cameras}
         try:
-            return Rig.from_cameras({c: model for c in cameras}, matrices, cameras, name=f"{entry.scene}/{entry.vehicle}@{entry.frame_id}")
+            return Rig.from_cameras(models, matrices, cameras, name=f"{entry.scene}/{entry.vehicle}@{entry.frame_id}")
         except RigError as exc:
             raise DatasetError(f"frame {entry.token}: {exc}") from exc
 
@@ -259,7 +267,7 @@ class Fisheye3DOD:
         """Where sample ``index``'s images are (camera -> PNG), without reading or checking them."""
         entry = self.entries[index]
         folder = self.root / entry.scene / entry.vehicle
-        return {cam: folder / cam / f"{entry.frame_id}.png" for cam in (*self.cameras, *self.pinhole_cameras)}
+        return {cam: folder / cam / f"{entry.frame_id}.png" for cam in dict.fromkeys((*self.cameras, *self.pinhole_cameras))}
 
     def __getitem__(self, index: int) -> Frame:
         entry = self.entries[index]
@@ -277,12 +285,12 @@ class Fisheye3DOD:
             frame_id=entry.frame_id,
             weather=entry.weather,
             image_paths=paths,
-            rig=self._rig(seq, entry, self.cameras, self.model),
+            rig=self._rig(seq, entry, self.cameras),
             gt_boxes=gravity_to_bottom(boxes),
             gt_labels=labels,
             gt_ids=ids,
             class_names=self.class_names,
-            pinhole_rig=self._rig(seq, entry, self.pinhole_cameras, _PINHOLE) if self.pinhole_cameras else None,
+            pinhole_rig=self._rig(seq, entry, self.pinhole_cameras) if self.pinhole_cameras else None,
         )
 
     def ground_truth(self) -> dict[str, list[dict[str, Any]]]:

@@ -2,7 +2,8 @@
 
 The inverse of the reader: a rig becomes CARLA poses (the compat or exact conversion undone),
 printed as CARLA prints sensor data, one record per frame and sensor; boxes become gravity-centred
-label JSON; the OCam model becomes ``calib_results.txt``; the samples go into the split file.
+label JSON; the OCam model becomes ``calib_results.txt`` (pinhole cameras must be the layout's one
+pinhole model, which it stores nowhere); the samples go into the split file.
 
     writer = Fisheye3DODWriter(root, scene="synth-Town00-ClearNoon-0000", split="val")
     rig_read = writer.write_frame("00001000", rig, images, boxes, labels, lidar_pose)
@@ -25,7 +26,7 @@ import numpy as np
 
 from fisheye_infer.camera import OCamModel
 from fisheye_infer.carla import CAM_TO_SENSOR, CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata, pose_matrix
-from fisheye_infer.eval.dataset import IMAGESETS, DatasetError
+from fisheye_infer.eval.dataset import IMAGESETS, PINHOLE_CAMERAS, PINHOLE_MODEL, DatasetError
 from fisheye_infer.records import CLASSES, bottom_to_gravity
 from fisheye_infer.rig import Rig
 
@@ -128,13 +129,26 @@ class Fisheye3DODWriter:
         path.write_text(model.to_text())
         return path
 
+    def _write_models(self, rig: Rig) -> None:
+        """``calib_results.txt`` for the fisheye cameras; pinhole cameras must be :data:`PINHOLE_MODEL`, the reader's."""
+        fisheye = [c for c in rig.cameras if c.name not in PINHOLE_CAMERAS]
+        for cam in rig.cameras:
+            if cam.name in PINHOLE_CAMERAS and cam.model != PINHOLE_MODEL:
+                raise DatasetError(f"camera '{cam.name}': the layout stores no pinhole intrinsics and its reader takes the official "
+                                   f"converter's {PINHOLE_MODEL.width}x{PINHOLE_MODEL.height} 90-degree pinhole; this camera differs")
+            if cam.name not in PINHOLE_CAMERAS and not isinstance(cam.model, OCamModel):
+                raise DatasetError(f"camera '{cam.name}': a {cam.model.type} model; the layout's cameras are OCam fisheye cameras "
+                                   f"or the pinhole cameras {', '.join(PINHOLE_CAMERAS)}")
+        if fisheye:
+            self.write_calib(Rig.from_dict({"cameras": [c.model_dump() for c in fisheye]}).shared_model())
+
     def write_poses(self, frame_id: str, rig: Rig, lidar_pose: CarlaPose) -> Rig:
         """Append this frame's lidar and camera poses to the sensors' ``sensor_metadata.txt``.
 
         Returns the rig as the reader will rebuild it from the written text.
         """
         frame_id = f"{int(frame_id):08d}"
-        self.write_calib(rig.shared_model())
+        self._write_models(rig)
         timestamp = int(frame_id) * 0.05
         poses = {"lidar": lidar_pose, **camera_poses(rig, lidar_pose, self.convention)}
         written: dict[str, CarlaPose] = {}

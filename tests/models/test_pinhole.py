@@ -22,7 +22,10 @@ from checkpoint_kit import kit_checkpoint
 from small_configs import PINHOLE_RIG, small_configs  # noqa: E402
 
 from fisheye_infer.artifact import read_meta
+from fisheye_infer.detector import Detector
 from fisheye_infer.errors import ConfigError, RigError
+from fisheye_infer.eval.dataset import PINHOLE_MODEL, DatasetError, Fisheye3DOD
+from fisheye_infer.eval.evaluate import detect_dataset, evaluate_results
 from fisheye_infer.export.exporter import export, infer_architecture
 from fisheye_infer.export.rebake import rebake
 from fisheye_infer.geometry.pinhole_lss import view_points
@@ -41,7 +44,7 @@ from fisheye_infer.models import (
 )
 from fisheye_infer.models.cylindrical import rectify
 from fisheye_infer.rig import PINHOLE_CAMERAS, Rig, default_rig, resolve_rig
-from fisheye_infer.synth import Renderer, random_scene
+from fisheye_infer.synth import Renderer, random_scene, resized_rig, synthesize
 
 DATA = Path(__file__).parent / "data"
 PINHOLE, PERSP = "pinhole-bevdet", "fisheye-bevdet-persp"
@@ -301,6 +304,24 @@ def test_pinhole_views_are_pils_resize_and_crop(pinhole_rig: Rig) -> None:
     np.testing.assert_allclose(x, (expected.astype(np.float32) - mean) / std, rtol=0, atol=1e-5)
 
 
+# -- synthetic frames in the dataset layout ------------------------------------------------------
+
+
+def test_pinhole_frames_are_written_and_read_back(pinhole_rig: Rig, tmp_path: Path) -> None:
+    """The layout stores no pinhole intrinsics: its reader takes the converter's 1280x720 90-degree pinhole,
+    which rig-pinhole6's cameras are; no calib_results.txt is needed for them."""
+    (written,) = synthesize(pinhole_rig, tmp_path, frames=1, seed=3)
+    frame = Fisheye3DOD(tmp_path, "val", cameras=PINHOLE_CAMERAS)[0]
+    assert not (tmp_path / "calib_results.txt").exists()
+    assert frame.rig.names == list(PINHOLE_CAMERAS) and all(c.model == PINHOLE_MODEL for c in frame.rig.cameras)
+    np.testing.assert_allclose(frame.rig.cam2lidar(), pinhole_rig.cam2lidar(), atol=1e-6)
+    np.testing.assert_array_equal(frame.gt_boxes, written.boxes)
+    assert frame.image("nu_rgb_camera_rear").shape == (720, 1280, 3)
+    small = resized_rig(pinhole_rig, 0.125)
+    with pytest.raises(DatasetError, match="camera 'nu_rgb_camera_front': the layout stores no pinhole intrinsics"):
+        synthesize(small, tmp_path / "small", frames=1)
+
+
 # -- architecture from a checkpoint --------------------------------------------------------------
 
 
@@ -343,6 +364,19 @@ def test_kit_checkpoint_exports_with_a_passing_self_check(kit_export) -> None:  
     assert meta.geometry_source == ("checkpoint" if arch.endswith("bevdet") or arch == PERSP else "rig")  # PETR stores no table
     assert meta.image_size == ((1280, 720) if arch.startswith("pinhole") else (800, 800))
     assert meta.tensorrt.compatible
+
+
+@pytest.mark.slow
+def test_eval_runs_the_baseline_on_frames_of_its_rig(kit_export, tmp_path: Path) -> None:  # noqa: ANN001
+    """``fisheye-infer eval`` reads the cameras from the file: six pinhole images or four fisheye ones per frame."""
+    arch, result, the_rig = kit_export
+    (written,) = synthesize(the_rig, tmp_path, frames=1, seed=4)
+    detector = Detector(result.path, threads=2)
+    dataset = Fisheye3DOD(tmp_path, "val", cameras=list(detector.info.cameras))
+    gt, pred = detect_dataset(detector, dataset, progress=False)
+    assert list(pred) == [written.token] and len(pred[written.token]) == result.meta.num_boxes
+    report = evaluate_results(gt, pred)
+    assert report.to_markdown().startswith("#")
 
 
 @pytest.mark.slow
