@@ -233,7 +233,7 @@ def _architecture(state_dict: Mapping[str, object], arch: str | None, ckpt: Path
     found = matching_architectures(state_dict)
     if found and arch not in found:  # keys of no known architecture: strict loading names what is wrong
         raise ExportError(f"--arch {arch}: checkpoint {ckpt.name} holds a {' or '.join(found)} model (its keys say so); "
-                          f"pass --arch {found[0] if len(found) == 1 else '...'} or omit --arch")
+                          f"pass {' or '.join(f'--arch {f}' for f in found)}, or omit --arch")
     return arch
 
 

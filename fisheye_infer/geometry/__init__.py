@@ -2,9 +2,10 @@
 
 One source of truth for the sampling grids and their bilinear taps, frustums, BEV pooling plans and PETR position
 coordinates that the PyTorch models, the exporter and the runtime share. The building blocks are
-``grids``, ``frustum``, ``pooling`` and the coordinate functions of ``petr``; one module per
-parameter kind (``lss``, ``cyl_lss``, ``petr``, ``cyl_petr``) turns a rig into a geometry object,
-whose ``tables()`` are the ``geom.*`` tables named and laid out in ``tables``; ``kinds`` picks the
+``grids``, ``frustum``, ``pooling``, the coordinate functions of ``petr``, the pinhole ``views`` of
+the baselines and PIL's ``resize``; one module per parameter kind (``lss``, ``cyl_lss``, ``petr``,
+``cyl_petr``, ``pinhole_lss``, ``pinhole_petr``) turns a rig into a geometry object, whose
+``tables()`` are the ``geom.*`` tables named and laid out in ``tables``; ``kinds`` picks the
 geometry object of a parameter kind.
 """
 
@@ -26,6 +27,8 @@ from fisheye_infer.geometry.grids import (
 from fisheye_infer.geometry.kinds import Geometry, GeometryParams, geometry_from_rig, tables_for
 from fisheye_infer.geometry.lss import LSSGeometry, LSSParams
 from fisheye_infer.geometry.petr import PETRGeometry, PETRParams, lid_depths, position_coords
+from fisheye_infer.geometry.pinhole_lss import PinholeLSSGeometry, PinholeLSSParams
+from fisheye_infer.geometry.pinhole_petr import PinholePETRGeometry, PinholePETRParams
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan, pool_bev, pool_bev_reference
 
 __all__ = [
@@ -42,6 +45,10 @@ __all__ = [
     "LSSParams",
     "PETRGeometry",
     "PETRParams",
+    "PinholeLSSGeometry",
+    "PinholeLSSParams",
+    "PinholePETRGeometry",
+    "PinholePETRParams",
     "PoolingPlan",
     "build_pooling_plan",
     "cylindrical_frustum",

@@ -1,4 +1,4 @@
-"""The four parameter kinds and their geometry objects: the one path from a rig to the tables.
+"""The parameter kinds and their geometry objects: the one path from a rig to the tables.
 
     geometry = geometry_from_rig(rig, params)      # one geometry class per parameter kind
     tables = tables_for(rig, params, weights)      # what the model holds and re-baking writes

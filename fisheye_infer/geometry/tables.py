@@ -3,7 +3,8 @@
 An exported model holds every table that depends on the rig as a named initializer
 (``geom.*``). The PyTorch models are built from these same tables, and ``rebake`` recomputes
 them for a new rig with numpy only; both get them from one geometry object per parameter kind
-(:mod:`.lss`, :mod:`.cyl_lss`, :mod:`.petr`, :mod:`.cyl_petr`; :func:`.kinds.tables_for`). The
+(:mod:`.lss`, :mod:`.cyl_lss`, :mod:`.petr`, :mod:`.cyl_petr`, :mod:`.pinhole_lss`, :mod:`.pinhole_petr`;
+:func:`.kinds.tables_for`). The
 parameters that define the tables travel in the model's metadata, so a file carries everything
 needed to re-bake it.
 
@@ -42,7 +43,9 @@ views the backbone sees (:mod:`.views`):
     geom.resize.x.index       (T, Wv)       int64    PIL bicubic resize and crop of pinhole images: the
     geom.resize.x.high, .low  (T, Wv)       float32  columns each output column reads, and the integer
     geom.resize.y.*           (T, Hv)                weights split in two exact halves (:mod:`.resize`)
-or geom.rectify.* of the perspective views (fisheye input, the views stacked by yaw), then geom.pool.*.
+or geom.rectify.* of the perspective views (fisheye input, the views stacked by yaw); then geom.pool.*
+(pinhole LSS, pinhole-bevdet / fisheye-bevdet-persp) or geom.petr.key_pos + geom.petr.key_mask (all
+False; pinhole PETR, pinhole-petr / fisheye-petr-persp).
 
 The cylindrical ranges are used as given: ``azimuth_range`` / ``elevation_range`` hold the
 official ``horizontal_range`` / ``vertical_range`` as the code reads them, in radians, and the
