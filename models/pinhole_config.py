@@ -62,6 +62,9 @@ class ImageAugConfig:
     scale: float = 0.625
     crop: tuple[int, int] = (0, 50)
 
+    def views(self) -> ResizeCrop:
+        return ResizeCrop(scale=self.scale, crop=tuple(self.crop))
+
 
 @dataclass(frozen=True)
 class PerspectiveConfig:
@@ -76,6 +79,9 @@ class PerspectiveConfig:
     yaws: tuple[float, ...] = (-55.0, 55.0)
     truncate: bool = True
 
+    def views(self) -> Perspective:
+        return Perspective(size=tuple(self.size), fov=self.fov, yaws=tuple(self.yaws))
+
 
 def _pinhole_view_transform(vt: Section, d: PinholeViewTransformConfig) -> PinholeViewTransformConfig:
     vt.type_is("LSSTransform", required=True)
@@ -83,16 +89,14 @@ def _pinhole_view_transform(vt: Section, d: PinholeViewTransformConfig) -> Pinho
     return PinholeViewTransformConfig(**view_transform_fields(vt, d), image_size=size)
 
 
-def _validate_views(cfg: BEVDetConfig, view_size: tuple[int, int]) -> None:
-    """The view transform's image size is the views' size, and its feature map their stride-16 features."""
-    vt = cfg.view_transform
-    if not isinstance(vt, PinholeViewTransformConfig):
-        raise ConfigError(f"view_transform: expected a PinholeViewTransformConfig, got {type(vt).__name__}")
-    if tuple(vt.image_size) != tuple(view_size):
-        raise ConfigError(f"view_transform.image_size={tuple(vt.image_size)} but the views are {tuple(view_size)} (H, W)")
-    expected = feature_size_of(tuple(vt.image_size), cfg.backbone)  # type: ignore[arg-type]
-    if tuple(vt.feature_size) != expected:
-        raise ConfigError(f"view_transform.feature_size={tuple(vt.feature_size)} but {vt.image_size[0]}x{vt.image_size[1]} views "
+def _check_views(section: str, image_size: tuple[int, int], feature_size: tuple[int, int], view_size: tuple[int, int],
+                 backbone: Any) -> None:
+    """The section's image size is the views' size, and its feature map their stride-16 features."""
+    if tuple(image_size) != tuple(view_size):
+        raise ConfigError(f"{section}.image_size={tuple(image_size)} but the views are {tuple(view_size)} (H, W)")
+    expected = feature_size_of(tuple(image_size), backbone)  # type: ignore[arg-type]
+    if tuple(feature_size) != expected:
+        raise ConfigError(f"{section}.feature_size={tuple(feature_size)} but {image_size[0]}x{image_size[1]} views "
                           f"give stride-16 features of {expected[0]}x{expected[1]}")
 
 
@@ -131,11 +135,12 @@ class PinholeBEVDetConfig(BEVDetConfig):
 
     def validate(self) -> None:
         super().validate()
-        _validate_views(self, self.view_transform.image_size)
-        _check_crop(self.image, self.image_aug, self.view_transform.image_size)
+        vt = self.view_transform
+        _check_views("view_transform", vt.image_size, vt.feature_size, vt.image_size, self.backbone)
+        _check_crop(self.image, self.image_aug, vt.image_size)
 
     def views(self) -> ResizeCrop:
-        return ResizeCrop(scale=self.image_aug.scale, crop=tuple(self.image_aug.crop))
+        return self.image_aug.views()
 
     def geometry_params(self) -> Any:
         vt = self.view_transform
@@ -179,7 +184,8 @@ class PerspBEVDetConfig(BEVDetConfig):
 
     def validate(self) -> None:
         super().validate()
-        _validate_views(self, self.perspective.size)
+        vt = self.view_transform
+        _check_views("view_transform", vt.image_size, vt.feature_size, self.perspective.size, self.backbone)
         if not self.perspective.yaws:
             raise ConfigError("perspective.yaws: expected at least one view per camera")
 
@@ -188,8 +194,7 @@ class PerspBEVDetConfig(BEVDetConfig):
         return self.num_cameras * len(self.perspective.yaws)
 
     def views(self) -> Perspective:
-        p = self.perspective
-        return Perspective(size=tuple(p.size), fov=p.fov, yaws=tuple(p.yaws))
+        return self.perspective.views()
 
     def geometry_params(self) -> Any:
         vt = self.view_transform
@@ -262,18 +267,6 @@ def _pinhole_petr_params(cfg: PETRConfig, views: ResizeCrop | Perspective) -> Pi
                              temperature=h.pe_temperature)
 
 
-def _validate_petr_views(cfg: PETRConfig, view_size: tuple[int, int]) -> None:
-    h = cfg.head
-    if not isinstance(h, PinholePETRHeadConfig):
-        raise ConfigError(f"head: expected a PinholePETRHeadConfig, got {type(h).__name__}")
-    if tuple(h.image_size) != tuple(view_size):
-        raise ConfigError(f"head.image_size={tuple(h.image_size)} but the views are {tuple(view_size)} (H, W)")
-    expected = feature_size_of(tuple(h.image_size), cfg.backbone)  # type: ignore[arg-type]
-    if tuple(h.feature_size) != expected:
-        raise ConfigError(f"head.feature_size={tuple(h.feature_size)} but {h.image_size[0]}x{h.image_size[1]} views "
-                          f"give stride-16 features of {expected[0]}x{expected[1]}")
-
-
 def _backbone_of(cfg: Mapping[str, Any], source: str, d: PETRConfig) -> Any:
     return read_backbone(Section(cfg.get("model"), "model", source), d.backbone, required=False)
 
@@ -288,11 +281,12 @@ class PinholePETRConfig(PETRConfig):
 
     def validate(self) -> None:
         super().validate()
-        _validate_petr_views(self, self.head.image_size)
-        _check_crop(self.image, self.image_aug, self.head.image_size)
+        h = self.head
+        _check_views("head", h.image_size, h.feature_size, h.image_size, self.backbone)
+        _check_crop(self.image, self.image_aug, h.image_size)
 
     def views(self) -> ResizeCrop:
-        return ResizeCrop(scale=self.image_aug.scale, crop=tuple(self.image_aug.crop))
+        return self.image_aug.views()
 
     def geometry_params(self) -> Any:
         return _pinhole_petr_params(self, self.views())
@@ -333,7 +327,8 @@ class PerspPETRConfig(PETRConfig):
 
     def validate(self) -> None:
         super().validate()
-        _validate_petr_views(self, self.perspective.size)
+        h = self.head
+        _check_views("head", h.image_size, h.feature_size, self.perspective.size, self.backbone)
         if not self.perspective.yaws:
             raise ConfigError("perspective.yaws: expected at least one view per camera")
 
@@ -342,8 +337,7 @@ class PerspPETRConfig(PETRConfig):
         return self.num_cameras * len(self.perspective.yaws)
 
     def views(self) -> Perspective:
-        p = self.perspective
-        return Perspective(size=tuple(p.size), fov=p.fov, yaws=tuple(p.yaws))
+        return self.perspective.views()
 
     def geometry_params(self) -> Any:
         return _pinhole_petr_params(self, self.views())
