@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test lint bench clean
+.PHONY: install demo test test-fast lint docs bench bench-report clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,15 +22,30 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/pytest -q
 
-# ruff over the tree, mypy over the runtime (tests/test_lint.py runs both within `make test`)
+# The inner loop: everything but the full-size models (tests/conftest.py marks those slow)
+test-fast: $(STAMP)
+	$(BIN)/pytest -q -m "not slow"
+
+# ruff over the tree, mypy over the whole library: the runtime, models, export and service (settings in
+# pyproject.toml's [tool.mypy]; tests/test_lint.py runs both within `make test`)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
-# Not part of the tests: speed and ratios on this machine (15-25 min on 2 cores)
+# The documentation site (docs/, mkdocs.yml) into site/; --strict: a broken link or reference fails
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
+# Not part of the tests: every benchmark on this machine, each writing a JSON result under benchmarks/results/,
+# then docs/performance/ generated from them. `make bench BENCH_ARGS=--quick` for the short runs.
+BENCH_ARGS ?=
 bench: $(STAMP)
 	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,bench]'
-	$(BIN)/python benchmarks/run_all.py
+	$(BIN)/python benchmarks/run_all.py $(BENCH_ARGS)
+
+# docs/performance/ generated again from the results under benchmarks/results/
+bench-report: $(STAMP)
+	$(BIN)/python benchmarks/report.py
 
 clean:
 	rm -rf $(VENV) artifacts build *.egg-info

@@ -7,7 +7,7 @@ file elsewhere instead (a GPU's CUDA provider, where it will run), the fp32 refe
 the CPU:
 
 1. at each file's own top-k choice, the criterion shared with int8: the share of the fp32
-   file's top-50 boxes found again within 0.5 m with the same label (``quantize.top_matched``);
+   file's top-50 boxes found again within 0.5 m with the same label (``fisheye_infer.eval.top_match``);
 2. at the fp16 file's own choice, replayed in the fp32 file (its ``TopK`` replaced by the fp16
    file's indices): box and score differences position by position. When the fp32 scores tie
    (a saturated heatmap has hundreds of cells at exactly 1.0), which tied cells a top-k keeps is
@@ -27,13 +27,14 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, MIN_TOP_MATCHED, OUTPUTS, RANKING_OUTPUTS, ParityReport, ReplayedChoice
-from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ExportError
-from fisheye_infer.session import Provider, open_session, provider_name, resolve_providers
+from fisheye_infer.eval.top_match import MATCH_RADIUS_M, top_matched
+from fisheye_infer.precision import MIN_TOP_MATCHED
+from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ReducedParityReport, ReplayedChoice
+from fisheye_infer.runtime.box_geometry import box_diff
+from fisheye_infer.runtime.session import Provider, open_session, provider_name, resolve_providers
 
 from .graph import with_outputs
-from .quantize import MATCH_RADIUS_M, top_matched
 
 __all__ = ["evaluated_with", "fp16_parity", "replay_choice"]
 
@@ -74,7 +75,7 @@ def evaluated_with(providers: Sequence[Provider]) -> str:
     return f"onnxruntime-{provider_name(providers[0]).removesuffix('ExecutionProvider').lower()}"
 
 
-def _run(session: ort.InferenceSession, frames: np.ndarray, extra: Sequence[np.ndarray] | None = None) -> Outputs:
+def _run(session: ort.InferenceSession, frames: np.ndarray, extra: np.ndarray | None = None) -> Outputs:
     """One frame at a time (batch-1 memory), every output, concatenated."""
     names = [o.name for o in session.get_outputs()]
     valid = np.ones(frames.shape[:2], bool)
@@ -99,7 +100,7 @@ def _ties(dense: np.ndarray, k: int) -> int:
 
 
 def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray, threads: int = 2,
-                min_fraction: float = MIN_TOP_MATCHED, candidate_providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> ParityReport:
+                min_fraction: float = MIN_TOP_MATCHED, candidate_providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> ReducedParityReport:
     """The fp16 file against the fp32 file on ``frames`` (F, N, H, W, 3) uint8; see the module docstring.
 
     Passes when at least ``min_fraction`` of the fp32 top-50 boxes are found again (comparison 1).
@@ -125,16 +126,13 @@ def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray
     ties = _ties(full[_SCORES], k)
     problems = (f"the fp32 file's dense scores tie: up to {ties} of them equal the {k}-th largest, so which tied cells its top-{k} keeps "
                 "is not defined; the replayed comparison measures float16 alone",) if ties > 1 else ()
-    return ParityReport(
-        frames=len(frames), threads=(threads,), max_box_abs_diff_m=kept.max_box_diff, max_score_abs_diff=kept.max_score_diff,
+    return ReducedParityReport(
+        frames=len(frames), threads=(threads,), top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error,
+        top_matched_by_score=kept.by_score, min_top_matched=min_fraction, match_radius_m=MATCH_RADIUS_M,
+        unmatched=kept.considered - kept.matched, max_box_abs_diff_m=kept.max_box_diff, max_score_abs_diff=kept.max_score_diff,
         max_rank_score_abs_diff=float(np.abs(full[_SCORES].astype(np.float64) - half[_SCORES]).max()),
-        labels_equal=bool(np.array_equal(ref[2], cand[2])),
-        order_equal=bool(np.array_equal(full[_INDICES], half[_INDICES])),
-        valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=kept.considered - kept.matched,
-        tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=kept.fraction >= min_fraction,
-        reference="fp32-onnx", top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error, top_matched_by_score=kept.by_score,
-        min_top_matched=min_fraction,
-        evaluated_with=evaluated_with(session.get_providers()), problems=problems,
+        labels_equal=bool(np.array_equal(ref[2], cand[2])), valid_equal=bool(np.array_equal(ref[3], cand[3])),
+        passed=kept.fraction >= min_fraction, evaluated_with=evaluated_with(session.get_providers()), problems=problems,
         replayed=ReplayedChoice(top_matched_fraction=at_own_choice.fraction,
                                 max_box_abs_diff_m=float(box_diff(at_choice[0], cand[0]).max()),
                                 max_score_abs_diff=float(np.abs(at_choice[1].astype(np.float64) - cand[1]).max()),

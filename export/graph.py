@@ -16,8 +16,8 @@ import numpy as np
 import onnx
 from onnx import numpy_helper
 
-from fisheye_infer.artifact import METADATA_KEY, ArtifactMeta
 from fisheye_infer.errors import ArtifactError, ExportError
+from fisheye_infer.runtime.artifact import METADATA_KEY, ArtifactMeta
 
 __all__ = [
     "REBAKE_WEIGHTS_KEY",
@@ -185,7 +185,8 @@ def get_metadata(model: onnx.ModelProto) -> dict[str, str]:
 def encode_arrays(arrays: Mapping[str, np.ndarray]) -> str:
     """Arrays -> one base64 npz string for a metadata value."""
     buf = io.BytesIO()
-    np.savez_compressed(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    # numpy's stub matches the ** mapping against allow_pickle too
+    np.savez_compressed(buf, **{k: np.asarray(v) for k, v in arrays.items()})  # type: ignore[arg-type]
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 

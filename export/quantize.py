@@ -10,8 +10,7 @@ warp (the gathers of its ``geom.warp.*`` taps) that depends on the ``images`` in
 ``Conv``, ``ConvTranspose``, ``MatMul`` or ``Gemm`` whose weight is an initializer: the depth
 and context net, the BEV encoder and neck (SECOND / SECONDFPN), the head's convolutions and
 FisheyePETR's linear layers. With the trunk alone, the float rest of FisheyeBEVDet takes ~45% of
-the fp32 time and caps the speed-up near 2x; VNNI cores run u8 x s8 convolutions ~3x faster
-than fp32 (onnx-runtime-facts section 4).
+the fp32 time and caps the speed-up near 2x (``benchmarks/int8.py`` measures both scopes).
 
 What stays float, and why: everything that reads a ``geom.*`` table (the warp, the lift and the
 pooling gathers and MatMuls; those tables must stay named and untouched so that ``rebake`` still
@@ -38,11 +37,9 @@ import ast
 import contextlib
 import io
 import logging
-import math
 import os
 import tempfile
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -50,53 +47,29 @@ import onnx
 from onnx import numpy_helper
 from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType, quantize_static
 
-from fisheye_infer import graph_stages
-from fisheye_infer.artifact import (
-    CALIBRATION_PERCENTILE,
-    INPUT_CAMERA_VALID,
-    INPUT_IMAGES,
-    MIN_TOP_MATCHED,
-    OUTPUTS,
-    WEIGHT_BITS,
-    WEIGHT_QMAX,
-    ParityReport,
-    under_module,
-)
-from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ArtifactError, ExportError
+from fisheye_infer.eval.top_match import MATCH_RADIUS_M, top_matched
+from fisheye_infer.export import graph_stages
+from fisheye_infer.export.graph_stages import name_nodes
 from fisheye_infer.geometry.tables import PREFIX as GEOMETRY_PREFIX
-from fisheye_infer.graph_stages import name_nodes
+from fisheye_infer.precision import CALIBRATION_PERCENTILE, MIN_TOP_MATCHED, WEIGHT_BITS, WEIGHT_QMAX, under_module
+from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, ReducedParityReport
 
 from .graph import check_standard_ops, save_model
 from .int8_rewrites import after_quantization, before_quantization
+from .options import SCOPES
 from .trace import TRACE_ROOT
 from .verify import run_onnx
 
-__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "SCORE_BANDS", "TRUNK_OPS", "WEIGHTED_OPS", "WEIGHT_BITS", "WEIGHT_QMAX", "FrameReader",
-           "TopMatch", "TopMatched", "architecture_float", "check_weight_range", "eight_bit_constants", "image_region", "int8_nodes", "int8_parity",
-           "int8_path_for", "match_top", "module_of", "per_score_band", "quantize", "quantized_scope", "top_matched"]
+__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "FrameReader", "architecture_float", "check_weight_range",
+           "eight_bit_constants", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "module_of", "quantize", "quantized_scope"]
 
 #: QuantizeLinear / DequantizeLinear: what a QDQ model adds, and what must stay inside the region.
 QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
 
-# Activation ranges clip the calibration frames' values at ``CALIBRATION_PERCENTILE`` (from
-# fisheye_infer.artifact) of their magnitudes: on the compact FisheyeBEVDet after 14,000 steps,
-# 92.6% of the fp32 top-50 boxes kept instead of 90.2% with the plain min/max, and FDS 0.002 closer.
-
-# Weights are quantized to 7 bits, [-64, 64], not to [-127, 127] (``WEIGHT_BITS``, ``WEIGHT_QMAX``,
-# from fisheye_infer.artifact). On x86 CPUs without VNNI (AVX2 only, or AVX-512 before Cascade
-# Lake) ONNX Runtime's u8 x s8 kernels multiply with vpmaddubsw, which adds each pair of
-# neighbouring products in int16 and saturates: 255 x 127 x 2 = 64,770 does not fit,
-# 255 x 64 x 2 = 32,640 does. So with 7 bits every x86 CPU computes the int8 layers' sums
-# exactly as the machine that verified the file. With 8 bits, on the shipped compact FisheyeBEVDet,
-# a third of the stem's outputs (the image's pixels times the first layer's weights) and under 1% of
-# other layers' would saturate on such a CPU (``benchmarks/int8_saturation.py``), while on a VNNI
-# CPU, whose vpdpbusd adds in int32, 7 bits keep as many of the fp32 top-50 boxes as 8
-# (``benchmarks/int8.py --weight-bits 8``). Other constants of quantized nodes keep 8 bits
+# Activation ranges: ``fisheye_infer.precision.CALIBRATION_PERCENTILE``. Weights: 7 bits, [-64, 64]
+# (``fisheye_infer.precision.WEIGHT_BITS`` says why); other constants of quantized nodes keep 8 bits
 # (``eight_bit_constants``).
-
-#: What ``int8_nodes`` may cover: ``network`` (trunk + every weighted layer beyond it) or ``trunk``.
-SCOPES = ("network", "trunk")
 
 #: Layers with weights, which ``network`` quantizes beyond the trunk when their weight is an initializer.
 WEIGHTED_OPS = ("Conv", "ConvTranspose", "MatMul", "Gemm")
@@ -148,7 +121,7 @@ class FrameReader(CalibrationDataReader):
 
 
 def image_region(model: onnx.ModelProto) -> list[str]:
-    """Names of the image trunk's nodes (see ``fisheye_infer.graph_stages.image_region``); a graph without
+    """Names of the image trunk's nodes (see ``fisheye_infer.export.graph_stages.image_region``); a graph without
     the warp that anchors it cannot be quantized (``ExportError``)."""
     try:
         return graph_stages.image_region(model)
@@ -242,8 +215,8 @@ def _geometry_bytes(model: onnx.ModelProto) -> dict[str, bytes]:
 
 def architecture_float(model_path: str | Path) -> tuple[str, ...]:
     """The modules that stay float32 in the int8 file of ``model_path``: its architecture's ``int8_float``."""
-    from fisheye_infer.artifact import read_meta
     from fisheye_infer.models import get_model_entry
+    from fisheye_infer.runtime.artifact import read_meta
 
     return get_model_entry(read_meta(model_path).architecture).int8_float
 
@@ -348,104 +321,8 @@ def check_weight_range(model: onnx.ModelProto, weight_bits: int = WEIGHT_BITS) -
                               f"{sorted(set(zero.ravel().tolist()))[:3]}; expected {weight_bits}-bit weights, [-{qmax}, {qmax}] around 0")
 
 
-# -- evidence: int8 boxes against the fp32 file's ------------------------------------------------
-
-TOP_K = 50
-MATCH_RADIUS_M = 0.5
-#: Bands of the reference box's score the share kept is also counted by: what a detection threshold
-#: keeps. Low-scoring boxes fill most of a top-50 and move first.
-SCORE_BANDS = {"score >= 0.3": (0.3, math.inf), "0.15-0.3": (0.15, 0.3), "0.05-0.15": (0.05, 0.15), "< 0.05": (-math.inf, 0.05)}
-
-
-@dataclass(frozen=True)
-class TopMatch:
-    """One of a frame's top reference boxes and what the candidate made of it."""
-
-    label: int
-    matched: bool
-    box_diff: float = 0.0  # matched pairs: max abs difference of the 7 box values
-    score_diff: float = 0.0  # matched pairs: abs score difference
-    score: float = 0.0  # the reference box's own score
-    frame: int = 0  # which frame the reference box is in
-
-
-def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
-              radius_m: float = MATCH_RADIUS_M) -> list[TopMatch]:
-    """Match each frame's top-``top_k`` valid reference boxes (by score) to candidate boxes.
-
-    A reference box is matched by the nearest unused valid candidate box of the same label whose
-    centre lies within ``radius_m`` (bird's-eye distance, as nuScenes' centre distance), greedily
-    in reference score order. One entry per reference box considered, frame by frame in rank order.
-    """
-    rb, rs, rl, rv = reference
-    cb, cs, cl, cv = candidate
-    found: list[TopMatch] = []
-    for f in range(len(rb)):
-        order = [i for i in np.argsort(-rs[f], kind="stable") if rv[f][i]][:top_k]
-        pool = np.flatnonzero(cv[f])
-        used = np.zeros(len(pool), bool)
-        for i in order:
-            same = (cl[f][pool] == rl[f][i]) & ~used
-            dist = np.hypot(*(cb[f][pool, :2] - rb[f][i, :2]).T)
-            dist[~same] = np.inf
-            if len(pool) and dist.min() <= radius_m:
-                j = int(np.argmin(dist))
-                used[j] = True
-                found.append(TopMatch(int(rl[f][i]), True, float(box_diff(cb[f][pool[j]], rb[f][i])),
-                                      abs(float(cs[f][pool[j]]) - float(rs[f][i])), float(rs[f][i]), f))
-            else:
-                found.append(TopMatch(int(rl[f][i]), False, score=float(rs[f][i]), frame=f))
-    return found
-
-
-def per_score_band(pairs: Sequence[TopMatch]) -> dict[str, list[TopMatch]]:
-    """``pairs`` grouped by the band of ``SCORE_BANDS`` their reference box's score falls in."""
-    return {band: [p for p in pairs if low <= p.score < high] for band, (low, high) in SCORE_BANDS.items()}
-
-
-@dataclass(frozen=True)
-class TopMatched:
-    """``match_top`` summed over the frames."""
-
-    matched: int
-    considered: int
-    standard_error: float  # of ``fraction``, from how it varies between frames (boxes of one frame are not independent)
-    max_box_diff: float  # over matched pairs
-    max_score_diff: float  # over matched pairs
-    by_score: dict[str, tuple[int, int]]  # (matched, considered) per band of ``SCORE_BANDS``
-
-    @property
-    def fraction(self) -> float:
-        return self.matched / self.considered if self.considered else 1.0
-
-
-def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
-                radius_m: float = MATCH_RADIUS_M) -> TopMatched:
-    """``match_top`` summed, with the standard error of the share kept.
-
-    The error is the ratio estimator's over frames as clusters: sqrt(F / (F - 1) * sum_f (m_f -
-    p c_f)^2) / C, with m_f of c_f boxes kept in frame f, C = sum_f c_f and p the share kept; 0 for
-    one frame, where it cannot be estimated.
-    """
-    pairs = match_top(reference, candidate, top_k, radius_m)
-    frames = len(reference[0])
-    kept = np.zeros(frames)
-    seen = np.zeros(frames)
-    box = score = 0.0
-    for p in pairs:
-        seen[p.frame] += 1
-        if p.matched:
-            kept[p.frame] += 1
-            box, score = max(box, p.box_diff), max(score, p.score_diff)
-    total = seen.sum()
-    share = kept.sum() / total if total else 1.0
-    spread = float(np.sqrt(frames / (frames - 1) * np.sum((kept - share * seen) ** 2)) / total) if frames > 1 and total else 0.0
-    bands = {band: (sum(p.matched for p in group), len(group)) for band, group in per_score_band(pairs).items()}
-    return TopMatched(int(kept.sum()), int(total), spread, box, score, bands)
-
-
 def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray, threads: int = 2,
-                min_fraction: float = MIN_TOP_MATCHED) -> ParityReport:
+                min_fraction: float = MIN_TOP_MATCHED) -> ReducedParityReport:
     """The int8 file against the fp32 ONNX file on ``frames``, one frame at a time.
 
     int8 is not expected to reproduce fp32 to 1e-3 m; the criterion is detection-level: at
@@ -454,12 +331,10 @@ def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray
     valid = np.ones(frames.shape[:2], bool)
     ref, cand = ([run_onnx(path, frames, valid, threads, per_frame=True)[k] for k in OUTPUTS] for path in (fp32_path, int8_path))
     kept = top_matched(ref, cand)
-    return ParityReport(
-        frames=len(frames), threads=(threads,), max_box_abs_diff_m=kept.max_box_diff, max_score_abs_diff=kept.max_score_diff,
-        labels_equal=bool(np.array_equal(ref[2], cand[2])),
-        order_equal=bool(np.array_equal(ref[2], cand[2]) and np.allclose(ref[0], cand[0], atol=MATCH_RADIUS_M)),
-        valid_equal=bool(np.array_equal(ref[3], cand[3])), unmatched=kept.considered - kept.matched,
-        tolerance_box_m=MATCH_RADIUS_M, tolerance_score=1.0, passed=kept.fraction >= min_fraction,
-        reference="fp32-onnx", top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error,
-        top_matched_by_score=kept.by_score, min_top_matched=min_fraction,
+    return ReducedParityReport(
+        frames=len(frames), threads=(threads,), top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error,
+        top_matched_by_score=kept.by_score, min_top_matched=min_fraction, match_radius_m=MATCH_RADIUS_M,
+        unmatched=kept.considered - kept.matched, max_box_abs_diff_m=kept.max_box_diff, max_score_abs_diff=kept.max_score_diff,
+        labels_equal=bool(np.array_equal(ref[2], cand[2])), valid_equal=bool(np.array_equal(ref[3], cand[3])),
+        passed=kept.fraction >= min_fraction,
     )

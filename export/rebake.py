@@ -16,10 +16,10 @@ from pathlib import Path
 
 import onnx
 
-from fisheye_infer.artifact import METADATA_KEY, ArtifactMeta, parse_meta
+from fisheye_infer.cameras.rig import Rig, resolve_rig
 from fisheye_infer.errors import ArtifactError, ConfigError, RigError
 from fisheye_infer.geometry.kinds import tables_for
-from fisheye_infer.rig import Rig, resolve_rig
+from fisheye_infer.runtime.artifact import METADATA_KEY, ArtifactMeta, parse_meta
 
 from .graph import REBAKE_WEIGHTS_KEY, decode_arrays, get_metadata, replace_initializers, save_model, set_metadata
 from .tensorrt_check import check_tensorrt

@@ -18,9 +18,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from fisheye_infer.artifact import OUTPUTS, read_meta
-from fisheye_infer.detector import FrameDetector, describe
-from fisheye_infer.nms import NmsConfig
+from fisheye_infer.runtime.artifact import OUTPUTS, read_meta
+from fisheye_infer.runtime.detector import FrameDetector, describe
+from fisheye_infer.runtime.nms import NmsConfig
 
 __all__ = ["TorchDetector"]
 

@@ -17,7 +17,8 @@ import contextlib
 import io
 import logging
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from typing import Any
 
 import numpy as np
 import onnx
@@ -25,9 +26,9 @@ import torch
 from torch import nn
 from torch.export import Dim
 
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS
 from fisheye_infer.errors import ExportError
 from fisheye_infer.geometry.tables import POOL_PIXELS, POOL_POINTS
+from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS
 
 from .graph import check_standard_ops, fold_input_scale, inputs_to_initializers, rename_values, strip_shape_info
 
@@ -66,7 +67,7 @@ def _example_tables(tables: Mapping[str, np.ndarray]) -> dict[str, torch.Tensor]
     return examples
 
 
-def _dynamic_shapes(names: list[str]) -> tuple:
+def _dynamic_shapes(names: list[str]) -> dict[str, Any]:
     batch = Dim("batch", min=1, max=1024)
     bucket_dims: dict[str, Dim] = {}
     table_shapes = []
@@ -104,6 +105,8 @@ def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], image_hw: 
             )
     except Exception as exc:
         raise ExportError(f"tracing {type(model).__name__} to ONNX failed: {exc}\n{log.getvalue()[-2000:]}") from exc
+    if program is None:  # only an export to a file returns nothing
+        raise ExportError(f"tracing {type(model).__name__} to ONNX returned no program")
     proto = program.model_proto
     traced_inputs = [i.name for i in proto.graph.input]
     if len(traced_inputs) != 2 + len(names):
@@ -118,7 +121,7 @@ def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], image_hw: 
 
 
 @contextlib.contextmanager
-def _quiet_loggers():
+def _quiet_loggers() -> Iterator[None]:
     """The exporter logs progress and optimiser notes at WARNING; keep the user's terminal readable."""
     loggers = [logging.getLogger(n) for n in ("torch.onnx", "torch.export", "torch._dynamo", "onnxscript", "torch.fx.experimental.symbolic_shapes")]
     levels = [lg.level for lg in loggers]

@@ -40,10 +40,10 @@ import onnxruntime as ort
 import torch
 from torch import nn
 
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ParityReport
-from fisheye_infer.boxes import box_diff
 from fisheye_infer.errors import ExportError
 from fisheye_infer.models.ranking import TopK, replay_ranking
+from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ParityReport
+from fisheye_infer.runtime.box_geometry import box_diff
 
 from .graph import save_model, with_outputs
 

@@ -1,18 +1,21 @@
 """fisheye-infer: run surround-view fisheye 3D object detectors with ONNX Runtime.
 
-The core (this package) needs numpy, onnxruntime, OpenCV, simplejpeg and pydantic only: camera models,
-rigs, the geometry tables the detectors are built on, and ``Detector``, which runs an exported
-model and returns ``Detections``. ``fisheye_infer.models`` and
-``fisheye_infer.export`` need the ``[export]`` extra (torch, onnx); ``fisheye_infer.service``
-needs ``[serve]``; its Ray Serve deployment and ``fisheye_infer.batch`` (Ray Data) need ``[ray]``;
-``fisheye_infer.triton.TritonDetector`` needs ``[triton]``. Importing this package loads none of them.
+The core (this package) needs numpy, onnxruntime, OpenCV, simplejpeg and pydantic only. Its
+subpackages follow the data path: ``cameras`` (camera models, rigs) -> ``geometry`` (the tables the
+detectors are built on) -> ``runtime`` (``Detector``: an exported file and frames in, ``Detections``
+out) -> ``eval`` (FDS and mAP); beside it ``deploy`` (Ray Data, Triton), ``scenes`` (synthetic
+frames), ``tools`` (bench, viz), ``commands`` (the CLI) and ``precision`` (the int8/fp16 policy).
+``fisheye_infer.models`` and ``fisheye_infer.export`` need the ``[export]`` extra (torch, onnx);
+``fisheye_infer.service`` needs ``[serve]``; its Ray Serve deployment and
+``fisheye_infer.deploy.ray_batch`` (Ray Data) need ``[ray]``; ``fisheye_infer.deploy.triton.TritonDetector``
+needs ``[triton]``. Importing this package loads none of them.
 """
 
+from fisheye_infer import _moved
 from fisheye_infer._version import __version__
-from fisheye_infer.camera import CameraModel, Equidistant, KannalaBrandt, OCamModel, Pinhole
-from fisheye_infer.camera_fit import OCamFit, fit_ocam_from_kb
-from fisheye_infer.detections import Detections
-from fisheye_infer.detector import Detector, DetectorInfo
+from fisheye_infer.cameras.camera_models import CameraModel, Equidistant, KannalaBrandt, OCamModel, Pinhole
+from fisheye_infer.cameras.ocam_fit import OCamFit, fit_ocam_from_kb
+from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, Rig, RigCamera, default_rig, resolve_rig
 from fisheye_infer.errors import (
     ArtifactError,
     CameraModelError,
@@ -27,8 +30,11 @@ from fisheye_infer.errors import (
     ParityError,
     RigError,
 )
-from fisheye_infer.nms import NmsConfig
-from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig, RigCamera, default_rig, resolve_rig
+from fisheye_infer.runtime.detections import Detections
+from fisheye_infer.runtime.detector import Detector, DetectorInfo
+from fisheye_infer.runtime.nms import NmsConfig
+
+_moved.install()
 
 __all__ = [
     "__version__",

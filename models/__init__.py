@@ -5,8 +5,8 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from torch import nn
 
+from .base import FisheyeDetector
 from .bevdet_config import BEVDetConfig
 from .checkpoint import GeometryReport, check_keys, load_checkpoint, load_official_state_dict
 from .config import ModelConfig, Preprocessing
@@ -15,7 +15,7 @@ from .mmconfig import read_mmdet3d_config
 from .petr_config import PETRConfig
 from .pinhole_config import PerspBEVDetConfig, PerspPETRConfig, PinholeBEVDetConfig, PinholePETRConfig
 from .registry import ModelEntry, create_model, get_model_entry, list_models, matching_architectures, register_model
-from .synthetic import calibrated_checkpoint, make_checkpoint
+from .seeded_checkpoint import calibrated_checkpoint, make_checkpoint
 
 __all__ = [
     "BEVDetConfig",
@@ -46,7 +46,7 @@ __all__ = [
 
 
 def load_model(name: str, checkpoint: str | Path | Mapping[str, Any], config: Any = None, rig: Any = None, *,
-               geometry: str = "verify", allow_pickle: bool = False) -> tuple[nn.Module, GeometryReport]:
+               geometry: str = "verify", allow_pickle: bool = False) -> tuple[FisheyeDetector, GeometryReport]:
     """Build ``name`` and load an official checkpoint (path or state dict) strictly; returns (model, report).
 
     ``geometry`` is the policy for the stored geometry tables: "verify" (default), "checkpoint" or "rig".

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
+from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.records import CLASSES
-from fisheye_infer.rig import FISHEYE3DOD_CAMERAS
+from fisheye_infer.runtime.records import CLASSES
 
 from .mmconfig import Section, as_tuple, read_mmdet3d_config
 
@@ -134,7 +134,7 @@ def _section_types(cls: type) -> dict[str, type]:
     """Field name -> section class, for the fields whose default is a section dataclass (a class, or a
     factory such as ``lambda: ImageConfig(height=720)`` that builds one)."""
     out = {}
-    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+    for f in dataclasses.fields(cls):
         factory = f.default_factory
         if factory is dataclasses.MISSING:
             continue
@@ -193,7 +193,7 @@ class ModelConfig:
     # -- conversion ----------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)  # type: ignore[call-overload, no-any-return]
+        return dataclasses.asdict(self)  # type: ignore[call-overload]  # every subclass is a dataclass; this base is not
 
     @classmethod
     def from_dict(cls: type[C], data: Mapping[str, Any]) -> C:
@@ -238,7 +238,7 @@ def read_image(model: Section, cfg: Mapping[str, Any], height: int, width: int, 
     cams = next((p.get("load_cam_names") for p in cfg.get("test_pipeline") or [] if isinstance(p, Mapping) and "load_cam_names" in p), None)
     mean = pre.numbers("mean", 3) if "mean" in pre else default.mean
     std = pre.numbers("std", 3) if "std" in pre else default.std
-    return ImageConfig(height=int(height), width=int(width), mean=mean, std=std,  # type: ignore[arg-type]
+    return ImageConfig(height=int(height), width=int(width), mean=mean, std=std,
                        bgr_to_rgb=bool(pre.get("bgr_to_rgb", False) or pre.get("rgb_to_bgr", False)),
                        camera_names=tuple(str(c) for c in cams) if cams else default.camera_names)
 
@@ -252,8 +252,11 @@ def read_backbone(model: Section, default: BackboneConfig, *, required: bool = T
         if bb.get(key, want) != want:
             raise bb.refuse(key, want, bb.get(key))
     ints = lambda sec, key, value: tuple(int(v) for v in sec.get(key, value))  # noqa: E731
+    # one stride and one dilation per stage (num_stages is 4, checked above)
+    strides = bb.numbers("strides", 4, int) if "strides" in bb else default.strides
+    dilations = bb.numbers("dilations", 4, int) if "dilations" in bb else default.dilations
     return BackboneConfig(depth=int(bb.get("depth", default.depth)), base_channels=int(bb.get("base_channels", default.base_channels)),
-                          strides=ints(bb, "strides", default.strides), dilations=ints(bb, "dilations", default.dilations),
+                          strides=strides, dilations=dilations,
                           out_indices=ints(bb, "out_indices", default.out_indices),
                           neck_in_channels=ints(neck, "in_channels", default.neck_in_channels),
                           neck_out_channels=int(neck.get("out_channels", default.neck_out_channels)),

@@ -164,7 +164,7 @@ class CylPETRConfig(PETRConfig):
         cylinder = CylinderConfig(*size) if size is not None else CylinderConfig()
         model = Section(cfg.get("model"), "model", head.source)
         bb = model.sub("img_backbone", required=False)
-        backbone = BackboneConfig(strides=tuple(int(s) for s in bb.get("strides", d.backbone.strides)),
+        backbone = BackboneConfig(strides=bb.numbers("strides", 4, int) if "strides" in bb else d.backbone.strides,
                                   out_indices=tuple(int(i) for i in bb.get("out_indices", d.backbone.out_indices)))
         fields = head_fields(head, d.head)
         fields.update(azimuth_range=hr, elevation_range=vr, feature_size=feature_size_of((cylinder.height, cylinder.width), backbone))
@@ -191,7 +191,7 @@ def _ranges(section: Section) -> tuple[tuple[float, float], tuple[float, float]]
     """A section's (horizontal_range, vertical_range); absent ones take the constructors' defaults."""
     hr = section.numbers("horizontal_range", 2) if "horizontal_range" in section else _DEFAULT_HORIZONTAL
     vr = section.numbers("vertical_range", 2) if "vertical_range" in section else _DEFAULT_VERTICAL
-    return hr, vr  # type: ignore[return-value]
+    return hr, vr
 
 
 def _agree_with_pipeline(cfg: Mapping[str, Any], size: tuple[int, ...] | None, hr: tuple[float, float],

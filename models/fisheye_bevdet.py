@@ -12,16 +12,15 @@ preprocessor does). Output: fixed-size tensors (boxes, scores, labels, valid) in
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
-from fisheye_infer.artifact import OUTPUTS, RANKING_OUTPUTS
 from fisheye_infer.errors import CheckpointError
-from fisheye_infer.geometry.cyl_lss import CylLSSGeometry
 from fisheye_infer.geometry.lss import LSSGeometry
 from fisheye_infer.geometry.pooling import BevGrid
+from fisheye_infer.runtime.artifact import OUTPUTS, RANKING_OUTPUTS
 
 from .backbone import FPN, ResNet
 from .base import FisheyeDetector
@@ -31,7 +30,7 @@ from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_ge
 from .normalise import normalise_frames
 from .registry import register_model
 from .transfusion import INT8_FLOAT, SCORE_SEMANTICS, TransFusionHead
-from .view_transform import FisheyeLSS
+from .view_transform import AnyLSSGeometry, FisheyeLSS
 
 __all__ = ["FisheyeBEVDet", "checkpoint_filter_fn", "bev_grid_checks", "GEOMETRY_KEYS", "IGNORED_KEYS", "SIGNATURE_KEYS"]
 
@@ -74,19 +73,22 @@ def bev_grid_checks(state_dict: Mapping[str, torch.Tensor], bev: BevGrid) -> tup
 class FisheyeBEVDet(FisheyeDetector):
     """Camera-only BEV detector: ResNet-18 + FPN, fisheye LSS, SECOND + SECONDFPN, TransFusion head."""
 
-    config_cls = BEVDetConfig
+    config_cls: ClassVar[type[BEVDetConfig]] = BEVDetConfig
     config: BEVDetConfig
+    rig_geometry: AnyLSSGeometry  # what geometry_from_rig makes of the configuration's LSS parameters
+    mean: torch.Tensor  # (3,) buffers
+    std: torch.Tensor
 
-    def __init__(self, config: BEVDetConfig | None = None, rig: Any = None, geometry: LSSGeometry | CylLSSGeometry | None = None) -> None:
+    def __init__(self, config: BEVDetConfig | None = None, rig: Any = None, geometry: AnyLSSGeometry | None = None) -> None:
         super().__init__(config, rig, geometry)
-        cfg, geometry = self.config, self.rig_geometry  # type: ignore[assignment]
+        cfg = self.config
         img = cfg.image
         self.register_buffer("mean", torch.tensor(img.mean, dtype=torch.float32), persistent=False)
         self.register_buffer("std", torch.tensor(img.std, dtype=torch.float32), persistent=False)
         bb, vt, enc, hd = cfg.backbone, cfg.view_transform, cfg.bev_encoder, cfg.head
         self.img_backbone = ResNet(bb.depth, bb.strides, bb.dilations, bb.out_indices, base_channels=bb.base_channels)
         self.img_neck = FPN(bb.neck_in_channels, bb.neck_out_channels, bb.neck_num_outs)
-        self.view_transform = self._build_view_transform(vt, geometry)
+        self.view_transform = self._build_view_transform(vt, self.rig_geometry)
         self.pts_backbone = SECOND(enc.in_channels, enc.out_channels, enc.layer_nums, enc.layer_strides, enc.bn_eps)
         self.pts_neck = SECONDFPN(enc.fpn_in_channels, enc.fpn_out_channels, enc.upsample_strides,
                                   enc.use_conv_for_no_stride, enc.bn_eps)
@@ -101,39 +103,45 @@ class FisheyeBEVDet(FisheyeDetector):
         """The view transform module (the cylindrical baseline builds its own)."""
         return FisheyeLSS(cfg, geometry)
 
-    # -- forward --------------------------------------------------------------------------
+    # -- stages (see ``FisheyeDetector``) ---------------------------------------------------
 
-    def normalise(self, images: torch.Tensor) -> torch.Tensor:
+    def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """uint8 B x N x H x W x 3 (BGR) -> float32 (B*N) x 3 x H x W, (x - mean[c]) / std[c], no channel swap
-        (see ``normalise_frames`` for where each step runs)."""
+        (see ``normalise_frames`` for where each step runs); no front end, so ``tables`` is not read."""
         return normalise_frames(images, self.mean, self.std)
+
+    def scene_features(self, feats: torch.Tensor, camera_valid: torch.Tensor | None = None,
+                       tables: dict[str, torch.Tensor] | None = None, cam2lidar: Any = None) -> torch.Tensor:
+        """Image features B x V x C x h x w -> B x C x X x Y BEV features (before SECOND), by the view transform.
+
+        With ``cam2lidar`` the view transform pools per sample with ``index_add_`` (reference speed,
+        not exportable); the intrinsic grid and frustum stay this model's.
+        """
+        if cam2lidar is not None:
+            return self.view_transform.forward_dynamic(feats, cam2lidar, camera_valid)
+        return self.view_transform(feats, camera_valid, tables)
+
+    def head_outputs(self, scene: torch.Tensor) -> dict[str, torch.Tensor]:
+        """BEV features -> every head output (also ``rot``, ``top_indices``, ``dense_heatmap``) and ``bev`` itself."""
+        out: dict[str, torch.Tensor] = self.bbox_head(self.pts_neck(self.pts_backbone(scene)))
+        out["bev"] = scene
+        return out
 
     def extract_bev(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
                     tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """Images -> B x C x X x Y BEV features (before SECOND)."""
-        b, n = images.shape[0], images.shape[1]
-        feats = self.img_neck(self.img_backbone(self.normalise(images)))
-        p3 = feats[0]  # only FPN level 0 (stride 16) is used
-        p3 = p3.reshape(b, n, p3.shape[1], p3.shape[2], p3.shape[3])
-        return self.view_transform(p3, camera_valid, tables)
-
-    def predict(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
-        """Unvalidated pass returning every head output (also ``rot``, ``top_indices``, ``dense_heatmap``) and ``bev``.
-
-        Image size is not checked here: the network is fully convolutional up to the angular grid,
-        which synthetic-checkpoint calibration uses to run on smaller frames.
-        """
-        bev = self.extract_bev(images, camera_valid, tables)
-        out = self.bbox_head(self.pts_neck(self.pts_backbone(bev)))
-        out["bev"] = bev
-        return out
+        """Deprecated: ``scene_features(image_features(images, tables), camera_valid, tables)``."""
+        self._deprecated("extract_bev", "scene_features(image_features(images))")
+        tables = tables or self.geometry_tables()
+        feats = self.image_features(images, tables)
+        return self.scene_features(feats, self.view_valid(camera_valid, feats.shape[1]), tables)
 
     def forward_raw(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """The head's outputs before decoding (see ``TransFusionHead.forward_raw``): what training's losses read."""
         self._check_images(images, camera_valid)
-        bev = self.extract_bev(images, camera_valid)
-        return self.bbox_head.forward_raw(self.pts_neck(self.pts_backbone(bev)))
+        feats = self.image_features(images)
+        bev = self.scene_features(feats, self.view_valid(camera_valid, feats.shape[1]))
+        raw: dict[str, torch.Tensor] = self.bbox_head.forward_raw(self.pts_neck(self.pts_backbone(bev)))
+        return raw
 
     def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
                 return_extras: bool = False, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
@@ -158,11 +166,7 @@ class FisheyeBEVDet(FisheyeDetector):
         and frustum stay this model's.
         """
         self._check_images(images, camera_valid)
-        b, n = images.shape[0], images.shape[1]
-        feats = self.img_neck(self.img_backbone(self.normalise(images)))
-        p3 = feats[0].reshape(b, n, *feats[0].shape[1:])
-        bev = self.view_transform.forward_dynamic(p3, cam2lidar, camera_valid)
-        out = self.bbox_head(self.pts_neck(self.pts_backbone(bev)))
+        out = self.predict(images, camera_valid, cam2lidar=cam2lidar)
         return {k: out[k] for k in OUTPUTS + RANKING_OUTPUTS}
 
     def geometry_tables(self) -> dict[str, torch.Tensor]:
@@ -192,6 +196,7 @@ class FisheyeBEVDet(FisheyeDetector):
     def official_geometry_state(self) -> dict[str, torch.Tensor]:
         """The geometry tables in official form, as an official checkpoint stores them."""
         g = self.view_transform.geometry
+        assert isinstance(g, LSSGeometry)  # FrustumBEVDet overrides this for its geometries
         d = g.frustum.shape[0]
         grid3d = np.concatenate([np.broadcast_to(g.grid, (d, *g.grid.shape)),
                                  np.zeros((d, *g.grid.shape[:2], 1), np.float32)], axis=-1)
@@ -203,7 +208,8 @@ class FisheyeBEVDet(FisheyeDetector):
 
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
         """Compare the stored tables with the rig's and install the ones ``policy`` selects."""
-        ref: LSSGeometry = self.rig_geometry  # type: ignore[assignment]
+        ref = self.rig_geometry
+        assert isinstance(ref, LSSGeometry)  # FrustumBEVDet overrides this for its geometries
         hard = bev_grid_checks(state_dict, ref.bev_grid)
         grid2d = as_numpy(state_dict[_VT + "sphere_grid_2d"])
         grid3d = as_numpy(state_dict[_VT + "sphere_grid_3d"])
@@ -218,7 +224,7 @@ class FisheyeBEVDet(FisheyeDetector):
         self.set_geometry(geometry)
         return GeometryReport(source, checks + hard)
 
-    def set_geometry(self, geometry: LSSGeometry | CylLSSGeometry) -> None:
+    def set_geometry(self, geometry: AnyLSSGeometry) -> None:
         """Install other geometry tables (same configuration), keeping the device of the weights."""
         device = self.view_transform.depthnet.weight.device
         self.view_transform.set_geometry(geometry)

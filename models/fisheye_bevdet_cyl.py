@@ -20,8 +20,9 @@ from typing import Any
 
 import torch
 
+from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.geometry.cyl_lss import CylLSSGeometry
 from fisheye_infer.geometry.tables import RECTIFY
-from fisheye_infer.rig import Rig
 
 from .cyl_config import BEVDetCylConfig, CylViewTransformConfig
 from .cylindrical import check_rig_image_size, rectify
@@ -79,8 +80,9 @@ class FisheyeBEVDetCyl(FrustumBEVDet):
         smaller ones) are rectified to the configured cylinder all the same.
         """
         g = self.view_transform.geometry
-        index, weight = taps_for(tables or self.geometry_tables(), RECTIFY, g.image_grid, g.params.source_size,  # type: ignore[union-attr]
+        assert isinstance(g, CylLSSGeometry)  # what CylindricalLSS installs
+        index, weight = taps_for(tables or self.geometry_tables(), RECTIFY, g.image_grid, g.params.source_size,
                                  images.shape[2:4], images.device)
-        x = rectify(images, index, weight, g.params.image_size)  # type: ignore[union-attr]  # B x N x 3 x Hc x Wc
+        x = rectify(images, index, weight, g.params.image_size)  # B x N x 3 x Hc x Wc
         x = (x - self.mean.reshape(1, 1, 3, 1, 1)) / self.std.reshape(1, 1, 3, 1, 1)
         return x.flatten(0, 1)

@@ -19,8 +19,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.rig import Rig
+from fisheye_infer.geometry.pinhole_lss import PinholeLSSGeometry
 
 from .cylindrical import check_rig_image_size
 from .fisheye_bevdet import SIGNATURE_KEYS
@@ -58,7 +59,8 @@ class FisheyeBEVDetPersp(FrustumBEVDet):
         normalisation after it, as in the official pipeline (:func:`.front_end.perspective_views`).
         """
         g, p = self.view_transform.geometry, self.config.perspective
-        x = perspective_views(images, tables or self.geometry_tables(), g.image_grid, g.params.source_size,  # type: ignore[union-attr, arg-type]
+        assert isinstance(g, PinholeLSSGeometry) and g.image_grid is not None  # perspective views have a remap grid
+        x = perspective_views(images, tables or self.geometry_tables(), g.image_grid, g.params.source_size,
                               len(p.yaws), p.size, p.truncate)
         x = (x - self.mean.reshape(1, 1, 1, 3, 1, 1)) / self.std.reshape(1, 1, 1, 3, 1, 1)
         return x.reshape(-1, 3, *p.size)

@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
 from fisheye_infer.errors import CheckpointError
-from fisheye_infer.geometry.cyl_petr import CylPETRGeometry
 from fisheye_infer.geometry.frustum import depth_bins, spherical_frustum
 from fisheye_infer.geometry.petr import PETRGeometry
 
@@ -30,7 +29,7 @@ from .base import FisheyeDetector
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
 from .normalise import normalise_frames
 from .petr_config import PETRConfig
-from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, FisheyePETRHead
+from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, AnyPETRGeometry, FisheyePETRHead, decode_predictions
 from .registry import register_model
 
 __all__ = ["FisheyePETR", "checkpoint_filter_fn", "rename_official_keys", "GEOMETRY_KEYS", "SIGNATURE_KEYS"]
@@ -89,11 +88,14 @@ class FisheyePETR(FisheyeDetector):
     with the RGB-ordered ImageNet statistics applied to BGR channels (``mean[0]`` to blue).
     """
 
-    config_cls = PETRConfig
+    config_cls: ClassVar[type[PETRConfig]] = PETRConfig
     config: PETRConfig
+    rig_geometry: AnyPETRGeometry  # what geometry_from_rig makes of the configuration's PETR parameters
+    pixel_mean: torch.Tensor  # (1, 1, 3, 1, 1) buffers
+    pixel_std: torch.Tensor
 
     def __init__(self, config: PETRConfig | None = None, rig: Any = None,
-                 geometry: PETRGeometry | CylPETRGeometry | None = None) -> None:
+                 geometry: AnyPETRGeometry | None = None) -> None:
         super().__init__(config, rig, geometry)
         cfg, bb = self.config, self.config.backbone
         self.pts_bbox_head = self._build_head(cfg, self.rig_geometry)
@@ -107,17 +109,34 @@ class FisheyePETR(FisheyeDetector):
         """The detection head (the cylindrical baseline builds its own)."""
         return FisheyePETRHead(cfg, geometry)
 
-    # -- forward --------------------------------------------------------------------------
+    # -- stages (see ``FisheyeDetector``) ---------------------------------------------------
 
-    def normalize(self, images: torch.Tensor) -> torch.Tensor:
-        """uint8 B x N x H x W x 3 (BGR) -> float (B*N) x 3 x H x W, normalised as in training (``normalise_frames``)."""
+    def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """uint8 B x N x H x W x 3 (BGR) -> float (B*N) x 3 x H x W, normalised as in training (``normalise_frames``);
+        no front end, so ``tables`` is not read."""
         return normalise_frames(images, self.pixel_mean, self.pixel_std, self.config.image.bgr_to_rgb)
 
-    def forward_features(self, images: torch.Tensor) -> torch.Tensor:
-        """uint8 images B x N x H x W x 3 -> P3 B x N x C x H/16 x W/16 (FPN level 0 only)."""
-        b, n = images.shape[:2]
-        p3 = self.img_neck(self.img_backbone(self.normalize(images)))[0]
-        return p3.reshape(b, n, *p3.shape[1:])
+    def scene_features(self, feats: torch.Tensor, camera_valid: torch.Tensor | None = None,
+                       tables: dict[str, torch.Tensor] | None = None, cam2lidar: Any = None) -> torch.Tensor:
+        """P3 B x V x C x h x w -> decoder output B x Q x C: the features warped onto the key grid and attended
+        with the keys' 3D position embedding (recomputed per frame from ``cam2lidar``, untraceable)."""
+        return self.pts_bbox_head.forward_decoder(feats, camera_valid, cam2lidar, tables=tables)
+
+    def head_outputs(self, scene: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Decoder output -> the decoded detections (see ``decode_predictions``)."""
+        head = self.pts_bbox_head
+        cls, preds = head.predict(scene)
+        return decode_predictions(cls, preds, head.select, head.cfg.post_center_range)
+
+    def predict(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
+                tables: dict[str, torch.Tensor] | None = None, cam2lidar: Any = None) -> dict[str, torch.Tensor]:
+        """As :meth:`FisheyeDetector.predict`, with ``scene_features`` and ``head_outputs`` run as one call of
+        ``pts_bbox_head``: a traced graph then records their nodes under that module, the path the int8
+        file's float-kept modules (``INT8_FLOAT``) are named by."""
+        tables = tables or self.geometry_tables()
+        feats = self.image_features(images, tables)
+        out: dict[str, torch.Tensor] = self.pts_bbox_head(feats, self.view_valid(camera_valid, feats.shape[1]), cam2lidar, tables)
+        return out
 
     def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
                 cam2lidar: Any = None, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
@@ -129,7 +148,17 @@ class FisheyePETR(FisheyeDetector):
         ``tables`` replaces the installed geometry tables (the exporter passes them as graph inputs).
         """
         self._check_images(images, camera_valid)
-        return self.pts_bbox_head(self.forward_features(images), camera_valid, cam2lidar, tables)
+        return self.predict(images, camera_valid, tables, cam2lidar)
+
+    def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Deprecated: :meth:`normalise`."""
+        self._deprecated("normalize", "normalise")
+        return self.normalise(images, tables)
+
+    def forward_features(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Deprecated: :meth:`image_features`."""
+        self._deprecated("forward_features", "image_features")
+        return self.image_features(images, tables)
 
     def geometry_tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables the exported graph holds as named initializers."""
@@ -139,7 +168,7 @@ class FisheyePETR(FisheyeDetector):
         """The position encoder's and adapt_pos3d's weights: the key embedding table needs them."""
         return self.pts_bbox_head.embedding_weights()
 
-    def set_geometry(self, geometry: PETRGeometry | CylPETRGeometry) -> None:
+    def set_geometry(self, geometry: AnyPETRGeometry) -> None:
         """Install other geometry tables (same configuration) and refresh the cached embeddings."""
         self.pts_bbox_head.set_geometry(geometry)
 
@@ -160,7 +189,9 @@ class FisheyePETR(FisheyeDetector):
                 out.update(self.official_geometry_specs())
         return out
 
-    def _official_tables(self, geometry: PETRGeometry) -> dict[str, np.ndarray]:
+    def _official_tables(self, geometry: AnyPETRGeometry) -> dict[str, np.ndarray]:
+        """The four official geometry tensors of the spherical head (the resampled heads store none)."""
+        assert isinstance(geometry, PETRGeometry)  # ResampledPETR overrides this for its geometries
         cfg = self.config.head
         frustum = spherical_frustum(depth_bins(cfg.dbound), cfg.feature_size, cfg.azimuth_range, cfg.elevation_range)
         grid = np.asarray(geometry.grid, dtype=np.float32)
@@ -186,7 +217,8 @@ class FisheyePETR(FisheyeDetector):
         if not np.array_equal(grid3d[0, ..., :2], grid2d):
             raise CheckpointError(f"{GEOMETRY_KEYS[2]} is not {GEOMETRY_KEYS[1]}[0, ..., :2]; the checkpoint's "
                                   "geometry tables are inconsistent")
-        ref: PETRGeometry = self.rig_geometry  # type: ignore[assignment]
+        ref = self.rig_geometry
+        assert isinstance(ref, PETRGeometry)  # ResampledPETR overrides this for its geometries
         tables = self._official_tables(ref)
         checks = (TableCheck(GEOMETRY_KEYS[2], grid2d, tables[GEOMETRY_KEYS[2]], atol=GRID_ATOL),
                   TableCheck(GEOMETRY_KEYS[3], stored[GEOMETRY_KEYS[3]], tables[GEOMETRY_KEYS[3]], atol=MASK_ATOL),

@@ -18,8 +18,9 @@ from typing import Any
 
 import torch
 
+from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.geometry.cyl_petr import CylPETRGeometry
 from fisheye_infer.geometry.tables import RECTIFY
-from fisheye_infer.rig import Rig
 
 from .cyl_config import CylPETRConfig
 from .cylindrical import check_rig_image_size, rectify
@@ -62,15 +63,16 @@ class FisheyePETRCyl(ResampledPETR):
     def _build_head(self, cfg: PETRConfig, geometry: Any) -> CylindricalPETRHead:
         return CylindricalPETRHead(cfg, geometry)
 
-    def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """uint8 B x N x H x W x 3 raw fisheye (BGR) -> float B x N x 3 x Hc x Wc normalised cylinder images.
+    def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """uint8 B x N x H x W x 3 raw fisheye (BGR) -> float (B*N) x 3 x Hc x Wc normalised cylinder images.
 
         Rectification runs on raw pixel values, normalisation after it, as in the official pipeline.
         """
         g = self.pts_bbox_head.geometry
-        index, weight = taps_for(tables or self.geometry_tables(), RECTIFY, g.image_grid, g.params.source_size,  # type: ignore[union-attr]
+        assert isinstance(g, CylPETRGeometry)  # what CylindricalPETRHead installs
+        index, weight = taps_for(tables or self.geometry_tables(), RECTIFY, g.image_grid, g.params.source_size,
                                  images.shape[2:4], images.device)
-        x = rectify(images, index, weight, g.params.image_size)  # type: ignore[union-attr]
+        x = rectify(images, index, weight, g.params.image_size)
         if self.config.image.bgr_to_rgb:
             x = x[:, :, [2, 1, 0]]
-        return (x - self.pixel_mean) / self.pixel_std
+        return ((x - self.pixel_mean) / self.pixel_std).flatten(0, 1)

@@ -22,7 +22,8 @@ from typing import Any
 
 import torch
 
-from fisheye_infer.rig import Rig
+from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.geometry.pinhole_petr import PinholePETRGeometry
 
 from .cylindrical import check_rig_image_size
 from .fisheye_petr import _HEAD, SIGNATURE_KEYS, checkpoint_filter_fn
@@ -51,12 +52,13 @@ class FisheyePETRPersp(ResampledPETR):
     def _build_head(self, cfg: PETRConfig, geometry: Any) -> RectifiedPETRHead:
         return RectifiedPETRHead(cfg, geometry)
 
-    def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """uint8 B x N x H x W x 3 raw fisheye (BGR) -> float B x (N*Y) x 3 x h x w normalised views, camera by camera."""
+    def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """uint8 B x N x H x W x 3 raw fisheye (BGR) -> float (B*N*Y) x 3 x h x w normalised views, camera by camera."""
         g, p = self.pts_bbox_head.geometry, self.config.perspective
-        x = perspective_views(images, tables or self.geometry_tables(), g.image_grid, g.params.source_size,  # type: ignore[union-attr, arg-type]
+        assert isinstance(g, PinholePETRGeometry)  # what RectifiedPETRHead installs for perspective views
+        x = perspective_views(images, tables or self.geometry_tables(), g.image_grid, g.params.source_size,
                               len(p.yaws), p.size, p.truncate)
         if self.config.image.bgr_to_rgb:
             x = x[:, :, :, [2, 1, 0]]
         x = (x - self.pixel_mean.reshape(1, 1, 1, 3, 1, 1)) / self.pixel_std.reshape(1, 1, 1, 3, 1, 1)
-        return x.reshape(images.shape[0], -1, 3, *p.size)
+        return x.reshape(-1, 3, *p.size)

@@ -1,11 +1,12 @@
 """What the BEVDet baselines without a feature warp share: an image front end, views, and a stored frustum.
 
 The cylinder-rectified, perspective-rectified and pinhole BEVDet configs all resample the raw
-camera images before the backbone (the front end, :meth:`FrustumBEVDet.normalise`), lift the
+camera images before the backbone (the front end: each config's ``normalise``), lift the
 stride-16 features of the resulting views with no warp (:class:`~.view_transform.RectifiedLSS`)
 and store the same geometry keys in their checkpoints: ``view_transform.frustum``, ``dx``, ``bx``,
 ``nx``. A front end may make several views of one camera (two perspective views per fisheye):
-the features are grouped by view, and a missing camera masks all of its views.
+the features are grouped by view, and a missing camera masks all of its views
+(:meth:`~.base.FisheyeDetector.view_valid`).
 """
 
 from __future__ import annotations
@@ -49,28 +50,13 @@ def has_camera_frame_frustum(state_dict: Mapping[str, torch.Tensor]) -> bool:
 
 
 class FrustumBEVDet(FisheyeBEVDet):
-    """BEVDet with an image front end and no feature warp; subclasses define ``normalise`` and the view transform.
+    """BEVDet with an image front end and no feature warp; subclasses define ``normalise`` (the front end) and the view transform.
 
     ``FRUSTUM_ATOL`` is how far the checkpoint's stored frustum may lie from the recomputed one and
     still describe the same geometry (float32 rounding of the official constructor).
     """
 
     FRUSTUM_ATOL: ClassVar[float]
-
-    def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:  # type: ignore[override]
-        """uint8 B x N x H x W x 3 raw camera images (BGR) -> float32 (B*V) x 3 x h x w normalised views, V views per frame."""
-        raise NotImplementedError
-
-    def extract_bev(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                    tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """Raw images -> B x C x X x Y BEV features (before SECOND); each camera's views share its ``camera_valid``."""
-        b, n = images.shape[0], images.shape[1]
-        tables = tables or self.geometry_tables()
-        p3 = self.img_neck(self.img_backbone(self.normalise(images, tables)))[0]  # FPN level 0 only
-        views = p3.shape[0] // b
-        if camera_valid is not None and views != n:
-            camera_valid = camera_valid.repeat_interleave(views // n, dim=1)
-        return self.view_transform(p3.reshape(b, views, *p3.shape[1:]), camera_valid, tables)
 
     # -- official checkpoint ----------------------------------------------------------------
 
@@ -91,7 +77,8 @@ class FrustumBEVDet(FisheyeBEVDet):
 
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
         """Compare the stored frustum and BEV grid with the rig's and install what ``policy`` selects."""
-        ref: CylLSSGeometry | PinholeLSSGeometry = self.rig_geometry  # type: ignore[assignment]
+        ref = self.rig_geometry
+        assert isinstance(ref, (CylLSSGeometry, PinholeLSSGeometry))  # what the front-end configurations make
         hard = bev_grid_checks(state_dict, ref.bev_grid)
         frustum = as_numpy(state_dict[_VT + "frustum"])
         checks = (TableCheck(_VT + "frustum", frustum, ref.frustum, atol=self.FRUSTUM_ATOL),)

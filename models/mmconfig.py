@@ -228,7 +228,7 @@ class _Evaluator:
         if func in (dict, list, tuple):
             self.charge(node, len(kwargs) + sum(len(a) if isinstance(a, _SIZED) else 0 for a in args))
         try:
-            result = func(*args, **kwargs)
+            result: Any = func(*args, **kwargs)
         except Exception as exc:
             raise self.fail(node, f"a call that fails ({exc})") from None
         if isinstance(result, int) and result.bit_length() > _MAX_INT_BITS:

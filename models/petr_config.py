@@ -20,7 +20,7 @@ from typing import Any
 
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.petr import PETRParams
-from fisheye_infer.records import CLASSES
+from fisheye_infer.runtime.records import CLASSES
 
 from .config import BackboneConfig, ImageConfig, ModelConfig, feature_size_of, read_backbone, read_classes, read_image
 from .mmconfig import Section

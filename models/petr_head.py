@@ -74,6 +74,14 @@ class FisheyePETRHead(nn.Module):
     differ is refused with ``CheckpointError`` naming the first differing key.
     """
 
+    # Buffers (``register_buffer``), declared because ``nn.Module.__getattr__`` types them ``Tensor | Module``.
+    code_weights: torch.Tensor
+    unvalid_area: torch.Tensor
+    coords3d: torch.Tensor
+    key_pos: torch.Tensor
+    key_mask_flat: torch.Tensor
+    query_pos: torch.Tensor
+
     def __init__(self, config: PETRConfig, geometry: AnyPETRGeometry) -> None:
         super().__init__()
         self.config = config
@@ -191,7 +199,8 @@ class FisheyePETRHead(nn.Module):
         b, n, c, h, w = p3.shape
         fh, fw = self.cfg.feature_size
         g = self.geometry
-        index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, (h, w), p3.device)  # type: ignore[union-attr]
+        assert isinstance(g, PETRGeometry)  # the spherical head's; RectifiedPETRHead has no warp
+        index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, (h, w), p3.device)
         return resample(p3.reshape(b * n, c, h, w), index, weight, (fh, fw)).reshape(b, n, c, fh, fw)
 
     def forward_decoder(self, p3: torch.Tensor, camera_valid: torch.Tensor | None = None,

@@ -24,11 +24,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from fisheye_infer.cameras.rig import PINHOLE_CAMERAS
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.pinhole_lss import PinholeLSSParams
 from fisheye_infer.geometry.pinhole_petr import PinholePETRParams
 from fisheye_infer.geometry.views import Perspective, ResizeCrop
-from fisheye_infer.rig import PINHOLE_CAMERAS
 
 from .bevdet_config import BEVDetConfig, ViewTransformConfig, view_transform_fields
 from .config import ImageConfig, feature_size_of, read_backbone
@@ -256,7 +256,7 @@ class PinholePETRHeadConfig(PETRHeadConfig):
 def _pinhole_head(head: Section, d: PinholePETRHeadConfig, image_size: tuple[int, int], backbone: Any) -> PinholePETRHeadConfig:
     head.type_is("PETRHead", required=True)
     fields = head_fields(head, d)
-    return PinholePETRHeadConfig(**{**fields, "image_size": tuple(image_size), "feature_size": feature_size_of(tuple(image_size), backbone)})
+    return PinholePETRHeadConfig(**{**fields, "image_size": tuple(image_size), "feature_size": feature_size_of(image_size, backbone)})
 
 
 def _pinhole_petr_params(cfg: PETRConfig, views: ResizeCrop | Perspective) -> PinholePETRParams:

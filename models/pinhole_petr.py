@@ -45,9 +45,8 @@ class PinholePETR(ResampledPETR):
     def _build_head(self, cfg: PETRConfig, geometry: Any) -> RectifiedPETRHead:
         return RectifiedPETRHead(cfg, geometry)
 
-    def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """uint8 B x N x H x W x 3 raw pinhole images (BGR) -> float B x N x 3 x h x w normalised views."""
+    def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """uint8 B x N x H x W x 3 raw pinhole images (BGR) -> float (B*N) x 3 x h x w normalised views."""
         cfg = self.config
         views = resized_views(images, tables or self.geometry_tables(), (cfg.image.height, cfg.image.width), cfg.head.image_size)
-        x = normalise_frames(views, self.pixel_mean, self.pixel_std, cfg.image.bgr_to_rgb)
-        return x.reshape(images.shape[0], images.shape[1], *x.shape[1:])
+        return normalise_frames(views, self.pixel_mean, self.pixel_std, cfg.image.bgr_to_rgb)

@@ -25,7 +25,7 @@ from collections.abc import Iterator
 import torch
 from torch import nn
 
-from fisheye_infer.artifact import RANKING_OUTPUTS
+from fisheye_infer.runtime.artifact import RANKING_OUTPUTS
 
 __all__ = ["RANKING_OUTPUTS", "TopK", "replay_ranking"]
 

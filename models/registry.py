@@ -32,6 +32,9 @@ from torch import nn
 
 from fisheye_infer.errors import ConfigError
 
+from .base import FisheyeDetector
+from .config import ModelConfig
+
 __all__ = ["ModelEntry", "register_model", "create_model", "list_models", "get_model_entry", "entry_of",
            "matching_architectures", "read_manifest"]
 
@@ -40,7 +43,7 @@ __all__ = ["ModelEntry", "register_model", "create_model", "list_models", "get_m
 #: one needs no entry anywhere else.
 _ARCHITECTURE_MODULES = ("fisheye_", "pinhole_")
 
-M = TypeVar("M", bound=type[nn.Module])
+M = TypeVar("M", bound=type[FisheyeDetector])
 StateDict = Mapping[str, Any]
 
 
@@ -49,8 +52,8 @@ class ModelEntry:
     """One registered architecture (see the module docstring)."""
 
     name: str
-    builder: type[nn.Module]
-    config_cls: type
+    builder: type[FisheyeDetector]
+    config_cls: type[ModelConfig]
     manifest: str
     signature_keys: tuple[str, ...]
     absent_keys: tuple[str, ...]
@@ -83,8 +86,8 @@ def register_model(name: str, *, manifest: str, signature_keys: tuple[str, ...],
         if existing is not None and existing.builder is not builder and existing.builder.__qualname__ != builder.__qualname__:
             raise ConfigError(f"model '{name}' is already registered by {existing.builder!r}")
         config_cls = getattr(builder, "config_cls", None)
-        if not isinstance(config_cls, type):
-            raise ConfigError(f"model '{name}': {builder.__qualname__} has no config_cls")
+        if not (isinstance(config_cls, type) and issubclass(config_cls, ModelConfig)):
+            raise ConfigError(f"model '{name}': {builder.__qualname__} has no config_cls (a ModelConfig subclass)")
         _REGISTRY[name] = ModelEntry(name, builder, config_cls, manifest, tuple(signature_keys), tuple(absent_keys), checkpoint_filter,
                                      tuple(ignored_keys), score_semantics, tuple(int8_float), predicate)
         return builder
@@ -124,7 +127,7 @@ def entry_of(model: nn.Module) -> ModelEntry:
     raise ConfigError(f"{type(model).__name__} is not a registered model (registered: {', '.join(sorted(_REGISTRY))})")
 
 
-def create_model(name: str, config: Any = None, rig: Any = None, **kwargs: Any) -> nn.Module:
+def create_model(name: str, config: Any = None, rig: Any = None, **kwargs: Any) -> FisheyeDetector:
     """Build ``name`` for ``config`` (default: the official configuration) and ``rig`` (default rig), in eval mode."""
     entry = get_model_entry(name)
     if config is not None and type(config) is not entry.config_cls:

@@ -11,7 +11,7 @@ GridSample kernel on the models' warps.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -36,7 +36,7 @@ def resample(x: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, size: t
 
 
 def taps_for(tables: Mapping[str, torch.Tensor], prefix: str, grid: np.ndarray, source_size: tuple[int, int] | None,
-             source_hw: tuple[int, int], device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+             source_hw: Sequence[int], device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
     """The taps (index, weight) that resample a ``source_hw`` source with ``grid``.
 
     The tables (``prefix`` + index / weight) are built for ``source_size``, the configured input;

@@ -1,10 +1,11 @@
 """What the PETR baselines without a feature warp share: an image front end, views, and no stored geometry.
 
 The cylinder-rectified, perspective-rectified and pinhole PETR configs resample the raw camera
-images before the backbone (the front end, :meth:`ResampledPETR.normalize`), use the stride-16
+images before the backbone (the front end: each config's ``normalise``), use the stride-16
 features of the resulting views as keys (:class:`~.petr_head.RectifiedPETRHead`), and their
 checkpoints hold no geometry tensor: every table comes from the rig. A front end may make several
-views of one camera (two perspective views per fisheye): a missing camera masks all of its views.
+views of one camera (two perspective views per fisheye): a missing camera masks all of its views
+(:meth:`~.base.FisheyeDetector.view_valid`).
 """
 
 from __future__ import annotations
@@ -24,29 +25,13 @@ __all__ = ["ResampledPETR"]
 
 
 class ResampledPETR(FisheyePETR):
-    """FisheyePETR with an image front end and no feature warp; subclasses define ``normalize`` and the head."""
+    """FisheyePETR with an image front end and no feature warp; subclasses define ``normalise`` (the front end) and the head."""
 
-    def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:  # type: ignore[override]
-        """uint8 B x N x H x W x 3 raw camera images (BGR) -> float B x V x 3 x h x w normalised views, V per frame."""
-        raise NotImplementedError
-
-    def forward_features(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:  # type: ignore[override]
-        """Raw images (any size: they are resampled to the configured views) -> P3 B x V x C x H x W."""
-        x = self.normalize(images, tables)
-        b, v = x.shape[:2]
-        p3 = self.img_neck(self.img_backbone(x.reshape(b * v, *x.shape[2:])))[0]
-        return p3.reshape(b, v, *p3.shape[1:])
-
-    def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                cam2lidar: Any = None, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
-        """As :meth:`FisheyePETR.forward`; ``tables`` also supplies the front end's; each camera's views share its ``camera_valid``."""
-        self._check_images(images, camera_valid)
-        tables = tables or self.geometry_tables()
-        p3 = self.forward_features(images, tables)
-        per_camera = p3.shape[1] // images.shape[1]
-        if camera_valid is not None and per_camera > 1:
-            camera_valid = camera_valid.repeat_interleave(per_camera, dim=1)
-        return self.pts_bbox_head(p3, camera_valid, cam2lidar, tables)
+    def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Deprecated: :meth:`normalise`, whose views come flat, (B*V) x 3 x h x w; this keeps the old B x V x 3 x h x w."""
+        self._deprecated("normalize", "normalise")
+        x = self.normalise(images, tables)
+        return x.reshape(images.shape[0], -1, *x.shape[1:])
 
     # -- official checkpoint ----------------------------------------------------------------
 

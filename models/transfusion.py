@@ -31,25 +31,11 @@ __all__ = ["TransFusionHead", "SeparateHead", "TransFusionDecoderLayer", "Positi
 SCORE_SEMANTICS = "sigmoid(class logit) x the proposal's heatmap peak (TransFusion); no threshold, no NMS, as the official test time"
 
 #: The head stays float32 in the int8 file, but for its shared convolution and the first
-#: convolution of its heatmap branch; the heatmap's last convolution, which ranks the proposals,
-#: stays float. Measured on the compact model after 8,000 and 14,000 CPU steps (FDS 0-30 m against
-#: fp32, share of the fp32 top-50 boxes kept, one-thread speed-up; 200 held-out frames, one run per
-#: model: ``benchmarks/int8.py --keep-float bbox_head --keep-float ...``):
-#:
-#:   head float:                          8,000 steps -0.003, 91.1%, 1.97x; 14,000 +0.004, 91.8%, 1.99x
-#:   ... but shared_conv:                 8,000 steps +0.000, 90.6%, 2.19x; 14,000 +0.005, 91.5%, 2.26x
-#:   ... but shared_conv, heatmap_head.0: 8,000 steps -0.003, 90.2%, 2.27x; 14,000 +0.004, 91.3%, 2.27x
-#:   ... and heatmap_head.1 too:          8,000 steps -0.018, 92.0%, 2.33x; 14,000 -0.007, 93.0%, 2.35x
-#:   whole head int8:                     8,000 steps -0.016, 91.5%, 2.23x; 14,000 -0.011, 92.3%, 2.35x
-#:
-#: Both convolutions are 3x3 over the whole BEV grid: the shared one reads 512 channels on the
-#: full-size model and was its largest float layer, and the heatmap's first one was the compact
-#: model's (14,000 steps, the files of the second and third rows alternated 20 x 5 times: 26.0 ->
-#: 24.8 ms). The fourth row (measured in another run) is why the heatmap's last convolution stays float.
-#: These rows were measured with 8-bit weights; with the 7-bit weights the export now writes
-#: (``fisheye_infer.artifact.WEIGHT_BITS``) the third row is 14,000 steps -0.000, 91.2%, 2.26x. The
-#: shipped model (those 14,000 steps fine-tuned with ``--qat 0.5``) gives, with 7-bit weights, -0.004,
-#: 90.3%, 2.36x for the third row and -0.024, 90.3%, 2.37x with the whole head int8.
+#: convolution of its heatmap branch: both are 3x3 over the whole BEV grid and the head's largest
+#: layers, so quantizing them buys most of the head's speed-up; the heatmap's last convolution ranks
+#: the proposals and stays float, as do the prediction heads, the decoder and the class encoding.
+#: ``benchmarks/int8.py --keep-float MODULE ...`` measures any other choice (FDS against fp32, the
+#: share of the fp32 top-50 boxes kept, the speed-up) on the shipped model's held-out frames.
 INT8_FLOAT = ("bbox_head.heatmap_head.1", "bbox_head.prediction_heads", "bbox_head.decoder", "bbox_head.class_encoding")
 
 DEFAULT_COMMON_HEADS: dict[str, tuple[int, int]] = {"center": (2, 2), "height": (1, 2), "dim": (3, 2), "rot": (2, 2)}
@@ -185,6 +171,11 @@ class SeparateHead(nn.Module):
 class TransFusionHead(nn.Module):
     """Dense heatmap, proposal selection, one decoder layer, prediction heads and box decoding."""
 
+    # Buffers (``register_buffer``), declared because ``nn.Module.__getattr__`` types them ``Tensor | Module``.
+    bev_pos: torch.Tensor
+    unsuppressed: torch.Tensor
+    post_center_range: torch.Tensor
+
     def __init__(self, in_channels: int = 512, hidden_channel: int = 128, num_classes: int = 6,
                  num_proposals: int = 200, nms_kernel_size: int = 3,
                  unsuppressed_classes: Sequence[int] = (4, 5), num_decoder_layers: int = 1,
@@ -263,7 +254,9 @@ class TransFusionHead(nn.Module):
         query = feat_flat.gather(2, cell.unsqueeze(1).expand(b, c, self.num_proposals))  # B x C x P
         # class_encoding(one_hot(cls)) == W[:, cls] + b exactly (one non-zero term per output).
         w_cls = self.class_encoding.weight[:, :, 0].t()  # K x C
-        enc = F.embedding(cls, w_cls) + self.class_encoding.bias  # B x P x C
+        bias = self.class_encoding.bias
+        assert bias is not None  # nn.Conv1d's default bias=True
+        enc = F.embedding(cls, w_cls) + bias  # B x P x C
         query = (query + enc.transpose(1, 2)).transpose(1, 2)  # B x P x C
         query_pos = self.bev_pos[0][cell]  # B x P x 2
         key = feat_flat.transpose(1, 2)  # B x XY x C

@@ -39,7 +39,7 @@ from .table_buffers import install_tables, installed_tables
 #: The geometry objects an LSS view transform installs.
 AnyLSSGeometry = LSSGeometry | CylLSSGeometry | PinholeLSSGeometry
 
-__all__ = ["FisheyeLSS", "RectifiedLSS", "CylindricalLSS", "pool_reference_torch"]
+__all__ = ["AnyLSSGeometry", "FisheyeLSS", "RectifiedLSS", "CylindricalLSS", "pool_reference_torch"]
 
 
 def pool_reference_torch(depth: torch.Tensor, ctx: torch.Tensor, points_lidar: np.ndarray,
@@ -108,6 +108,7 @@ class FisheyeLSS(nn.Module):
     def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """M x C x Hf x Wf -> M x C x H x W with the grid's bilinear taps (``geom.warp.*``; see :mod:`.resample`)."""
         g = self.geometry
+        assert isinstance(g, LSSGeometry)  # _check_geometry installs nothing else; RectifiedLSS has no warp
         index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, feat.shape[-2:], feat.device)
         return resample(feat, index, weight, self.cfg.feature_size)
 

@@ -20,8 +20,8 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse
 
 from fisheye_infer._version import __version__
-from fisheye_infer.detector import Detector
 from fisheye_infer.errors import FisheyeInferError
+from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.service.deps import require_api_key
 from fisheye_infer.service.errors import handle_fisheye_error
 from fisheye_infer.service.middleware import ServiceMiddleware

@@ -15,7 +15,7 @@ from fastapi import Depends, Security
 from fastapi.security import APIKeyHeader
 from starlette.requests import HTTPConnection
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.service.errors import Unauthorized, Unavailable
 from fisheye_infer.service.settings import ServiceSettings
 from fisheye_infer.service.state import Service

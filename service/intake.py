@@ -15,7 +15,7 @@ Order of the checks, cheapest first, so a bad request costs little:
    be the model's (422). A tiny file claiming 60000x60000 pixels (a decompression bomb) is
    refused here and never reaches the decoder;
 6. decoding, in a thread, before the request takes a queue place (too many JPEG scans, corrupt
-   data: 422; see ``fisheye_infer.codec``).
+   data: 422; see ``fisheye_infer.runtime.codec``).
 
 The body size limit (413) is enforced earlier, while the body is read (``middleware.py``).
 Messages repeat at most a bounded part of what the client sent (``errors.shown``/``listed``).
@@ -38,9 +38,9 @@ from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import Request
 
-from fisheye_infer.detector import DetectorInfo
 from fisheye_infer.errors import FisheyeInferError, FrameError
-from fisheye_infer.preprocess import decode_image, encoded_image_size
+from fisheye_infer.runtime.detector import DetectorInfo
+from fisheye_infer.runtime.preprocess import decode_image, encoded_image_size
 from fisheye_infer.service.errors import BadRequest, RequestInvalid, ServiceError, UnsupportedMediaType, listed, shown
 from fisheye_infer.service.schemas import BatchJsonRequest, DetectJsonRequest, DetectOptions
 

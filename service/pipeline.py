@@ -16,7 +16,7 @@ from typing import Any
 
 import anyio
 
-from fisheye_infer.nms import NmsConfig
+from fisheye_infer.runtime.nms import NmsConfig
 from fisheye_infer.service.errors import Unavailable
 from fisheye_infer.service.intake import EncodedFrame, decode_frames
 from fisheye_infer.service.queue import RunResult

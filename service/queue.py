@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from fisheye_infer.detections import Detections
-from fisheye_infer.detector import Detector
+from fisheye_infer.runtime.detections import Detections
+from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.service.errors import InferenceTimeout, Unavailable
 from fisheye_infer.service.metrics import ServiceMetrics
 from fisheye_infer.service.settings import ServiceSettings
@@ -60,7 +60,7 @@ class RunResult:
 
 @dataclass(eq=False)
 class _Job:
-    frames: list[LoadedFrame]
+    frames: Sequence[LoadedFrame]
     loop: asyncio.AbstractEventLoop
     future: asyncio.Future[list[RunResult]]
     submitted: float = field(default_factory=time.perf_counter)
@@ -84,7 +84,7 @@ class Ticket:
         self._state = "reserved"  # -> queued -> taken; or released
         self._released = False
 
-    async def run(self, frames: list[LoadedFrame]) -> list[RunResult]:
+    async def run(self, frames: Sequence[LoadedFrame]) -> list[RunResult]:
         """Queue the frames and wait for their results (one ``detect_batch`` call)."""
         loop = asyncio.get_running_loop()
         job = _Job(frames, loop, loop.create_future())

@@ -21,17 +21,17 @@ sharing a machine do not oversubscribe its cores.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Coroutine, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from prometheus_client import Histogram
 from ray import serve
-from ray.serve import Application
+from ray.serve import Application, Deployment
 
-from fisheye_infer.detections import Detections
-from fisheye_infer.detector import Detector
-from fisheye_infer.preprocess import Frame
+from fisheye_infer.runtime.detections import Detections
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.runtime.preprocess import Frame
 from fisheye_infer.service.app import create_app
 from fisheye_infer.service.settings import ServiceSettings
 
@@ -79,7 +79,7 @@ class BatchedDetector:
     the replica's event loop, where the batch method collects frames from all callers.
     """
 
-    def __init__(self, detector: Detector, submit: Callable[[Frame], Awaitable[Detections]], loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, detector: Detector, submit: Callable[[Frame], Coroutine[Any, Any, Detections]], loop: asyncio.AbstractEventLoop) -> None:
         self._detector = detector
         self._submit = submit
         self._loop = loop
@@ -116,8 +116,9 @@ class FisheyeReplica:
         self.settings = options.replica_settings(settings)
         self.detector = Detector(self.settings.model_path, threads=self.settings.threads, providers=self.settings.session_providers, spin=self.settings.spin,
                                  warmup=self.settings.warmup, decode_threads=self.settings.threads)  # the replica's CPUs, no more
-        self._batched.set_max_batch_size(options.max_batch_size)
-        self._batched.set_batch_wait_timeout_s(options.batch_wait_ms / 1e3)
+        # serve.batch's wrapper has these setters; ray types the decorated method as the plain function
+        self._batched.set_max_batch_size(options.max_batch_size)  # type: ignore[attr-defined]
+        self._batched.set_batch_wait_timeout_s(options.batch_wait_ms / 1e3)  # type: ignore[attr-defined]
         self._batch_frames: Histogram | None = None
 
     async def __serve_build_asgi_app__(self) -> Any:
@@ -145,7 +146,8 @@ def build_app(settings: ServiceSettings, options: RayServeOptions | None = None)
     # Ray routes at most this many requests to a replica at once; the app's own queue refuses
     # beyond queue_size (503), as the plain service does. Two more leave room for health probes.
     ongoing = options.replica_settings(settings).workers + settings.queue_size + 2
-    deployment = FisheyeReplica.options(
+    # serve.deployment made the class a Deployment; mypy keeps a decorated class's own type
+    deployment = cast(Deployment, FisheyeReplica).options(
         num_replicas=options.replicas,
         ray_actor_options={"num_cpus": options.cpus_per_replica},
         max_ongoing_requests=ongoing,
@@ -161,5 +163,5 @@ def app_builder(args: dict[str, str]) -> Application:
     unknown = sorted(set(args) - set(fields) - {"model_path"})
     if unknown:
         raise ValueError(f"arguments: unknown {unknown}; expected model_path and any of {', '.join(fields)}")
-    settings = ServiceSettings(**({"model_path": args["model_path"]} if "model_path" in args else {}))
+    settings = ServiceSettings(model_path=args["model_path"]) if "model_path" in args else ServiceSettings()
     return build_app(settings, RayServeOptions(**{k: cast(args[k]) for k, cast in fields.items() if k in args}))

@@ -40,7 +40,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 __all__ = ["ServiceSettings", "MIN_API_KEY_LENGTH"]
 
-#: A provider by name, or with its options (``fisheye_infer.session.Provider``, as settings can hold it).
+#: A provider by name, or with its options (``fisheye_infer.runtime.session.Provider``, as settings can hold it).
 ProviderSetting = str | tuple[str, dict[str, str | int | float | bool]]
 
 MIN_API_KEY_LENGTH = 16
@@ -93,7 +93,7 @@ class ServiceSettings(BaseSettings):
     def _parse_providers(cls, value: object) -> object:
         """``FISHEYE_PROVIDERS`` / ``--providers`` text as the command line reads it (``session.parse_providers``)."""
         if isinstance(value, str):
-            from fisheye_infer.session import parse_providers
+            from fisheye_infer.runtime.session import parse_providers
 
             parsed = parse_providers(value)
             return [parsed] if parsed == "auto" else parsed
@@ -105,7 +105,7 @@ class ServiceSettings(BaseSettings):
         """Refused here, before the model loads, when the installed onnxruntime does not offer one."""
         if value == ["auto"]:
             return value
-        from fisheye_infer.session import resolve_providers
+        from fisheye_infer.runtime.session import resolve_providers
 
         resolve_providers(value)
         return value

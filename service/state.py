@@ -16,13 +16,13 @@ from typing import Protocol
 
 import anyio
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.runtime.session import usable_cpus
 from fisheye_infer.service.errors import Unavailable
 from fisheye_infer.service.intake import FrameSpec
 from fisheye_infer.service.metrics import ServiceMetrics
 from fisheye_infer.service.queue import InferenceQueue, Ticket
 from fisheye_infer.service.settings import ServiceSettings
-from fisheye_infer.session import usable_cpus
 
 __all__ = ["Service"]
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fisheye_infer.camera import OCamModel
-from fisheye_infer.rig import Rig, default_rig
+from fisheye_infer.cameras.camera_models import OCamModel
+from fisheye_infer.cameras.rig import Rig, default_rig
 
 DATA = Path(__file__).parent / "data"
 SAMPLE_FRAME = Path(__file__).parents[1] / "fisheye_infer" / "data" / "sample_frame"
@@ -40,6 +40,20 @@ def ocam800(rig: Rig) -> OCamModel:
 @pytest.fixture(scope="session")
 def ocam1600() -> OCamModel:
     return OCamModel.from_file(DATA / "ocam_sample_1600.txt", fov=360)
+
+
+# -- the fast lane: tests of full-size models are `slow` ---------------------------------------
+
+#: Fixtures that build, export or run a full-size model (the official configurations, the shipped
+#: model): a test that uses one is marked ``slow`` and left out of ``make test-fast``.
+FULL_SIZE_FIXTURES = frozenset({"bevdet_export", "petr_export", "exported", "petr_fp16", "shipped_export", "full_ckpt", "full_petr",
+                                "full_checkpoint", "full_model", "full_bevdet", "kit_bevdet", "kit_export"})
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if FULL_SIZE_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
 
 
 # -- exported models, once per session -------------------------------------------------------
@@ -113,7 +127,7 @@ def small_export(tmp_path_factory: pytest.TempPathFactory, small_bevdet_config) 
     the whole graph in seconds, for tests of what surrounds the model (service, CLI)."""
     from fisheye_infer.export.exporter import export
     from fisheye_infer.models import make_checkpoint
-    from fisheye_infer.synth import resized_rig
+    from fisheye_infer.scenes.render import resized_rig
 
     folder = tmp_path_factory.mktemp("small_export")
     small_rig = resized_rig(default_rig(), 0.2)

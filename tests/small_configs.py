@@ -30,9 +30,9 @@ def small_bevdet_config():
 def small_configs() -> dict:
     """A reduced configuration and the rig it runs on, by registered architecture: every stage of the
     official graph at a fraction of the cost. An architecture missing here is tested at full size."""
+    from fisheye_infer.cameras.rig import default_rig, resolve_rig
     from fisheye_infer.models import BEVDetCylConfig, CylPETRConfig, PerspBEVDetConfig, PerspPETRConfig, PETRConfig, PinholeBEVDetConfig, PinholePETRConfig
-    from fisheye_infer.rig import default_rig, resolve_rig
-    from fisheye_infer.synth import resized_rig
+    from fisheye_infer.scenes.render import resized_rig
 
     small_head = {"num_query": 40, "max_num": 30, "embed_dims": 64, "num_heads": 4, "ffn_dims": 128, "num_layers": 2}
     cyl_sections = dict(SMALL_BEV_SECTIONS, view_transform={**SMALL_BEV_SECTIONS["view_transform"], "feature_size": (3, 6)})

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 import fisheye_infer
+from fisheye_infer._moved import MOVED, new_name
 from fisheye_infer.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,7 +32,7 @@ def test_wheel_installs_one_namespace(wheel: Path) -> None:
     names = zipfile.ZipFile(wheel).namelist()
     top = {n.split("/")[0] for n in names}
     assert {t for t in top if not t.endswith(".dist-info")} == {"fisheye_infer"}
-    for sub in ("models", "export", "service", "geometry", "triton"):
+    for sub in ("models", "export", "service", "cameras", "geometry", "runtime", "deploy", "deploy/triton", "tools", "scenes", "eval"):
         assert f"fisheye_infer/{sub}/__init__.py" in names
     assert "fisheye_infer/data/rig-fisheye3dod/calib_results.txt" in names
     assert "fisheye_infer/models/manifests/fisheye_bevdet_keys.json" in names
@@ -51,8 +52,8 @@ sys.meta_path.insert(0, Block())
 
 def test_core_imports_without_torch_or_web_stack() -> None:
     code = BLOCK_HEAVY + (
-        "import fisheye_infer, fisheye_infer.geometry, fisheye_infer.rig, fisheye_infer.camera_fit, fisheye_infer.viz, fisheye_infer.cli\n"
-        "import fisheye_infer.batch, fisheye_infer.triton, fisheye_infer.triton.repository\n"
+        "import fisheye_infer, fisheye_infer.geometry, fisheye_infer.cameras.rig, fisheye_infer.cameras.ocam_fit, fisheye_infer.tools.viz, fisheye_infer.cli\n"
+        "import fisheye_infer.deploy.ray_batch, fisheye_infer.deploy.triton, fisheye_infer.deploy.triton.repository\n"
         "r = fisheye_infer.default_rig(); print(len(r))\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -93,11 +94,35 @@ def test_every_subcommand_has_help(command: str, capsys: pytest.CaptureFixture[s
 
 def test_missing_ray_or_triton_extra_names_the_install_line(tmp_path: Path) -> None:
     code = BLOCK_HEAVY + (
-        "from fisheye_infer.triton import TritonDetector\n"
+        "from fisheye_infer.deploy.triton import TritonDetector\n"
         "try:\n    TritonDetector('127.0.0.1:8000', 'm')\nexcept ImportError as exc:\n    print(exc)\n"
-        "from fisheye_infer.batch import detect_frames\n"
+        "from fisheye_infer.deploy.ray_batch import detect_frames\n"
         "try:\n    detect_frames('m.onnx', [])\nexcept ImportError as exc:\n    print(exc)\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert "pip install 'fisheye-infer[triton]'" in result.stdout and "pip install 'fisheye-infer[ray]'" in result.stdout
+
+
+@pytest.mark.parametrize("old", sorted(MOVED))
+def test_moved_module_imports_from_its_old_path_with_a_warning(old: str) -> None:
+    code = (
+        "import importlib, sys, warnings\n"
+        "import fisheye_infer\n"
+        f"new = importlib.import_module({new_name(old)!r})\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        f"    old = importlib.import_module({old!r})\n"
+        "assert old is new, (old, new)\n"
+        "(w,) = [w for w in caught if issubclass(w.category, DeprecationWarning)]\n"
+        "print(w.message)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert f"{old} is now {new_name(old)}" in result.stdout
+
+
+def test_moved_submodule_follows_its_package() -> None:
+    assert new_name("fisheye_infer.triton.client") == "fisheye_infer.deploy.triton.client"
+    assert new_name("fisheye_infer.rigs") is None
+    assert new_name("fisheye_infer.cameras.rig") is None

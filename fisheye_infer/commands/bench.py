@@ -3,8 +3,8 @@
     fisheye-infer bench model.onnx --threads 1,2 --batch 1,2,4 --repeat 10 --out bench.json
     fisheye-infer bench model.fp16.onnx --providers CUDAExecutionProvider,CPUExecutionProvider   # on a GPU (onnxruntime-gpu)
 
-The measurement is ``fisheye_infer.bench`` (end to end and per stage, peak RSS in a fresh
-process), the stage split ``fisheye_infer.graph_stages``; ``benchmarks/`` compares the figures
+The measurement is ``fisheye_infer.tools.bench`` (end to end and per stage, peak RSS in a fresh
+process), the stage split ``fisheye_infer.export.graph_stages``; ``benchmarks/`` compares the figures
 with other runtimes.
 """
 
@@ -34,18 +34,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fisheye_infer.bench import bench_model, format_table
     from fisheye_infer.errors import ArtifactError
+    from fisheye_infer.tools.bench import bench_model, format_table
 
     if not Path(args.model).is_file():
         raise ArtifactError(f"model {args.model}: no such file")
-    stages = not args.no_stages
-    if stages:
+    stages = None
+    if not args.no_stages:
         try:
-            import onnx  # noqa: F401
+            from fisheye_infer.export.graph_stages import time_stages
         except ImportError:
             print("bench: no onnx package, skipping the per-stage split (pip install onnx)", file=sys.stderr)
-            stages = False
+        else:
+            stages = time_stages
     result = bench_model(args.model, args.threads, args.batch, max(1, args.repeat), max(0, args.warmup), stages, not args.no_rss,
                          progress=lambda s: print(s, file=sys.stderr), providers=args.providers)
     print(format_table(result))

@@ -7,7 +7,7 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from fisheye_infer.session import Provider
+    from fisheye_infer.runtime.session import Provider
 
 __all__ = ["NEEDS_EXPORT", "NEEDS_SERVE", "NEEDS_RAY_SERVE", "missing_extra", "positive_int", "positive_ints", "int_list", "csv_list", "int_pair",
            "providers_arg", "PROVIDERS_HELP", "RIG_HELP"]
@@ -98,7 +98,7 @@ class ArchChoices:
 def providers_arg(text: str) -> str | list[Provider]:
     """``session.parse_providers``, checked against the installed onnxruntime here, so a typo or a
     CPU-only onnxruntime is a usage error that lists what is available."""
-    from fisheye_infer.session import parse_providers
+    from fisheye_infer.runtime.session import parse_providers
 
     try:
         return parse_providers(text)

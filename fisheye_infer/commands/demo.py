@@ -29,9 +29,9 @@ def run(args: argparse.Namespace) -> int:
     compact FisheyeBEVDet exported to a verified ONNX file, and detection on its held-out frame."""
     import json
 
+    from fisheye_infer.cameras.rig import default_rig
     from fisheye_infer.geometry import BevGrid, build_pooling_plan, depth_bins, frustum_to_lidar, spherical_frustum, spherical_grid
-    from fisheye_infer.rig import default_rig
-    from fisheye_infer.viz import draw_rig, draw_sampling_grid, save_png
+    from fisheye_infer.tools.viz import draw_rig, draw_sampling_grid, save_png
 
     out = Path(args.out)
     rig = default_rig()

@@ -2,7 +2,7 @@
 
     fisheye-infer detect model.onnx --images frame_dir/ --out result.json --viz result.png
     fisheye-infer detect --result result.json --images frame_dir/ --viz result.png   # draw a saved result
-    fisheye-infer detect model.onnx --ray --data ROOT --split val --out pred.json    # many frames with Ray Data (fisheye_infer.batch)
+    fisheye-infer detect model.onnx --ray --data ROOT --split val --out pred.json    # many frames with Ray Data (fisheye_infer.deploy.ray_batch)
 
 The results file holds the model id, classes, the rig, and per frame the detections (the
 runtime's records), the cameras used and the stage timings, so it can be drawn later on its own.
@@ -20,8 +20,8 @@ from fisheye_infer.commands.common import PROVIDERS_HELP, positive_int, provider
 from fisheye_infer.errors import ConfigError, FrameError, OptionError
 
 if TYPE_CHECKING:
-    from fisheye_infer.detections import Detections
-    from fisheye_infer.rig import Rig
+    from fisheye_infer.cameras.rig import Rig
+    from fisheye_infer.runtime.detections import Detections
 
 __all__ = ["configure", "run"]
 
@@ -48,7 +48,7 @@ def _viz_paths(viz: Path, names: list[str]) -> list[Path]:
 def _draw(viz: str, rig: Rig, frames: list[tuple[str, dict]], results: list[Detections]) -> None:
     import cv2
 
-    from fisheye_infer.viz import draw_detections, save_png
+    from fisheye_infer.tools.viz import draw_detections, save_png
 
     for path, (_, files), dets in zip(_viz_paths(Path(viz), [n for n, _ in frames]), frames, results):
         images = {c: cv2.imread(str(p)) for c, p in files.items()} if files else None
@@ -56,9 +56,9 @@ def _draw(viz: str, rig: Rig, frames: list[tuple[str, dict]], results: list[Dete
 
 
 def _draw_saved(args: argparse.Namespace) -> int:
-    from fisheye_infer.detections import Detections
-    from fisheye_infer.preprocess import frames_from_paths
-    from fisheye_infer.rig import Rig
+    from fisheye_infer.cameras.rig import Rig
+    from fisheye_infer.runtime.detections import Detections
+    from fisheye_infer.runtime.preprocess import frames_from_paths
 
     try:
         doc = json.loads(Path(args.result).read_text())
@@ -93,9 +93,9 @@ def run(args: argparse.Namespace) -> int:
         return _draw_saved(args)
     if not args.model or not args.images:
         raise FrameError("give a model and --images (or --result and --viz to draw a saved result)")
-    from fisheye_infer.detector import Detector
-    from fisheye_infer.nms import NmsConfig
-    from fisheye_infer.preprocess import frames_from_paths
+    from fisheye_infer.runtime.detector import Detector
+    from fisheye_infer.runtime.nms import NmsConfig
+    from fisheye_infer.runtime.preprocess import frames_from_paths
 
     nms = NmsConfig(kind=args.nms) if args.nms else None
     detector = Detector(args.model, threads=args.threads, providers=args.providers, score_threshold=args.score_threshold, nms=nms)
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-# -- --ray: many frames with Ray Data (fisheye_infer.batch) ------------------------------------------
+# -- --ray: many frames with Ray Data (fisheye_infer.deploy.ray_batch) ------------------------------------------
 
 
 def _configure_ray(parser: argparse.ArgumentParser) -> None:
@@ -140,8 +140,8 @@ def _configure_ray(parser: argparse.ArgumentParser) -> None:
 
 def _run_ray(args: argparse.Namespace) -> int:
     """``fisheye-infer detect MODEL --ray (--data ROOT | --images DIR) --out pred.json``."""
-    from fisheye_infer.batch import NEEDS_RAY, BatchOptions, dataset_frames, detect_frames
-    from fisheye_infer.progress import Progress
+    from fisheye_infer.deploy.ray_batch import NEEDS_RAY, BatchOptions, dataset_frames, detect_frames
+    from fisheye_infer.tools.progress import Progress
 
     refused = [flag for flag, value in (("--result", args.result), ("--viz", args.viz), ("--score-threshold", args.score_threshold),
                                         ("--classes", args.classes), ("--nms", args.nms)) if value]
@@ -160,7 +160,7 @@ def _run_ray(args: argparse.Namespace) -> int:
     except ImportError as exc:
         print(f"{NEEDS_RAY} ({exc})", file=sys.stderr)
         return 1
-    from fisheye_infer.artifact import read_meta
+    from fisheye_infer.runtime.artifact import read_meta
 
     cameras = read_meta(args.model).cameras
     if args.data:
@@ -169,7 +169,7 @@ def _run_ray(args: argparse.Namespace) -> int:
         frames = dataset_frames(Fisheye3DOD(args.data, args.split, cameras=cameras))
         source = {"data": str(args.data), "split": args.split}
     else:
-        from fisheye_infer.preprocess import frames_from_paths
+        from fisheye_infer.runtime.preprocess import frames_from_paths
 
         frames = [(name, files) for name, files in frames_from_paths(args.images, cameras)]
         source = {"images": [str(p) for p in args.images]}

@@ -37,7 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--scenes", type=csv_list, help="comma-separated scene names to keep")
     data.add_argument("--cameras", type=csv_list, help="cameras to feed (e.g. front,rear); the others are marked missing")
     data.add_argument("--threads", type=int, help="ONNX Runtime intra-op threads")
-    data.add_argument("--save-results", help="also write the predictions and ground truth (<name>.json, <name>.gt.json)")
+    data.add_argument("--save-results", help="also write the predictions to this JSON file and the ground truth beside it (pred.json -> pred.gt.json)")
     parser.add_argument("--config", help="metric settings as JSON (default: the official Fisheye3DOD settings)")
     parser.add_argument("--ref-range", type=float, help="scale every class range by REF_RANGE/48 (the paper's 0-30 m is 30)")
     parser.add_argument("--out", required=True, help="report JSON to write; the Markdown report goes beside it")
@@ -87,8 +87,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail("a MODEL is evaluated on --data; --results/--ground-truth are for saved results")
     if not args.data:
         return _fail("a MODEL needs --data ROOT (a Fisheye3DOD-layout folder)")
-    from fisheye_infer.detector import Detector
     from fisheye_infer.eval.dataset import Fisheye3DOD, camera_name
+    from fisheye_infer.runtime.detector import Detector
 
     detector = Detector(args.model, threads=args.threads)
     if tuple(detector.info.classes) != tuple(config.class_names):

@@ -8,8 +8,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fisheye_infer.artifact import COMPARE_FRAMES, MIN_TOP_MATCHED
 from fisheye_infer.commands.common import NEEDS_EXPORT, ArchChoices, missing_extra
+from fisheye_infer.precision import COMPARE_FRAMES, MIN_TOP_MATCHED
 
 __all__ = ["configure", "run"]
 
@@ -57,6 +57,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         from fisheye_infer.export.exporter import export
+        from fisheye_infer.export.options import Comparison, Int8Options
     except ImportError as exc:
         return missing_extra(NEEDS_EXPORT, exc)
     if (args.calib_images is not None or args.calib_frames != 8 or args.int8_scope != "network" or args.int8_float is not None) and not args.int8:
@@ -66,10 +67,10 @@ def run(args: argparse.Namespace) -> int:
         print("fisheye-infer export: error: --compare-frames/--min-kept need --int8 or --fp16", file=sys.stderr)
         return 2
     int8_float = None if args.int8_float is None else tuple(m.strip() for m in args.int8_float.split(",") if m.strip())
+    int8 = Int8Options(calib_images=args.calib_images, calib_frames=args.calib_frames, scope=args.int8_scope, keep_float=int8_float) if args.int8 else None
+    comparison = Comparison(frames=args.compare_frames, min_kept=args.min_kept, images=args.verify_images)
     result = export(args.ckpt, args.out, arch=args.arch, config=args.config, rig=args.rig, geometry=args.geometry,
                     verify_images=args.verify_images, frames=args.frames, force=args.force, allow_pickle=args.allow_pickle,
-                    int8=args.int8, calib_images=args.calib_images, calib_frames=args.calib_frames,
-                    int8_scope=args.int8_scope, int8_float=int8_float, fp16=args.fp16, compare_frames=args.compare_frames,
-                    min_kept=args.min_kept)
+                    int8=int8, fp16=args.fp16, comparison=comparison)
     print(result.summary())
     return 0

@@ -23,7 +23,7 @@ def run(args: argparse.Namespace) -> int:
         from fisheye_infer.models import make_checkpoint
     except ImportError as exc:
         return missing_extra(NEEDS_EXPORT, exc)
-    from fisheye_infer.rig import resolve_rig
+    from fisheye_infer.cameras.rig import resolve_rig
 
     make_checkpoint(args.arch, seed=args.seed, path=args.out, rig=resolve_rig(args.rig))
     print(f"wrote {args.out}: {args.arch} with seeded random weights (seed {args.seed}); its boxes mean nothing")

@@ -40,26 +40,26 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run_show(args: argparse.Namespace) -> int:
-    from fisheye_infer.rig import resolve_rig
+    from fisheye_infer.cameras.rig import resolve_rig
 
     print(resolve_rig(args.rig).describe())
     return 0
 
 
 def run_plot(args: argparse.Namespace) -> int:
-    from fisheye_infer.rig import resolve_rig
-    from fisheye_infer.viz import draw_rig, save_png
+    from fisheye_infer.cameras.rig import resolve_rig
+    from fisheye_infer.tools.viz import draw_rig, save_png
 
     print(f"wrote {save_png(args.out, draw_rig(resolve_rig(args.rig)))}")
     return 0
 
 
 def run_grid(args: argparse.Namespace) -> int:
-    from fisheye_infer.camera import OCamModel
+    from fisheye_infer.cameras.camera_models import OCamModel
+    from fisheye_infer.cameras.rig import resolve_rig
     from fisheye_infer.errors import RigError
     from fisheye_infer.geometry.grids import spherical_grid
-    from fisheye_infer.rig import resolve_rig
-    from fisheye_infer.viz import draw_sampling_grid, save_png
+    from fisheye_infer.tools.viz import draw_sampling_grid, save_png
 
     rig = resolve_rig(args.rig)
     camera = rig.camera(args.camera) if args.camera else rig.cameras[0]
@@ -72,7 +72,7 @@ def run_grid(args: argparse.Namespace) -> int:
 
 
 def run_convert(args: argparse.Namespace) -> int:
-    from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig
+    from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, Rig
 
     if args.extrinsics:
         rig = Rig.from_ocam_extrinsics(args.calib, args.extrinsics, fov=args.fov)

@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         return missing_extra(NEEDS_SERVE, exc)
     from pydantic import ValidationError
 
-    from fisheye_infer.detector import Detector
+    from fisheye_infer.runtime.detector import Detector
     from fisheye_infer.service.app import create_app
     from fisheye_infer.service.server import build_server
     from fisheye_infer.service.settings import ServiceSettings

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from fisheye_infer.commands.common import RIG_HELP, int_pair
 
 if TYPE_CHECKING:
-    from fisheye_infer.rig import Rig
+    from fisheye_infer.cameras.rig import Rig
 
 __all__ = ["configure", "run"]
 
@@ -39,8 +39,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Render synthetic frames of a rig into a Fisheye3DOD-layout folder."""
-    from fisheye_infer.rig import resolve_rig
-    from fisheye_infer.synth import resized_rig, synthesize
+    from fisheye_infer.cameras.rig import resolve_rig
+    from fisheye_infer.scenes.render import resized_rig, synthesize
 
     if args.frames < 1:
         print(f"fisheye-infer synth: error: --frames must be at least 1, got {args.frames}", file=sys.stderr)
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_stream(args: argparse.Namespace, rig: Rig) -> int:
     """``--stream``: frames of the training command's randomised stream, in the Fisheye3DOD layout."""
-    from fisheye_infer.synth_splits import SyntheticFrames, write_split
+    from fisheye_infer.scenes.streams import SyntheticFrames, write_split
 
     fixed = [f"--{name}" for name, given in (("objects", args.objects != (6, 14)), ("ground-height", args.ground_height != 2.0),
                                                ("scene", args.scene is not None)) if given]

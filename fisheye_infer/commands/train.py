@@ -47,13 +47,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         import torch
 
-        from fisheye_infer.models.training.loop import Trainer, TrainOptions
+        from fisheye_infer.models.training.loop import Trainer
+        from fisheye_infer.models.training.options import TrainOptions
     except ImportError as exc:
         return missing_extra(NEEDS_EXPORT, exc)
+    from fisheye_infer.cameras.rig import Rig
     from fisheye_infer.errors import ConfigError
     from fisheye_infer.models import BEVDetConfig
     from fisheye_infer.models.training.compact import compact_bevdet_config, compact_rig
-    from fisheye_infer.rig import Rig
 
     out = Path(args.out)
     if args.until is not None and args.until < 1:
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--rig needs --config (the compact configuration comes with its own rig)")
         config = BEVDetConfig.from_mmdet3d_config(args.config) if args.config else compact_bevdet_config()
         if args.rig:
-            from fisheye_infer.rig import resolve_rig
+            from fisheye_infer.cameras.rig import resolve_rig
 
             rig = resolve_rig(args.rig)
         elif args.config:

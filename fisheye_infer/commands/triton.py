@@ -36,8 +36,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fisheye_infer.deploy.triton.repository import TritonOptions, write_repository
     from fisheye_infer.errors import ConfigError
-    from fisheye_infer.triton.repository import TritonOptions, write_repository
 
     try:
         options = TritonOptions(
@@ -53,5 +53,5 @@ def run(args: argparse.Namespace) -> int:
     print("next: start Triton on the repository (see the README, 'Scale out'):")
     print(f"  docker run --rm -p 8000:8000 -v {Path(args.out).resolve()}:/models nvcr.io/nvidia/tritonserver:<yy.mm>-py3 "
           "tritonserver --model-repository=/models")
-    print(f"  python -c \"from fisheye_infer.triton import TritonDetector; print(TritonDetector('127.0.0.1:8000', '{target.name}').info)\"")
+    print(f"  python -c \"from fisheye_infer.deploy.triton import TritonDetector; print(TritonDetector('127.0.0.1:8000', '{target.name}').info)\"")
     return 0

@@ -6,14 +6,16 @@
     for frame in Fisheye3DOD("data/Fisheye3DODdataset", "val", limit=10):
         dets = detector.detect(frame.image_paths)   # frame.rig, frame.gt_boxes, frame.gt_records()
 
-``algo`` holds the vectorised metric functions (nuScenes names), ``metrics`` the config and
-report types, ``evaluate`` the orchestration, ``dataset`` the reader and ``writer`` its inverse,
-``synthetic`` boxes without images. The commands are ``fisheye_infer.commands.eval``/``synth``.
+``algo`` holds the vectorised metric functions (nuScenes names), ``eval_boxes`` the boxes as
+columns, ``metrics`` the config and report types, ``evaluate`` the orchestration, ``dataset`` the
+reader and ``writer`` its inverse, ``random_boxes`` ground truth and predictions without images,
+``top_match`` the share of a reference's top boxes a candidate finds again (how an int8 or fp16 file
+is judged against its fp32 file). The commands are ``fisheye_infer.commands.eval``/``synth``.
 """
 
 from fisheye_infer.eval.algo import accumulate, calc_ap, calc_tp, center_distance, scale_iou, yaw_diff
-from fisheye_infer.eval.boxes import EvalBoxes
 from fisheye_infer.eval.dataset import DatasetError, Fisheye3DOD, Frame
+from fisheye_infer.eval.eval_boxes import EvalBoxes
 from fisheye_infer.eval.evaluate import evaluate, evaluate_results, load_results, save_results
 from fisheye_infer.eval.metrics import EvalConfig, MetricData, MetricsReport
 

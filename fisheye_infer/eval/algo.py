@@ -27,7 +27,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from fisheye_infer.eval.boxes import EvalBoxes
+from fisheye_infer.eval.eval_boxes import EvalBoxes
 from fisheye_infer.eval.metrics import TP_METRICS, MetricData
 
 __all__ = [

@@ -34,11 +34,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from fisheye_infer.camera import OCamModel, Pinhole
-from fisheye_infer.carla import CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata
+from fisheye_infer.cameras.camera_models import OCamModel, Pinhole
+from fisheye_infer.cameras.carla_poses import CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata
+from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
 from fisheye_infer.errors import CameraModelError, DatasetError, RigError
-from fisheye_infer.records import CLASSES, boxes_to_records, gravity_to_bottom
-from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
+from fisheye_infer.runtime.records import CLASSES, boxes_to_records, gravity_to_bottom
 
 __all__ = ["DatasetError", "Fisheye3DOD", "Frame", "SplitEntry", "PINHOLE_CAMERAS", "PINHOLE_MODEL", "read_split", "read_labels", "camera_name",
            "IMAGESETS"]

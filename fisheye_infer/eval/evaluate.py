@@ -22,16 +22,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import FrameError
 from fisheye_infer.eval.algo import accumulate_thresholds, calc_ap, calc_tp
-from fisheye_infer.eval.boxes import EvalBoxes
+from fisheye_infer.eval.eval_boxes import EvalBoxes
 from fisheye_infer.eval.metrics import TP_METRICS, ClassMetrics, EvalConfig, MetricsReport, Summary
-from fisheye_infer.progress import Progress
-from fisheye_infer.rig import Rig
+from fisheye_infer.tools.progress import Progress
 
 if TYPE_CHECKING:
-    from fisheye_infer.detector import FrameDetector
     from fisheye_infer.eval.dataset import Fisheye3DOD
+    from fisheye_infer.runtime.detector import FrameDetector
 
 __all__ = ["evaluate", "evaluate_results", "summarise", "detect_dataset", "load_results", "save_results", "breakdown_label"]
 

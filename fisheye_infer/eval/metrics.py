@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, computed_field, model_validator
 
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.records import CLASSES
+from fisheye_infer.runtime.records import CLASSES
 
 __all__ = ["EvalConfig", "MetricData", "ClassMetrics", "Summary", "MetricsReport", "TP_METRICS", "REFERENCE_RANGE"]
 

@@ -24,11 +24,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fisheye_infer.camera import OCamModel
-from fisheye_infer.carla import CAM_TO_SENSOR, CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata, pose_matrix
+from fisheye_infer.cameras.camera_models import OCamModel
+from fisheye_infer.cameras.carla_poses import CAM_TO_SENSOR, CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata, pose_matrix
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.eval.dataset import IMAGESETS, PINHOLE_CAMERAS, PINHOLE_MODEL, DatasetError
-from fisheye_infer.records import CLASSES, bottom_to_gravity
-from fisheye_infer.rig import Rig
+from fisheye_infer.runtime.records import CLASSES, bottom_to_gravity
 
 __all__ = ["Fisheye3DODWriter", "pose_from_matrix", "camera_poses", "format_record", "update_split"]
 

@@ -12,12 +12,12 @@ from typing import Literal
 
 import numpy as np
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import cylindrical_frustum, frustum_to_lidar, linspace_depth_bins
 from fisheye_infer.geometry.grids import cylindrical_image_grid
 from fisheye_infer.geometry.lss import LSSParams
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import RECTIFY, CylParams, pool_tables, sampling_tables
-from fisheye_infer.rig import Rig
 
 __all__ = ["CylLSSParams", "CylLSSGeometry", "cyl_image_grid"]
 

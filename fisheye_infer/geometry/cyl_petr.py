@@ -15,12 +15,12 @@ from typing import Literal
 
 import numpy as np
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.cyl_lss import cyl_image_grid
 from fisheye_infer.geometry.grids import cylindrical_directions
 from fisheye_infer.geometry.petr import PETRParams, check_tables, key_coords, key_position_embedding
 from fisheye_infer.geometry.tables import RECTIFY, CylParams, key_tables, sampling_tables
-from fisheye_infer.rig import Rig
 
 __all__ = ["CylPETRParams", "CylPETRGeometry", "cyl_petr_directions"]
 

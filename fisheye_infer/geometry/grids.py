@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fisheye_infer.camera import OCamModel
+from fisheye_infer.cameras.camera_models import OCamModel
 from fisheye_infer.errors import ConfigError
 
 __all__ = [

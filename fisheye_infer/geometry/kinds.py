@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.cyl_lss import CylLSSGeometry, CylLSSParams
 from fisheye_infer.geometry.cyl_petr import CylPETRGeometry, CylPETRParams
@@ -18,7 +19,6 @@ from fisheye_infer.geometry.lss import LSSGeometry, LSSParams
 from fisheye_infer.geometry.petr import PETRGeometry, PETRParams
 from fisheye_infer.geometry.pinhole_lss import PinholeLSSGeometry, PinholeLSSParams
 from fisheye_infer.geometry.pinhole_petr import PinholePETRGeometry, PinholePETRParams
-from fisheye_infer.rig import Rig
 
 __all__ = ["GeometryParams", "Geometry", "GEOMETRY_KINDS", "geometry_from_rig", "tables_for"]
 

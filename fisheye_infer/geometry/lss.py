@@ -13,11 +13,11 @@ from typing import Literal
 
 import numpy as np
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import depth_bins, frustum_to_lidar, spherical_frustum
 from fisheye_infer.geometry.grids import invalid_mask, spherical_grid
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, WARP, Params, pool_tables, sampling_tables
-from fisheye_infer.rig import Rig
 
 __all__ = ["LSSParams", "LSSGeometry"]
 

@@ -18,10 +18,10 @@ from typing import Literal, Protocol
 
 import numpy as np
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.grids import DEFAULT_AZIMUTH_RANGE, DEFAULT_ELEVATION_RANGE, invalid_mask, spherical_directions, spherical_grid
 from fisheye_infer.geometry.tables import WARP, Params, key_tables, sampling_tables
-from fisheye_infer.rig import Rig
 
 __all__ = ["DEFAULT_POSITION_RANGE", "PETRParams", "PETRGeometry", "lid_depths", "inverse_sigmoid", "position_coords",
            "sine_frequencies", "sine_position_encoding", "KeyParams", "EmbeddingParams", "key_coords", "key_position_embedding",

@@ -20,11 +20,11 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import depth_bins
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, pool_tables
 from fisheye_infer.geometry.views import Perspective, Views, ViewSource, front_end_tables, perspective_image_grid, views_of
-from fisheye_infer.rig import Rig
 
 __all__ = ["PinholeLSSParams", "PinholeLSSGeometry", "image_frustum", "view_points"]
 

@@ -18,11 +18,11 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.petr import check_tables, inverse_sigmoid, key_position_embedding, lid_depths
 from fisheye_infer.geometry.tables import key_tables
 from fisheye_infer.geometry.views import Perspective, Views, ViewSource, front_end_tables, perspective_image_grid, views_of
-from fisheye_infer.rig import Rig
 
 __all__ = ["PinholePETRParams", "PinholePETRGeometry", "view_coords"]
 

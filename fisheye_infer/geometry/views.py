@@ -24,12 +24,12 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from fisheye_infer.camera import Pinhole
+from fisheye_infer.cameras.camera_models import Pinhole
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.grids import remap_grid
 from fisheye_infer.geometry.resize import pil_bicubic_taps
 from fisheye_infer.geometry.tables import RECTIFY, RESIZE_X, RESIZE_Y, resize_tables, sampling_tables
-from fisheye_infer.rig import Rig
 
 __all__ = ["ResizeCrop", "Perspective", "ViewSource", "Views", "views_of", "pinhole_views", "perspective_views", "yaw_rotation",
            "perspective_intrinsics", "perspective_maps", "perspective_image_grid", "front_end_tables"]

@@ -5,9 +5,11 @@
     losses.py    the official heatmap, classification and box losses
     depth.py     depth targets from the renderer and BEVDepth's depth loss (synthetic frames only)
     compact.py   the compact configuration and its mmdet3d-style config file
-    loop.py      optimiser, schedule, checkpoints, --resume, progress and log
+    options.py   the run's options, the learning-rate schedule and the training device
+    batches.py   what each step trains on (seeded frames and depth targets), rendered ahead
+    loop.py      optimiser, checkpoints, --resume, progress and log
 
-The frames come from ``fisheye_infer.synth_splits`` (seeded, randomised and torch-free, so a
+The frames come from ``fisheye_infer.scenes.streams`` (seeded, randomised and torch-free, so a
 held-out set is written and evaluated without torch). ``fisheye-infer train`` is
 ``fisheye_infer.commands.train`` (torch-free until it runs).
 """

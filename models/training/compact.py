@@ -18,8 +18,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from fisheye_infer.rig import Rig, default_rig
-from fisheye_infer.synth import resized_rig
+from fisheye_infer.cameras.rig import Rig, default_rig
+from fisheye_infer.scenes.render import resized_rig
 
 __all__ = ["COMPACT_SCALE", "COMPACT_SECTIONS", "compact_bevdet_config", "compact_rig", "mmdet3d_config_source", "write_config"]
 

@@ -20,7 +20,10 @@ import numpy as np
 import torch
 
 from fisheye_infer.geometry.grids import spherical_directions
-from fisheye_infer.synth import Renderer, Scene
+from fisheye_infer.geometry.lss import LSSGeometry
+from fisheye_infer.scenes.render import Renderer, Scene
+
+from ..bevdet_config import ViewTransformConfig
 
 __all__ = ["DepthTargets", "depth_loss"]
 
@@ -32,19 +35,19 @@ class DepthTargets:
         bins = targets(sample.scene)        # -1 where there is no target
     """
 
-    def __init__(self, geometry: object, vt: object, samples: int = 4) -> None:
-        h, w = (int(v) for v in vt.feature_size)  # type: ignore[attr-defined]
+    def __init__(self, geometry: LSSGeometry, vt: ViewTransformConfig, samples: int = 4) -> None:
+        h, w = (int(v) for v in vt.feature_size)
         k = int(samples)
-        fine = spherical_directions((h * k, w * k), tuple(vt.azimuth_range), tuple(vt.elevation_range))  # type: ignore[attr-defined]
+        fine = spherical_directions((h * k, w * k), vt.azimuth_range, vt.elevation_range)
         # fine rays grouped by the coarse cell they fall in: (H*W, k*k, 3) -> 3 x (H*W*k*k)
         self.fine = fine.reshape(h, k, w, k, 3).transpose(0, 2, 1, 3, 4).reshape(-1, 3).T
-        frustum = np.asarray(geometry.frustum, np.float64)  # type: ignore[attr-defined]  # D x H x W x 3, radial depth
+        frustum = np.asarray(geometry.frustum, np.float64)  # D x H x W x 3, radial depth
         centre = frustum[0] / np.linalg.norm(frustum[0], axis=-1, keepdims=True)
         self.centre = centre.reshape(-1, 3).T  # 3 x HW
         self.shape, self.k2 = (h, w), k * k
-        self.cam2lidar = np.asarray(geometry.cam2lidar, np.float64)  # type: ignore[attr-defined]
-        self.inside = np.asarray(geometry.valid_fov_mask, np.float32).reshape(-1) > 0.5  # type: ignore[attr-defined]
-        start, _, step = (float(v) for v in vt.dbound)  # type: ignore[attr-defined]
+        self.cam2lidar = np.asarray(geometry.cam2lidar, np.float64)
+        self.inside = np.asarray(geometry.valid_fov_mask, np.float32).reshape(-1) > 0.5
+        start, _, step = (float(v) for v in vt.dbound)
         self.start, self.step, self.num_bins = start, step, frustum.shape[0]
         self.renderer = Renderer()
 

@@ -11,7 +11,8 @@ alone), which stands in for what the pretrained backbone would bring.
 
 Step ``s`` trains on frames ``s*B .. s*B+B-1`` of the training split and the learning rate is a
 function of the step, so a run is a pure function of its options: resuming from a checkpoint
-continues with exactly the frames and rates the uninterrupted run would have used.
+continues with exactly the frames and rates the uninterrupted run would have used (the options and the
+schedule are ``options.py``'s, the step batches ``batches.py``'s).
 
 A run folder holds::
 
@@ -26,11 +27,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,17 +36,23 @@ import numpy as np
 import torch
 from torch import nn
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import CheckpointError, ConfigError
-from fisheye_infer.rig import Rig
-from fisheye_infer.synth_splits import Sample, SyntheticFrames
+from fisheye_infer.geometry.lss import LSSGeometry
+from fisheye_infer.scenes.streams import SyntheticFrames
+from fisheye_infer.tools.files import pending_file
 
+from ..fisheye_bevdet import FisheyeBEVDet
+from ..view_transform import FisheyeLSS
+from .batches import Batch, StepBatches, collate, step_loader
 from .compact import write_config
 from .depth import DepthTargets, depth_loss
 from .losses import LossConfig, TransFusionLoss
+from .options import TrainOptions, lr_factor, training_device
 from .qat import FakeQuant
 from .targets import HeadGrid
 
-__all__ = ["TrainOptions", "Trainer", "StepBatches", "collate", "training_device", "init_for_training", "lr_factor", "HEATMAP_PRIOR"]
+__all__ = ["Trainer", "init_for_training", "HEATMAP_PRIOR"]
 
 ARCH = "fisheye-bevdet"
 #: Initial bias of both heatmap classifiers (the official init: sigmoid(-2.19) = 0.1).
@@ -56,57 +60,13 @@ HEATMAP_PRIOR = -2.19
 TERMS = ("loss", "loss_heatmap", "loss_cls", "loss_bbox", "loss_depth", "matched_iou")
 
 
-def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
-    """Samples -> images B x N x H x W x 3 uint8, and per-frame boxes and labels."""
-    return (np.stack([s.images for s in samples]), [s.boxes for s in samples], [s.labels for s in samples])
-
-
-#: One step's frames and their depth targets (B*N x H x W bins).
-Batch = tuple[list[Sample], np.ndarray]
-
-
-class StepBatches(torch.utils.data.Dataset[Batch]):
-    """Step ``s`` -> frames ``s*B .. s*B+B-1`` of ``frames`` with their depth targets: what one step
-    trains on, rendered where it is asked for (in the loop, or ahead in ``DataLoader`` workers)."""
-
-    def __init__(self, frames: SyntheticFrames, depth_targets: DepthTargets, batch_size: int) -> None:
-        self.frames, self.depth_targets, self.batch_size = frames, depth_targets, batch_size
-
-    def __getitem__(self, step: int) -> Batch:
-        samples = [self.frames[step * self.batch_size + i] for i in range(self.batch_size)]
-        return samples, np.concatenate([self.depth_targets(s.scene) for s in samples])
-
-
-def training_device(name: str) -> torch.device:
-    """``name`` as a torch device this machine has; a ``ConfigError`` that says what is wrong otherwise."""
-    try:
-        device = torch.device(name)
-    except RuntimeError as exc:
-        raise ConfigError(f"--device {name!r}: not a torch device ({exc})") from None
-    if device.type == "cuda" and (not torch.cuda.is_available() or (device.index or 0) >= torch.cuda.device_count()):
-        raise ConfigError(f"--device {name}: no such CUDA device here (torch {torch.__version__} sees {torch.cuda.device_count()} GPU(s))")
-    if device.type not in ("cpu", "cuda"):
-        raise ConfigError(f"--device {name}: expected cpu or cuda[:N]")
-    return device
-
-
-def _as_is(batch: Batch) -> Batch:
-    return batch
-
-
-def _one_thread_worker(_: int) -> None:
-    import cv2
-
-    cv2.setNumThreads(1)  # each worker renders one step; many workers, not many threads each
-
-
 class _DepthProbe:
     """Keeps the depth head's latest output (a forward hook), so the depth loss reads what the forward computed."""
 
-    def __init__(self, view_transform: nn.Module) -> None:
-        self.num_depth = int(view_transform.num_depth)  # type: ignore[arg-type]
+    def __init__(self, view_transform: FisheyeLSS) -> None:
+        self.num_depth = view_transform.num_depth
         self.logits: torch.Tensor | None = None
-        view_transform.depthnet.register_forward_hook(self._keep)  # type: ignore[union-attr]
+        view_transform.depthnet.register_forward_hook(self._keep)
 
     def _keep(self, module: nn.Module, inputs: Any, output: torch.Tensor) -> None:
         self.logits = output
@@ -118,73 +78,30 @@ class _DepthProbe:
         return torch.softmax(self.logits[:, : self.num_depth], dim=1)
 
 
-@dataclass(frozen=True)
-class TrainOptions:
-    """What a run is made of; all of it is stored in the checkpoint and, but ``steps`` and ``init``,
-    must match on ``--resume``.
-
-    ``steps`` may change on resume, down to the step reached (a run can be continued further, or
-    ended sooner; the cosine then stretches or shrinks to the new end from the step it resumes at);
-    ``init`` is the run's own. ``depth_weight`` weighs the
-    depth loss against the synthetic frames' true ray depths (``depth.py``; 0 trains with the
-    official losses alone). ``init`` starts from the weights of a checkpoint (one ``model.pth`` of
-    a run, with this configuration and rig) instead of the seeded initialiser: a fine-tuning run,
-    with its own optimiser, warm-up and schedule. ``qat`` is the share of steps whose forward
-    rounds as the int8 file will (``qat.FakeQuant``; which steps is seeded): 0 trains the float
-    model alone, 1 the int8 simulation alone, between the two both (the shipped model's model card
-    says what 0.5 changed).
-    """
-
-    steps: int = 8000
-    batch_size: int = 2
-    lr: float = 2e-4
-    weight_decay: float = 0.01
-    grad_clip: float = 35.0
-    warmup_steps: int = 500
-    seed: int = 0
-    checkpoint_every: int = 100
-    val_frames: int = 4
-    depth_weight: float = 3.0
-    init: str = ""
-    qat: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("steps", "batch_size", "checkpoint_every"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"--{name.replace('_', '-')}: expected at least 1, got {getattr(self, name)}")
-        if not self.lr > 0:
-            raise ConfigError(f"--lr: expected a positive learning rate, got {self.lr}")
-        if not self.depth_weight >= 0:
-            raise ConfigError(f"--depth-weight: expected 0 or more, got {self.depth_weight}")
-        if not 0 <= self.qat <= 1:
-            raise ConfigError(f"--qat: expected a share of steps in [0, 1], got {self.qat}")
-        if self.val_frames < 0 or self.warmup_steps < 0:
-            raise ConfigError(f"--val-frames / warm-up steps: expected 0 or more, got {self.val_frames} / {self.warmup_steps}")
-
-
-def lr_factor(step: int, total: int, warmup: int, start: float = 1 / 3, floor: float = 2e-4) -> float:
-    """Learning-rate multiplier at ``step`` (0-based): linear warm-up from ``start``, times a cosine from 1 to ``floor``."""
-    warm = start + (1 - start) * min(step, warmup) / warmup if warmup else 1.0
-    progress = min(step / max(total, 1), 1.0)
-    return warm * (floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress)))
-
-
-def init_for_training(model: nn.Module, seed: int) -> None:
+def init_for_training(model: FisheyeBEVDet, seed: int) -> None:
     """Seeded fan-in weights (the synthetic-checkpoint initialiser) and the official heatmap prior bias."""
-    from fisheye_infer.models.synthetic import init_weights
+    from fisheye_infer.models.seeded_checkpoint import init_weights
 
     init_weights(model, seed)
-    head = model.bbox_head  # type: ignore[attr-defined]
+    head = model.bbox_head
     with torch.no_grad():
-        head.heatmap_head[-1].bias.fill_(HEATMAP_PRIOR)
-        for pred in head.prediction_heads:
-            pred.heatmap[-1].bias.fill_(HEATMAP_PRIOR)
+        for branch in (head.heatmap_head, *(pred.get_submodule("heatmap") for pred in head.prediction_heads)):
+            _classifier_bias(branch).fill_(HEATMAP_PRIOR)
+
+
+def _classifier_bias(branch: nn.Module) -> torch.Tensor:
+    """The bias of a heatmap branch's last convolution (the classifier): where the prior goes."""
+    last = list(branch.children())[-1]
+    if not isinstance(last, (nn.Conv1d, nn.Conv2d)) or last.bias is None:
+        raise TypeError(f"a heatmap branch ends in {type(last).__name__}, not a convolution with a bias")
+    return last.bias
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    """A checkpoint appears whole or not at all: a run killed mid-save leaves the previous one."""
+    with pending_file(path) as pending:
+        torch.save(obj, pending.path)
+        pending.commit()
 
 
 class Trainer:
@@ -193,7 +110,7 @@ class Trainer:
         Trainer(compact_bevdet_config(), compact_rig(), "runs/compact", TrainOptions()).run()
     """
 
-    def __init__(self, config: Any, rig: Rig, out: str | Path, options: TrainOptions = TrainOptions(),
+    def __init__(self, config: Any, rig: Rig, out: str | Path, options: TrainOptions = TrainOptions(),  # noqa: B008
                  loss: LossConfig = LossConfig(), device: str = "cpu", workers: int = 0) -> None:  # noqa: B008 (frozen dataclasses)
         """``device``: where the model trains (``cpu``, ``cuda``, ``cuda:1``); ``workers``: processes
         that render the next steps' frames while this one trains (0: rendered in the loop). Neither
@@ -206,7 +123,9 @@ class Trainer:
         self.device, self.workers = training_device(device), workers
         rig.require(rig.names, (config.image.width, config.image.height))
         torch.manual_seed(options.seed)
-        self.model = create_model(ARCH, config, rig)
+        model = create_model(ARCH, config, rig)
+        assert isinstance(model, FisheyeBEVDet)  # ARCH's class
+        self.model = model
         init_for_training(self.model, options.seed)
         grid = HeadGrid.from_head(config.head)
         bev_range = (*grid.pc_range, grid.pc_range[0] + grid.span[0], grid.pc_range[1] + grid.span[1])
@@ -214,6 +133,7 @@ class Trainer:
         self.val_frames = SyntheticFrames(rig, "val", options.seed, bev_range=bev_range)
         self.loss = TransFusionLoss(self.model.bbox_head, grid, loss)
         vt = self.model.view_transform
+        assert isinstance(vt.geometry, LSSGeometry)  # ARCH's fisheye lift
         depth_targets = DepthTargets(vt.geometry, config.view_transform)
         self.train_batches = StepBatches(self.train_frames, depth_targets, options.batch_size)
         self.val_batches = StepBatches(self.val_frames, depth_targets, 1)
@@ -372,10 +292,7 @@ class Trainer:
 
     def _batches(self, stop: int) -> torch.utils.data.DataLoader[Batch]:
         """The frames of steps ``self.step`` .. ``stop - 1``, in order, rendered ahead by ``workers`` processes."""
-        workers = self.workers if stop > self.step else 0  # nothing left to render: no processes to start
-        ahead = {"multiprocessing_context": "spawn", "prefetch_factor": 4, "worker_init_fn": _one_thread_worker} if workers else {}
-        return torch.utils.data.DataLoader(self.train_batches, batch_size=None, sampler=range(self.step, stop),
-                                           num_workers=workers, collate_fn=_as_is, **ahead)  # type: ignore[arg-type]
+        return step_loader(self.train_batches, self.step, stop, self.workers)
 
 
 class ProgressBar:
@@ -386,7 +303,8 @@ class ProgressBar:
     def __init__(self, total: int, done: int, write: Callable[[str], None] | None) -> None:
         import sys
 
-        self.total, self.done, self.mean = total, done, {}  # type: ignore[var-annotated]
+        self.total, self.done = total, done
+        self.mean: dict[str, float] = {}
         self.write = write or (lambda text: (sys.stderr.write(text), sys.stderr.flush()))
         self.seconds: float | None = None
 

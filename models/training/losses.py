@@ -19,6 +19,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..transfusion import TransFusionHead
 from .assign import AssignerConfig, hungarian_assign
 from .targets import CODE_SIZE, HeadGrid, encode_boxes, heatmap_target
 
@@ -69,16 +70,16 @@ class TransFusionLoss:
         terms = loss(model.forward_raw(images), gt_boxes, gt_labels)   # terms["loss"].backward()
     """
 
-    def __init__(self, head: torch.nn.Module, grid: HeadGrid, config: LossConfig = LossConfig()) -> None:
+    def __init__(self, head: TransFusionHead, grid: HeadGrid, config: LossConfig = LossConfig()) -> None:
         self.head, self.grid, self.config = head, grid, config
-        self.num_classes = int(head.num_classes)  # type: ignore[arg-type]
+        self.num_classes = head.num_classes
 
     def targets(self, raw: Mapping[str, torch.Tensor], gt_boxes: Sequence[np.ndarray],
                 gt_labels: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
         """Heatmap (B x K x X x Y), class labels (B x P, K = none), box codes and weights (B x P x 8), match IoUs."""
         cfg, k = self.config, self.num_classes
         with torch.no_grad():
-            decoded = self.head.decode({n: raw[n].detach() for n in ("center", "height", "dim", "rot", "heatmap")},  # type: ignore[operator]
+            decoded = self.head.decode({n: raw[n].detach() for n in ("center", "height", "dim", "rot", "heatmap")},
                                        raw["peak"].detach(), raw["query_labels"])
         boxes = decoded["boxes"].cpu().numpy()
         logits = raw["heatmap"].detach().transpose(1, 2).cpu().numpy()  # B x P x K

@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from fisheye_infer.artifact import CALIBRATION_PERCENTILE, WEIGHT_BITS, WEIGHT_QMAX, under_module
+from fisheye_infer.precision import CALIBRATION_PERCENTILE, WEIGHT_BITS, WEIGHT_QMAX, under_module
 
 __all__ = ["FakeQuant", "fake_quant_weight", "fake_quant_activation", "percentile_range"]
 
@@ -97,6 +97,8 @@ def _linear(m: nn.Linear, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return F.linear(x, w, m.bias)
 
 
+#: The layers simulated (exactly these types: a subclass may compute something else).
+_Weighted = nn.Conv2d | nn.ConvTranspose2d | nn.Linear
 #: Layer type -> (its forward with a given weight, the weight's output-channel axis).
 _FORWARDS: dict[type[nn.Module], tuple[Callable[..., torch.Tensor], int]] = {
     nn.Conv2d: (_conv, 0),
@@ -117,15 +119,17 @@ class FakeQuant:
         for prefix in keep_float:
             if not any(under_module(name, prefix) for name in names):
                 raise ValueError(f"FakeQuant: keep float {prefix!r}: no module of the model has that name")
-        self.layers = {name: m for name, m in model.named_modules()
-                       if type(m) in _FORWARDS and not any(under_module(name, p) for p in keep_float)}
+        self.layers: dict[str, _Weighted] = {
+            name: m for name, m in model.named_modules()
+            if isinstance(m, _Weighted) and type(m) in _FORWARDS and not any(under_module(name, p) for p in keep_float)}
         if not self.layers:
             raise ValueError("FakeQuant: no Conv2d, ConvTranspose2d or Linear layer outside the float modules")
         self.ranges: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         for name, m in self.layers.items():
-            m.forward = self._forward_of(name, m)  # type: ignore[method-assign]
+            # an instance attribute over the class's forward, deleted again by remove()
+            m.forward = self._forward_of(name, m)  # type: ignore[method-assign, assignment]
 
-    def _forward_of(self, name: str, m: nn.Module) -> Callable[[torch.Tensor], torch.Tensor]:
+    def _forward_of(self, name: str, m: _Weighted) -> Callable[[torch.Tensor], torch.Tensor]:
         plain, axis = _FORWARDS[type(m)]
         per_position = isinstance(m, nn.ConvTranspose2d) and _rewritten_as_depth_to_space(m)
 

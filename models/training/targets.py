@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..bevdet_config import HeadConfig
+
 __all__ = ["HeadGrid", "gaussian_radius", "gaussian_2d", "draw_gaussian", "heatmap_target", "encode_boxes", "CODE_SIZE"]
 
 CODE_SIZE = 8
@@ -30,12 +32,12 @@ class HeadGrid:
     pc_range: tuple[float, float]
 
     @classmethod
-    def from_head(cls, head: object) -> HeadGrid:
+    def from_head(cls, head: HeadConfig) -> HeadGrid:
         """From a ``HeadConfig``: a cell is out_size_factor x voxel_size metres."""
-        osf = float(head.out_size_factor)  # type: ignore[attr-defined]
-        vx, vy = head.voxel_size  # type: ignore[attr-defined]
-        x0, y0 = head.pc_range  # type: ignore[attr-defined]
-        return cls(tuple(head.bev_size), (osf * vx, osf * vy), (float(x0), float(y0)))  # type: ignore[attr-defined]
+        osf = float(head.out_size_factor)
+        vx, vy = head.voxel_size
+        x0, y0 = head.pc_range
+        return cls(head.bev_size, (osf * vx, osf * vy), (float(x0), float(y0)))
 
     @property
     def span(self) -> tuple[float, float]:

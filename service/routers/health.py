@@ -10,7 +10,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse, Response
 
-from fisheye_infer.codec import MAX_JPEG_SCANS
+from fisheye_infer.runtime.codec import MAX_JPEG_SCANS
 from fisheye_infer.service.deps import ApiKeyDep, DetectorDep, ServiceDep, check_api_key
 from fisheye_infer.service.metrics import CONTENT_TYPE
 from fisheye_infer.service.protocol import VERSION

@@ -35,11 +35,11 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse, Response
 
 from fisheye_infer._version import __version__
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS
+from fisheye_infer.deploy.triton.repository import KSERVE_DTYPES, TritonOptions, model_config, model_name
+from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS
 from fisheye_infer.service.deps import DetectorDep, ServiceDep, require_api_key
 from fisheye_infer.service.errors import BadRequest, InferenceTimeout, RequestInvalid, RequestTimeout, ServiceError, Unavailable
 from fisheye_infer.service.state import Service
-from fisheye_infer.triton.repository import KSERVE_DTYPES, TritonOptions, model_config, model_name
 
 __all__ = ["router", "ModelNotFound", "HEADER_LENGTH"]
 
@@ -61,7 +61,7 @@ class ModelNotFound(ServiceError):
 
 async def _config(request: Request, service: Service) -> dict[str, Any]:
     """The model's Triton configuration, read from the model file once per app (in a thread)."""
-    cached = getattr(request.app.state, "kserve_config", None)
+    cached: dict[str, Any] | None = getattr(request.app.state, "kserve_config", None)
     if cached is None:
         s = service.settings
         options = TritonOptions(max_batch_size=_max_batch(service), instances=s.workers, kind="cpu")

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fisheye_infer.batch import BatchOptions, dataset_frames, detect_frames
+from fisheye_infer.cameras.rig import default_rig
 from fisheye_infer.cli import main
-from fisheye_infer.detector import Detector
+from fisheye_infer.deploy.ray_batch import BatchOptions, dataset_frames, detect_frames
 from fisheye_infer.eval.dataset import Fisheye3DOD
 from fisheye_infer.eval.evaluate import load_results, save_results
-from fisheye_infer.rig import default_rig
-from fisheye_infer.synth import resized_rig, synthesize
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.scenes.render import resized_rig, synthesize
 
 
 @pytest.fixture(scope="module")

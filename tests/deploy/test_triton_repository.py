@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from fisheye_infer.artifact import METADATA_KEY, read_meta
 from fisheye_infer.cli import main
+from fisheye_infer.deploy.triton.repository import TritonOptions, model_config, model_name, render_pbtxt, write_repository
 from fisheye_infer.errors import ArtifactError, ExportError
-from fisheye_infer.triton.repository import TritonOptions, model_config, model_name, render_pbtxt, write_repository
+from fisheye_infer.runtime.artifact import METADATA_KEY, read_meta
 
 pytest.importorskip("tritonclient.grpc", reason="the [triton] extra ships Triton's ModelConfig protobuf")
 from google.protobuf import json_format, text_format  # noqa: E402

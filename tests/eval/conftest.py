@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from eval_cases import SynthSet
 
-from fisheye_infer.rig import Rig, default_rig
-from fisheye_infer.synth import resized_rig, synthesize
+from fisheye_infer.cameras.rig import Rig, default_rig
+from fisheye_infer.scenes.render import resized_rig, synthesize
 
 
 @pytest.fixture(scope="session")

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from fisheye_infer.records import CLASSES, boxes_to_records
-from fisheye_infer.rig import Rig
-from fisheye_infer.synth import SynthFrame
+from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.runtime.records import CLASSES, boxes_to_records
+from fisheye_infer.scenes.render import SynthFrame
 
 SIZES = {"Car": (4.0, 2.0, 1.5), "Van": (5.0, 2.0, 2.0), "Truck": (8.0, 2.5, 3.0), "Bus": (11.0, 3.0, 3.3), "Pedestrian": (0.7, 0.7, 1.8), "Cyclist": (1.8, 0.7, 1.7)}
 

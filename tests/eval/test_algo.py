@@ -10,9 +10,9 @@ import pytest
 from eval_cases import record
 
 from fisheye_infer.eval.algo import accumulate, angle_diff, calc_ap, calc_tp, center_distance, cummean, match, match_reference, scale_iou, yaw_diff
-from fisheye_infer.eval.boxes import EvalBoxes
+from fisheye_infer.eval.eval_boxes import EvalBoxes
 from fisheye_infer.eval.metrics import MetricData
-from fisheye_infer.eval.synthetic import synthetic_boxes
+from fisheye_infer.eval.random_boxes import synthetic_boxes
 
 
 @pytest.mark.parametrize(

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from eval_cases import SynthSet
 
-from fisheye_infer.camera import Pinhole
-from fisheye_infer.carla import parse_sensor_metadata
+from fisheye_infer.cameras.camera_models import Pinhole
+from fisheye_infer.cameras.carla_poses import parse_sensor_metadata
+from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, Rig
 from fisheye_infer.errors import FisheyeInferError
 from fisheye_infer.eval.dataset import PINHOLE_CAMERAS, DatasetError, Fisheye3DOD
 from fisheye_infer.eval.writer import camera_poses, format_record
-from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig
 
 
 def test_frames_come_in_split_order_with_tokens(synth_set: SynthSet) -> None:

@@ -76,8 +76,8 @@ def test_eval_refuses_a_markdown_out_path(tmp_path: Path, capsys: pytest.Capture
 def test_eval_runs_an_exported_model_over_synthetic_data(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The whole loop: a real ONNX model in ONNX Runtime over Fisheye3DOD-layout frames rendered for its
     rig, scored with FDS; then with two cameras only (degraded mode)."""
-    from fisheye_infer.artifact import read_meta
-    from fisheye_infer.synth import synthesize
+    from fisheye_infer.runtime.artifact import read_meta
+    from fisheye_infer.scenes.render import synthesize
 
     rig = read_meta(small_export.onnx).rig
     synthesize(rig, tmp_path / "data", frames=2, seed=4)
@@ -140,10 +140,10 @@ def test_synth_stream_writes_the_training_commands_validation_frames(tmp_path: P
     import cv2
     import numpy as np
 
-    from fisheye_infer.records import records_to_arrays
-    from fisheye_infer.rig import default_rig
-    from fisheye_infer.synth import resized_rig
-    from fisheye_infer.synth_splits import SyntheticFrames
+    from fisheye_infer.cameras.rig import default_rig
+    from fisheye_infer.runtime.records import records_to_arrays
+    from fisheye_infer.scenes.render import resized_rig
+    from fisheye_infer.scenes.streams import SyntheticFrames
 
     rig = resized_rig(default_rig(), 0.1)
     rig.save(tmp_path / "rig.json")

@@ -9,10 +9,10 @@ import pytest
 from eval_cases import one_of_each, record
 
 from fisheye_infer.errors import ConfigError, FrameError
-from fisheye_infer.eval.boxes import EvalBoxes
+from fisheye_infer.eval.eval_boxes import EvalBoxes
 from fisheye_infer.eval.evaluate import evaluate, evaluate_results
 from fisheye_infer.eval.metrics import EvalConfig, MetricsReport
-from fisheye_infer.records import CLASSES, boxes_to_records
+from fisheye_infer.runtime.records import CLASSES, boxes_to_records
 
 
 def test_toy_example_of_the_specification() -> None:

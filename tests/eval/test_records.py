@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fisheye_infer.errors import FrameError
-from fisheye_infer.records import (
+from fisheye_infer.runtime.records import (
     CLASSES,
     GT_SCORE,
     bottom_to_gravity,

@@ -13,15 +13,15 @@ from onnx import numpy_helper
 
 torch = pytest.importorskip("torch")
 
-from fisheye_infer.artifact import METADATA_KEY, OUTPUTS, read_meta
+from fisheye_infer.cameras.rig import Rig, default_rig
 from fisheye_infer.errors import ArtifactError, CheckpointError, ExportError, ParityError
 from fisheye_infer.export import exporter as exporter_module
 from fisheye_infer.export.exporter import export, infer_architecture, verification_frames
 from fisheye_infer.export.graph import get_metadata
 from fisheye_infer.export.verify import FLOOR_BOX_M, FLOOR_SCORE, PROBE, SLACK, Reference, checked_graph, compare_run, run_onnx, verify
 from fisheye_infer.models import load_model
-from fisheye_infer.rig import Rig, default_rig
-from fisheye_infer.synth import resized_rig
+from fisheye_infer.runtime.artifact import METADATA_KEY, OUTPUTS, read_meta
+from fisheye_infer.scenes.render import resized_rig
 
 
 def test_one_self_contained_file_with_standard_ops(exported) -> None:
@@ -64,7 +64,7 @@ def test_normalisation_division_is_in_the_first_convolution(exported) -> None:
 
 def test_metadata_describes_the_model(exported, rig: Rig) -> None:
     meta = read_meta(exported.onnx)
-    assert meta.architecture == exported.arch and meta.schema_version == 1
+    assert meta.architecture == exported.arch and meta.schema_version == 2
     assert meta.cameras == tuple(rig.names) and meta.rig_hash == rig.hash and meta.rig == rig
     assert meta.image_size == (800, 800) and meta.colour_order == "BGR"
     assert meta.normalisation.mean == (123.675, 116.28, 103.53)
@@ -271,7 +271,7 @@ def test_metadata_is_required_and_checked(bevdet_export, tmp_path: Path) -> None
     with pytest.raises(ArtifactError, match="no 'fisheye_infer' metadata"):
         read_meta(bare)
     model = onnx.load(str(bevdet_export.onnx))
-    doc = get_metadata(model)[METADATA_KEY].replace('"schema_version":1', '"schema_version":7')
+    doc = get_metadata(model)[METADATA_KEY].replace('"schema_version":2', '"schema_version":7')
     for p in model.metadata_props:
         if p.key == METADATA_KEY:
             p.value = doc

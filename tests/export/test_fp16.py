@@ -13,12 +13,13 @@ from onnx import TensorProto, helper, numpy_helper
 
 pytest.importorskip("torch")
 
-from fisheye_infer.artifact import read_meta
 from fisheye_infer.commands import export as export_command
 from fisheye_infer.errors import ExportError
 from fisheye_infer.export.exporter import Fp16Result, export, export_fp16, export_int8, fp16_path_for, verification_frames
 from fisheye_infer.export.fp16 import to_float16
 from fisheye_infer.export.fp16_parity import evaluated_with, fp16_parity
+from fisheye_infer.export.options import Comparison, Int8Options
+from fisheye_infer.runtime.artifact import read_meta
 
 F, H, I64 = TensorProto.FLOAT, TensorProto.FLOAT16, TensorProto.INT64
 
@@ -70,7 +71,7 @@ def test_to_float16_never_modifies_its_input() -> None:
 def petr_fp16(petr_export, tmp_path_factory: pytest.TempPathFactory) -> Fp16Result:
     """The kit's FisheyePETR export (the session's file, not exported again) in float16, judged on one frame."""
     out = fp16_path_for(tmp_path_factory.mktemp("fp16") / petr_export.onnx.name)
-    return export_fp16(petr_export.onnx, out, frames=1, progress=lambda _: None)
+    return export_fp16(petr_export.onnx, out, comparison=Comparison(frames=1), progress=lambda _: None)
 
 
 def test_fp16_file_metadata_and_parity(petr_export, petr_fp16: Fp16Result) -> None:
@@ -104,7 +105,7 @@ def test_reduced_precision_files_are_not_converted_again(petr_fp16: Fp16Result, 
     with pytest.raises(ExportError, match="already a reduced-precision file"):
         export_fp16(petr_fp16.path, tmp_path / "again.onnx", progress=lambda _: None)
     with pytest.raises(ExportError, match="already quantized"):
-        export_int8(petr_fp16.path, tmp_path / "again.int8.onnx", calib_frames=1, progress=lambda _: None)
+        export_int8(petr_fp16.path, tmp_path / "again.int8.onnx", options=Int8Options(calib_frames=1), progress=lambda _: None)
 
 
 def test_export_with_fp16_writes_both_files(small_export, small_bevdet_config, tmp_path: Path) -> None:

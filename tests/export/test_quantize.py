@@ -12,18 +12,17 @@ from onnx import numpy_helper
 
 pytest.importorskip("torch")
 
-from fisheye_infer.artifact import Quantization, read_meta
 from fisheye_infer.cli import main
-from fisheye_infer.cpu import CpuInfo, int8_saturation_warning
-from fisheye_infer.detector import Detector
 from fisheye_infer.errors import ExportError, ParityError
-from fisheye_infer.export import exporter as exporter_module
+from fisheye_infer.eval.top_match import match_top, top_matched
+from fisheye_infer.export import reduced as reduced_module
 from fisheye_infer.export.exporter import Int8Result, export, export_int8
 from fisheye_infer.export.graph import save_model, set_metadata
+from fisheye_infer.export.graph_stages import name_nodes
 from fisheye_infer.export.int8_rewrites import before_quantization
+from fisheye_infer.export.options import Comparison, Int8Options
 from fisheye_infer.export.quantize import (
     QUANT_OPS,
-    WEIGHT_QMAX,
     WEIGHTED_OPS,
     FrameReader,
     architecture_float,
@@ -32,20 +31,22 @@ from fisheye_infer.export.quantize import (
     image_region,
     int8_nodes,
     int8_path_for,
-    match_top,
     module_of,
     quantize,
     quantized_scope,
-    top_matched,
 )
-from fisheye_infer.graph_stages import name_nodes
+from fisheye_infer.precision import WEIGHT_QMAX
+from fisheye_infer.runtime.artifact import Quantization, read_meta
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.tools.cpu import CpuInfo, int8_saturation_warning
 
 
 @pytest.fixture(scope="module")
 def small_int8(small_export, tmp_path_factory: pytest.TempPathFactory) -> Int8Result:
     """The reduced FisheyeBEVDet quantized on two calibration frames (kept whatever its box match)."""
     out = tmp_path_factory.mktemp("int8") / "small.int8.onnx"
-    return export_int8(small_export.onnx, out, calib_frames=2, frames=2, force=True, progress=lambda _: None)
+    return export_int8(small_export.onnx, out, options=Int8Options(calib_frames=2), comparison=Comparison(frames=2), force=True,
+                       progress=lambda _: None)
 
 
 def _geometry(path: Path) -> dict[str, np.ndarray]:
@@ -324,28 +325,29 @@ def test_quantize_never_overwrites_its_input(small_export) -> None:
 
 
 def test_failed_box_match_keeps_no_int8_file(small_export, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    real = exporter_module.int8_parity
-    monkeypatch.setattr(exporter_module, "int8_parity", lambda *a, **k: real(*a, **k).model_copy(update={"passed": False}))
-    result = export_int8(small_export.onnx, tmp_path / "m.int8.onnx", calib_frames=1, frames=1, progress=lambda _: None)
+    real = reduced_module.int8_parity
+    monkeypatch.setattr(reduced_module, "int8_parity", lambda *a, **k: real(*a, **k).model_copy(update={"passed": False}))
+    result = export_int8(small_export.onnx, tmp_path / "m.int8.onnx", options=Int8Options(calib_frames=1), comparison=Comparison(frames=1),
+                         progress=lambda _: None)
     assert result.path is None and list(tmp_path.iterdir()) == []
     assert "FAILED" in result.summary()
 
 
 def test_export_refusing_int8_keeps_fp32_and_says_what_to_try(small_export, small_bevdet_config, tmp_path: Path,
                                                                monkeypatch: pytest.MonkeyPatch) -> None:
-    real = exporter_module.int8_parity
-    monkeypatch.setattr(exporter_module, "int8_parity", lambda *a, **k: real(*a, **k).model_copy(update={"passed": False}))
+    real = reduced_module.int8_parity
+    monkeypatch.setattr(reduced_module, "int8_parity", lambda *a, **k: real(*a, **k).model_copy(update={"passed": False}))
     out = tmp_path / "m.onnx"
     with pytest.raises(ParityError, match="--int8-float or --int8-scope trunk") as failure:
         export(small_export.ckpt, out, config=small_bevdet_config, rig=read_meta(small_export.onnx).rig, frames=1,
-               int8=True, calib_frames=1, progress=lambda _: None)
+               int8=Int8Options(calib_frames=1), progress=lambda _: None)
     assert "--calib-images" in str(failure.value) and "--force" in str(failure.value)
     assert read_meta(out).parity.passed and not (tmp_path / "m.int8.onnx").exists()
 
 
 def test_quantizing_an_int8_file_is_refused(small_int8: Int8Result, tmp_path: Path) -> None:
     with pytest.raises(ExportError, match="already quantized"):
-        export_int8(small_int8.path, tmp_path / "again.onnx", calib_frames=1, progress=lambda _: None)
+        export_int8(small_int8.path, tmp_path / "again.onnx", options=Int8Options(calib_frames=1), progress=lambda _: None)
 
 
 @pytest.mark.parametrize("option", [["--calib-frames", "3"], ["--int8-scope", "trunk"], ["--int8-float", "bbox_head"]],
@@ -359,12 +361,14 @@ def test_min_kept_is_the_bar_the_int8_file_is_written_at(small_export, small_int
     """The share found again decides against ``min_kept`` (recorded in the metadata, named in the summary), not a fixed 95%."""
     kept = small_int8.parity.top_matched_fraction
     assert small_int8.parity.min_top_matched == 0.95 and small_int8.parity.top_matched_standard_error is not None and kept > 0.0
-    options = {"calib_frames": 2, "frames": 2, "progress": lambda _: None}
-    lower = export_int8(small_export.onnx, tmp_path / "low.int8.onnx", min_kept=kept, **options)
+    options = Int8Options(calib_frames=2)
+    lower = export_int8(small_export.onnx, tmp_path / "low.int8.onnx", options=options, comparison=Comparison(frames=2, min_kept=kept),
+                        progress=lambda _: None)
     assert lower.path is not None and read_meta(lower.path).parity.min_top_matched == kept
     assert read_meta(lower.path).parity.top_matched_by_score == lower.parity.top_matched_by_score and "by the fp32 box's score" in lower.summary()
     assert lower.parity.top_matched_fraction == kept  # the same quantization and frames
-    strict = export_int8(small_export.onnx, tmp_path / "strict.int8.onnx", min_kept=1.0, **options)
+    strict = export_int8(small_export.onnx, tmp_path / "strict.int8.onnx", options=options, comparison=Comparison(frames=2, min_kept=1.0),
+                         progress=lambda _: None)
     assert (strict.path is None) == (kept < 1.0) and "need 100%" in strict.summary()
 
 
@@ -386,7 +390,7 @@ def test_export_with_int8_writes_both_files(small_export, small_bevdet_config, c
     """``export(int8=True)`` (``--int8``): the verified fp32 file at ``out``, the int8 file next to it, both in the summary."""
     out = tmp_path / "m.onnx"
     result = export(small_export.ckpt, out, config=small_bevdet_config, rig=read_meta(small_export.onnx).rig, frames=1,
-                    int8=True, calib_frames=1, int8_float=("bbox_head", "img_backbone.conv1"), force=True)
+                    int8=Int8Options(calib_frames=1, keep_float=("bbox_head", "img_backbone.conv1")), force=True)
     assert read_meta(out).quantization is None and read_meta(out).parity.passed
     assert result.int8 is not None and result.int8.path == tmp_path / "m.int8.onnx"
     int8_meta = read_meta(result.int8.path)
@@ -404,7 +408,8 @@ def test_export_with_int8_writes_both_files(small_export, small_bevdet_config, c
 @pytest.mark.slow
 def test_full_bevdet_quantizes_its_network(bevdet_export, tmp_path: Path) -> None:
     """The full-size FisheyeBEVDet (two calibration frames): every weighted layer in int8 but the head's (its shared and first heatmap convolutions aside)."""
-    result = export_int8(bevdet_export.onnx, tmp_path / "bevdet.int8.onnx", calib_frames=2, frames=1, force=True, progress=lambda _: None)
+    result = export_int8(bevdet_export.onnx, tmp_path / "bevdet.int8.onnx", options=Int8Options(calib_frames=2), comparison=Comparison(frames=1),
+                         force=True, progress=lambda _: None)
     model, region = _region_names(result.path)
     layers = _int8_layers(model)
     assert len(layers & region) >= 20 and len(layers - region) >= 8  # trunk, and the depth net, BEV encoder and neck
@@ -490,12 +495,22 @@ def test_check_weight_range_names_a_weight_beyond_7_bits() -> None:
 
 
 def test_8_bit_weights_on_request(small_export, tmp_path: Path) -> None:
-    result = export_int8(small_export.onnx, tmp_path / "m.int8.onnx", calib_frames=1, frames=1, force=True, weight_bits=8,
-                         progress=lambda _: None)
+    result = export_int8(small_export.onnx, tmp_path / "m.int8.onnx", options=Int8Options(calib_frames=1, weight_bits=8),
+                         comparison=Comparison(frames=1), force=True, progress=lambda _: None)
     assert result.path is not None and result.meta.quantization is not None and result.meta.quantization.weight_bits == 8
     assert max(int(np.abs(w.astype(np.int32)).max()) for w in _int8_weights(onnx.load(str(result.path)))) == WEIGHT_QMAX[8]
     with pytest.raises(ExportError, match="weight_bits 6"):
-        export_int8(small_export.onnx, tmp_path / "n.int8.onnx", calib_frames=1, frames=1, force=True, weight_bits=6, progress=lambda _: None)
+        Int8Options(calib_frames=1, weight_bits=6)
+
+
+def test_previous_keywords_still_work_with_a_deprecation_warning(small_export, tmp_path: Path) -> None:
+    """``export_int8(calib_frames=..., frames=...)`` as the previous release took them: the same options, and a warning."""
+    with pytest.warns(DeprecationWarning, match="Int8Options"):
+        result = export_int8(small_export.onnx, tmp_path / "m.int8.onnx", calib_frames=1, frames=1, weight_bits=8, force=True,
+                             progress=lambda _: None)
+    assert result.meta.quantization.calibration_frames == 1 and result.meta.quantization.weight_bits == 8 and result.parity.frames == 1
+    with pytest.raises(TypeError, match="calib_frame"):
+        export_int8(small_export.onnx, tmp_path / "n.int8.onnx", calib_frame=1)
 
 
 def test_saturation_warning_only_for_8_bit_int8_files_on_x86_without_vnni(small_int8: Int8Result) -> None:
@@ -527,7 +542,7 @@ def test_detector_warns_about_an_8_bit_int8_file_on_a_cpu_without_vnni(small_int
     proto = onnx.load(str(small_int8.path))
     set_metadata(proto, meta.model_copy(update={"quantization": meta.quantization.model_copy(update={"weight_bits": None})}))
     old = save_model(proto, tmp_path / "old.int8.onnx")
-    import fisheye_infer.detector as detector_module
+    import fisheye_infer.runtime.detector as detector_module
 
     monkeypatch.setattr(detector_module, "cpu_info", lambda: AVX2_ONLY)
     with caplog.at_level("WARNING", logger="fisheye_infer"):
@@ -535,3 +550,24 @@ def test_detector_warns_about_an_8_bit_int8_file_on_a_cpu_without_vnni(small_int
         Detector(small_int8.path, threads=1, warmup=False)
     warnings = [r.getMessage() for r in caplog.records if "VNNI" in r.getMessage()]
     assert len(warnings) == 1 and meta.model_id in warnings[0]  # the 8-bit file only
+
+
+def test_schema_1_metadata_reads_as_the_split_reports(small_export, small_int8: Int8Result) -> None:
+    """Files of schema 1 carry one parity type for every file, its unused fields null; they read as the type they describe."""
+    import json
+
+    from fisheye_infer.runtime.artifact import ParityReport, ReducedParityReport, parse_meta
+
+    fp32 = json.loads(read_meta(small_export.onnx).model_dump_json())
+    fp32_v1 = {**fp32, "schema_version": 1, "parity": {**fp32["parity"], "top_matched_fraction": None, "min_top_matched": None,
+                                                         "evaluated_with": None, "replayed": None}}
+    assert parse_meta(json.dumps(fp32_v1)).parity == read_meta(small_export.onnx).parity
+    int8 = json.loads(small_int8.meta.model_dump_json())
+    reduced = int8["parity"]
+    int8_v1 = {**int8, "schema_version": 1, "parity": {
+        **{k: v for k, v in reduced.items() if k != "match_radius_m"}, "tolerance_box_m": 0.5, "tolerance_score": 1.0, "order_equal": False,
+        "pytorch_float32": None, "selection_valid": None, "tie_swaps": 0, "tie_substitutions": 0, "written_equals_checked": None,
+        "tolerance_rank_score": None, "min_top_matched": None}}
+    migrated = parse_meta(json.dumps(int8_v1))
+    assert isinstance(migrated.parity, ReducedParityReport) and isinstance(read_meta(small_export.onnx).parity, ParityReport)
+    assert migrated.schema_version == 2 and migrated.parity == small_int8.parity  # 0.95: the bar before it was recorded

@@ -11,11 +11,11 @@ import onnx
 import pytest
 from onnx import numpy_helper
 
-from fisheye_infer.artifact import read_meta
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ArtifactError, RigError
 from fisheye_infer.export.rebake import rebake
-from fisheye_infer.rig import Rig
-from fisheye_infer.synth import resized_rig
+from fisheye_infer.runtime.artifact import read_meta
+from fisheye_infer.scenes.render import resized_rig
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -9,8 +9,8 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from fisheye_infer.artifact import TensorRTReport, parse_meta, read_meta
 from fisheye_infer.export.tensorrt_check import MAX_TOPK_K, check_tensorrt
+from fisheye_infer.runtime.artifact import TensorRTReport, parse_meta, read_meta
 
 F, I64 = TensorProto.FLOAT, TensorProto.INT64
 
@@ -198,8 +198,10 @@ def test_int8_file_is_for_onnx_runtime_not_tensorrt(small_export, tmp_path) -> N
     UINT8 values) is refused by TensorRT, which quantizes to INT8 symmetrically; the int8 file's
     metadata says so."""
     from fisheye_infer.export.exporter import export_int8
+    from fisheye_infer.export.options import Comparison, Int8Options
 
-    result = export_int8(small_export.onnx, tmp_path / "small.int8.onnx", calib_frames=1, frames=1, force=True, progress=lambda _: None)
+    result = export_int8(small_export.onnx, tmp_path / "small.int8.onnx", options=Int8Options(calib_frames=1), comparison=Comparison(frames=1),
+                         force=True, progress=lambda _: None)
     report = read_meta(result.path).tensorrt
     assert report is not None and not report.compatible
     errors = _errors(report)

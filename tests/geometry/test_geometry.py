@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from fisheye_infer.camera import OCamModel
+from fisheye_infer.cameras.camera_models import OCamModel
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry import (
     BevGrid,
     build_pooling_plan,
@@ -26,7 +27,6 @@ from fisheye_infer.geometry import (
     spherical_grid,
 )
 from fisheye_infer.geometry.pooling import voxelise
-from fisheye_infer.rig import Rig
 
 BEV = "fisheye_bevdet/view_transform."
 PETR = "fisheye_petr/pts_bbox_head."

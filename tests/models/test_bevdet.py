@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 import torch
 
+from fisheye_infer.cameras.rig import default_rig
 from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
 from fisheye_infer.geometry import BevGrid, build_pooling_plan, frustum_to_lidar, pool_bev_reference, spherical_directions
 from fisheye_infer.geometry.lss import LSSGeometry, LSSParams
 from fisheye_infer.models import BEVDetConfig, create_model, list_models, load_checkpoint, load_model, make_checkpoint, read_mmdet3d_config
 from fisheye_infer.models.bevdet_config import ViewTransformConfig
 from fisheye_infer.models.fisheye_bevdet import GEOMETRY_KEYS, checkpoint_filter_fn
-from fisheye_infer.models.synthetic import init_weights, manifest_specs, synthetic_images
+from fisheye_infer.models.seeded_checkpoint import init_weights, manifest_specs, synthetic_images
 from fisheye_infer.models.transfusion import TransFusionDecoderLayer, TransFusionHead
 from fisheye_infer.models.view_transform import FisheyeLSS
-from fisheye_infer.rig import default_rig
 
 DATA = Path(__file__).parent / "data"
 
@@ -251,13 +251,21 @@ def test_small_forward_and_quirks_of_inputs(small_model) -> None:
 def test_only_fpn_level_0_is_used(small_model) -> None:
     images = synthetic_images(4, 1, 4, 160, 160)
     with torch.no_grad():
-        before = small_model.extract_bev(images)
+        before = small_model.scene_features(small_model.image_features(images))
         weight = small_model.img_neck.fpn_convs[1].conv.weight
         saved = weight.clone()
         weight.mul_(-3.0)
-        after = small_model.extract_bev(images)
+        after = small_model.scene_features(small_model.image_features(images))
         weight.copy_(saved)
     assert torch.equal(before, after)
+
+
+def test_extract_bev_is_a_deprecated_alias(small_model) -> None:
+    images = synthetic_images(4, 1, 4, 160, 160)
+    with torch.no_grad():
+        with pytest.warns(DeprecationWarning, match="extract_bev is deprecated"):
+            old = small_model.extract_bev(images)
+        assert torch.equal(old, small_model.scene_features(small_model.image_features(images)))
 
 
 def test_bgr_with_rgb_ordered_statistics(small_model) -> None:

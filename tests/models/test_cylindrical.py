@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from small_configs import SMALL_BEV_SECTIONS  # noqa: E402
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import CheckpointError, ConfigError
 from fisheye_infer.geometry.cyl_lss import CylLSSParams, cyl_image_grid
 from fisheye_infer.geometry.cyl_petr import CylPETRParams, cyl_petr_directions
@@ -26,9 +27,8 @@ from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES
 from fisheye_infer.models import create_model, get_model_entry, list_models, load_model, make_checkpoint
 from fisheye_infer.models.cyl_config import BEVDetCylConfig, CylPETRConfig, CylViewTransformConfig
 from fisheye_infer.models.fisheye_bevdet_cyl import FRUSTUM_ATOL, GEOMETRY_KEYS
-from fisheye_infer.models.synthetic import manifest_specs
-from fisheye_infer.rig import Rig
-from fisheye_infer.synth import Renderer, random_scene
+from fisheye_infer.models.seeded_checkpoint import manifest_specs
+from fisheye_infer.scenes.render import Renderer, random_scene
 
 DATA = Path(__file__).parent / "data"
 BEVDET, PETR = "fisheye-bevdet-cyl", "fisheye-petr-cyl"

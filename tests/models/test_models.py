@@ -13,11 +13,11 @@ import pytest
 import torch
 from small_configs import small_configs  # noqa: E402
 
-from fisheye_infer.artifact import read_meta
+from fisheye_infer.cameras.rig import default_rig
 from fisheye_infer.errors import CheckpointError
 from fisheye_infer.export.exporter import export, infer_architecture
 from fisheye_infer.models import create_model, get_model_entry, list_models, load_model, make_checkpoint
-from fisheye_infer.rig import default_rig
+from fisheye_infer.runtime.artifact import read_meta
 
 REDUCED = small_configs()
 

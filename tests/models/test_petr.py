@@ -14,6 +14,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from fisheye_infer.cameras.rig import default_rig
 from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
 from fisheye_infer.geometry.petr import PETRGeometry, lid_depths, position_coords, sine_position_encoding
 from fisheye_infer.models import load_model
@@ -25,8 +26,7 @@ from fisheye_infer.models.petr_head import decode_predictions
 from fisheye_infer.models.petr_transformer import MultiheadAttention, PETRTransformerDecoder, key_padding_bias
 from fisheye_infer.models.ranking import TopK
 from fisheye_infer.models.registry import create_model, list_models, read_manifest
-from fisheye_infer.models.synthetic import make_checkpoint, synthetic_images
-from fisheye_infer.rig import default_rig
+from fisheye_infer.models.seeded_checkpoint import make_checkpoint, synthetic_images
 
 SMALL = PETRConfig().replace(image={"height": 64, "width": 64}, head={"feature_size": (5, 21), "num_query": 40, "max_num": 30})
 LOGIT_MAX = math.log(1 / 1e-5)  # 11.5129
@@ -262,9 +262,31 @@ def test_warp_equals_per_camera_grid_sample(small_petr: FisheyePETR) -> None:
 def test_normalisation_uses_rgb_stats_on_bgr(small_petr: FisheyePETR) -> None:
     img = torch.zeros(1, 4, 96, 96, 3, dtype=torch.uint8)
     img[..., 0], img[..., 1], img[..., 2] = 10, 20, 30  # B, G, R
-    x = small_petr.normalize(img)[0, :, 0, 0]
+    x = small_petr.normalise(img)[0, :, 0, 0]
     expected = [(10 - 123.675) / 58.395, (20 - 116.28) / 57.12, (30 - 103.53) / 57.375]
     torch.testing.assert_close(x, torch.tensor(expected), rtol=1e-6, atol=1e-6)
+
+
+def test_the_stages_compose_to_predict(small_petr: FisheyePETR) -> None:
+    """predict runs the head as one module call; the named stages must give the same numbers."""
+    img = torch.randint(0, 256, (2, 4, 96, 96, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(1))
+    valid = torch.tensor([[True, True, False, True], [True, True, True, True]])
+    with torch.no_grad():
+        whole = small_petr.predict(img, valid)
+        feats = small_petr.image_features(img)
+        staged = small_petr.head_outputs(small_petr.scene_features(feats, valid))
+    assert feats.shape[:2] == (2, 4)
+    for key, value in whole.items():
+        torch.testing.assert_close(staged[key], value, rtol=0, atol=0)
+
+
+def test_old_stage_names_are_deprecated_aliases(small_petr: FisheyePETR) -> None:
+    img = torch.randint(0, 256, (1, 4, 96, 96, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        with pytest.warns(DeprecationWarning, match="normalize is deprecated"):
+            torch.testing.assert_close(small_petr.normalize(img), small_petr.normalise(img), rtol=0, atol=0)
+        with pytest.warns(DeprecationWarning, match="forward_features is deprecated"):
+            torch.testing.assert_close(small_petr.forward_features(img), small_petr.image_features(img), rtol=0, atol=0)
 
 
 def test_wrong_image_shape_is_refused(small_petr: FisheyePETR) -> None:

@@ -21,8 +21,7 @@ import torch
 from checkpoint_kit import kit_checkpoint
 from small_configs import PINHOLE_RIG, small_configs  # noqa: E402
 
-from fisheye_infer.artifact import read_meta
-from fisheye_infer.detector import Detector
+from fisheye_infer.cameras.rig import PINHOLE_CAMERAS, Rig, default_rig, resolve_rig
 from fisheye_infer.errors import ConfigError, RigError
 from fisheye_infer.eval.dataset import PINHOLE_MODEL, DatasetError, Fisheye3DOD
 from fisheye_infer.eval.evaluate import detect_dataset, evaluate_results
@@ -43,8 +42,9 @@ from fisheye_infer.models import (
     matching_architectures,
 )
 from fisheye_infer.models.cylindrical import rectify
-from fisheye_infer.rig import PINHOLE_CAMERAS, Rig, default_rig, resolve_rig
-from fisheye_infer.synth import Renderer, random_scene, resized_rig, synthesize
+from fisheye_infer.runtime.artifact import read_meta
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.scenes.render import Renderer, random_scene, resized_rig, synthesize
 
 DATA = Path(__file__).parent / "data"
 PINHOLE, PERSP = "pinhole-bevdet", "fisheye-bevdet-persp"
@@ -287,8 +287,11 @@ def test_perspective_views_are_cv2s_remap_truncated(rig: Rig, fisheye_frames: np
     assert (expected != np.floor(expected)).any()  # the truncation is not a no-op
     petr_config, _ = REDUCED[PERSP_PETR]
     with torch.no_grad():  # PETR's pipeline normalises the float views
-        y = create_model(PERSP_PETR, petr_config, rig).normalize(torch.from_numpy(fisheye_frames[None]))[0].permute(0, 2, 3, 1).numpy()
-    np.testing.assert_allclose(y, (expected - mean) / std, rtol=0, atol=1e-5)
+        petr = create_model(PERSP_PETR, petr_config, rig)
+        y = petr.normalise(torch.from_numpy(fisheye_frames[None]))
+        with pytest.warns(DeprecationWarning, match="normalize is deprecated"):  # the old name keeps its (B, V, ...) shape
+            torch.testing.assert_close(petr.normalize(torch.from_numpy(fisheye_frames[None])), y[None], rtol=0, atol=0)
+    np.testing.assert_allclose(y.permute(0, 2, 3, 1).numpy(), (expected - mean) / std, rtol=0, atol=1e-5)
 
 
 def test_pinhole_views_are_pils_resize_and_crop(pinhole_rig: Rig) -> None:

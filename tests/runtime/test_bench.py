@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from fisheye_infer.cli import main
-from fisheye_infer.graph_stages import STAGES
+from fisheye_infer.export.graph_stages import STAGES
 
 
 def test_bench_writes_every_figure(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -54,7 +54,7 @@ def test_peak_rss_is_the_childs_own_not_its_parents() -> None:
         import subprocess, sys
         import numpy as np
         held = np.ones(1_500_000_000 // 8)  # touched: resident in the parent
-        child = "from fisheye_infer.bench import _own_peak_rss_mb; print(_own_peak_rss_mb())"
+        child = "from fisheye_infer.tools.bench import _own_peak_rss_mb; print(_own_peak_rss_mb())"
         print(subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, check=True).stdout.strip())
     """)
     done = subprocess.run([sys.executable, "-c", parent], capture_output=True, text=True, timeout=120, check=True)

@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fisheye_infer.camera import Equidistant, KannalaBrandt, OCamModel, Pinhole
-from fisheye_infer.camera_fit import fit_ocam_from_kb
+from fisheye_infer.cameras.camera_models import Equidistant, KannalaBrandt, OCamModel, Pinhole
+from fisheye_infer.cameras.ocam_fit import fit_ocam_from_kb
 from fisheye_infer.errors import CameraModelError
 
 

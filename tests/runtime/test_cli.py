@@ -10,8 +10,8 @@ from pathlib import Path
 import cv2
 import pytest
 
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.cli import main
-from fisheye_infer.rig import Rig
 
 
 def test_rig_show_prints_cameras_and_hash(rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
@@ -69,8 +69,8 @@ def test_detect_writes_results_and_picture_then_redraws_them(small_export, tmp_p
 
     import numpy as np
 
-    from fisheye_infer.artifact import read_meta
-    from fisheye_infer.synth import Renderer, random_scene
+    from fisheye_infer.runtime.artifact import read_meta
+    from fisheye_infer.scenes.render import Renderer, random_scene
 
     rig = read_meta(small_export.onnx).rig
     frame_dir = tmp_path / "frame"
@@ -107,8 +107,8 @@ def test_detect_without_images_is_a_clear_error(small_export, capsys: pytest.Cap
 def test_detect_names_an_unknown_class(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import numpy as np
 
-    from fisheye_infer.artifact import read_meta
-    from fisheye_infer.synth import Renderer, random_scene
+    from fisheye_infer.runtime.artifact import read_meta
+    from fisheye_infer.scenes.render import Renderer, random_scene
 
     frame_dir = tmp_path / "frame"
     frame_dir.mkdir()

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fisheye_infer.codec import MAX_JPEG_SCANS, decode_image, jpeg_scan_count
 from fisheye_infer.errors import FrameError
+from fisheye_infer.runtime.codec import MAX_JPEG_SCANS, decode_image, jpeg_scan_count
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from fisheye_infer.cpu import cpu_info
+from fisheye_infer.tools.cpu import cpu_info
 
 X86 = """processor\t: 0
 vendor_id\t: GenuineIntel

@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ArtifactError, ConfigError, FrameError, OptionError
-from fisheye_infer.nms import NmsConfig
-from fisheye_infer.rig import Rig
-from fisheye_infer.synth import Renderer, random_scene
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.runtime.nms import NmsConfig
+from fisheye_infer.scenes.render import Renderer, random_scene
 
 
 @pytest.fixture(scope="module")
@@ -168,7 +168,7 @@ def test_providers_default_to_cpu_and_unknown_ones_are_named(small_export) -> No
 def test_a_provider_that_does_not_start_is_an_error_not_a_cpu_fallback(small_export, monkeypatch: pytest.MonkeyPatch) -> None:
     """This onnxruntime is told it has CUDA; ONNX Runtime then runs the session on the CPU (a CUDA provider
     without a GPU or its libraries does the same): asked for by name, that is refused."""
-    import fisheye_infer.session as session
+    import fisheye_infer.runtime.session as session
 
     monkeypatch.setattr(session, "available_providers", lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"])
     with pytest.warns(UserWarning), pytest.raises(ConfigError, match="ONNX Runtime did not start CUDAExecutionProvider .*runs on CPUExecutionProvider"):
@@ -180,7 +180,7 @@ def test_auto_drops_a_provider_that_fails_to_start(small_export, monkeypatch: py
     next provider, a named list does not. No TensorRT here, so the session's creation fails as it does there."""
     import onnxruntime as ort
 
-    import fisheye_infer.session as session
+    import fisheye_infer.runtime.session as session
 
     real = ort.InferenceSession
 

@@ -11,11 +11,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.cameras.rig import default_rig
 from fisheye_infer.errors import ArtifactError, FrameError, OptionError
-from fisheye_infer.nms import NmsConfig
-from fisheye_infer.rig import default_rig
-from fisheye_infer.synth import Renderer, random_scene, resized_rig
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.runtime.nms import NmsConfig
+from fisheye_infer.scenes.render import Renderer, random_scene, resized_rig
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,7 @@ def test_spin_false_reaches_the_session_and_changes_no_number(small_export, fram
     """``spin=False`` sets ONNX Runtime's ``session.intra_op.allow_spinning`` to 0 (its threads sleep after a call);
     the default leaves ONNX Runtime's own behaviour (spinning). Two threads, so that there is a pool to spin;
     the boxes are the same either way."""
-    import fisheye_infer.session as session
+    import fisheye_infer.runtime.session as session
 
     real, seen = session.ort.InferenceSession, []
 

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from fisheye_infer.boxes import bev_corners, corners, project_boxes
-from fisheye_infer.detections import Detections
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import FrameError
-from fisheye_infer.nms import NmsConfig, apply_nms, bev_iou, circle_nms, rotated_bev_nms
-from fisheye_infer.rig import Rig
+from fisheye_infer.runtime.box_geometry import bev_corners, corners, project_boxes
+from fisheye_infer.runtime.detections import Detections
+from fisheye_infer.runtime.nms import NmsConfig, apply_nms, bev_iou, circle_nms, rotated_bev_nms
 
 CLASSES = ("Car", "Van", "Truck", "Bus", "Pedestrian", "Cyclist")
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fisheye_infer.errors import FrameError
-from fisheye_infer.preprocess import encoded_image_size, load_frame, load_frames, prepare_batch
+from fisheye_infer.runtime.preprocess import encoded_image_size, load_frame, load_frames, prepare_batch
 
 CAMERAS = ("front", "left", "right", "rear")
 WH = (64, 48)

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fisheye_infer.carla import CarlaPose, cam2lidar_from_poses, parse_sensor_metadata
+from fisheye_infer.cameras.carla_poses import CarlaPose, cam2lidar_from_poses, parse_sensor_metadata
+from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, Rig, resolve_rig
 from fisheye_infer.errors import RigError
-from fisheye_infer.rig import FISHEYE3DOD_CAMERAS, Rig, resolve_rig
 
 
 def test_default_rig_positions_and_order(rig: Rig) -> None:

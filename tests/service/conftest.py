@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from service_live import API_KEY, ORIGIN, LiveServer, serve, settings_for
 
-from fisheye_infer.detector import Detector
-from fisheye_infer.rig import default_rig
-from fisheye_infer.synth import Renderer, random_scene, resized_rig
+from fisheye_infer.cameras.rig import default_rig
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.scenes.render import Renderer, random_scene, resized_rig
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -11,7 +11,7 @@ from typing import Any
 
 import httpx
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.service.app import create_app
 from fisheye_infer.service.server import DrainingServer, build_server
 from fisheye_infer.service.settings import ServiceSettings

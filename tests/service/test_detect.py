@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from service_live import LiveServer, multipart
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.runtime.detector import Detector
 
 STAGES = {"queue_wait", "decode", "preprocess", "inference", "postprocess"}
 

@@ -20,7 +20,7 @@ import httpx
 import pytest
 from service_live import LiveServer, multipart, serve, settings_for
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.runtime.detector import Detector
 
 HEADER_TIMEOUT_S, BODY_TIMEOUT_S, MAX_CONNECTIONS = 1.0, 1.5, 6
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from service_live import API_KEY, LiveServer
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.deploy.triton.repository import model_name
 from fisheye_infer.errors import ArtifactError, FrameError, InferenceError
-from fisheye_infer.triton.repository import model_name
+from fisheye_infer.runtime.detector import Detector
 
 pytest.importorskip("tritonclient.http", reason="needs the [triton] extra")
-from fisheye_infer.triton import TritonDetector  # noqa: E402
+from fisheye_infer.deploy.triton import TritonDetector  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -13,9 +13,9 @@ import pytest
 from service_live import LiveServer, multipart, serve, settings_for
 from small_configs import small_configs  # noqa: E402
 
-from fisheye_infer.detector import Detector
-from fisheye_infer.rig import PINHOLE_CAMERAS
-from fisheye_infer.synth import Renderer, random_scene
+from fisheye_infer.cameras.rig import PINHOLE_CAMERAS
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.scenes.render import Renderer, random_scene
 
 ARCH = "pinhole-bevdet"
 

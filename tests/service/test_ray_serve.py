@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from service_live import multipart, settings_for
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.runtime.detector import Detector
 
 pytest.importorskip("ray.serve", reason="needs the [ray] extra")
 

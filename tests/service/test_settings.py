@@ -21,7 +21,7 @@ def test_defaults_listen_on_loopback_without_microbatching() -> None:
 def test_spin_off_from_the_environment_reaches_the_session_the_service_opens(small_export, monkeypatch: pytest.MonkeyPatch) -> None:
     import anyio
 
-    import fisheye_infer.session as session
+    import fisheye_infer.runtime.session as session
     from fisheye_infer.service.state import Service
 
     real, seen = session.ort.InferenceSession, []

@@ -19,7 +19,7 @@ from service_live import LiveServer, multipart, settings_for
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from fisheye_infer.detector import Detector
+from fisheye_infer.runtime.detector import Detector
 
 
 def _batch(images: dict[str, bytes], frames: int) -> list:

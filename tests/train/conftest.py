@@ -11,10 +11,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from fisheye_infer.cameras.rig import default_rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
 from fisheye_infer.models.training.compact import write_config  # noqa: E402
-from fisheye_infer.rig import default_rig  # noqa: E402
-from fisheye_infer.synth import resized_rig  # noqa: E402
+from fisheye_infer.scenes.render import resized_rig  # noqa: E402
 
 #: A few steps on tiny frames: batch 1, no warm-up damping worth the name at this rate.
 STEPS = ["--batch-size", "1", "--lr", "1e-3", "--val-frames", "1", "--checkpoint-every", "2"]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fisheye_infer.records import GT_SCORE, records_to_arrays
-from fisheye_infer.rig import default_rig
-from fisheye_infer.synth import resized_rig
-from fisheye_infer.synth_splits import SyntheticFrames
+from fisheye_infer.cameras.rig import default_rig
+from fisheye_infer.runtime.records import GT_SCORE, records_to_arrays
+from fisheye_infer.scenes.render import resized_rig
+from fisheye_infer.scenes.streams import SyntheticFrames
 
 RIG = resized_rig(default_rig(), 0.1)  # 80 x 80 pictures: the content matters here, not the detail
 

@@ -14,13 +14,14 @@ from typing import Any  # noqa: E402
 
 from torch import nn  # noqa: E402
 
-from fisheye_infer.artifact import WEIGHT_QMAX  # noqa: E402
+from fisheye_infer.cameras.rig import Rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
 from fisheye_infer.errors import ConfigError  # noqa: E402
 from fisheye_infer.models import get_model_entry, load_checkpoint  # noqa: E402
-from fisheye_infer.models.training.loop import Trainer, TrainOptions, training_device  # noqa: E402
+from fisheye_infer.models.training.loop import Trainer  # noqa: E402
+from fisheye_infer.models.training.options import TrainOptions, training_device  # noqa: E402
 from fisheye_infer.models.training.qat import FakeQuant, fake_quant_activation, fake_quant_weight, percentile_range  # noqa: E402
-from fisheye_infer.rig import Rig  # noqa: E402
+from fisheye_infer.precision import WEIGHT_QMAX  # noqa: E402
 
 Run = Any
 
@@ -125,10 +126,10 @@ def test_input_ranges_follow_training_batches_and_hold_in_eval() -> None:
 def test_the_detectors_simulated_layers_are_the_int8_files(small_bevdet_config: Any, small_export: Any) -> None:
     import onnx
 
+    from fisheye_infer.cameras.rig import default_rig
     from fisheye_infer.export.quantize import WEIGHTED_OPS, int8_nodes, module_of
     from fisheye_infer.models import create_model
-    from fisheye_infer.rig import default_rig
-    from fisheye_infer.synth import resized_rig
+    from fisheye_infer.scenes.render import resized_rig
 
     model = create_model("fisheye-bevdet", small_bevdet_config, resized_rig(default_rig(), 0.2))
     float_modules = get_model_entry("fisheye-bevdet").int8_float
@@ -147,8 +148,8 @@ def test_the_detectors_simulated_layers_are_the_int8_files(small_bevdet_config: 
 def test_qat_share_is_checked_and_drawn_per_step(small_bevdet_config: Any, tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="--qat"):
         TrainOptions(qat=1.5)
-    from fisheye_infer.rig import default_rig
-    from fisheye_infer.synth import resized_rig
+    from fisheye_infer.cameras.rig import default_rig
+    from fisheye_infer.scenes.render import resized_rig
 
     small_rig = resized_rig(default_rig(), 0.2)
     draws = [Trainer(small_bevdet_config, small_rig, tmp_path / f"r{q}", TrainOptions(qat=q)) for q in (0.0, 0.5, 1.0)]

@@ -16,12 +16,12 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from fisheye_infer.detector import Detector  # noqa: E402
+from fisheye_infer.cameras.rig import Rig  # noqa: E402
 from fisheye_infer.eval.dataset import Fisheye3DOD  # noqa: E402
 from fisheye_infer.eval.evaluate import detect_dataset, evaluate_results  # noqa: E402
 from fisheye_infer.models.pretrained import COMPACT_BEVDET  # noqa: E402
-from fisheye_infer.rig import Rig  # noqa: E402
-from fisheye_infer.synth_splits import SyntheticFrames, write_split  # noqa: E402
+from fisheye_infer.runtime.detector import Detector  # noqa: E402
+from fisheye_infer.scenes.streams import SyntheticFrames, write_split  # noqa: E402
 
 FIRST, COUNT = 300, 32
 #: Bars of this test (the model card's 200-frame figures are higher).

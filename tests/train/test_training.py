@@ -11,11 +11,11 @@ torch = pytest.importorskip("torch")
 
 from typing import Any  # noqa: E402
 
-from fisheye_infer.artifact import read_meta  # noqa: E402
+from fisheye_infer.cameras.rig import Rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
 from fisheye_infer.models import BEVDetConfig, create_model, load_checkpoint  # noqa: E402
-from fisheye_infer.models.training.loop import lr_factor  # noqa: E402
-from fisheye_infer.rig import Rig  # noqa: E402
+from fisheye_infer.models.training.options import lr_factor  # noqa: E402
+from fisheye_infer.runtime.artifact import read_meta  # noqa: E402
 
 Run = Any
 

@@ -1,0 +1,147 @@
+"""Reduced-precision files (int8, fp16) derived from a verified fp32 file and judged against it.
+
+    export_int8("model.onnx")                                   # -> model.int8.onnx, if it passes
+    export_fp16("model.onnx", comparison=Comparison(frames=8))  # -> model.fp16.onnx, if it passes
+
+Each file is compared with the fp32 file on the ``Comparison``'s frames (``int8_parity``,
+``fp16_parity``) and written only when it finds the required share of the fp32 top-50 boxes again
+(or with ``force``). Its metadata carries the ``ReducedParityReport``, a ``Quantization`` record and
+``check_tensorrt``'s verdict on its own graph.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnx
+
+from fisheye_infer.errors import ExportError
+from fisheye_infer.runtime.artifact import ArtifactMeta, Quantization, ReducedParityReport, read_meta
+from fisheye_infer.tools.files import PendingFile, pending_file
+
+from .fp16 import to_float16
+from .fp16_parity import fp16_parity
+from .frames import CALIBRATION_SEED, verification_frames
+from .graph import save_model, set_metadata
+from .options import Comparison, Int8Options, options_from_keywords
+from .quantize import FrameReader, architecture_float, int8_parity, int8_path_for, quantize, quantized_scope
+from .results import Fp16Result, Int8Result
+from .tensorrt_check import check_tensorrt
+
+__all__ = ["export_fp16", "export_int8", "fp16_path_for", "int8_path_for"]
+
+#: The previous release's keywords of ``export_int8``/``export_fp16`` that now live in ``Comparison``.
+_COMPARISON_KEYWORDS = {"frames": "frames", "verify_images": "images", "threads": "threads", "min_kept": "min_kept"}
+
+
+def fp16_path_for(fp32_path: str | Path) -> Path:
+    """Where the fp16 file of ``model.onnx`` goes: ``model.fp16.onnx`` next to it."""
+    path = Path(fp32_path)
+    return path.with_name(f"{path.stem}.fp16{path.suffix}")
+
+
+def export_fp16(
+    fp32_path: str | Path,
+    out: str | Path | None = None,
+    *,
+    comparison: Comparison | None = None,
+    force: bool = False,
+    progress: Callable[[str], None] = print,
+    **legacy: Any,
+) -> Fp16Result:
+    """A verified fp32 file -> its float16 file for GPU execution providers; see ``fp16`` and ``fp16_parity``.
+
+    Evidence: the fp16 file against the fp32 file in ONNX Runtime's CPU execution provider, on the
+    ``comparison``'s frames.
+    """
+    _, comparison = options_from_keywords(None, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS,
+                                          caller="export_fp16")
+    start = time.perf_counter()
+    src = Path(fp32_path)
+    out = Path(out) if out is not None else fp16_path_for(src)
+    meta = _fp32_meta(src, "fp16", "already a reduced-precision file")
+    progress("fp16 [1/2] converting weights and compute to float16 (geometry tables, index arithmetic and the interface stay as in fp32)")
+    proto, plan = to_float16(onnx.load(str(src)))
+    with pending_file(out, "h") as pending:
+        save_model(proto, pending.path)
+        batch = _comparison_frames(meta, comparison, "fp16 [2/2]", progress)
+        parity = fp16_parity(src, pending.path, batch, threads=comparison.threads, min_fraction=comparison.min_kept)
+        reduced = _reduced_meta(proto, meta, parity, Quantization(mode="fp16", scope=plan.scope()))
+        written = _publish(proto, reduced, pending, parity.passed or force)
+    return Fp16Result(written, reduced, parity, time.perf_counter() - start, out.stat().st_size if written else 0)
+
+
+def export_int8(
+    fp32_path: str | Path,
+    out: str | Path | None = None,
+    *,
+    options: Int8Options | None = None,
+    comparison: Comparison | None = None,
+    force: bool = False,
+    progress: Callable[[str], None] = print,
+    **legacy: Any,
+) -> Int8Result:
+    """A verified fp32 file -> its static-QDQ int8 file; see ``quantize`` and ``Int8Options``.
+
+    Calibration: the options' seeded synthetic renders of the file's own rig (seeds from
+    ``CALIBRATION_SEED``, disjoint from the comparison's) plus the user's calibration frames.
+    Evidence: the int8 file against the fp32 file on the ``comparison``'s frames.
+    """
+    options, comparison = options_from_keywords(options, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS,
+                                                caller="export_int8")
+    options = options or Int8Options()
+    start = time.perf_counter()
+    src = Path(fp32_path)
+    out = Path(out) if out is not None else int8_path_for(src)
+    meta = _fp32_meta(src, "int8", "already quantized")
+    progress(f"int8 [1/3] rendering {options.calib_frames} calibration frame(s){' + ' + str(options.calib_images) if options.calib_images else ''}")
+    calibration = verification_frames(meta.rig, options.calib_frames, seed=CALIBRATION_SEED, images=options.calib_images)
+    with pending_file(out, "q") as pending:
+        progress(f"int8 [2/3] static QDQ quantization, scope {options.scope} (U8 activations, S8 per-channel {options.weight_bits}-bit weights)")
+        chosen_by = "the architecture's int8_float" if options.keep_float is None else "asked for at export"
+        keep_float = architecture_float(src) if options.keep_float is None else tuple(options.keep_float)
+        quantize(src, pending.path, FrameReader(calibration), scope=options.scope, keep_float=keep_float, weight_bits=options.weight_bits)
+        proto = onnx.load(str(pending.path))
+        covered = quantized_scope(onnx.load(str(src), load_external_data=False), options.scope, keep_float, chosen_by)
+        batch = _comparison_frames(meta, comparison, "int8 [3/3]", progress)
+        parity = int8_parity(src, pending.path, batch, threads=comparison.threads, min_fraction=comparison.min_kept)
+        quantization = Quantization(mode="int8-qdq", scope=covered, calibration_frames=len(calibration), weight_bits=options.weight_bits)
+        reduced = _reduced_meta(proto, meta, parity, quantization)
+        written = _publish(proto, reduced, pending, parity.passed or force)
+    return Int8Result(written, reduced, parity, time.perf_counter() - start, out.stat().st_size if written else 0)
+
+
+def _fp32_meta(src: Path, kind: str, already: str) -> ArtifactMeta:
+    """The metadata of the fp32 file a reduced file is made from; a reduced file is refused."""
+    meta = read_meta(src)
+    if meta.quantization is not None:
+        raise ExportError(f"{kind}: {src} is {already} ({meta.quantization.mode}); give the fp32 file")
+    return meta
+
+
+def _comparison_frames(meta: ArtifactMeta, comparison: Comparison, step: str, progress: Callable[[str], None]) -> np.ndarray:
+    """The frames a reduced file is compared on: seeded renders (the first ones are the fp32 export's own), then the user's."""
+    images = comparison.images
+    progress(f"{step} comparing with the fp32 file on {comparison.frames} seeded frame(s){' + ' + str(images) if images else ''}")
+    return verification_frames(meta.rig, comparison.frames, images=images)
+
+
+def _reduced_meta(proto: onnx.ModelProto, meta: ArtifactMeta, parity: ReducedParityReport, quantization: Quantization) -> ArtifactMeta:
+    """The reduced file's metadata: its parity, what was reduced, the TensorRT check of its own graph."""
+    suffix = "int8" if quantization.mode == "int8-qdq" else quantization.mode
+    return meta.model_copy(update={"model_id": f"{meta.model_id}-{suffix}", "parity": parity, "quantization": quantization,
+                                   "tensorrt": check_tensorrt(proto)})
+
+
+def _publish(proto: onnx.ModelProto, meta: ArtifactMeta, pending: PendingFile, keep: bool) -> Path | None:
+    """Set the reduced file's metadata (the re-baking key copied from the fp32 file stays) and, when
+    ``keep``, write the file in place of the pending one: its path, or None."""
+    set_metadata(proto, meta)
+    if not keep:
+        return None
+    save_model(proto, pending.path)
+    return pending.commit()

@@ -1,0 +1,140 @@
+"""What an export returns: the files written, their metadata and parity, and a summary for people.
+
+``ExportResult`` describes the fp32 file and holds the ``Int8Result`` and ``Fp16Result`` of the
+reduced-precision files made from it; each ``summary()`` is what ``fisheye-infer export`` prints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from fisheye_infer.runtime.artifact import ArtifactMeta, ParityReport, ReducedParityReport
+
+__all__ = ["ExportResult", "Fp16Result", "Int8Result", "ReducedResult"]
+
+
+@dataclass(frozen=True)
+class ReducedResult:
+    """A reduced-precision file derived from a verified fp32 file: where it went (None: not written,
+    its parity failed), its metadata and parity, how long it took and its size."""
+
+    path: Path | None
+    meta: ArtifactMeta
+    parity: ReducedParityReport
+    seconds: float
+    file_bytes: int
+
+
+class Int8Result(ReducedResult):
+    """The int8 file written next to the fp32 one (``export_int8``)."""
+
+    def summary(self) -> str:
+        p, q = self.parity, self.meta.quantization
+        how = (f"{q.mode}, {q.scope}, {q.weight_bits}-bit weights, calibrated on {q.calibration_frames} frame(s)" if q is not None
+               else "not quantized")
+        return "\n".join([
+            f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
+            f"int8 vs the fp32 ONNX file on {p.frames} frames: {_kept(p)} of the top-50 boxes matched within "
+            f"{p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+            *_by_score_lines(p),
+            *_tensorrt_lines(self.meta, "int8 file: "),
+        ])
+
+
+class Fp16Result(ReducedResult):
+    """The fp16 file written next to the fp32 one (``export_fp16``)."""
+
+    def summary(self) -> str:
+        p, q = self.parity, self.meta.quantization
+        lines = [
+            f"fp16 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {q.scope if q else 'not reduced'})",
+            f"fp16 vs the fp32 ONNX file on {p.frames} frames ({p.evaluated_with}): {_kept(p)} of the top-50 boxes matched within "
+            f"{p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}; matched max |box| {p.max_box_abs_diff_m:.3f} m, "
+            f"|score| {p.max_score_abs_diff:.4f}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+            *_by_score_lines(p),
+        ]
+        if p.replayed is not None:
+            r = p.replayed
+            lines.append(f"  at the fp16 file's own top-k choice: {r.top_matched_fraction:.1%} matched; position by position max |box| "
+                         f"{r.max_box_abs_diff_m:.3f} m, |score| {r.max_score_abs_diff:.4f}; dense scores max |diff| {p.max_rank_score_abs_diff or 0.0:.4f}")
+        lines += [f"  {problem}" for problem in p.problems]
+        return "\n".join(lines + _tensorrt_lines(self.meta, "fp16 file: "))
+
+
+def _kept(p: ReducedParityReport) -> str:
+    """"91.2% +- 1.1%": the share of the fp32 top-50 boxes found again and its standard error over the frames."""
+    spread = f" +- {p.top_matched_standard_error:.1%}" if p.top_matched_standard_error else ""
+    return f"{p.top_matched_fraction:.1%}{spread}"
+
+
+def _by_score_lines(p: ReducedParityReport) -> list[str]:
+    """The share kept per band of the fp32 box's score: what a detection threshold would keep."""
+    if not p.top_matched_by_score:
+        return []
+    bands = [f"{band} {m / c:.1%} of {c}" for band, (m, c) in p.top_matched_by_score.items() if c]
+    return ["  by the fp32 box's score: " + ", ".join(bands)]
+
+
+def _tensorrt_lines(meta: ArtifactMeta, prefix: str = "") -> list[str]:
+    return [prefix + meta.tensorrt.summary()] if meta.tensorrt is not None else []
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """The fp32 file (None: not written, its parity failed), its metadata and parity against PyTorch,
+    how long the export took, its size, and the int8 and fp16 files made from it, if asked for."""
+
+    path: Path | None
+    meta: ArtifactMeta
+    parity: ParityReport
+    seconds: float
+    file_bytes: int
+    initializer_bytes: int  # every initializer: weights and geometry tables
+    geometry_bytes: int  # the ``geom.*`` initializers alone
+    int8: Int8Result | None = None
+    fp16: Fp16Result | None = None
+
+    def summary(self) -> str:
+        p = self.parity
+        lines = [
+            f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; initializers "
+            f"{self.initializer_bytes / 1e6:.1f} MB, of which geometry tables {self.geometry_bytes / 1e6:.1f} MB)",
+            f"model {self.meta.model_id}: {self.meta.architecture}, {len(self.meta.cameras)} cameras at "
+            f"{self.meta.image_size[0]}x{self.meta.image_size[1]}, {self.meta.num_boxes} boxes, rig {self.meta.rig_hash}",
+            f"parity vs PyTorch float64 on {p.frames} frames at {', '.join(map(str, p.threads))} thread(s) "
+            f"(PyTorch float32 itself: dense {_f32(p, 0)}, box {_f32(p, 1)} m, score {_f32(p, 2)}):",
+            f"  scores before ranking max |diff| {p.max_rank_score_abs_diff or 0.0:.2e} (tol {p.tolerance_rank_score or p.tolerance_score:.1e}); "
+            f"top-k choice: {_choice(p)}",
+            f"  at that choice max |box| {p.max_box_abs_diff_m:.2e} m (tol {p.tolerance_box_m:.1e}), max |score| {p.max_score_abs_diff:.2e} "
+            f"(tol {p.tolerance_score:.1e}), labels {'equal' if p.labels_equal else 'DIFFER'}, valid {'equal' if p.valid_equal else 'DIFFERS'}, "
+            f"{p.unmatched} box(es) off{'; the written file DIFFERS from the checked graph' if p.written_equals_checked is False else ''} "
+            f"-> {'PASSED' if p.passed else 'FAILED'}",
+            *(f"  {problem}" for problem in p.problems),
+            *_tensorrt_lines(self.meta),
+            f"took {self.seconds:.1f} s",
+        ]
+        if self.int8 is not None:
+            lines.append(self.int8.summary())
+        if self.fp16 is not None:
+            lines.append(self.fp16.summary())
+        if self.path:
+            lines.append(f"next: fisheye-infer detect {self.path} --images DIR --out result.json --viz result.png")
+        if self.int8 is not None and self.int8.path:
+            lines.append(f"      fisheye-infer detect {self.int8.path} ...   (int8); fisheye-infer bench {self.int8.path}")
+        if self.fp16 is not None and self.fp16.path:
+            lines.append(f"      {self.fp16.path}: for GPU execution providers (CUDA, TensorRT)")
+        return "\n".join(lines)
+
+
+def _f32(p: ParityReport, i: int) -> str:
+    return f"{p.pytorch_float32[i]:.1e}" if p.pytorch_float32 else "-"
+
+
+def _choice(p: ParityReport) -> str:
+    """How the graph's top-k choice relates to PyTorch's, in words."""
+    if p.order_equal:
+        return "PyTorch float32's own"
+    if p.selection_valid:
+        return f"a top-k of its scores, ties broken otherwise than PyTorch float32 ({p.tie_substitutions} substitution(s), {p.tie_swaps} position(s))"
+    return "NOT a top-k of its own scores"

@@ -1,0 +1,234 @@
+"""An exported ONNX file -> a Triton model repository for the ONNX Runtime backend.
+
+    write_repository("model.onnx", "model_repository", TritonOptions(max_batch_size=4, instances=2))
+
+    model_repository/
+      <name>/
+        config.pbtxt      inputs and outputs read from the file, dynamic batching, instance groups,
+                          optional TensorRT, the fisheye-infer metadata as a parameter
+        1/model.onnx      the file, copied byte for byte
+
+The configuration is first built as a plain dict in the JSON form of Triton's ``ModelConfig``
+(what Triton answers at ``GET /v2/models/<name>/config``), then rendered to protobuf text
+format. The service's KServe stand-in answers that request from the same dict, and a
+``TritonDetector`` reads the model's metadata (classes, cameras, image size) from it, so a
+client needs nothing but the server's address and the model's name. Nothing here needs
+protobuf or tritonclient: the tests parse the rendered text with Triton's own ``ModelConfig``.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from fisheye_infer.errors import ArtifactError, ExportError
+from fisheye_infer.runtime.artifact import METADATA_KEY, inspection_session, parse_meta
+from fisheye_infer.runtime.detector import check_interface
+
+__all__ = ["TritonOptions", "model_name", "model_config", "render_pbtxt", "write_repository", "TRITON_DTYPES", "KSERVE_DTYPES"]
+
+#: ONNX Runtime element types -> Triton config data types.
+TRITON_DTYPES = {"tensor(uint8)": "TYPE_UINT8", "tensor(bool)": "TYPE_BOOL", "tensor(float)": "TYPE_FP32", "tensor(int64)": "TYPE_INT64",
+                 "tensor(int32)": "TYPE_INT32", "tensor(float16)": "TYPE_FP16", "tensor(double)": "TYPE_FP64"}
+#: Triton config data types -> KServe v2 tensor data types (``TYPE_FP32`` -> ``FP32``).
+KSERVE_DTYPES = {v: v.removeprefix("TYPE_") for v in TRITON_DTYPES.values()}
+
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+_ENUM_FIELDS = {"data_type", "kind"}  # their string values are enum names, written unquoted
+_MAP_FIELDS = {"parameters"}  # written as repeated {key, value} entries
+
+
+@dataclass(frozen=True)
+class TritonOptions:
+    """How Triton should run the model.
+
+    | option | default | meaning |
+    |---|---|---|
+    | ``name`` | the file's stem | the model's name in the repository and in URLs |
+    | ``max_batch_size`` | 4 | frames per batched run; 0 turns batching off (the batch axis is then part of the dims) |
+    | ``max_queue_delay_us`` | 5000 | dynamic batching: how long a request waits for others |
+    | ``preferred_batch_sizes`` | none | dynamic batching: batch sizes to form when possible |
+    | ``instances`` / ``kind`` | 1 / ``auto`` | model instances per device; ``cpu``, ``gpu`` or ``auto`` (GPU when present) |
+    | ``gpus`` | all | GPU ids for ``kind="gpu"`` |
+    | ``threads`` | backend default | ONNX Runtime intra-op threads per instance |
+    | ``tensorrt`` | off | TensorRT as the GPU execution accelerator (needs ``kind="gpu"``) |
+    | ``tensorrt_precision`` | ``FP16`` | ``FP32`` or ``FP16`` |
+    | ``tensorrt_workspace_bytes`` | 1 GiB | TensorRT's scratch memory |
+    | ``tensorrt_cache`` | none | folder where TensorRT engines are cached across restarts |
+    """
+
+    name: str | None = None
+    max_batch_size: int = 4
+    max_queue_delay_us: int = 5000
+    preferred_batch_sizes: tuple[int, ...] = ()
+    instances: int = 1
+    kind: Literal["auto", "cpu", "gpu"] = "auto"
+    gpus: tuple[int, ...] = ()
+    threads: int | None = None
+    tensorrt: bool = False
+    tensorrt_precision: Literal["FP32", "FP16"] = "FP16"
+    tensorrt_workspace_bytes: int = 1 << 30
+    tensorrt_cache: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.name is not None and not _NAME.match(self.name):
+            raise ValueError(f"name: {self.name!r} is not a usable model name (letters, digits, '_', '.', '-'; not starting with '.' or '-')")
+        if self.max_batch_size < 0:
+            raise ValueError(f"max_batch_size: expected 0 (no batching) or more, got {self.max_batch_size}")
+        if self.max_queue_delay_us < 0:
+            raise ValueError(f"max_queue_delay_us: expected 0 or more, got {self.max_queue_delay_us}")
+        bad = [b for b in self.preferred_batch_sizes if not 1 <= b <= self.max_batch_size]
+        if bad:
+            raise ValueError(f"preferred_batch_sizes: {bad} outside 1..max_batch_size={self.max_batch_size}")
+        if self.instances < 1:
+            raise ValueError(f"instances: expected at least 1, got {self.instances}")
+        if self.kind not in ("auto", "cpu", "gpu"):
+            raise ValueError(f"kind: expected auto, cpu or gpu, got {self.kind!r}")
+        if self.gpus and self.kind != "gpu":
+            raise ValueError(f"gpus: only for kind='gpu', got kind={self.kind!r}")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads: expected a positive number, got {self.threads}")
+        if self.tensorrt and self.kind != "gpu":
+            raise ValueError(f"tensorrt: TensorRT runs on GPU instances; set kind='gpu' (got kind={self.kind!r})")
+        if self.tensorrt_precision not in ("FP32", "FP16"):
+            raise ValueError(f"tensorrt_precision: expected FP32 or FP16, got {self.tensorrt_precision!r}")
+        if self.tensorrt_workspace_bytes < 1:
+            raise ValueError(f"tensorrt_workspace_bytes: expected a positive size, got {self.tensorrt_workspace_bytes}")
+
+
+def model_name(path: str | Path) -> str:
+    """The default model name for a file: its stem, with characters Triton cannot use replaced by '_'."""
+    stem = re.sub(r"[^A-Za-z0-9_.-]", "_", Path(path).stem).lstrip(".-")
+    return stem or "model"
+
+
+def _io(items: list[Any], batched: bool, source: str) -> list[dict[str, Any]]:
+    out = []
+    for item in items:
+        if item.type not in TRITON_DTYPES:
+            raise ArtifactError(f"{source}: tensor '{item.name}' has type {item.type}, which this writer does not map to Triton")
+        shape = [d if isinstance(d, int) and d > 0 else -1 for d in item.shape]
+        if batched:
+            if shape[0] != -1:
+                raise ExportError(f"{source}: tensor '{item.name}' has a fixed batch of {shape[0]}; use max_batch_size=0")
+            shape = shape[1:]
+        out.append({"name": item.name, "data_type": TRITON_DTYPES[item.type], "dims": shape})
+    return out
+
+
+def model_config(model_path: str | Path, options: TritonOptions | None = None) -> dict[str, Any]:
+    """The ``ModelConfig`` of ``model_path`` for the ONNX Runtime backend, as a JSON-form dict."""
+    options = options or TritonOptions()
+    path = Path(model_path)
+    session = inspection_session(path)
+    document = session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
+    meta = parse_meta(document, source=f"model {path}")
+    check_interface({i.name: i.shape for i in session.get_inputs()}, [o.name for o in session.get_outputs()], meta, f"model {path}")
+    batched = options.max_batch_size > 0
+    config: dict[str, Any] = {
+        "name": options.name or model_name(path),
+        "backend": "onnxruntime",
+        "default_model_filename": "model.onnx",
+        "max_batch_size": options.max_batch_size,
+        "input": _io(session.get_inputs(), batched, f"model {path}"),
+        "output": _io(session.get_outputs(), batched, f"model {path}"),
+    }
+    if batched:
+        batching: dict[str, Any] = {"max_queue_delay_microseconds": options.max_queue_delay_us}
+        if options.preferred_batch_sizes:
+            batching["preferred_batch_size"] = list(options.preferred_batch_sizes)
+        config["dynamic_batching"] = batching
+    group: dict[str, Any] = {"count": options.instances, "kind": {"auto": "KIND_AUTO", "cpu": "KIND_CPU", "gpu": "KIND_GPU"}[options.kind]}
+    if options.gpus:
+        group["gpus"] = list(options.gpus)
+    config["instance_group"] = [group]
+    if options.tensorrt:
+        trt = {"precision_mode": options.tensorrt_precision, "max_workspace_size_bytes": str(options.tensorrt_workspace_bytes)}
+        if options.tensorrt_cache:
+            trt |= {"trt_engine_cache_enable": "1", "trt_engine_cache_path": options.tensorrt_cache}
+        config["optimization"] = {"execution_accelerators": {"gpu_execution_accelerator": [{"name": "tensorrt", "parameters": trt}]}}
+    # The runtime's own choice (session.py): no memory-pattern planning, which keeps peak RSS low.
+    parameters = {"enable_mem_pattern": {"string_value": "0"}, METADATA_KEY: {"string_value": document}}
+    if options.threads:
+        parameters["intra_op_thread_count"] = {"string_value": str(options.threads)}
+    config["parameters"] = parameters
+    return config
+
+
+# -- protobuf text format --------------------------------------------------------------------------
+
+
+def _quote(text: str) -> str:
+    """A text-format string literal: printable ASCII as is (quote and backslash escaped), other bytes of its UTF-8 as octal escapes."""
+    out = []
+    for byte in text.encode("utf-8"):
+        if byte in (34, 92):
+            out.append("\\" + chr(byte))
+        else:
+            out.append(chr(byte) if 32 <= byte < 127 else f"\\{byte:03o}")
+    return '"' + "".join(out) + '"'
+
+
+def _scalar(key: str, value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return value if key in _ENUM_FIELDS else _quote(value)
+    raise TypeError(f"{key}: cannot write {type(value).__name__} in text format")
+
+
+def _fields(doc: dict[str, Any], indent: int) -> list[str]:
+    pad = "  " * indent
+    lines: list[str] = []
+    for key, value in doc.items():
+        if key in _MAP_FIELDS and isinstance(value, dict):
+            for k, v in value.items():
+                entry = {"key": k, "value": v}
+                lines += [f"{pad}{key} {{", *_fields(entry, indent + 1), f"{pad}}}"]
+        elif isinstance(value, dict):
+            lines += [f"{pad}{key} {{", *_fields(value, indent + 1), f"{pad}}}"]
+        elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            for item in value:
+                lines += [f"{pad}{key} {{", *_fields(item, indent + 1), f"{pad}}}"]
+        elif isinstance(value, list):
+            lines.append(f"{pad}{key}: [{', '.join(_scalar(key, v) for v in value)}]")
+        else:
+            lines.append(f"{pad}{key}: {_scalar(key, value)}")
+    return lines
+
+
+def render_pbtxt(config: dict[str, Any]) -> str:
+    """``config`` (JSON form of ``ModelConfig``) in protobuf text format, as ``config.pbtxt``."""
+    return "\n".join(_fields(config, 0)) + "\n"
+
+
+def write_repository(model_path: str | Path, out: str | Path, options: TritonOptions | None = None, *, force: bool = False) -> Path:
+    """Write ``out/<name>/config.pbtxt`` and ``out/<name>/1/model.onnx``; returns ``out/<name>``.
+
+    The model folder appears complete or not at all (it is built beside its place and renamed),
+    and an existing one is replaced only with ``force``.
+    """
+    config = model_config(model_path, options)
+    root = Path(out)
+    target = root / config["name"]
+    if target.exists() and not force:
+        raise ExportError(f"{target}: already exists; choose another --name or pass --force to replace it")
+    root.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{config['name']}.", dir=root))
+    try:
+        (staging / "1").mkdir()
+        shutil.copyfile(model_path, staging / "1" / "model.onnx")
+        (staging / "config.pbtxt").write_text(render_pbtxt(config))
+        if target.exists():
+            shutil.rmtree(target)
+        staging.rename(target)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return target

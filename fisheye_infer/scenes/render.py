@@ -1,0 +1,353 @@
+"""Synthetic fisheye scenes: boxes of the six classes on a textured ground, ray-cast through any rig.
+
+Every pixel of every camera is unprojected with the camera's own model and followed into the
+lidar frame: a ray that hits a box shows the box's class colour shaded by the face it hits, one
+that falls towards the ground shows a checker-and-noise texture fading into haze, the rest shows
+a sky gradient. Pixels outside the lens's field of view are black, as in real fisheye frames.
+Because the pictures are made with the same camera model and extrinsics the detectors' geometry
+uses, they exercise the whole data path (reader, rig, projection, metric) without the dataset.
+An :class:`Appearance` changes the look (sun, ground texture, sky, haze, object colours);
+:func:`random_appearance` draws one per frame for training data.
+
+    frames = synthesize(default_rig(), "data/synth", frames=4, seed=0)   # Fisheye3DOD layout
+    Fisheye3DOD("data/synth", "val")                                   # reads the same rig and boxes
+
+Everything is seeded: the same arguments write the same bytes. Box parameters are multiples of
+1/256 m (yaw of 1/1024 rad), so the gravity-centre labels convert back to the same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fisheye_infer.cameras.camera_models import OCamModel, Pinhole, incidence_angle
+from fisheye_infer.cameras.carla_poses import CarlaPose, Convention
+from fisheye_infer.cameras.rig import Rig, RigCamera
+from fisheye_infer.errors import RigError
+from fisheye_infer.runtime.records import CLASSES
+
+__all__ = ["CLASS_SIZES", "CLASS_COLOURS", "Scene", "SynthFrame", "Appearance", "random_appearance", "random_scene", "Renderer",
+           "synthesize", "resized_rig"]
+
+#: Typical (length, width, height) in metres per class.
+CLASS_SIZES = {"Car": (4.5, 1.9, 1.6), "Van": (5.0, 2.0, 2.1), "Truck": (7.5, 2.5, 3.2), "Bus": (11.0, 2.9, 3.3),
+               "Pedestrian": (0.7, 0.7, 1.75), "Cyclist": (1.8, 0.7, 1.7)}
+#: BGR colour per class, far from the greys of the ground and the blues of the sky.
+CLASS_COLOURS = {"Car": (40, 40, 210), "Van": (0, 140, 255), "Truck": (0, 215, 235), "Bus": (210, 110, 20), "Pedestrian": (200, 40, 200),
+                 "Cyclist": (40, 190, 40)}
+_CLASS_WEIGHTS = (0.4, 0.15, 0.1, 0.05, 0.2, 0.1)
+_SUN = (0.3, 0.5, 0.81)
+_LIGHT = np.array(_SUN, np.float32) / np.linalg.norm(_SUN)
+_SKY_HORIZON = np.array([215, 205, 190], np.float32)
+_SKY_ZENITH = np.array([205, 140, 80], np.float32)
+_HAZE = np.array([200, 195, 185], np.float32)
+
+
+def _q(x: np.ndarray | float, step: float) -> np.ndarray:
+    return np.round(np.asarray(x, np.float64) / step) * step
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Objects of one frame: runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw`` and class ids."""
+
+    boxes: np.ndarray
+    labels: np.ndarray
+    ground_z: float = -2.0
+
+
+@dataclass(frozen=True)
+class Appearance:
+    """How a scene looks: lighting, ground texture, sky and object colours. The defaults are the
+    renderer's standard look; :func:`random_appearance` varies every field for training data.
+
+    ``object_colours`` is one BGR colour per box of the scene (None: the class colours).
+    """
+
+    light: tuple[float, float, float] = _SUN  # towards the sun, any length
+    ambient: float = 0.35
+    ground_grey: float = 100.0
+    checker_contrast: float = 40.0
+    noise_contrast: float = 36.0
+    checker_size: float = 2.0
+    ground_tint: tuple[float, float, float] = (-6.0, 0.0, 6.0)
+    sky_horizon: tuple[float, float, float] = tuple(float(v) for v in _SKY_HORIZON)  # type: ignore[assignment]
+    sky_zenith: tuple[float, float, float] = tuple(float(v) for v in _SKY_ZENITH)  # type: ignore[assignment]
+    haze_distance: float = 90.0
+    object_colours: tuple[tuple[float, float, float], ...] | None = None
+
+
+def random_appearance(rng: np.random.Generator, scene: Scene, colour_jitter: float = 45.0) -> Appearance:
+    """A random look for ``scene``: sun direction and strength, ground brightness, texture scale and
+    tint, sky colours, haze, and each object's class colour shifted by up to ``colour_jitter`` per
+    channel and scaled in brightness (classes stay told apart by colour family and size)."""
+    elevation, azimuth = rng.uniform(0.25, 1.4), rng.uniform(-math.pi, math.pi)
+    light = (math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation))
+    colours: list[tuple[float, float, float]] = []
+    for label in scene.labels:
+        base = np.asarray(CLASS_COLOURS[CLASSES[int(label)]], np.float64)
+        colour = np.clip((base + rng.uniform(-colour_jitter, colour_jitter, 3)) * rng.uniform(0.75, 1.2), 0, 255)
+        colours.append((float(colour[0]), float(colour[1]), float(colour[2])))
+    return Appearance(
+        light=light, ambient=float(rng.uniform(0.2, 0.5)), ground_grey=float(rng.uniform(60, 150)),
+        checker_contrast=float(rng.uniform(0, 60)), noise_contrast=float(rng.uniform(10, 60)),
+        checker_size=float(rng.uniform(0.5, 4.0)), ground_tint=tuple(float(v) for v in rng.uniform(-20, 20, 3)),  # type: ignore[arg-type]
+        sky_horizon=tuple(float(v) for v in np.clip(_SKY_HORIZON + rng.uniform(-40, 30, 3), 0, 255)),  # type: ignore[arg-type]
+        sky_zenith=tuple(float(v) for v in np.clip(_SKY_ZENITH + rng.uniform(-40, 40, 3), 0, 255)),  # type: ignore[arg-type]
+        haze_distance=float(rng.uniform(50, 200)), object_colours=tuple(colours))
+
+
+def random_scene(
+    rng: np.random.Generator,
+    num_objects: tuple[int, int] = (6, 14),
+    ground_z: float = -2.0,
+    min_range: float = 4.0,
+    max_range: float = 35.0,
+    size_jitter: float = 0.1,
+) -> Scene:
+    """Objects standing on the ground, not overlapping each other or the ego vehicle's footprint.
+
+    Distances are uniform in [min_range, max_range], so near objects are as common as far ones;
+    each size is the class's typical one scaled by a factor in [1 - size_jitter, 1 + size_jitter].
+    """
+    lo, hi = num_objects
+    if not 0 <= lo <= hi or not 0 < min_range < max_range:
+        raise ValueError(f"num_objects/min_range/max_range: expected 0 <= {lo} <= {hi} and 0 < {min_range} < {max_range}")
+    if not 0 <= size_jitter < 1:
+        raise ValueError(f"size_jitter: expected a fraction in [0, 1), got {size_jitter}")
+    wanted = int(rng.integers(lo, hi + 1))
+    sizes = np.array([CLASS_SIZES[c] for c in CLASSES])
+    ground = float(_q(ground_z, 1 / 256))
+    boxes: list[np.ndarray] = []
+    labels: list[int] = []
+    for _ in range(50 * max(wanted, 1)):
+        if len(boxes) == wanted:
+            break
+        label = int(rng.choice(len(CLASSES), p=_CLASS_WEIGHTS))
+        lwh = sizes[label] * rng.uniform(1 - size_jitter, 1 + size_jitter, 3)
+        r = rng.uniform(min_range, max_range)
+        phi = rng.uniform(-math.pi, math.pi)
+        box = np.array([r * math.cos(phi), r * math.sin(phi), ground, *lwh, rng.uniform(-math.pi, math.pi)])
+        box[:6], box[6] = _q(box[:6], 1 / 256), _q(box[6], 1 / 1024)
+        radius = math.hypot(box[3], box[4]) / 2
+        if abs(box[0]) < 3.0 + radius and abs(box[1]) < 1.5 + radius:
+            continue
+        if any(math.hypot(box[0] - b[0], box[1] - b[1]) < radius + math.hypot(b[3], b[4]) / 2 + 0.3 for b in boxes):
+            continue
+        boxes.append(box)
+        labels.append(label)
+    return Scene(np.array(boxes, np.float64).reshape(-1, 7), np.array(labels, np.int64), ground)
+
+
+def _hash01(ix: np.ndarray, iy: np.ndarray, seed: int) -> np.ndarray:
+    """Deterministic value noise in [0, 1) per integer cell."""
+    h = (ix.astype(np.int64) * 73856093) ^ (iy.astype(np.int64) * 19349663) ^ (seed * 83492791)
+    h = (h ^ (h >> 13)) * 1274126177
+    return ((h ^ (h >> 16)) & 0xFFFF).astype(np.float32) / 65536.0
+
+
+class Renderer:
+    """Ray-casts scenes through cameras; the per-pixel rays of each camera model are computed once."""
+
+    def __init__(self, texture_seed: int = 0) -> None:
+        self.texture_seed = texture_seed
+        self._rays: dict[object, tuple[np.ndarray, np.ndarray]] = {}
+
+    def camera_rays(self, model: object) -> tuple[np.ndarray, np.ndarray]:
+        """Unit rays (3, H*W) float32 in the camera frame, and which pixels lie inside the field of view.
+
+        Rays are stored component-major: rotating (3, N) by a 3x3 matrix is a fast matrix product,
+        (N, 3) @ (3, 3) is not.
+        """
+        if model not in self._rays:
+            width, height = model.width, model.height  # type: ignore[attr-defined]
+            v, u = np.mgrid[0:height, 0:width]
+            rays = model.unproject(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64))  # type: ignore[attr-defined]
+            fov = getattr(model, "fov", None)
+            inside = incidence_angle(rays) <= math.radians(fov / 2) if fov is not None else np.ones(len(rays), bool)
+            self._rays[model] = (np.ascontiguousarray(rays.T, np.float32), inside)
+        return self._rays[model]
+
+    def render(self, rig: Rig, scene: Scene, appearance: Appearance | None = None) -> dict[str, np.ndarray]:
+        """One (H, W, 3) uint8 BGR picture per camera."""
+        return {cam.name: self.render_camera(cam, scene, appearance) for cam in rig.cameras}
+
+    def render_camera(self, camera: RigCamera, scene: Scene, appearance: Appearance | None = None) -> np.ndarray:
+        look = appearance or Appearance()
+        if look.object_colours is not None and len(look.object_colours) != len(scene.boxes):
+            raise ValueError(f"appearance: {len(look.object_colours)} object colours for {len(scene.boxes)} boxes")
+        rays_cam, inside = self.camera_rays(camera.model)
+        m = camera.matrix
+        d = m[:3, :3].astype(np.float32) @ rays_cam  # 3 x N, lidar frame
+        o = m[:3, 3].astype(np.float32)
+        colour, depth = self._background(o, d, scene.ground_z, look)
+        light = np.array(look.light, np.float32) / np.linalg.norm(look.light)
+        for i, (box, label) in enumerate(zip(scene.boxes, scene.labels)):
+            bgr = CLASS_COLOURS[CLASSES[label]] if look.object_colours is None else look.object_colours[i]
+            self._draw_box(o, d, box, bgr, colour, depth, light, look.ambient)
+        colour[:, ~inside] = 0
+        model = camera.model
+        return np.clip(colour, 0, 255).astype(np.uint8).T.reshape(model.height, model.width, 3)
+
+    def ray_depth(self, origin: np.ndarray, directions: np.ndarray, scene: Scene) -> np.ndarray:
+        """Distance to the first surface (ground or box) along unit rays (3, N) from ``origin`` (3,),
+        lidar frame; inf where a ray meets nothing. The pictures' own intersection code, so a
+        depth target agrees with what the pixels show."""
+        o = np.asarray(origin, np.float32)
+        d = np.ascontiguousarray(directions, np.float32)
+        colour, depth = self._background(o, d, scene.ground_z, Appearance())
+        for box in scene.boxes:
+            self._draw_box(o, d, box, (0.0, 0.0, 0.0), colour, depth)
+        return depth
+
+    def _background(self, o: np.ndarray, d: np.ndarray, ground_z: float, look: Appearance) -> tuple[np.ndarray, np.ndarray]:
+        """Sky gradient everywhere, then the textured ground where rays fall towards it; colour is (3, N)."""
+        up = np.clip(d[2], 0, 1)
+        horizon, zenith = np.asarray(look.sky_horizon, np.float32), np.asarray(look.sky_zenith, np.float32)
+        colour = horizon[:, None] * (1 - up) + zenith[:, None] * up
+        depth = np.full(d.shape[1], np.inf, np.float32)
+        if o[2] <= ground_z:
+            return colour, depth
+        down = np.nonzero(d[2] < -1e-4)[0]
+        t = (np.float32(ground_z) - o[2]) / d[2, down]
+        px, py = o[0] + t * d[0, down], o[1] + t * d[1, down]
+        size = np.float32(look.checker_size)
+        checker = (np.floor(px / size).astype(np.int64) + np.floor(py / size).astype(np.int64)) & 1
+        noise = _hash01(np.floor(px * 4), np.floor(py * 4), self.texture_seed) - 0.5
+        grey = np.float32(look.ground_grey) + np.float32(look.checker_contrast) * checker + np.float32(look.noise_contrast) * noise
+        fog = np.exp(-np.hypot(px - o[0], py - o[1]) / np.float32(look.haze_distance))
+        for ch, tint in enumerate(np.asarray(look.ground_tint, np.float32)):
+            colour[ch, down] = (grey + tint) * fog + _HAZE[ch] * (1 - fog)
+        depth[down] = t
+        return colour, depth
+
+    @staticmethod
+    def _draw_box(o: np.ndarray, d: np.ndarray, box: np.ndarray, bgr: Sequence[float], colour: np.ndarray, depth: np.ndarray,
+                  light: np.ndarray = _LIGHT, ambient: float = 0.35) -> None:
+        """Slab test against one oriented box, in place: nearer hits overwrite colour and depth.
+
+        Only rays passing within the box's bounding sphere are tested.
+        """
+        x, y, zb, length, width, height, yaw = (float(v) for v in box)
+        centre = np.array([x, y, zb + height / 2], np.float32)
+        half = np.array([length / 2, width / 2, height / 2], np.float32)
+        v = centre - o
+        along = v @ d
+        radius2 = float(half @ half)
+        cand = np.nonzero((float(v @ v) - along * along < radius2) & (along > -math.sqrt(radius2)))[0]
+        if len(cand) == 0:
+            return
+        c, s = math.cos(yaw), math.sin(yaw)
+        to_box = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]], np.float32)  # lidar -> box frame
+        ol = to_box @ (o - centre)
+        dl = (to_box @ d[:, cand]).T  # m x 3
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / dl
+            t1, t2 = (-half - ol) * inv, (half - ol) * inv
+        tmin, tmax = np.fmin(t1, t2), np.fmax(t1, t2)
+        near, far = tmin.max(axis=1), tmax.min(axis=1)
+        hit = (near <= far) & (near > 0) & (near < depth[cand])
+        cand, near, dl, axis = cand[hit], near[hit], dl[hit], tmin[hit].argmax(axis=1)
+        if len(cand) == 0:
+            return
+        rows = np.arange(len(cand))
+        normal = np.zeros((len(cand), 3), np.float32)
+        normal[rows, axis] = -np.sign(dl[rows, axis])
+        shade = ambient + (1 - ambient) * np.clip((normal @ to_box) @ light, 0, 1)  # normal back to the lidar frame
+        local = ol + near[:, None] * dl
+        edge = (np.abs(local) > half - 0.05).sum(axis=1) >= 2
+        shade = np.where(edge, 0.3 * shade, shade)
+        colour[:, cand] = np.asarray(bgr, np.float32)[:, None] * shade
+        depth[cand] = near
+
+
+@dataclass(frozen=True)
+class SynthFrame:
+    """What was written for one frame: its token, the rig as the reader rebuilds it, its boxes."""
+
+    token: str
+    frame_id: str
+    rig: Rig
+    boxes: np.ndarray  # (K, 7) runtime layout
+    labels: np.ndarray  # (K,)
+
+
+def synthesize(
+    rig: Rig,
+    out: str | Path,
+    frames: int = 1,
+    seed: int = 0,
+    split: str = "val",
+    scene_name: str | None = None,
+    num_objects: tuple[int, int] = (6, 14),
+    ground_height: float = 2.0,
+    first_frame: int = 1000,
+    convention: Convention = "compat",
+) -> list[SynthFrame]:
+    """Write ``frames`` synthetic frames of one sequence under ``out`` in the Fisheye3DOD layout.
+
+    The ego vehicle drives along a gentle curve (level, so the compat conversion is exact); each
+    frame gets its own seeded objects. The fisheye cameras of ``rig`` must share one OCam model and
+    its pinhole cameras be the layout's (``rig-pinhole6``'s), which the writer checks.
+    """
+    from fisheye_infer.eval.writer import Fisheye3DODWriter
+
+    if frames < 1:
+        raise ValueError(f"frames: expected at least 1, got {frames}")
+    scene_name = scene_name or f"synth-Town00-ClearNoon-seed{seed}"
+    writer = Fisheye3DODWriter(out, scene_name, split=split, convention=convention)
+    renderer = Renderer(texture_seed=seed)
+    written = []
+    for i in range(frames):
+        rng = np.random.default_rng([seed, i])
+        frame_id = f"{first_frame + 5 * i:08d}"
+        heading = (seed * 37.0 + 2.0 * i) % 360.0 - 180.0
+        lidar = CarlaPose(x=100.0 + 4.0 * i, y=-50.0 + 0.5 * i, z=float(_q(ground_height, 1 / 256)), pitch=0.0, yaw=heading, roll=0.0)
+        scene = random_scene(rng, num_objects, ground_z=-ground_height)
+        frame_rig = writer.write_poses(frame_id, rig, lidar)
+        writer.write_images(frame_id, renderer.render(frame_rig, scene))
+        writer.write_labels(frame_id, scene.boxes, scene.labels)
+        written.append(SynthFrame(f"{scene_name}.{writer.vehicle}.{frame_id}", frame_id, frame_rig, scene.boxes, scene.labels))
+    writer.close()
+    return written
+
+
+def resized_rig(rig: Rig, scale: float) -> Rig:
+    """The same rig with every image scaled by ``scale`` (e.g. 0.25: 800x800 -> 200x200); OCam and pinhole models.
+
+    Pixel centres stay at integers: u' + 1/2 = s (u + 1/2). Image radii scale by s, so an OCam
+    model's invpol is multiplied by s and pol's i-th coefficient by s^(1-i); a pinhole's focal
+    lengths are multiplied by s.
+    """
+    if not scale > 0:
+        raise ValueError(f"scale: expected a positive factor, got {scale}")
+    cameras = []
+    for cam in rig.cameras:
+        m = cam.model
+        if not isinstance(m, (OCamModel, Pinhole)):
+            raise RigError(f"camera '{cam.name}': only OCam and pinhole models can be resized, got {m.type}")
+        width, height = round(m.width * scale), round(m.height * scale)
+        if width < 1 or height < 1 or abs(width / m.width - height / m.height) > 1e-9:
+            raise ValueError(f"scale: {scale} does not give a whole image with the same aspect ({m.width}x{m.height} -> {width}x{height})")
+        s = width / m.width
+        size = {"width": width, "height": height}
+        resized: OCamModel | Pinhole
+        if isinstance(m, Pinhole):
+            resized = m.model_copy(update={"fx": m.fx * s, "fy": m.fy * s, "cx": (m.cx + 0.5) * s - 0.5, "cy": (m.cy + 0.5) * s - 0.5, **size})
+        else:
+            resized = m.model_copy(
+                update={
+                    "pol": tuple(p * s ** (1 - i) for i, p in enumerate(m.pol)),
+                    "invpol": tuple(p * s for p in m.invpol),
+                    "center_row": (m.center_row + 0.5) * s - 0.5,
+                    "center_col": (m.center_col + 0.5) * s - 0.5,
+                    **size,
+                }
+            )
+        cameras.append({"name": cam.name, "model": resized.model_dump(), "cam2lidar": cam.cam2lidar})
+    return Rig.from_dict({"name": f"{rig.name}@x{scale:g}", "cameras": cameras})

@@ -1,0 +1,176 @@
+"""Pictures drawn with OpenCV: the rig from above, a sampling grid on a fisheye image, and detections
+(boxes projected into each fisheye image through the camera model, and a bird's-eye view).
+
+Everything returns a BGR uint8 image; ``save_png`` writes one. No plotting library is needed,
+so the pictures work on a robot with the core install.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from fisheye_infer.cameras.camera_models import OCamModel
+from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.scenes.render import CLASS_COLOURS
+
+if TYPE_CHECKING:
+    from fisheye_infer.runtime.detections import Detections
+
+__all__ = ["camera_colours", "draw_bev", "draw_detections", "draw_rig", "draw_sampling_grid", "save_png"]
+
+_PALETTE = [(66, 133, 244), (52, 168, 83), (251, 188, 5), (234, 67, 53), (171, 71, 188), (0, 172, 193)]
+
+
+def camera_colours(n: int) -> list[tuple[int, int, int]]:
+    """One BGR colour per camera, stable across pictures."""
+    return [_PALETTE[i % len(_PALETTE)][::-1] for i in range(n)]
+
+
+def _text(img: np.ndarray, text: str, org: tuple[int, int], colour: tuple[int, int, int] = (30, 30, 30), scale: float = 0.5) -> None:
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
+
+
+def draw_rig(rig: Rig, size: int = 800, extent_m: float = 6.0) -> np.ndarray:
+    """Top view: lidar x points up the picture, y to the left; each camera's position, optical axis
+    and horizontal field of view as a wedge."""
+    img: np.ndarray = np.full((size, size, 3), 255, np.uint8)
+    scale = size / (2 * extent_m)
+
+    def px(x: float, y: float) -> tuple[int, int]:
+        return int(round(size / 2 - y * scale)), int(round(size / 2 - x * scale))
+
+    for r in range(1, int(extent_m) + 1):  # 1 m rings
+        cv2.circle(img, px(0, 0), int(r * scale), (230, 230, 230), 1, cv2.LINE_AA)
+    xs = [c.position[0] for c in rig.cameras]
+    ys = [c.position[1] for c in rig.cameras]
+    cv2.rectangle(img, px(max(xs), max(ys)), px(min(xs), min(ys)), (180, 180, 180), 2)
+    cv2.arrowedLine(img, px(0, 0), px(1, 0), (0, 0, 200), 2, tipLength=0.15)
+    cv2.arrowedLine(img, px(0, 0), px(0, 1), (0, 160, 0), 2, tipLength=0.15)
+    _text(img, "x", px(1.15, 0.1), (0, 0, 200))
+    _text(img, "y", px(0.1, 1.2), (0, 160, 0))
+    wedge = 1.8
+    for cam, colour in zip(rig.cameras, camera_colours(len(rig))):
+        x, y, _ = cam.position
+        half = math.radians(getattr(cam.model, "fov", 90.0) / 2.0)
+        centre = px(x, y)
+        points = [centre]
+        for a in np.linspace(cam.heading - half, cam.heading + half, 64):
+            points.append(px(x + wedge * math.cos(a), y + wedge * math.sin(a)))
+        overlay = img.copy()
+        cv2.fillPoly(overlay, [np.array(points, np.int32)], colour)
+        img = cv2.addWeighted(overlay, 0.18, img, 0.82, 0)
+        tip = px(x + 0.9 * math.cos(cam.heading), y + 0.9 * math.sin(cam.heading))
+        cv2.arrowedLine(img, centre, tip, colour, 2, tipLength=0.2)
+        cv2.circle(img, centre, 5, colour, -1, cv2.LINE_AA)
+        label = px(x + 1.2 * math.cos(cam.heading), y + 1.2 * math.sin(cam.heading))
+        _text(img, cam.name.removeprefix("fisheye_camera_"), (label[0] - 20, label[1]), colour)
+    _text(img, f"{rig.name}  ({rig.hash})  rings: 1 m", (10, 20))
+    return img
+
+
+def draw_sampling_grid(camera: OCamModel, grid: np.ndarray, image: np.ndarray | None = None, every: int = 1) -> np.ndarray:
+    """The fisheye image (or its valid area) with the pixel each grid cell samples.
+
+    ``grid`` is a normalised (H, W, 2) table as ``grid_sample`` receives it; cells outside the
+    lens's fov (the (-1, -1) sentinel) are drawn in red at the image corner they map to.
+    """
+    if image is None:
+        base = camera.valid_area()
+        canvas = cv2.cvtColor((base // 4 + 160).astype(np.uint8), cv2.COLOR_GRAY2BGR)
+    else:
+        canvas = np.ascontiguousarray(image.copy())
+    size = np.array([camera.width, camera.height], dtype=np.float64)
+    uv = (grid.astype(np.float64) + 1.0) * size / 2.0
+    h, w = grid.shape[:2]
+    for i in range(0, h, every):
+        row = uv[i, ::every]
+        cv2.polylines(canvas, [np.round(row).astype(np.int32)], False, (200, 120, 0), 1, cv2.LINE_AA)
+    for j in range(0, w, max(every, w // 20)):
+        col = uv[::every, j]
+        cv2.polylines(canvas, [np.round(col).astype(np.int32)], False, (0, 140, 0), 1, cv2.LINE_AA)
+    outside = int(np.all(np.isclose(uv, -1.0, atol=1e-3), axis=-1).sum())
+    if outside:
+        cv2.circle(canvas, (0, 0), 6, (0, 0, 255), -1)
+    _text(canvas, f"sampling grid {h}x{w}: rows blue, columns green; {outside} cells outside the fov", (10, 20))
+    return canvas
+
+
+def save_png(path: str | Path, image: np.ndarray) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"cannot write {path}")
+    return path
+
+
+def _class_colour(name: str) -> tuple[int, int, int]:
+    """The colour the synthetic scenes paint the class with; grey for other classes."""
+    return CLASS_COLOURS.get(name, (160, 160, 160))
+
+
+def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, rig: Rig | None = None) -> np.ndarray:
+    """Bird's-eye view: x up, y left, range rings every 10 m, the ego footprint, boxes with class and score."""
+    from fisheye_infer.runtime.box_geometry import bev_corners
+
+    img = np.full((size, size, 3), 250, np.uint8)
+    scale = size / (2 * extent_m)
+
+    def px(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.stack([size / 2 - y * scale, size / 2 - x * scale], axis=-1)
+
+    for r in range(10, int(extent_m) + 1, 10):
+        cv2.circle(img, (size // 2, size // 2), int(r * scale), (215, 215, 215), 1, cv2.LINE_AA)
+        _text(img, f"{r} m", (size // 2 + 3, int(size / 2 - r * scale) + 14), (150, 150, 150), 0.4)
+    if rig is not None:
+        pos = np.array([c.position for c in rig.cameras])
+        (x0, y0), (x1, y1) = pos[:, :2].min(axis=0), pos[:, :2].max(axis=0)
+        corners = px(np.array([x1, x1, x0, x0]), np.array([y1, y0, y0, y1]))
+        cv2.fillPoly(img, [np.round(corners).astype(np.int32)], (90, 90, 90))
+    cv2.arrowedLine(img, (size // 2, size // 2), (size // 2, size // 2 - int(4 * scale)), (0, 0, 0), 2, tipLength=0.3)
+    for box, name, score in zip(bev_corners(detections.boxes), detections.names, detections.scores):
+        colour = _class_colour(name)
+        poly = np.round(px(box[:, 0], box[:, 1])).astype(np.int32)
+        cv2.polylines(img, [poly], True, colour, 2, cv2.LINE_AA)
+        front = np.round(poly[:2].mean(axis=0)).astype(int)
+        cv2.line(img, tuple(np.round(poly.mean(axis=0)).astype(int)), tuple(front), colour, 1, cv2.LINE_AA)
+        _text(img, f"{name} {score:.2f}", tuple(poly.max(axis=0) + np.array([2, 0])), colour, 0.35)
+    _text(img, f"bird's-eye view, {len(detections)} boxes (x up, y left)", (10, 20))
+    return img
+
+
+def draw_detections(detections: Detections, rig: Rig, images: Mapping[str, np.ndarray | None] | None = None, tile: int = 400) -> np.ndarray:
+    """The fisheye images with the boxes projected through the rig's camera models, beside the BEV.
+
+    Cameras without an image are drawn on black. Returns one BGR picture: a 2-column grid of
+    camera tiles on the left, the bird's-eye view on the right.
+    """
+    from fisheye_infer.runtime.box_geometry import project_boxes
+
+    lines = project_boxes(detections.boxes, rig)
+    tiles = []
+    for cam in rig.cameras:
+        model = cam.model
+        image = None if images is None else images.get(cam.name)
+        canvas = np.zeros((model.height, model.width, 3), np.uint8) if image is None else np.ascontiguousarray(image.copy())
+        thickness = max(1, model.width // 400)
+        for polylines, name, score in zip(lines[cam.name], detections.names, detections.scores):
+            colour = _class_colour(name)
+            for line in polylines:
+                cv2.polylines(canvas, [np.round(line).astype(np.int32)], False, colour, thickness, cv2.LINE_AA)
+            if polylines:
+                top = np.concatenate(polylines).min(axis=0)
+                _text(canvas, f"{name} {score:.2f}", (int(top[0]), max(12, int(top[1]) - 4)), colour, 0.4 * thickness)
+        canvas = cv2.resize(canvas, (tile, tile), interpolation=cv2.INTER_AREA)
+        _text(canvas, cam.name, (8, tile - 10), (255, 255, 255))
+        tiles.append(canvas)
+    while len(tiles) % 2:
+        tiles.append(np.zeros_like(tiles[0]))
+    grid = np.vstack([np.hstack(tiles[i : i + 2]) for i in range(0, len(tiles), 2)])
+    bev = draw_bev(detections, size=grid.shape[0], rig=rig)
+    return np.hstack([grid, bev])

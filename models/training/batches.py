@@ -1,0 +1,60 @@
+"""What each training step trains on: step ``s`` -> frames ``s*B .. s*B+B-1`` and their depth targets.
+
+A step's frames are a function of the step alone (seeded, rendered on demand), so resuming a run
+continues with the frames the uninterrupted run would have used, and ``DataLoader`` workers can
+render the next steps ahead of the loop without changing what any step sees.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from fisheye_infer.scenes.streams import Sample, SyntheticFrames
+
+from .depth import DepthTargets
+
+__all__ = ["Batch", "StepBatches", "collate", "step_loader"]
+
+#: One step's frames and their depth targets (B*N x H x W bins).
+Batch = tuple[list[Sample], np.ndarray]
+
+
+def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+    """Samples -> images B x N x H x W x 3 uint8, and per-frame boxes and labels."""
+    return (np.stack([s.images for s in samples]), [s.boxes for s in samples], [s.labels for s in samples])
+
+
+class StepBatches(torch.utils.data.Dataset[Batch]):
+    """Step ``s`` -> frames ``s*B .. s*B+B-1`` of ``frames`` with their depth targets: what one step
+    trains on, rendered where it is asked for (in the loop, or ahead in ``DataLoader`` workers)."""
+
+    def __init__(self, frames: SyntheticFrames, depth_targets: DepthTargets, batch_size: int) -> None:
+        self.frames, self.depth_targets, self.batch_size = frames, depth_targets, batch_size
+
+    def __getitem__(self, step: int) -> Batch:
+        samples = [self.frames[step * self.batch_size + i] for i in range(self.batch_size)]
+        return samples, np.concatenate([self.depth_targets(s.scene) for s in samples])
+
+
+def step_loader(batches: StepBatches, start: int, stop: int, workers: int) -> torch.utils.data.DataLoader[Batch]:
+    """The batches of steps ``start`` .. ``stop - 1``, in order, rendered ahead by ``workers`` processes
+    (0: rendered in the loop)."""
+    workers = workers if stop > start else 0  # nothing left to render: no processes to start
+    ahead: dict[str, Any] = {"multiprocessing_context": "spawn", "prefetch_factor": 4, "worker_init_fn": _one_thread_worker} if workers else {}
+    # batch_size=None: collate_fn gets one item, not the list torch's annotation has it take
+    return torch.utils.data.DataLoader(batches, batch_size=None, sampler=range(start, stop), num_workers=workers,
+                                       collate_fn=_as_is, **ahead)  # type: ignore[arg-type]
+
+
+def _as_is(batch: Batch) -> Batch:
+    """A batch is one step's already: nothing to collate."""
+    return batch
+
+
+def _one_thread_worker(_: int) -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # each worker renders one step; many workers, not many threads each
