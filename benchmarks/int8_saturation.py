@@ -1,6 +1,6 @@
 """Would an int8 file give other boxes on an x86 CPU without VNNI? Its int16 pair saturation, counted.
 
-    .venv/bin/python benchmarks/int8_saturation.py model.int8.onnx [--frames 1]
+    python benchmarks/int8_saturation.py compact [--frames 1]      # or an int8 file
 
 Without VNNI (AVX2 only, or AVX-512 before Cascade Lake) ONNX Runtime multiplies u8 activations by
 s8 weights with ``vpmaddubsw``, which adds the products of two neighbouring input channels (at one
@@ -11,27 +11,28 @@ renders of its own rig, reads the u8 input of every int8 convolution and MatMul 
 the outputs for which at least one pair leaves [-32768, 32767]. Pairs are taken as the kernels
 take them: neighbouring input channels at one kernel tap (tap by tap, channel by channel, when the
 channel count is odd), neighbouring rows of a MatMul's weight. Grouped convolutions and Gemm are
-listed, not counted. The export's 7-bit weights
-(``fisheye_infer.artifact.WEIGHT_BITS``) make that impossible (2 x 255 x 64 = 32,640), so such a file prints
-zero everywhere; files with 8-bit weights (``benchmarks/int8.py --weight-bits 8``, or written before
-7 bits) show where the CPUs disagree.
+listed, not counted. 7-bit weights (``fisheye_infer.precision.WEIGHT_BITS``) cannot saturate
+(2 x 255 x 64 = 32,640), so such a file counts zero everywhere; files with 8-bit weights
+(``benchmarks/int8.py --weight-bits 8``) show where the CPUs disagree.
 """
 
 from __future__ import annotations
 
-import argparse
+import sys
 from dataclasses import dataclass
 from typing import Any
 
+import harness
 import numpy as np
 import onnx
 import onnxruntime as ort
 import torch
 import torch.nn.functional as F
+from model_files import model_path
 from onnx import helper, numpy_helper
 
-from fisheye_infer.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, read_meta
 from fisheye_infer.export.exporter import verification_frames
+from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, read_meta
 
 INT16 = (-32768, 32767)
 
@@ -56,15 +57,17 @@ def int8_layers(model: onnx.ModelProto) -> tuple[list[Layer], list[str]]:
         if node.op_type not in ("Conv", "MatMul", "Gemm") or len(node.input) < 2:
             continue
         x, w = producer.get(node.input[0]), producer.get(node.input[1])
-        if x is None or w is None or x.op_type != w.op_type or x.op_type != "DequantizeLinear" or w.input[0] not in inits:
+        if x is None or w is None or not x.op_type == w.op_type == "DequantizeLinear" or w.input[0] not in inits:
             continue
         if inits[w.input[0]].data_type != onnx.TensorProto.INT8:
             continue
         if node.op_type == "Gemm" or _attribute(node, "group", 1) != 1:
             skipped.append(node.name)
             continue
-        zero = int(numpy_helper.to_array(inits[x.input[2]]).ravel()[0]) if len(x.input) > 2 and x.input[2] in inits else 0
-        layers.append(Layer(node, x.input[0], zero, torch.from_numpy(numpy_helper.to_array(inits[w.input[0]]).astype(np.float32))))
+        has_zero = len(x.input) > 2 and x.input[2] in inits
+        zero = int(numpy_helper.to_array(inits[x.input[2]]).ravel()[0]) if has_zero else 0
+        weight = torch.from_numpy(numpy_helper.to_array(inits[w.input[0]]).astype(np.float32))
+        layers.append(Layer(node, x.input[0], zero, weight))
     return layers, skipped
 
 
@@ -87,7 +90,8 @@ def saturated_outputs(layer: Layer, activation: np.ndarray) -> tuple[int, int]:
     cout, cin, kh, kw = layer.weight.shape
     pads = _attribute(layer.node, "pads", [0, 0, 0, 0])
     a = F.pad(a, (pads[1], pads[3], pads[0], pads[2]), value=float(layer.zero_point))
-    cols = F.unfold(a, (kh, kw), dilation=_attribute(layer.node, "dilations", [1, 1]), stride=_attribute(layer.node, "strides", [1, 1]))
+    cols = F.unfold(a, (kh, kw), dilation=_attribute(layer.node, "dilations", [1, 1]),
+                    stride=_attribute(layer.node, "strides", [1, 1]))
     cols = cols.view(a.shape[0], cin, kh * kw, -1)
     w = layer.weight.reshape(cout, cin, kh * kw)
     if cin % 2:  # im2col, then a GEMM over (tap, channel): pairs run across taps; one pair position per "tap" below
@@ -105,41 +109,47 @@ def saturated_outputs(layer: Layer, activation: np.ndarray) -> tuple[int, int]:
     return int(hit.sum()), hit.numel()
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("model", help="an int8 file written by fisheye-infer export --int8")
-    parser.add_argument("--frames", type=int, default=1, help="seeded renders of the file's rig (default 1)")
-    args = parser.parse_args()
-    meta = read_meta(args.model)
-    model = onnx.load(args.model)
+def main(argv: list[str] | None = None) -> int:
+    bench = harness.Benchmark(__file__, __doc__)
+    bench.parser.add_argument("model", help="an int8 file written by fisheye-infer export --int8, or one of compact, "
+                                            "fisheye-bevdet, fisheye-petr (their int8 file)")
+    bench.parser.add_argument("--frames", type=int, default=1, help="seeded renders of the file's rig (default 1)")
+    args = bench.parse(argv)
+    path = model_path(args.model, "int8")
+    meta = read_meta(path)
+    model = onnx.load(str(path))
     layers, skipped = int8_layers(model)
     if not layers:
-        raise SystemExit(f"{args.model}: no int8 convolution or MatMul (is it an int8 file?)")
-    print(f"{args.model}: {len(layers)} int8 layers, weights up to |{max(int(layer.weight.abs().max()) for layer in layers)}|, "
-          f"recorded weight bits: {meta.quantization.weight_bits if meta.quantization else None}"
-          + (f"; not counted: {', '.join(skipped)}" if skipped else ""))
+        raise SystemExit(f"{path}: no int8 convolution or MatMul (is it an int8 file?)")
     del model.graph.output[:]
     for name in sorted({layer.activation for layer in layers}):
         model.graph.output.append(helper.make_empty_tensor_value_info(name))
     options = ort.SessionOptions()
-    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL  # the QDQ graph as written: its u8 tensors exist
+    # the QDQ graph as written, where its u8 tensors exist
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     session = ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
     names = [o.name for o in session.get_outputs()]
     frames = verification_frames(meta.rig, args.frames)
+    valid = np.ones((1, len(meta.cameras)), bool)
     for frame in frames:
-        values = dict(zip(names, session.run(names, {INPUT_IMAGES: frame[None], INPUT_CAMERA_VALID: np.ones((1, len(meta.cameras)), bool)})))
+        values = dict(zip(names, session.run(names, {INPUT_IMAGES: frame[None], INPUT_CAMERA_VALID: valid})))
         for layer in layers:
             hit, total = saturated_outputs(layer, values[layer.activation])
             layer.saturated += hit
             layer.outputs += total
-    total = sum(layer.outputs for layer in layers)
+    outputs = sum(layer.outputs for layer in layers)
     hits = sum(layer.saturated for layer in layers)
-    print(f"\noutputs with a saturated int16 pair on {len(frames)} frame(s): {hits:,} of {total:,} ({hits / max(total, 1):.2%})\n")
-    print("| layer | weight | outputs saturated |\n|---|---|---|")
-    for layer in sorted(layers, key=lambda x: -x.saturated / max(x.outputs, 1)):
-        if layer.saturated:
-            print(f"| {layer.node.name} | {tuple(layer.weight.shape)} | {layer.saturated / layer.outputs:.2%} |")
+    summary = {"file": path.name, "int8 layers": len(layers),
+               "largest weight": max(int(layer.weight.abs().max()) for layer in layers),
+               "recorded weight bits": meta.quantization.weight_bits if meta.quantization else None,
+               "frames": len(frames), "outputs": outputs, "outputs saturated": hits, "share": hits / max(outputs, 1),
+               "not counted": skipped}
+    per_layer = [{"layer": layer.node.name, "weight": "x".join(map(str, layer.weight.shape)),
+                  "share saturated": layer.saturated / layer.outputs}
+                 for layer in sorted(layers, key=lambda x: -x.saturated / max(x.outputs, 1)) if layer.saturated]
+    bench.save(args, {"Outputs with a saturated int16 pair": [summary], "Layers with saturated outputs": per_layer})
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,23 +1,21 @@
-"""Load a local ``fisheye-infer serve`` for a fixed time and report what it sustained.
+"""What a local ``fisheye-infer serve`` sustains under load for a fixed time.
 
-    python benchmarks/load_service.py model.onnx --duration 10 --concurrency 4 --stream-fps 30
+    python benchmarks/load_service.py compact [--duration 10 --concurrency 4 --stream-fps 30] [--quick]
 
-It starts the server as a subprocess on a free 127.0.0.1 port (loopback only, never another
-address), renders one synthetic frame for the model's own rig, then runs two phases of
-``--duration`` seconds each:
+The server runs as a subprocess on a free 127.0.0.1 port (loopback only); one synthetic frame of
+the model's own rig is sent in two phases of ``--duration`` seconds each:
 
 1. ``/detect``: ``--concurrency`` clients post the frame (multipart JPEG) back to back;
 2. ``/stream``: one WebSocket client sends the frame at ``--stream-fps`` while reading answers
    (latest frame wins, so at rates above the model's some frames are dropped by design).
 
-It prints throughput, p50/p99 latency, status counts and dropped frames per phase, and the
-server's peak resident memory (VmHWM). Requests are bounded by the duration (at most 120 s per
-phase); the server is stopped with SIGTERM at the end. Not part of the test suite.
+Per phase: throughput, p50/p99 latency, status counts and dropped frames, and the server's peak
+resident memory (VmHWM) after it. Each phase lasts at most 120 s; the server is stopped with
+SIGTERM at the end.
 """
 
 from __future__ import annotations
 
-import argparse
 import collections
 import json
 import signal
@@ -27,15 +25,18 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
+import harness
 import httpx
 import numpy as np
+from model_files import MODEL_HELP, model_path
 from websockets.sync.client import connect
 
-from fisheye_infer.artifact import read_meta
+from fisheye_infer.runtime.artifact import read_meta
+from fisheye_infer.scenes.render import Renderer, random_scene
 from fisheye_infer.service.protocol import encode_frame
-from fisheye_infer.synth import Renderer, random_scene
 
 HOST = "127.0.0.1"
 MAX_SECONDS = 120.0
@@ -57,17 +58,18 @@ def _peak_rss_mb(pid: int) -> float:
 def _frame(model: Path) -> dict[str, bytes]:
     rig = read_meta(model).rig
     images = Renderer(texture_seed=1).render(rig, random_scene(np.random.default_rng(0)))
-    return {name: cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes() for name, image in images.items()}
+    return {name: cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
+            for name, image in images.items()}
 
 
-def _percentiles(latencies: list[float]) -> str:
+def _percentiles(latencies: list[float]) -> dict[str, float | None]:
     if not latencies:
-        return "p50 -, p99 -"
+        return {"p50 ms": None, "p99 ms": None}
     p50, p99 = np.percentile(np.asarray(latencies) * 1e3, [50, 99])
-    return f"p50 {p50:.0f} ms, p99 {p99:.0f} ms"
+    return {"p50 ms": float(p50), "p99 ms": float(p99)}
 
 
-def detect_phase(url: str, frame: dict[str, bytes], duration: float, concurrency: int) -> None:
+def detect_phase(url: str, frame: dict[str, bytes], duration: float, concurrency: int) -> dict[str, Any]:
     files = [(name, (f"{name}.jpg", data, "image/jpeg")) for name, data in frame.items()]
     latencies: list[float] = []
     statuses: collections.Counter[str] = collections.Counter()
@@ -95,12 +97,13 @@ def detect_phase(url: str, frame: dict[str, bytes], duration: float, concurrency
         t.join()
     elapsed = time.perf_counter() - started
     ok = statuses.get("200", 0)
-    errors = sum(statuses.values()) - ok
-    print(f"/detect   {concurrency} clients, {elapsed:.1f} s: {ok / elapsed:.1f} frames/s, {_percentiles(latencies)}, "
-          f"{ok} ok, {errors} refused or failed {dict(statuses)}")
+    return {"phase": f"/detect, {concurrency} clients", "seconds": elapsed, "frames/s": ok / elapsed,
+            **_percentiles(latencies), "sent": sum(statuses.values()), "answered": ok,
+            "refused or failed": sum(statuses.values()) - ok, "dropped": None,
+            "statuses": [f"{k} x{v}" for k, v in sorted(statuses.items())]}
 
 
-def stream_phase(ws_url: str, frame: dict[str, bytes], duration: float, fps: float) -> None:
+def stream_phase(ws_url: str, frame: dict[str, bytes], duration: float, fps: float) -> dict[str, Any]:
     sent_at: dict[int, float] = {}
     latencies: list[float] = []
     counts: collections.Counter[str] = collections.Counter()
@@ -133,28 +136,32 @@ def stream_phase(ws_url: str, frame: dict[str, bytes], duration: float, fps: flo
         done.set()
         reader.join(30)
         elapsed = time.perf_counter() - started
-    print(f"/stream   {fps:g} fps sent for {elapsed:.1f} s: {frame_id} sent, {counts['result']} answered "
-          f"({counts['result'] / elapsed:.1f} frames/s), {counts['dropped']} dropped (latest frame wins), "
-          f"{counts['error']} errors, {_percentiles(latencies)} (send to answer)")
+    return {"phase": f"/stream, {fps:g} frames/s sent", "seconds": elapsed, "frames/s": counts["result"] / elapsed,
+            **_percentiles(latencies), "sent": frame_id, "answered": counts["result"],
+            "refused or failed": counts["error"], "dropped": counts["dropped"]}
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("model", type=Path, help="ONNX file written by fisheye-infer export")
-    parser.add_argument("--duration", type=float, default=10.0, help=f"seconds per phase (at most {MAX_SECONDS:g})")
-    parser.add_argument("--concurrency", type=int, default=4, help="/detect clients")
-    parser.add_argument("--stream-fps", type=float, default=30.0)
-    parser.add_argument("--threads", type=int, help="server: ONNX Runtime intra-op threads")
-    parser.add_argument("--workers", type=int, default=1, help="server: inference threads")
-    parser.add_argument("--queue-size", type=int, default=8)
-    parser.add_argument("--microbatch", type=int, default=1, help="server: microbatch_max_size (1: off)")
-    args = parser.parse_args(argv)
+    bench = harness.Benchmark(__file__, __doc__, quick="5 s per phase")
+    p = bench.parser
+    p.add_argument("model", help=MODEL_HELP)
+    p.add_argument("--duration", type=float, default=10.0, help=f"seconds per phase (at most {MAX_SECONDS:g})")
+    p.add_argument("--concurrency", type=int, default=4, help="/detect clients")
+    p.add_argument("--stream-fps", type=float, default=30.0)
+    p.add_argument("--threads", type=int, help="server: ONNX Runtime intra-op threads")
+    p.add_argument("--workers", type=int, default=1, help="server: inference threads")
+    p.add_argument("--queue-size", type=int, default=8)
+    p.add_argument("--microbatch", type=int, default=1, help="server: microbatch_max_size (1: off)")
+    args = bench.parse(argv)
+    if args.quick:
+        args.duration = 5.0
     duration = min(args.duration, MAX_SECONDS)
+    model_file = model_path(args.model)
 
     port = _free_port()
-    command = [sys.executable, "-m", "fisheye_infer", "serve", str(args.model), "--host", HOST, "--port", str(port),
-               "--workers", str(args.workers), "--queue-size", str(args.queue_size), "--microbatch-max-size", str(args.microbatch),
-               "--log-level", "warning"]
+    command = [sys.executable, "-m", "fisheye_infer", "serve", str(model_file), "--host", HOST, "--port", str(port),
+               "--workers", str(args.workers), "--queue-size", str(args.queue_size),
+               "--microbatch-max-size", str(args.microbatch), "--log-level", "warning"]
     if args.threads:
         command += ["--threads", str(args.threads)]
     server = subprocess.Popen(command)
@@ -172,19 +179,22 @@ def main(argv: list[str] | None = None) -> int:
                 return 1
             time.sleep(0.2)
         info = httpx.get(f"{url}/model").json()
-        frame = _frame(args.model)
-        print(f"model {info['model_id']}: {len(info['cameras'])} cameras at {info['image_size']['width']}x{info['image_size']['height']}, "
-              f"frame {sum(map(len, frame.values())) / 1024:.0f} kB (JPEG); server pid {server.pid}, idle RSS peak {_peak_rss_mb(server.pid):.0f} MB")
-        detect_phase(url, frame, duration, args.concurrency)
-        print(f"          server peak RSS so far {_peak_rss_mb(server.pid):.0f} MB")
-        stream_phase(f"ws://{HOST}:{port}/stream", frame, duration, args.stream_fps)
-        print(f"          server peak RSS {_peak_rss_mb(server.pid):.0f} MB")
+        frame = _frame(model_file)
+        size = info["image_size"]
+        model = {"model": info["model_id"], "cameras": len(info["cameras"]),
+                 "image": f"{size['width']}x{size['height']}",
+                 "frame kB (JPEG)": sum(map(len, frame.values())) / 1024, "idle peak RSS MB": _peak_rss_mb(server.pid)}
+        phases = [detect_phase(url, frame, duration, args.concurrency)]
+        phases[-1]["server peak RSS MB"] = _peak_rss_mb(server.pid)
+        phases.append(stream_phase(f"ws://{HOST}:{port}/stream", frame, duration, args.stream_fps))
+        phases[-1]["server peak RSS MB"] = _peak_rss_mb(server.pid)
     finally:
         server.send_signal(signal.SIGTERM)
         try:
             server.wait(30)
         except subprocess.TimeoutExpired:
             server.kill()
+    bench.save(args, {"Model and frame": [model], "Load phases": phases})
     return 0
 
 
