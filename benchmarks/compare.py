@@ -38,8 +38,11 @@ from model_files import NAMES, ModelFiles, model_files, torch_model
 
 Row = dict[str, Any]
 RUNTIMES, COMPILED, MODELS = "Runtimes, one frame, in turns", "torch.compile, one frame, own process", "Models"
-BENCH = ("fisheye-infer bench: end to end by stage", "fisheye-infer bench: graph stages, batch 1",
-         "fisheye-infer bench: peak RSS")
+BENCH = (
+    "fisheye-infer bench: end to end by stage",
+    "fisheye-infer bench: graph stages, batch 1",
+    "fisheye-infer bench: peak RSS",
+)
 SERVICE, SKIPPED = "Service overhead, one frame, in turns", "Not measured"
 
 
@@ -66,8 +69,9 @@ def openvino(onnx_path: Path, images: np.ndarray, threads: int) -> Callable[[], 
         return f"OpenVINO failed: {' / '.join(lines[1:3] or lines)[:300]}"
 
 
-def runtimes(files: ModelFiles, images: np.ndarray, threads: int, rounds: int,
-             repeat: int) -> tuple[dict[str, harness.Stats], list[Row]]:
+def runtimes(
+    files: ModelFiles, images: np.ndarray, threads: int, rounds: int, repeat: int
+) -> tuple[dict[str, harness.Stats], list[Row]]:
     """One frame through each runtime, in turns; and the runtimes that cannot run here, with the reason."""
     import torch
 
@@ -104,8 +108,9 @@ def torch_compile(name: str, threads: int, repeat: int, timeout_s: float = 1800)
     """torch.compile (inductor) in a child process with a time limit: {"compile_s", "ms"} or {"error"}."""
     job = json.dumps({"model": name, "threads": threads, "repeat": repeat})
     try:
-        done = subprocess.run([sys.executable, __file__, "--compile-worker", job], capture_output=True, text=True,
-                              timeout=timeout_s)
+        done = subprocess.run(
+            [sys.executable, __file__, "--compile-worker", job], capture_output=True, text=True, timeout=timeout_s
+        )
     except subprocess.TimeoutExpired:
         return {"error": f"torch.compile did not finish within {timeout_s:.0f} s"}
     if done.returncode != 0:
@@ -161,8 +166,9 @@ def gemm_peak(threads: int, n: int, repeat: int) -> dict[str, float]:
     fns: dict[str, Callable[[], object]] = {"numpy fp32": lambda: a @ b, "PyTorch fp32": lambda: ta @ tb}
     ints = {"a": rng.integers(0, 255, (n, n), dtype=np.uint8), "b": rng.integers(-127, 127, (n, n), dtype=np.int8)}
     for kind, feeds in (("fp32", {"a": a, "b": b}), ("int8", ints)):
-        sess = ort.InferenceSession(_matmul_model(kind, n), session_options(threads),
-                                    providers=["CPUExecutionProvider"])
+        sess = ort.InferenceSession(
+            _matmul_model(kind, n), session_options(threads), providers=["CPUExecutionProvider"]
+        )
         fns[f"ONNX Runtime {kind}"] = lambda sess=sess, feeds=feeds: sess.run(None, feeds)
     for fn in fns.values():  # first calls allocate
         fn()
@@ -186,8 +192,9 @@ def count_flops(onnx_path: Path) -> dict[str, float]:
     ops = [n for n in model.graph.node if n.op_type in ("Conv", "ConvTranspose", "MatMul", "Gemm")]
     wanted = list(dict.fromkeys([n.output[0] for n in ops] + [n.input[0] for n in ops if n.input[0] not in inits]))
     known = {o.name for o in model.graph.output} | {i.name for i in model.graph.input}
-    model.graph.output.extend(onnx.helper.make_tensor_value_info(w, onnx.TensorProto.FLOAT, None)
-                              for w in wanted if w not in known)
+    model.graph.output.extend(
+        onnx.helper.make_tensor_value_info(w, onnx.TensorProto.FLOAT, None) for w in wanted if w not in known
+    )
     shape = [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim][1:]
     feeds = {"images": np.zeros((1, *shape), np.uint8), "camera_valid": np.ones((1, shape[0]), bool)}
     options = ort.SessionOptions()
@@ -217,8 +224,9 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-def service_overhead(onnx_path: Path, jpegs: dict[str, bytes], frame: list[np.ndarray], threads: int,
-                     rounds: int) -> dict[str, Any]:
+def service_overhead(
+    onnx_path: Path, jpegs: dict[str, bytes], frame: list[np.ndarray], threads: int, rounds: int
+) -> dict[str, Any]:
     """``POST /detect`` with JPEG parts against ``Detector.detect`` on arrays: same process, same Detector, in turns."""
     if harness.missing(["httpx", "uvicorn", "fastapi"]):
         return {"error": "the service is not installed (pip install -e '.[serve]')"}
@@ -250,8 +258,7 @@ def service_overhead(onnx_path: Path, jpegs: dict[str, bytes], frame: list[np.nd
                 response.raise_for_status()
                 decode.append(float(response.json()["timings_ms"]["decode"]))
 
-            times = harness.alternate({"POST /detect": post, "Detector.detect": lambda: detector.detect(frame)},
-                                      rounds)
+            times = harness.alternate({"POST /detect": post, "Detector.detect": lambda: detector.detect(frame)}, rounds)
         return {"times": times, "decode": harness.Stats(tuple(decode))}
     except Exception as exc:
         return {"error": f"service measurement failed: {exc}"}
@@ -263,13 +270,27 @@ def service_overhead(onnx_path: Path, jpegs: dict[str, bytes], frame: list[np.nd
 def bench_rows(name: str, kind: str, result: dict[str, Any]) -> tuple[list[Row], list[Row], list[Row]]:
     """``bench_model``'s figures as rows: end to end by stage, graph stages, peak RSS."""
     parts = ("decode", "preprocess", "inference", "postprocess")
-    runs = [{"model": name, "file": kind, "threads": r["threads"], "batch": r["batch"],
-             "total median ms": r["total"]["median"], "total p90 ms": r["total"]["p90"],
-             **{f"{k} ms": r[k]["median"] for k in parts}, "frames/s": r["fps"]} for r in result["runs"]]
-    stages = [{"model": name, "file": kind, "threads": int(t), "stage": stage, "median ms": s["median"],
-               "p90 ms": s["p90"]} for t, st in result["stages"].items() for stage, s in st.items()]
-    rss = [{"model": name, "file": kind, "threads": int(t), "peak RSS MB": mb}
-           for t, mb in result["peak_rss_mb"].items()]
+    runs = [
+        {
+            "model": name,
+            "file": kind,
+            "threads": r["threads"],
+            "batch": r["batch"],
+            "total median ms": r["total"]["median"],
+            "total p90 ms": r["total"]["p90"],
+            **{f"{k} ms": r[k]["median"] for k in parts},
+            "frames/s": r["fps"],
+        }
+        for r in result["runs"]
+    ]
+    stages = [
+        {"model": name, "file": kind, "threads": int(t), "stage": stage, "median ms": s["median"], "p90 ms": s["p90"]}
+        for t, st in result["stages"].items()
+        for stage, s in st.items()
+    ]
+    rss = [
+        {"model": name, "file": kind, "threads": int(t), "peak RSS MB": mb} for t, mb in result["peak_rss_mb"].items()
+    ]
     return runs, stages, rss
 
 
@@ -287,8 +308,15 @@ def measure_model(name: str, args: argparse.Namespace, gemm_best: float, tables:
     times, skipped = runtimes(files, images, t, args.rounds, args.repeat)
     graph = times["ONNX Runtime fp32, graph"].median
     for runtime, stats in times.items():
-        tables[RUNTIMES].append({"model": name, "runtime": runtime, "threads": t, **stats.row(),
-                                 "relative to the ONNX Runtime graph": stats.median / graph})
+        tables[RUNTIMES].append(
+            {
+                "model": name,
+                "runtime": runtime,
+                "threads": t,
+                **stats.row(),
+                "relative to the ONNX Runtime graph": stats.median / graph,
+            }
+        )
     if args.compile:
         _progress(f"{name}: torch.compile (child process)")
         compiled = torch_compile(name, t, args.rounds * args.repeat)
@@ -296,40 +324,65 @@ def measure_model(name: str, args: argparse.Namespace, gemm_best: float, tables:
             skipped.append({"model": name, "reference": "torch.compile", "reason": compiled["error"]})
         else:
             stats = harness.Stats(tuple(compiled["ms"]))
-            tables[COMPILED].append({"model": name, "threads": t, "compile s": compiled["compile_s"], **stats.row(),
-                                     "relative to the ONNX Runtime graph": stats.median / graph})
+            tables[COMPILED].append(
+                {
+                    "model": name,
+                    "threads": t,
+                    "compile s": compiled["compile_s"],
+                    **stats.row(),
+                    "relative to the ONNX Runtime graph": stats.median / graph,
+                }
+            )
     flops = count_flops(files.fp32)
     width, height = meta.image_size
     bound = flops["total"] / gemm_best * 1e3
-    tables[MODELS].append({"model": name, "architecture": meta.architecture,
-                           "input": f"{len(meta.cameras)} x {width}x{height}",
-                           **{f"{k} GFLOP": v for k, v in flops.items()}, "FLOP-bound ms": bound,
-                           "graph ms / FLOP-bound ms": graph / bound,
-                           "int8 top-50 kept (its own check)": int8_meta.parity.top_matched_fraction})
+    tables[MODELS].append(
+        {
+            "model": name,
+            "architecture": meta.architecture,
+            "input": f"{len(meta.cameras)} x {width}x{height}",
+            **{f"{k} GFLOP": v for k, v in flops.items()},
+            "FLOP-bound ms": bound,
+            "graph ms / FLOP-bound ms": graph / bound,
+            "int8 top-50 kept (its own check)": int8_meta.parity.top_matched_fraction,
+        }
+    )
     for kind, path, batches, stages in (("fp32", files.fp32, args.batch, time_stages), ("int8", files.int8, [1], None)):
         result = bench_model(path, args.threads, batches, args.repeat, 1, stages=stages, progress=_progress)
         for title, rows in zip(BENCH, bench_rows(name, kind, result)):
             tables[title] += rows
     if args.service:
-        jpegs = {cam: cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
-                 for cam, image in zip(meta.cameras, images[0])}
+        jpegs = {
+            cam: cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+            for cam, image in zip(meta.cameras, images[0])
+        }
         svc = service_overhead(files.fp32, jpegs, list(images[0]), t, args.rounds * args.repeat)
         if "error" in svc:
             skipped.append({"model": name, "reference": "service", "reason": svc["error"]})
         else:
             post, direct = svc["times"]["POST /detect"].median, svc["times"]["Detector.detect"].median
-            tables[SERVICE].append({"model": name, "threads": t, "POST /detect median ms": post,
-                                    "Detector.detect median ms": direct, "overhead": post / direct - 1,
-                                    "JPEG decode median ms": svc["decode"].median})
+            tables[SERVICE].append(
+                {
+                    "model": name,
+                    "threads": t,
+                    "POST /detect median ms": post,
+                    "Detector.detect median ms": direct,
+                    "overhead": post / direct - 1,
+                    "JPEG decode median ms": svc["decode"].median,
+                }
+            )
     tables[SKIPPED] += skipped
 
 
 def main(argv: list[str] | None = None) -> int:
-    bench = harness.Benchmark(__file__, __doc__, quick="the compact model, 2 threads, batch 1, fewer rounds, "
-                                                       "smaller GEMM, no torch.compile")
+    bench = harness.Benchmark(
+        __file__, __doc__, quick="the compact model, 2 threads, batch 1, fewer rounds, smaller GEMM, no torch.compile"
+    )
     p = bench.parser
-    p.add_argument("--models", help=f"comma-separated, of {', '.join(NAMES)} (default fisheye-bevdet,fisheye-petr; "
-                                    "with --quick: compact)")
+    p.add_argument(
+        "--models",
+        help=f"comma-separated, of {', '.join(NAMES)} (default fisheye-bevdet,fisheye-petr; with --quick: compact)",
+    )
     p.add_argument("--threads", default="1,2", help="thread counts for fisheye-infer bench (default 1,2)")
     p.add_argument("--batch", default="1,2,4", help="batch sizes for fisheye-infer bench (default 1,2,4)")
     p.add_argument("--ratio-threads", type=int, default=2, help="threads for the runtimes timed in turns (default 2)")
@@ -353,8 +406,9 @@ def main(argv: list[str] | None = None) -> int:
     tables: dict[str, list[Row]] = {title: [] for title in (RUNTIMES, COMPILED, MODELS, *BENCH, SERVICE, SKIPPED)}
     for name in args.models.split(","):
         measure_model(name, args, max(v for k, v in gemm.items() if k.endswith("fp32")), tables)
-    tables["GEMM throughput"] = [{"kernel": k, "threads": args.ratio_threads, "size": args.gemm_size, "GFLOP/s": v}
-                                 for k, v in gemm.items()]
+    tables["GEMM throughput"] = [
+        {"kernel": k, "threads": args.ratio_threads, "size": args.gemm_size, "GFLOP/s": v} for k, v in gemm.items()
+    ]
     bench.save(args, {title: rows for title, rows in tables.items() if rows})
     return 0
 

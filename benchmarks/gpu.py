@@ -56,8 +56,10 @@ def ort_timings(path: Path, frames: np.ndarray, providers: list[Provider], repea
     names = [o.name for o in session.get_outputs()]
     out: dict[str, Any] = {"providers": session.get_providers()}
     for batch in (1, 4):
-        feed = {INPUT_IMAGES: np.ascontiguousarray(frames[:batch]),
-                INPUT_CAMERA_VALID: np.ones(frames[:batch].shape[:2], bool)}
+        feed = {
+            INPUT_IMAGES: np.ascontiguousarray(frames[:batch]),
+            INPUT_CAMERA_VALID: np.ones(frames[:batch].shape[:2], bool),
+        }
         out[f"run b{batch}, numpy in and out, ms"] = median_ms(lambda feed=feed: session.run(names, feed), repeat)
         binding = session.io_binding()
         for name, value in feed.items():
@@ -73,14 +75,20 @@ def parity(fp32: Path, candidate: Path, frames: np.ndarray, providers: list[Prov
     from fisheye_infer.export.fp16_parity import fp16_parity
 
     p = fp16_parity(fp32, candidate, frames, threads=4, candidate_providers=providers)
-    return {"evaluated_with": p.evaluated_with, "top50_matched": p.top_matched_fraction,
-            "max_box_m": p.max_box_abs_diff_m,
-            "max_score": p.max_score_abs_diff, "dense_scores_max": p.max_rank_score_abs_diff,
-            "at_own_choice": p.replayed.model_dump() if p.replayed else None, "problems": list(p.problems)}
+    return {
+        "evaluated_with": p.evaluated_with,
+        "top50_matched": p.top_matched_fraction,
+        "max_box_m": p.max_box_abs_diff_m,
+        "max_score": p.max_score_abs_diff,
+        "dense_scores_max": p.max_rank_score_abs_diff,
+        "at_own_choice": p.replayed.model_dump() if p.replayed else None,
+        "problems": list(p.problems),
+    }
 
 
-def torch_timings(ckpt: Path, config: str | None, rig: str | None, frames: np.ndarray,
-                  repeat: int) -> tuple[str, list[dict[str, Any]]]:
+def torch_timings(
+    ckpt: Path, config: str | None, rig: str | None, frames: np.ndarray, repeat: int
+) -> tuple[str, list[dict[str, Any]]]:
     """PyTorch's version and device, and a row per way of running the model: eager fp32, eager under
     autocast (float16 on a GPU, bfloat16 on a CPU), torch.compile (with the time compiling took)."""
     import torch
@@ -117,8 +125,12 @@ def torch_timings(ckpt: Path, config: str | None, rig: str | None, frames: np.nd
 def main(argv: list[str] | None = None) -> int:
     bench = harness.Benchmark(__file__, __doc__)
     p = bench.parser
-    p.add_argument("--onnx", required=True, help="the verified fp32 file (its .fp16.onnx sibling too, when present), "
-                                                "or one of compact, fisheye-bevdet, fisheye-petr")
+    p.add_argument(
+        "--onnx",
+        required=True,
+        help="the verified fp32 file (its .fp16.onnx sibling too, when present), "
+        "or one of compact, fisheye-bevdet, fisheye-petr",
+    )
     p.add_argument("--ckpt", type=Path, help="the checkpoint it was exported from: adds PyTorch's figures")
     p.add_argument("--config", help="the checkpoint's config, as for export")
     p.add_argument("--rig", help="the checkpoint's rig, as for export")
@@ -146,10 +158,17 @@ def main(argv: list[str] | None = None) -> int:
         providers = cuda_providers(tf32)
         parity_ = parity(args.onnx, path, frames, providers)
         times = ort_timings(path, batch4, providers, args.repeat)
-        rows.append({"file": kind, "provider": times.pop("providers")[0],
-                     "top-50 matched vs fp32 on CPU": parity_["top50_matched"],
-                     "max box diff m": parity_["max_box_m"], "max score diff": parity_["max_score"], **times,
-                     "problems": parity_["problems"]})
+        rows.append(
+            {
+                "file": kind,
+                "provider": times.pop("providers")[0],
+                "top-50 matched vs fp32 on CPU": parity_["top50_matched"],
+                "max box diff m": parity_["max_box_m"],
+                "max score diff": parity_["max_score"],
+                **times,
+                "problems": parity_["problems"],
+            }
+        )
     tables: dict[str, list[dict[str, Any]]] = {f"ONNX Runtime {ort.__version__}, graph run": rows}
     if args.ckpt:
         print("PyTorch", file=sys.stderr)

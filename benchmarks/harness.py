@@ -86,9 +86,15 @@ def in_turns(candidates: Mapping[str, Callable[[], T]], rounds: int, flip: bool 
     return out
 
 
-def alternate(candidates: Mapping[str, Callable[[], object]], rounds: int, repeat: int = 1, warmup: int = 1,
-              flip: bool = False, sync: Callable[[], object] = lambda: None,
-              clock: Callable[[], float] = time.perf_counter) -> dict[str, Stats]:
+def alternate(
+    candidates: Mapping[str, Callable[[], object]],
+    rounds: int,
+    repeat: int = 1,
+    warmup: int = 1,
+    flip: bool = False,
+    sync: Callable[[], object] = lambda: None,
+    clock: Callable[[], float] = time.perf_counter,
+) -> dict[str, Stats]:
     """Milliseconds per call of each candidate, timed in turns: each round calls every candidate
     ``warmup`` times untimed, then ``repeat`` times timed.
 
@@ -128,8 +134,14 @@ def machine() -> dict[str, Any]:
     from fisheye_infer.tools.cpu import cpu_info
 
     cpu = cpu_info()
-    host = {**runtime_machine(), "cpu_name": cpu.name, "cpu_family": cpu.family, "cpu_model": cpu.model,
-            "cpu_flags": sorted(flag for flag in cpu.flags if flag.startswith(SIMD_PREFIXES)), "numpy": np.__version__}
+    host = {
+        **runtime_machine(),
+        "cpu_name": cpu.name,
+        "cpu_family": cpu.family,
+        "cpu_model": cpu.model,
+        "cpu_flags": sorted(flag for flag in cpu.flags if flag.startswith(SIMD_PREFIXES)),
+        "numpy": np.__version__,
+    }
     return {**host, "slug": machine_slug(host)}
 
 
@@ -206,8 +218,9 @@ class Benchmark:
         self.name = self.script.stem
         self.description = " ".join((doc or "").strip().split("\n\n")[0].split())
         self.parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
-        self.parser.add_argument("--out-dir", type=Path, default=RESULTS,
-                                 help="folder of the JSON results (default benchmarks/results)")
+        self.parser.add_argument(
+            "--out-dir", type=Path, default=RESULTS, help="folder of the JSON results (default benchmarks/results)"
+        )
         if quick:
             self.parser.add_argument("--quick", action="store_true", help=f"a short run: {quick}")
         self.argv: list[str] = []
@@ -225,16 +238,30 @@ class Benchmark:
             script = str(self.script)
         return shlex.join(["python", script, *self.argv])
 
-    def save(self, args: argparse.Namespace, measurements: Tables, *, host: Mapping[str, Any] | None = None,
-             when: datetime | None = None, echo: bool = True) -> Path:
+    def save(
+        self,
+        args: argparse.Namespace,
+        measurements: Tables,
+        *,
+        host: Mapping[str, Any] | None = None,
+        when: datetime | None = None,
+        echo: bool = True,
+    ) -> Path:
         """Write the result to ``args.out_dir`` and return its path; ``echo`` also prints the tables."""
         host = dict(host or machine())
         hidden = {action.dest for action in self.parser._actions if action.help == argparse.SUPPRESS}  # worker modes
         when = (when or datetime.now(timezone.utc)).astimezone(timezone.utc).replace(microsecond=0)
-        result = {"schema": SCHEMA, "benchmark": self.name, "description": self.description, "command": self.command,
-                  "machine": host, "date": when.strftime("%Y-%m-%dT%H:%M:%SZ"), "load_average": list(os.getloadavg()),
-                  "parameters": {k: v for k, v in vars(args).items() if k != "out_dir" and k not in hidden},
-                  "measurements": {title: list(rows) for title, rows in measurements.items()}}
+        result = {
+            "schema": SCHEMA,
+            "benchmark": self.name,
+            "description": self.description,
+            "command": self.command,
+            "machine": host,
+            "date": when.strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "load_average": list(os.getloadavg()),
+            "parameters": {k: v for k, v in vars(args).items() if k != "out_dir" and k not in hidden},
+            "measurements": {title: list(rows) for title, rows in measurements.items()},
+        }
         path = Path(args.out_dir) / f"{self.name}-{host['slug']}-{when.strftime('%Y%m%dT%H%M%SZ')}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(_plain(result), indent=1) + "\n")

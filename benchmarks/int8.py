@@ -53,27 +53,44 @@ def export_files(args: Any, work: Path) -> tuple[dict[str, Path], list[Row]]:
     if fp32_path is None:
         raise SystemExit("the fp32 export wrote no file")
     paths: dict[str, Path] = {"fp32": fp32_path}
-    variants: list[tuple[str, str, tuple[str, ...] | None, int]] = [("network", "network", None, WEIGHT_BITS),
-                                                                    ("trunk", "trunk", None, WEIGHT_BITS)]
-    variants += [(f"network, float: {m or 'none'}", "network", tuple(p for p in m.split(",") if p), WEIGHT_BITS)
-                 for m in args.keep_float]
+    variants: list[tuple[str, str, tuple[str, ...] | None, int]] = [
+        ("network", "network", None, WEIGHT_BITS),
+        ("trunk", "trunk", None, WEIGHT_BITS),
+    ]
+    variants += [
+        (f"network, float: {m or 'none'}", "network", tuple(p for p in m.split(",") if p), WEIGHT_BITS)
+        for m in args.keep_float
+    ]
     if args.weight_bits:
         variants.append((f"network, {args.weight_bits}-bit weights", "network", None, args.weight_bits))
     rows = []
     for i, (name, scope, keep_float, bits) in enumerate(variants):
-        options = Int8Options(calib_images=args.calib_images, calib_frames=args.calib_frames, scope=scope,
-                              keep_float=keep_float, weight_bits=bits)
+        options = Int8Options(
+            calib_images=args.calib_images,
+            calib_frames=args.calib_frames,
+            scope=scope,
+            keep_float=keep_float,
+            weight_bits=bits,
+        )
         t0 = time.perf_counter()
-        result = export_int8(fp32_path, work / f"model.int8-{i}.onnx", options=options, force=True,
-                             progress=lambda _: None)
+        result = export_int8(
+            fp32_path, work / f"model.int8-{i}.onnx", options=options, force=True, progress=lambda _: None
+        )
         if result.path is None:
             raise SystemExit(f"int8 {name}: no file written")
         paths[name] = result.path
         p = result.parity
-        rows.append({"file": name, "scope": result.meta.quantization.scope if result.meta.quantization else None,
-                     "export s": time.perf_counter() - t0, "own check: frames": p.frames,
-                     "own check: top-50 kept": p.top_matched_fraction, "standard error": p.top_matched_standard_error,
-                     "passed": p.passed})
+        rows.append(
+            {
+                "file": name,
+                "scope": result.meta.quantization.scope if result.meta.quantization else None,
+                "export s": time.perf_counter() - t0,
+                "own check: frames": p.frames,
+                "own check: top-50 kept": p.top_matched_fraction,
+                "standard error": p.top_matched_standard_error,
+                "passed": p.passed,
+            }
+        )
     return paths, rows
 
 
@@ -83,16 +100,23 @@ def main(argv: list[str] | None = None) -> int:
     add_model_arguments(p)
     p.add_argument("--calib-frames", type=int, default=8, help="the exporter's seeded calibration renders (default 8)")
     p.add_argument("--calib-images", help="folder with frames of your own for calibration")
-    p.add_argument("--keep-float", action="append", default=[], metavar="MODULES",
-                   help="also measure the network scope with these modules float32 instead of the architecture's "
-                        "(comma-separated state-dict prefixes, '' for none; repeatable)")
-    p.add_argument("--weight-bits", type=int, choices=(8,),
-                   help="also measure the network scope with 8-bit weights instead of 7")
+    p.add_argument(
+        "--keep-float",
+        action="append",
+        default=[],
+        metavar="MODULES",
+        help="also measure the network scope with these modules float32 instead of the architecture's "
+        "(comma-separated state-dict prefixes, '' for none; repeatable)",
+    )
+    p.add_argument(
+        "--weight-bits", type=int, choices=(8,), help="also measure the network scope with 8-bit weights instead of 7"
+    )
     p.add_argument("--threads", default="1,2", help="thread counts to time (default 1,2)")
     p.add_argument("--rounds", type=int, default=5, help="rounds of the files in turns (default 5)")
     p.add_argument("--repeat", type=int, default=10, help="timed calls per file per round (default 10)")
-    p.add_argument("--work-dir", default="artifacts/int8",
-                   help="folder for the frames and the files (default artifacts/int8)")
+    p.add_argument(
+        "--work-dir", default="artifacts/int8", help="folder for the frames and the files (default artifacts/int8)"
+    )
     args = bench.parse(argv)
     if args.quick:
         args.frames, args.threads, args.rounds, args.repeat = 20, "2", 3, 3
@@ -107,11 +131,18 @@ def main(argv: list[str] | None = None) -> int:
     accuracy = []
     for name, report in reports.items():
         near, far = (report.distance[label] for label in RANGES)
-        accuracy.append({"file": name, "MB": paths[name].stat().st_size / 1e6, "FDS 0-30 m": near.FDS,
-                         "mAP 0-30 m": near.mAP,
-                         "FDS 0-48 m": far.FDS, "mAP 0-48 m": far.mAP,
-                         "FDS vs fp32 (0-30 m)": near.FDS - reports["fp32"].distance[RANGES[0]].FDS,
-                         "top-50 kept": kept[name].share() if name in kept else 1.0})
+        accuracy.append(
+            {
+                "file": name,
+                "MB": paths[name].stat().st_size / 1e6,
+                "FDS 0-30 m": near.FDS,
+                "mAP 0-30 m": near.mAP,
+                "FDS 0-48 m": far.FDS,
+                "mAP 0-48 m": far.mAP,
+                "FDS vs fp32 (0-30 m)": near.FDS - reports["fp32"].distance[RANGES[0]].FDS,
+                "top-50 kept": kept[name].share() if name in kept else 1.0,
+            }
+        )
     kept[PIXEL_NOISE] = top50_kept(fp32, fp32, data, pixel_noise=True)
 
     frame = next(iter(Fisheye3DOD(data, "val")))
@@ -123,15 +154,20 @@ def main(argv: list[str] | None = None) -> int:
         calls = {name: (lambda d=d: d.run_arrays(images, valid)) for name, d in detectors.items()}
         timings = harness.alternate(calls, args.rounds, args.repeat)
         fp32_ms = timings["fp32"].median
-        latency += [{"threads": threads, "file": name, **t.row(), "speed-up over fp32": fp32_ms / t.median}
-                    for name, t in timings.items()]
-    bench.save(args, {
-        f"Accuracy on {args.frames} held-out frames": accuracy,
-        "int8 files: how they were made": made,
-        "top-50 kept per class (last row: the criterion's floor)": kept_rows(kept, kept[PIXEL_NOISE].classes),
-        "top-50 kept by the fp32 box's score": kept_rows(kept, list(SCORE_BANDS)),
-        "Latency, one frame, files in turns": latency,
-    })
+        latency += [
+            {"threads": threads, "file": name, **t.row(), "speed-up over fp32": fp32_ms / t.median}
+            for name, t in timings.items()
+        ]
+    bench.save(
+        args,
+        {
+            f"Accuracy on {args.frames} held-out frames": accuracy,
+            "int8 files: how they were made": made,
+            "top-50 kept per class (last row: the criterion's floor)": kept_rows(kept, kept[PIXEL_NOISE].classes),
+            "top-50 kept by the fp32 box's score": kept_rows(kept, list(SCORE_BANDS)),
+            "Latency, one frame, files in turns": latency,
+        },
+    )
     return 0
 
 

@@ -90,8 +90,12 @@ def saturated_outputs(layer: Layer, activation: np.ndarray) -> tuple[int, int]:
     cout, cin, kh, kw = layer.weight.shape
     pads = _attribute(layer.node, "pads", [0, 0, 0, 0])
     a = F.pad(a, (pads[1], pads[3], pads[0], pads[2]), value=float(layer.zero_point))
-    cols = F.unfold(a, (kh, kw), dilation=_attribute(layer.node, "dilations", [1, 1]),
-                    stride=_attribute(layer.node, "strides", [1, 1]))
+    cols = F.unfold(
+        a,
+        (kh, kw),
+        dilation=_attribute(layer.node, "dilations", [1, 1]),
+        stride=_attribute(layer.node, "strides", [1, 1]),
+    )
     cols = cols.view(a.shape[0], cin, kh * kw, -1)
     w = layer.weight.reshape(cout, cin, kh * kw)
     if cin % 2:  # im2col, then a GEMM over (tap, channel): pairs run across taps; one pair position per "tap" below
@@ -111,8 +115,11 @@ def saturated_outputs(layer: Layer, activation: np.ndarray) -> tuple[int, int]:
 
 def main(argv: list[str] | None = None) -> int:
     bench = harness.Benchmark(__file__, __doc__)
-    bench.parser.add_argument("model", help="an int8 file written by fisheye-infer export --int8, or one of compact, "
-                                            "fisheye-bevdet, fisheye-petr (their int8 file)")
+    bench.parser.add_argument(
+        "model",
+        help="an int8 file written by fisheye-infer export --int8, or one of compact, "
+        "fisheye-bevdet, fisheye-petr (their int8 file)",
+    )
     bench.parser.add_argument("--frames", type=int, default=1, help="seeded renders of the file's rig (default 1)")
     args = bench.parse(argv)
     path = model_path(args.model, "int8")
@@ -139,14 +146,26 @@ def main(argv: list[str] | None = None) -> int:
             layer.outputs += total
     outputs = sum(layer.outputs for layer in layers)
     hits = sum(layer.saturated for layer in layers)
-    summary = {"file": path.name, "int8 layers": len(layers),
-               "largest weight": max(int(layer.weight.abs().max()) for layer in layers),
-               "recorded weight bits": meta.quantization.weight_bits if meta.quantization else None,
-               "frames": len(frames), "outputs": outputs, "outputs saturated": hits, "share": hits / max(outputs, 1),
-               "not counted": skipped}
-    per_layer = [{"layer": layer.node.name, "weight": "x".join(map(str, layer.weight.shape)),
-                  "share saturated": layer.saturated / layer.outputs}
-                 for layer in sorted(layers, key=lambda x: -x.saturated / max(x.outputs, 1)) if layer.saturated]
+    summary = {
+        "file": path.name,
+        "int8 layers": len(layers),
+        "largest weight": max(int(layer.weight.abs().max()) for layer in layers),
+        "recorded weight bits": meta.quantization.weight_bits if meta.quantization else None,
+        "frames": len(frames),
+        "outputs": outputs,
+        "outputs saturated": hits,
+        "share": hits / max(outputs, 1),
+        "not counted": skipped,
+    }
+    per_layer = [
+        {
+            "layer": layer.node.name,
+            "weight": "x".join(map(str, layer.weight.shape)),
+            "share saturated": layer.saturated / layer.outputs,
+        }
+        for layer in sorted(layers, key=lambda x: -x.saturated / max(x.outputs, 1))
+        if layer.saturated
+    ]
     bench.save(args, {"Outputs with a saturated int16 pair": [summary], "Layers with saturated outputs": per_layer})
     return 0
 

@@ -58,8 +58,9 @@ def _peak_rss_mb(pid: int) -> float:
 def _frame(model: Path) -> dict[str, bytes]:
     rig = read_meta(model).rig
     images = Renderer(texture_seed=1).render(rig, random_scene(np.random.default_rng(0)))
-    return {name: cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
-            for name, image in images.items()}
+    return {
+        name: cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes() for name, image in images.items()
+    }
 
 
 def _percentiles(latencies: list[float]) -> dict[str, float | None]:
@@ -97,10 +98,17 @@ def detect_phase(url: str, frame: dict[str, bytes], duration: float, concurrency
         t.join()
     elapsed = time.perf_counter() - started
     ok = statuses.get("200", 0)
-    return {"phase": f"/detect, {concurrency} clients", "seconds": elapsed, "frames/s": ok / elapsed,
-            **_percentiles(latencies), "sent": sum(statuses.values()), "answered": ok,
-            "refused or failed": sum(statuses.values()) - ok, "dropped": None,
-            "statuses": [f"{k} x{v}" for k, v in sorted(statuses.items())]}
+    return {
+        "phase": f"/detect, {concurrency} clients",
+        "seconds": elapsed,
+        "frames/s": ok / elapsed,
+        **_percentiles(latencies),
+        "sent": sum(statuses.values()),
+        "answered": ok,
+        "refused or failed": sum(statuses.values()) - ok,
+        "dropped": None,
+        "statuses": [f"{k} x{v}" for k, v in sorted(statuses.items())],
+    }
 
 
 def stream_phase(ws_url: str, frame: dict[str, bytes], duration: float, fps: float) -> dict[str, Any]:
@@ -136,9 +144,16 @@ def stream_phase(ws_url: str, frame: dict[str, bytes], duration: float, fps: flo
         done.set()
         reader.join(30)
         elapsed = time.perf_counter() - started
-    return {"phase": f"/stream, {fps:g} frames/s sent", "seconds": elapsed, "frames/s": counts["result"] / elapsed,
-            **_percentiles(latencies), "sent": frame_id, "answered": counts["result"],
-            "refused or failed": counts["error"], "dropped": counts["dropped"]}
+    return {
+        "phase": f"/stream, {fps:g} frames/s sent",
+        "seconds": elapsed,
+        "frames/s": counts["result"] / elapsed,
+        **_percentiles(latencies),
+        "sent": frame_id,
+        "answered": counts["result"],
+        "refused or failed": counts["error"],
+        "dropped": counts["dropped"],
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -159,9 +174,25 @@ def main(argv: list[str] | None = None) -> int:
     model_file = model_path(args.model)
 
     port = _free_port()
-    command = [sys.executable, "-m", "fisheye_infer", "serve", str(model_file), "--host", HOST, "--port", str(port),
-               "--workers", str(args.workers), "--queue-size", str(args.queue_size),
-               "--microbatch-max-size", str(args.microbatch), "--log-level", "warning"]
+    command = [
+        sys.executable,
+        "-m",
+        "fisheye_infer",
+        "serve",
+        str(model_file),
+        "--host",
+        HOST,
+        "--port",
+        str(port),
+        "--workers",
+        str(args.workers),
+        "--queue-size",
+        str(args.queue_size),
+        "--microbatch-max-size",
+        str(args.microbatch),
+        "--log-level",
+        "warning",
+    ]
     if args.threads:
         command += ["--threads", str(args.threads)]
     server = subprocess.Popen(command)
@@ -181,9 +212,13 @@ def main(argv: list[str] | None = None) -> int:
         info = httpx.get(f"{url}/model").json()
         frame = _frame(model_file)
         size = info["image_size"]
-        model = {"model": info["model_id"], "cameras": len(info["cameras"]),
-                 "image": f"{size['width']}x{size['height']}",
-                 "frame kB (JPEG)": sum(map(len, frame.values())) / 1024, "idle peak RSS MB": _peak_rss_mb(server.pid)}
+        model = {
+            "model": info["model_id"],
+            "cameras": len(info["cameras"]),
+            "image": f"{size['width']}x{size['height']}",
+            "frame kB (JPEG)": sum(map(len, frame.values())) / 1024,
+            "idle peak RSS MB": _peak_rss_mb(server.pid),
+        }
         phases = [detect_phase(url, frame, duration, args.concurrency)]
         phases[-1]["server peak RSS MB"] = _peak_rss_mb(server.pid)
         phases.append(stream_phase(f"ws://{HOST}:{port}/stream", frame, duration, args.stream_fps))

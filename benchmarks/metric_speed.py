@@ -37,14 +37,19 @@ def main(argv: list[str] | None = None) -> int:
         scores["FDS from arrays"] = evaluate(gt, pred, EvalConfig()).FDS
 
     def to_arrays() -> tuple[EvalBoxes, EvalBoxes]:
-        return (EvalBoxes.from_records(gt_records, tokens=tokens, ground_truth=True),
-                EvalBoxes.from_records(pred_records, tokens=tokens))
+        return (
+            EvalBoxes.from_records(gt_records, tokens=tokens, ground_truth=True),
+            EvalBoxes.from_records(pred_records, tokens=tokens),
+        )
 
     def from_records() -> None:
         scores["FDS from records"] = evaluate(*to_arrays(), EvalConfig()).FDS
 
-    steps = {"metric from arrays (main + 0-30 m breakdown)": from_arrays, "records -> arrays": to_arrays,
-             "whole path from records": from_records}
+    steps = {
+        "metric from arrays (main + 0-30 m breakdown)": from_arrays,
+        "records -> arrays": to_arrays,
+        "whole path from records": from_records,
+    }
     timings = harness.alternate(steps, args.rounds, repeat=1, warmup=0)
     boxes = {"frames": args.frames, "ground-truth boxes": len(gt), "predictions": len(pred), **scores}
     bench.save(args, {"Metric time": [{"step": name, **t.row()} for name, t in timings.items()], "Boxes": [boxes]})

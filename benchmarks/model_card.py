@@ -64,8 +64,9 @@ def heldout(rig: Rig, root: Path, frames: int, seed: int) -> Path:
     return root
 
 
-def run(detector: FrameDetector, data: Path,
-        cameras: list[str]) -> tuple[MetricsReport, tuple[dict[str, Any], dict[str, Any]]]:
+def run(
+    detector: FrameDetector, data: Path, cameras: list[str]
+) -> tuple[MetricsReport, tuple[dict[str, Any], dict[str, Any]]]:
     """The metric's report of ``detector`` on the held-out frames seen by ``cameras``, and the records it scored."""
     gt, pred = detect_dataset(detector, Fisheye3DOD(data, "val", cameras=cameras), progress=False)
     return evaluate_results(gt, pred), (gt, pred)
@@ -84,7 +85,7 @@ class Kept:
 
     @property
     def classes(self) -> list[str]:
-        """"all" and the classes with boxes, in the file's class order."""
+        """ "all" and the classes with boxes, in the file's class order."""
         return [name for name in self.considered if name not in SCORE_BANDS]
 
 
@@ -108,21 +109,25 @@ def top50_kept(fp32: Detector, candidate: Detector, data: Path, pixel_noise: boo
         pairs += match_top(fp32.run_arrays(images, valid), candidate.run_arrays(seen, valid))
     per_class = {name: [p for p in pairs if p.label == label] for label, name in enumerate(fp32.info.classes)}
     groups = {"all": pairs} | {name: group for name, group in per_class.items() if group} | per_score_band(pairs)
-    return Kept({name: sum(p.matched for p in group) for name, group in groups.items()},
-                {name: len(group) for name, group in groups.items()})
+    return Kept(
+        {name: sum(p.matched for p in group) for name, group in groups.items()},
+        {name: len(group) for name, group in groups.items()},
+    )
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """The trained model a benchmark measures and the held-out frames it is measured on."""
     from fisheye_infer.models.pretrained import COMPACT_BEVDET
 
-    parser.add_argument("--ckpt", default=str(COMPACT_BEVDET.checkpoint),
-                        help="checkpoint (default: the shipped compact FisheyeBEVDet)")
+    parser.add_argument(
+        "--ckpt", default=str(COMPACT_BEVDET.checkpoint), help="checkpoint (default: the shipped compact FisheyeBEVDet)"
+    )
     parser.add_argument("--config", help="its config file (default: config.py beside --ckpt)")
     parser.add_argument("--rig", help="its rig file (default: rig.json beside --ckpt)")
     parser.add_argument("--frames", type=int, default=200, help="held-out frames (default 200)")
-    parser.add_argument("--seed", type=int, default=0,
-                        help="seed of the validation stream (the training run's --seed; default 0)")
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seed of the validation stream (the training run's --seed; default 0)"
+    )
 
 
 def trained_model(args: argparse.Namespace) -> tuple[Path, Path, Rig]:
@@ -139,16 +144,26 @@ def summary_row(report: MetricsReport) -> Row:
 def class_rows(report: MetricsReport) -> list[Row]:
     """Per class: AP at both ranges, AP at 2 m and the true-positive errors at 0-30 m."""
     near, far = report.distance[RANGES[0]], report.distance[RANGES[1]]
-    return [{"class": name, "AP 0-30 m": c.ap, "AP 0-48 m": far.classes[name].ap,
-             "AP@2m 0-30 m": c.ap_by_threshold["2.0"], "ATE 0-30 m": c.trans_err, "ASE 0-30 m": c.scale_err,
-             "AOE 0-30 m": c.orient_err}
-            for name, c in near.classes.items()]
+    return [
+        {
+            "class": name,
+            "AP 0-30 m": c.ap,
+            "AP 0-48 m": far.classes[name].ap,
+            "AP@2m 0-30 m": c.ap_by_threshold["2.0"],
+            "ATE 0-30 m": c.trans_err,
+            "ASE 0-30 m": c.scale_err,
+            "AOE 0-30 m": c.orient_err,
+        }
+        for name, c in near.classes.items()
+    ]
 
 
 def mean_rows(report: MetricsReport) -> list[Row]:
     """Over all classes, per range: mAP, FDS and the mean true-positive errors."""
-    return [{"range": label, "mAP": s.mAP, "FDS": s.FDS, "mATE": s.mATE, "mASE": s.mASE, "mAOE": s.mAOE}
-            for label, s in ((label, report.distance[label]) for label in RANGES)]
+    return [
+        {"range": label, "mAP": s.mAP, "FDS": s.FDS, "mATE": s.mATE, "mASE": s.mASE, "mAOE": s.mAOE}
+        for label, s in ((label, report.distance[label]) for label in RANGES)
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -175,12 +190,21 @@ def main(argv: list[str] | None = None) -> int:
     # The renderer draws no front on its boxes: a heading is defined up to half a turn only.
     half_turn_period = dict.fromkeys(EvalConfig().class_names, math.pi)
     half_turn = evaluate_results(gt, pred, EvalConfig(orientation_period=half_turn_period))
-    yaw = [{"range": label, "mAOE": half_turn.distance[label].mAOE, "FDS": half_turn.distance[label].FDS}
-           for label in RANGES]
+    yaw = [
+        {"range": label, "mAOE": half_turn.distance[label].mAOE, "FDS": half_turn.distance[label].FDS}
+        for label in RANGES
+    ]
 
     torch_report, _ = run(TorchDetector(open_checkpoint(ckpt, config=config, rig=rig).model, onnx_path), data, cameras)
-    versus = [{"range": label, "FDS ONNX": full.distance[label].FDS, "FDS PyTorch": torch_report.distance[label].FDS,
-               "difference": abs(torch_report.distance[label].FDS - full.distance[label].FDS)} for label in RANGES]
+    versus = [
+        {
+            "range": label,
+            "FDS ONNX": full.distance[label].FDS,
+            "FDS PyTorch": torch_report.distance[label].FDS,
+            "difference": abs(torch_report.distance[label].FDS - full.distance[label].FDS),
+        }
+        for label in RANGES
+    ]
 
     failure = []
     for name, used in layouts(fp32.info.cameras).items():
@@ -189,22 +213,33 @@ def main(argv: list[str] | None = None) -> int:
 
     int8_report, _ = run(Detector(quant.path or onnx_path, threads=args.threads), data, cameras)
     kept = top50_kept(fp32, Detector(quant.path or onnx_path, threads=args.threads), data)
-    int8 = [{"range": label, "FDS fp32": full.distance[label].FDS, "FDS int8": int8_report.distance[label].FDS,
-             "difference": int8_report.distance[label].FDS - full.distance[label].FDS, "top-50 kept": kept.share()}
-            for label in RANGES]
+    int8 = [
+        {
+            "range": label,
+            "FDS fp32": full.distance[label].FDS,
+            "FDS int8": int8_report.distance[label].FDS,
+            "difference": int8_report.distance[label].FDS - full.distance[label].FDS,
+            "top-50 kept": kept.share(),
+        }
+        for label in RANGES
+    ]
     groups = [*(name for name in kept.classes if name != "all"), *SCORE_BANDS]
-    int8_kept = [{"boxes of": group, "fp32 boxes": kept.considered[group], "top-50 kept": kept.share(group)}
-                 for group in groups]
+    int8_kept = [
+        {"boxes of": group, "fp32 boxes": kept.considered[group], "top-50 kept": kept.share(group)} for group in groups
+    ]
     scope = quant.meta.quantization.scope if quant.meta.quantization else ""
-    bench.save(args, {
-        f"Held-out frames ({args.frames}), ONNX Runtime, all four cameras: per class": class_rows(full),
-        f"Held-out frames ({args.frames}), ONNX Runtime, all four cameras: all classes": mean_rows(full),
-        "Yaw compared modulo pi (the synthetic boxes have no front)": yaw,
-        "ONNX vs PyTorch on the same frames": versus,
-        "Sensor failure at run time (degraded mode, no retraining)": failure,
-        f"int8 ({scope}) against the fp32 file": int8,
-        "int8: top-50 kept per class and by the fp32 box's score": int8_kept,
-    })
+    bench.save(
+        args,
+        {
+            f"Held-out frames ({args.frames}), ONNX Runtime, all four cameras: per class": class_rows(full),
+            f"Held-out frames ({args.frames}), ONNX Runtime, all four cameras: all classes": mean_rows(full),
+            "Yaw compared modulo pi (the synthetic boxes have no front)": yaw,
+            "ONNX vs PyTorch on the same frames": versus,
+            "Sensor failure at run time (degraded mode, no retraining)": failure,
+            f"int8 ({scope}) against the fp32 file": int8,
+            "int8: top-50 kept per class and by the fp32 box's score": int8_kept,
+        },
+    )
     return 0
 
 

@@ -49,8 +49,14 @@ def model_files(name: str, progress: Callable[[str], None] = _stderr) -> ModelFi
     folder = ARTIFACTS / name
     folder.mkdir(parents=True, exist_ok=True)
     if name == "compact":
-        files = ModelFiles(name, COMPACT_BEVDET.checkpoint, COMPACT_BEVDET.config, COMPACT_BEVDET.rig,
-                           folder / "model.onnx", folder / "model.int8.onnx")
+        files = ModelFiles(
+            name,
+            COMPACT_BEVDET.checkpoint,
+            COMPACT_BEVDET.config,
+            COMPACT_BEVDET.rig,
+            folder / "model.onnx",
+            folder / "model.int8.onnx",
+        )
     else:
         files = ModelFiles(name, folder / "model.pth", None, None, folder / "model.onnx", folder / "model.int8.onnx")
         if not files.checkpoint.exists():

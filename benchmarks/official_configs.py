@@ -27,8 +27,13 @@ from fisheye_infer.runtime.detector import Detector
 ROOT = Path(__file__).resolve().parents[1]
 #: config stem -> the rig it was calibrated on (None: the shipped Fisheye3DOD rig)
 STEMS = {
-    "fisheye_bevdet": None, "fisheye_petr": None, "fisheye_to_cyl_bevdet": None, "fisheye_to_cyl_petr": None,
-    "fisheye_to_pinhole_bevdet": None, "fisheye_to_pinhole_petr": None, "nusc_bevdet": "rig-pinhole6/cameras.json",
+    "fisheye_bevdet": None,
+    "fisheye_petr": None,
+    "fisheye_to_cyl_bevdet": None,
+    "fisheye_to_cyl_petr": None,
+    "fisheye_to_pinhole_bevdet": None,
+    "fisheye_to_pinhole_petr": None,
+    "nusc_bevdet": "rig-pinhole6/cameras.json",
     "nusc_petr": "rig-pinhole6/cameras.json",
 }
 
@@ -36,24 +41,38 @@ STEMS = {
 def main(argv: list[str] | None = None) -> int:
     bench = harness.Benchmark(__file__, __doc__)
     p = bench.parser
-    p.add_argument("--kit", type=Path, default=ROOT.parent / "shared" / "checkpoints",
-                   help="the checkpoint kit (make_checkpoint.py, configs/)")
+    p.add_argument(
+        "--kit",
+        type=Path,
+        default=ROOT.parent / "shared" / "checkpoints",
+        help="the checkpoint kit (make_checkpoint.py, configs/)",
+    )
     p.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data", help="folder holding rig-pinhole6/")
     p.add_argument("--only", nargs="+", choices=sorted(STEMS), help="these config stems only")
     p.add_argument("--repeat", type=int, default=3, help="timed inference calls per file")
-    p.add_argument("--work-dir", type=Path, default=ROOT / "benchmarks" / "artifacts" / "official_configs",
-                   help="folder for the checkpoints and the ONNX files")
+    p.add_argument(
+        "--work-dir",
+        type=Path,
+        default=ROOT / "benchmarks" / "artifacts" / "official_configs",
+        help="folder for the checkpoints and the ONNX files",
+    )
     args = bench.parse(argv)
     args.work_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     for stem in args.only or STEMS:
         ckpt = args.work_dir / f"{stem}.pth"
-        subprocess.run([sys.executable, str(args.kit / "make_checkpoint.py"), stem, str(ckpt)], check=True,
-                       capture_output=True)
+        subprocess.run(
+            [sys.executable, str(args.kit / "make_checkpoint.py"), stem, str(ckpt)], check=True, capture_output=True
+        )
         rig = resolve_rig(args.data / STEMS[stem]) if STEMS[stem] else resolve_rig(None)
         start = time.perf_counter()
-        result = export(ckpt, args.work_dir / f"{stem}.onnx", config=args.kit / "configs" / f"{stem}.py", rig=rig,
-                        progress=lambda _: None)
+        result = export(
+            ckpt,
+            args.work_dir / f"{stem}.onnx",
+            config=args.kit / "configs" / f"{stem}.py",
+            rig=rig,
+            progress=lambda _: None,
+        )
         seconds = time.perf_counter() - start
         detector = Detector(result.path, threads=2)
         frame = verification_frames(rig, 1, seed=7)
@@ -61,12 +80,21 @@ def main(argv: list[str] | None = None) -> int:
         inference = harness.measure(lambda d=detector, f=frame, v=valid: d.run_arrays(f, v), args.repeat)
         p_ = result.parity
         width, height = result.meta.image_size
-        rows.append({"config": stem, "architecture": result.meta.architecture,
-                     "input": f"{len(result.meta.cameras)} x {width}x{height}", "export s": seconds,
-                     "self-check": "passed" if p_.passed else "FAILED", "dense diff": p_.max_rank_score_abs_diff,
-                     "box diff m": p_.max_box_abs_diff_m, "score diff": p_.max_score_abs_diff,
-                     "float32 box m": p_.pytorch_float32[1] if p_.pytorch_float32 else None,
-                     "tie substitutions": p_.tie_substitutions, "inference median ms": inference.median})
+        rows.append(
+            {
+                "config": stem,
+                "architecture": result.meta.architecture,
+                "input": f"{len(result.meta.cameras)} x {width}x{height}",
+                "export s": seconds,
+                "self-check": "passed" if p_.passed else "FAILED",
+                "dense diff": p_.max_rank_score_abs_diff,
+                "box diff m": p_.max_box_abs_diff_m,
+                "score diff": p_.max_score_abs_diff,
+                "float32 box m": p_.pytorch_float32[1] if p_.pytorch_float32 else None,
+                "tie substitutions": p_.tie_substitutions,
+                "inference median ms": inference.median,
+            }
+        )
         print(harness.markdown_table(rows[-1:]), file=sys.stderr, flush=True)
         ckpt.unlink()
     bench.save(args, {"Official configs: export self-check and inference, 2 threads": rows})

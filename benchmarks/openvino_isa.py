@@ -61,8 +61,11 @@ def time_files(paths: list[str], threads: int, rounds: int, repeat: int) -> dict
                 kernels[kind] += 1
     calls = {path: (lambda r=requests[path], f=feeds[path]: r.infer(f)) for path in paths}
     timings = harness.alternate(calls, rounds, repeat)
-    return {"ms": {path: t.median for path, t in timings.items()}, "int8_kernels": dict(kernels),
-            "avx512_or_amx_kernels": wide}
+    return {
+        "ms": {path: t.median for path, t in timings.items()},
+        "int8_kernels": dict(kernels),
+        "avx512_or_amx_kernels": wide,
+    }
 
 
 def measure(fp32: str, int8: str, isa: str, threads: int, rounds: int, repeat: int) -> dict[str, Any]:
@@ -72,14 +75,21 @@ def measure(fp32: str, int8: str, isa: str, threads: int, rounds: int, repeat: i
         env.update(dict.fromkeys(ISA_VARIABLES, isa))
     job = json.dumps({"paths": [fp32, int8], "threads": threads, "rounds": rounds, "repeat": repeat})
     try:
-        done = subprocess.run([sys.executable, __file__, "--worker", job], env=env, capture_output=True, text=True,
-                              check=False, timeout=WORKER_TIMEOUT_S)
+        done = subprocess.run(
+            [sys.executable, __file__, "--worker", job],
+            env=env,
+            capture_output=True,
+            text=True,
+            check=False,
+            timeout=WORKER_TIMEOUT_S,
+        )
     except subprocess.TimeoutExpired:
         raise SystemExit(f"OpenVINO at {isa}, {threads} thread(s): no result within {WORKER_TIMEOUT_S} s") from None
     lines = done.stdout.strip().splitlines()
     if done.returncode != 0 or not lines:
-        raise SystemExit(f"OpenVINO at {isa}, {threads} thread(s) failed (exit {done.returncode}):\n"
-                         f"{done.stderr[-2000:]}")
+        raise SystemExit(
+            f"OpenVINO at {isa}, {threads} thread(s) failed (exit {done.returncode}):\n{done.stderr[-2000:]}"
+        )
     return json.loads(lines[-1])
 
 
@@ -108,10 +118,17 @@ def main(argv: list[str] | None = None) -> int:
         for threads in (int(t) for t in args.threads.split(",")):
             r = measure(fp32, int8, isa, threads, args.rounds, args.repeat)
             fp32_ms, int8_ms = r["ms"][fp32], r["ms"][int8]
-            rows.append({"ISA cap": isa, "threads": threads, "fp32 median ms": fp32_ms, "int8 median ms": int8_ms,
-                         "int8 speed-up": fp32_ms / int8_ms,
-                         "int8 convolution kernels": [f"{k} x{v}" for k, v in sorted(r["int8_kernels"].items())],
-                         "AVX-512/AMX kernels left": r["avx512_or_amx_kernels"]})
+            rows.append(
+                {
+                    "ISA cap": isa,
+                    "threads": threads,
+                    "fp32 median ms": fp32_ms,
+                    "int8 median ms": int8_ms,
+                    "int8 speed-up": fp32_ms / int8_ms,
+                    "int8 convolution kernels": [f"{k} x{v}" for k, v in sorted(r["int8_kernels"].items())],
+                    "AVX-512/AMX kernels left": r["avx512_or_amx_kernels"],
+                }
+            )
     bench.save(args, {"OpenVINO, files in turns, one process per ISA": rows})
     return 0
 

@@ -36,8 +36,9 @@ def _by_type(runtime: str, times: dict[str, float]) -> list[Row]:
     return [{"runtime": runtime, "operator": op, "ms": ms, "share": ms / total} for op, ms in ranked]
 
 
-def profile_ort(path: Path, feeds: dict[str, np.ndarray], threads: int, runs: int,
-                top: int) -> tuple[list[np.ndarray], list[Row], list[Row]]:
+def profile_ort(
+    path: Path, feeds: dict[str, np.ndarray], threads: int, runs: int, top: int
+) -> tuple[list[np.ndarray], list[Row], list[Row]]:
     """The outputs, ms per operator type and the ``top`` slowest nodes of the last of ``runs`` runs."""
     options = session_options(threads)
     options.enable_profiling = True
@@ -48,18 +49,25 @@ def profile_ort(path: Path, feeds: dict[str, np.ndarray], threads: int, runs: in
             outputs = session.run(list(OUTPUTS), feeds)
         events = json.loads(Path(session.end_profiling()).read_text())
     kernels = [e for e in events if e.get("cat") == "Node" and e["name"].endswith("_kernel_time")]
-    last = kernels[-(len(kernels) // runs):]
+    last = kernels[-(len(kernels) // runs) :]
     per_type: dict[str, float] = {}
     for e in last:
         per_type[e["args"]["op_name"]] = per_type.get(e["args"]["op_name"], 0.0) + e["dur"] / 1e3
-    slowest = [{"node": e["name"].removesuffix("_kernel_time"), "operator": e["args"]["op_name"], "ms": e["dur"] / 1e3,
-                "input shapes": [str(next(iter(s.values()))) for s in e["args"].get("input_type_shape", [])][:3]}
-               for e in sorted(last, key=lambda e: -e["dur"])[:top]]
+    slowest = [
+        {
+            "node": e["name"].removesuffix("_kernel_time"),
+            "operator": e["args"]["op_name"],
+            "ms": e["dur"] / 1e3,
+            "input shapes": [str(next(iter(s.values()))) for s in e["args"].get("input_type_shape", [])][:3],
+        }
+        for e in sorted(last, key=lambda e: -e["dur"])[:top]
+    ]
     return outputs, _by_type(f"ONNX Runtime {ort.__version__}", per_type), slowest
 
 
-def profile_openvino(path: Path, feeds: dict[str, np.ndarray], threads: int, runs: int,
-                     reference: list[np.ndarray]) -> tuple[list[Row], list[Row]]:
+def profile_openvino(
+    path: Path, feeds: dict[str, np.ndarray], threads: int, runs: int, reference: list[np.ndarray]
+) -> tuple[list[Row], list[Row]]:
     """ms per layer type of the last of ``runs`` runs, and the largest difference from ``reference`` per output."""
     import openvino as ov
 
@@ -71,8 +79,10 @@ def profile_openvino(path: Path, feeds: dict[str, np.ndarray], threads: int, run
     for layer in request.get_profiling_info():
         per_type[layer.node_type] = per_type.get(layer.node_type, 0.0) + layer.real_time.total_seconds() * 1e3
     got = {name: request.get_tensor(name).data.astype(np.float64) for name in OUTPUTS}
-    diffs = [{"output": name, "max abs difference": float(np.abs(got[name] - ref).max())}
-             for name, ref in zip(OUTPUTS, reference)]
+    diffs = [
+        {"output": name, "max abs difference": float(np.abs(got[name] - ref).max())}
+        for name, ref in zip(OUTPUTS, reference)
+    ]
     return _by_type(f"OpenVINO {ov.__version__}", per_type), diffs
 
 

@@ -61,15 +61,29 @@ STEPS = (
     Step("spinning", args=lambda m: [m], quick=lambda m: [m, "--quick"]),
     Step("profile_ops", args=lambda m: [m], quick=lambda m: [m, "--runs", "2"], modules=("onnx",)),
     Step("int8_saturation", args=lambda m: [m], quick=lambda m: [m], modules=("torch", "onnx")),
-    Step("openvino_isa", args=lambda m: [m], quick=lambda m: [m, "--threads", "2", "--rounds", "3", "--repeat", "3"],
-         modules=("openvino",)),
-    Step("load_service", args=lambda m: [m], quick=lambda m: [m, "--quick"],
-         modules=("httpx", "uvicorn", "websockets")),
+    Step(
+        "openvino_isa",
+        args=lambda m: [m],
+        quick=lambda m: [m, "--threads", "2", "--rounds", "3", "--repeat", "3"],
+        modules=("openvino",),
+    ),
+    Step(
+        "load_service", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("httpx", "uvicorn", "websockets")
+    ),
     Step("scale_out", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("ray", "httpx")),
-    Step("official_configs", quick=lambda m: ["--only", "fisheye_bevdet", "nusc_petr"], modules=("torch", "onnx"),
-         check=_kit),
-    Step("gpu", args=lambda m: ["--onnx", m], quick=lambda m: ["--onnx", m, "--repeat", "10"], modules=("torch",),
-         check=_cuda),
+    Step(
+        "official_configs",
+        quick=lambda m: ["--only", "fisheye_bevdet", "nusc_petr"],
+        modules=("torch", "onnx"),
+        check=_kit,
+    ),
+    Step(
+        "gpu",
+        args=lambda m: ["--onnx", m],
+        quick=lambda m: ["--onnx", m, "--repeat", "10"],
+        modules=("torch",),
+        check=_cuda,
+    ),
 )
 
 
@@ -78,8 +92,9 @@ def main(argv: list[str] | None = None) -> int:
     names = [step.script for step in STEPS]
     bench.parser.add_argument("--only", help=f"comma-separated benchmarks, of {', '.join(names)}")
     bench.parser.add_argument("--skip", default="", help="comma-separated benchmarks to leave out")
-    bench.parser.add_argument("--model", default="compact", choices=NAMES,
-                              help="the model of the benchmarks that take one (default compact)")
+    bench.parser.add_argument(
+        "--model", default="compact", choices=NAMES, help="the model of the benchmarks that take one (default compact)"
+    )
     args = bench.parse(argv)
     wanted = args.only.split(",") if args.only else names
     unknown = sorted((set(wanted) | set(filter(None, args.skip.split(",")))) - set(names))

@@ -82,8 +82,9 @@ def serve_runs(model: Path, cpus: int, files: list, args: argparse.Namespace) ->
 
     def replicas(count: int) -> Callable[[], float]:
         def run() -> float:
-            options = RayServeOptions(replicas=count, cpus_per_replica=cpus / count, max_batch_size=args.clients,
-                                      batch_wait_ms=10)
+            options = RayServeOptions(
+                replicas=count, cpus_per_replica=cpus / count, max_batch_size=args.clients, batch_wait_ms=10
+            )
             serve.run(build_app(settings, options), name="bench", route_prefix="/")
             load(url, files, args.clients, min(args.duration, 10))  # warm: first batches, allocator growth
             try:
@@ -94,8 +95,9 @@ def serve_runs(model: Path, cpus: int, files: list, args: argparse.Namespace) ->
         return run
 
     try:
-        return harness.in_turns({"Ray Serve, 1 replica": replicas(1), "Ray Serve, 2 replicas": replicas(2)},
-                                args.repeats)
+        return harness.in_turns(
+            {"Ray Serve, 1 replica": replicas(1), "Ray Serve, 2 replicas": replicas(2)}, args.repeats
+        )
     finally:
         serve.shutdown()
 
@@ -137,8 +139,13 @@ def main(argv: list[str] | None = None) -> int:
     cpus = os.cpu_count() or 1
     model = model_path(args.model)
     meta = read_meta(model)
-    ray.init(num_cpus=cpus, include_dashboard=False, _node_ip_address="127.0.0.1", configure_logging=False,
-             log_to_driver=False)
+    ray.init(
+        num_cpus=cpus,
+        include_dashboard=False,
+        _node_ip_address="127.0.0.1",
+        configure_logging=False,
+        log_to_driver=False,
+    )
     ray.data.DataContext.get_current().enable_progress_bars = False
     runs: dict[str, list[float]] = {}
     try:
@@ -156,8 +163,10 @@ def main(argv: list[str] | None = None) -> int:
         ray.shutdown()
     width, height = meta.image_size
     described = f"{meta.architecture}, {len(meta.cameras)} x {width}x{height}"
-    rows = [{"configuration": name, "model": described, "CPUs": cpus,
-             **harness.Stats(tuple(values)).row("frames/s")} for name, values in runs.items()]
+    rows = [
+        {"configuration": name, "model": described, "CPUs": cpus, **harness.Stats(tuple(values)).row("frames/s")}
+        for name, values in runs.items()
+    ]
     bench.save(args, {f"Throughput, Ray {ray.__version__}": rows})
     return 0
 

@@ -41,8 +41,9 @@ class Round:
     turns_ms: list[float]
 
 
-def paced(detector: Detector, images: np.ndarray, valid: np.ndarray, rate: float,
-          seconds: float) -> tuple[list[float], float, float]:
+def paced(
+    detector: Detector, images: np.ndarray, valid: np.ndarray, rate: float, seconds: float
+) -> tuple[list[float], float, float]:
     """Call latencies (ms) at ``rate`` calls per second; the process's CPU ms per call (every
     thread's, spinning included); and the cores it kept busy (CPU time over wall time, which holds
     when the calls are too slow for the rate)."""
@@ -72,8 +73,10 @@ def main(argv: list[str] | None = None) -> int:
         args.rounds, args.seconds = 2, 3.0
 
     model = model_path(args.model)
-    pairs = {name: (Detector(model, threads=args.threads, spin=spin), Detector(model, threads=args.threads, spin=spin))
-             for name, spin in SETTINGS.items()}
+    pairs = {
+        name: (Detector(model, threads=args.threads, spin=spin), Detector(model, threads=args.threads, spin=spin))
+        for name, spin in SETTINGS.items()
+    }
     info = pairs["spin (default)"][0].info
     width, height = info.image_size
     images = np.random.default_rng(0).integers(0, 256, (1, len(info.cameras), height, width, 3), dtype=np.uint8)
@@ -83,17 +86,25 @@ def main(argv: list[str] | None = None) -> int:
         time.sleep(SETTLE_S)
         ms, cpu_ms, cores = paced(first, images, valid, args.rate, args.seconds)
         time.sleep(SETTLE_S)
-        turns = harness.alternate({"first": lambda: first.run_arrays(images, valid),
-                                   "second": lambda: second.run_arrays(images, valid)}, args.calls, warmup=0)
+        turns = harness.alternate(
+            {"first": lambda: first.run_arrays(images, valid), "second": lambda: second.run_arrays(images, valid)},
+            args.calls,
+            warmup=0,
+        )
         return Round(ms, cpu_ms, cores, [t for s in turns.values() for t in s.values])
 
     calls = {name: (lambda pair=pair: one_round(*pair)) for name, pair in pairs.items()}
     rounds = harness.in_turns(calls, args.rounds, flip=True)
-    rows = [{"setting": name, "paced: latency median ms": float(np.median([t for r in rs for t in r.paced_ms])),
-             "paced: CPU ms per frame": float(np.median([r.cpu_ms for r in rs])),
-             "paced: cores busy": float(np.median([r.cores for r in rs])),
-             "two models in turn: latency median ms": float(np.median([t for r in rs for t in r.turns_ms]))}
-            for name, rs in rounds.items()]
+    rows = [
+        {
+            "setting": name,
+            "paced: latency median ms": float(np.median([t for r in rs for t in r.paced_ms])),
+            "paced: CPU ms per frame": float(np.median([r.cpu_ms for r in rs])),
+            "paced: cores busy": float(np.median([r.cores for r in rs])),
+            "two models in turn: latency median ms": float(np.median([t for r in rs for t in r.turns_ms])),
+        }
+        for name, rs in rounds.items()
+    ]
     bench.save(args, {"Spinning against not, settings in turns": rows})
     return 0
 

@@ -41,10 +41,12 @@ def _compact_at(side: int, feature_size: tuple[int, int]) -> tuple[BEVDetConfig,
 
 
 def cases() -> dict[str, tuple[BEVDetConfig, Rig, int]]:
-    return {"compact-b1": (compact_bevdet_config(), compact_rig(), 1),
-            "compact-b2": (compact_bevdet_config(), compact_rig(), 2),
-            "compact480-b2": (*_compact_at(480, (15, 60)), 2),
-            "official-b1": (BEVDetConfig(), default_rig(), 1)}
+    return {
+        "compact-b1": (compact_bevdet_config(), compact_rig(), 1),
+        "compact-b2": (compact_bevdet_config(), compact_rig(), 2),
+        "compact480-b2": (*_compact_at(480, (15, 60)), 2),
+        "official-b1": (BEVDetConfig(), default_rig(), 1),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -63,8 +65,15 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as folder:
             trainer = Trainer(config, rig, folder, TrainOptions(batch_size=batch))
             seconds = harness.Stats(tuple(trainer.train_step()["seconds"] for _ in range(max(args.steps, 2)))[1:])
-        rows.append({"case": name, "batch": batch, **seconds.row("s/step"), "steps in 3 h": BUDGET_S / seconds.median,
-                     "load average": os.getloadavg()[0]})
+        rows.append(
+            {
+                "case": name,
+                "batch": batch,
+                **seconds.row("s/step"),
+                "steps in 3 h": BUDGET_S / seconds.median,
+                "load average": os.getloadavg()[0],
+            }
+        )
     bench.save(args, {f"Training step, {args.threads} thread(s)": rows})
     return 0
 

@@ -46,8 +46,25 @@ if TYPE_CHECKING:
     from fisheye_infer.models import GeometryReport, ModelEntry
     from fisheye_infer.models.base import FisheyeDetector
 
-__all__ = ["Comparison", "ExportResult", "Fp16Result", "Int8Options", "Int8Result", "OpenedCheckpoint", "ReducedResult", "export", "export_fp16",
-           "export_int8", "file_sha256", "fp16_path_for", "infer_architecture", "int8_path_for", "open_checkpoint", "verification_frames"]
+__all__ = [
+    "Comparison",
+    "ExportResult",
+    "Fp16Result",
+    "Int8Options",
+    "Int8Result",
+    "OpenedCheckpoint",
+    "ReducedResult",
+    "export",
+    "export_fp16",
+    "export_int8",
+    "file_sha256",
+    "fp16_path_for",
+    "infer_architecture",
+    "int8_path_for",
+    "open_checkpoint",
+    "verification_frames",
+]
+
 
 def file_sha256(path: Path) -> str:
     digest = hashlib.sha256()
@@ -67,14 +84,22 @@ def infer_architecture(state_dict: Mapping[str, object], config: str | Path | ob
     if not matches:
         sample = ", ".join(list(state_dict)[:5])
         if config is not None and matching_architectures(state_dict):
-            raise ExportError(f"the checkpoint fits {', '.join(matching_architectures(state_dict))}, but the configuration "
-                              f"({config if isinstance(config, (str, Path)) else type(config).__name__}) fits none of them")
-        raise ExportError(f"cannot tell the architecture from the checkpoint's keys (first keys: {sample}); pass --arch ({', '.join(list_models())})")
-    raise ExportError(f"the checkpoint fits several architectures ({', '.join(matches)}); pass --config (the official config "
-                      "file it was trained with) or --arch")
+            raise ExportError(
+                f"the checkpoint fits {', '.join(matching_architectures(state_dict))}, but the configuration "
+                f"({config if isinstance(config, (str, Path)) else type(config).__name__}) fits none of them"
+            )
+        raise ExportError(
+            f"cannot tell the architecture from the checkpoint's keys (first keys: {sample}); pass --arch ({', '.join(list_models())})"
+        )
+    raise ExportError(
+        f"the checkpoint fits several architectures ({', '.join(matches)}); pass --config (the official config "
+        "file it was trained with) or --arch"
+    )
 
 
-def _architecture(state_dict: Mapping[str, object], arch: str | None, ckpt: Path, config: str | Path | object | None) -> str:
+def _architecture(
+    state_dict: Mapping[str, object], arch: str | None, ckpt: Path, config: str | Path | object | None
+) -> str:
     """``arch`` if given and not contradicted by the checkpoint's keys, else the one the keys (and ``config``) name."""
     from fisheye_infer.models import list_models, matching_architectures
 
@@ -84,20 +109,32 @@ def _architecture(state_dict: Mapping[str, object], arch: str | None, ckpt: Path
         raise ExportError(f"architecture {arch!r} cannot be exported (known: {', '.join(list_models())})")
     found = matching_architectures(state_dict)
     if found and arch not in found:  # keys of no known architecture: strict loading names what is wrong
-        raise ExportError(f"--arch {arch}: checkpoint {ckpt.name} holds a {' or '.join(found)} model (its keys say so); "
-                          f"pass {' or '.join(f'--arch {f}' for f in found)}, or omit --arch")
+        raise ExportError(
+            f"--arch {arch}: checkpoint {ckpt.name} holds a {' or '.join(found)} model (its keys say so); "
+            f"pass {' or '.join(f'--arch {f}' for f in found)}, or omit --arch"
+        )
     return arch
 
 
 def _initializer_bytes(model: onnx.ModelProto) -> int:
     """Bytes of every initializer's data (raw or typed fields), as the file stores them."""
-    return sum(len(i.raw_data) if i.HasField("raw_data") else int(np.prod(i.dims, dtype=np.int64)) * onnx.helper.tensor_dtype_to_np_dtype(i.data_type).itemsize
-               for i in model.graph.initializer)
+    return sum(
+        len(i.raw_data)
+        if i.HasField("raw_data")
+        else int(np.prod(i.dims, dtype=np.int64)) * onnx.helper.tensor_dtype_to_np_dtype(i.data_type).itemsize
+        for i in model.graph.initializer
+    )
 
 
 def _tool_versions() -> dict[str, str]:
-    return {"fisheye_infer": __version__, "torch": torch.__version__, "onnx": onnx.__version__, "onnxruntime": ort.__version__,
-            "opset": str(OPSET), "python": platform.python_version()}
+    return {
+        "fisheye_infer": __version__,
+        "torch": torch.__version__,
+        "onnx": onnx.__version__,
+        "onnxruntime": ort.__version__,
+        "opset": str(OPSET),
+        "python": platform.python_version(),
+    }
 
 
 @dataclass(frozen=True)
@@ -148,8 +185,9 @@ def open_checkpoint(
     except RigError as exc:
         raise ExportError(f"rig {the_rig.name!r} does not fit the {name} configuration: {exc}") from exc
     try:
-        report = load_official_state_dict(model, state_dict, geometry=geometry, ignore=entry.ignored_keys,
-                                          context=f"{name} checkpoint {ckpt.name}")
+        report = load_official_state_dict(
+            model, state_dict, geometry=geometry, ignore=entry.ignored_keys, context=f"{name} checkpoint {ckpt.name}"
+        )
     except CheckpointError as exc:
         if "does not fit the model" not in str(exc):
             raise
@@ -157,7 +195,9 @@ def open_checkpoint(
             source = f"--config {config}"
         else:
             source = "the configuration given" if config is not None else f"the official {name} configuration"
-        raise CheckpointError(f"{exc}\n(model built from {source}; pass the config the checkpoint was trained with)") from None
+        raise CheckpointError(
+            f"{exc}\n(model built from {source}; pass the config the checkpoint was trained with)"
+        ) from None
     return OpenedCheckpoint(name, entry, model.eval(), the_rig, report)
 
 
@@ -198,13 +238,23 @@ def export(
     if out.suffix != ".onnx":
         raise ExportError(f"--out {out}: expected a path ending in .onnx")
     int8_options = Int8Options() if int8 is True else (int8 or None)
-    int8_options, comparison = options_from_keywords(int8_options, comparison or Comparison(images=verify_images, threads=threads[-1]),
-                                                     legacy, caller="export")
+    int8_options, comparison = options_from_keywords(
+        int8_options, comparison or Comparison(images=verify_images, threads=threads[-1]), legacy, caller="export"
+    )
     if not int8:
         int8_options = None
     progress(f"[1/5] reading {ckpt}")
-    loaded = open_checkpoint(ckpt, arch=arch, config=config, rig=rig, geometry=geometry, allow_pickle=allow_pickle,
-                        progress=lambda name, r: progress(f"[2/5] building {name} for rig {r.name!r} ({r.hash}) and loading the checkpoint strictly"))
+    loaded = open_checkpoint(
+        ckpt,
+        arch=arch,
+        config=config,
+        rig=rig,
+        geometry=geometry,
+        allow_pickle=allow_pickle,
+        progress=lambda name, r: progress(
+            f"[2/5] building {name} for rig {r.name!r} ({r.hash}) and loading the checkpoint strictly"
+        ),
+    )
     name, entry, model, the_rig, report = loaded.name, loaded.entry, loaded.model, loaded.rig, loaded.geometry
     pre = model.config.preprocess
     width, height = pre.image_size
@@ -240,7 +290,9 @@ def export(
     with pending_file(out) as pending:
         set_metadata(proto, meta, extra)
         save_model(proto, pending.path)
-        progress(f"[4/5] verifying in ONNX Runtime against PyTorch ({frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''})")
+        progress(
+            f"[4/5] verifying in ONNX Runtime against PyTorch ({frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''})"
+        )
         batch = verification_frames(the_rig, frames, images=verify_images)
         parity = verify(pending.path, model, batch, threads=threads)
         meta = meta.model_copy(update={"parity": parity})
@@ -251,21 +303,34 @@ def export(
             written = pending.commit()
             progress(f"[5/5] wrote {out}")
     geometry_bytes = sum(np.asarray(v).nbytes for v in tables.values())
-    result = ExportResult(written, meta, parity, time.perf_counter() - start, out.stat().st_size if written else 0,
-                          _initializer_bytes(proto), geometry_bytes)
+    result = ExportResult(
+        written,
+        meta,
+        parity,
+        time.perf_counter() - start,
+        out.stat().st_size if written else 0,
+        _initializer_bytes(proto),
+        geometry_bytes,
+    )
     if not parity.passed and not force:
-        raise ParityError(f"the ONNX graph disagrees with PyTorch beyond tolerance; no file written (use --force to keep it)\n{result.summary()}")
+        raise ParityError(
+            f"the ONNX graph disagrees with PyTorch beyond tolerance; no file written (use --force to keep it)\n{result.summary()}"
+        )
     if int8_options is not None and written is not None:
         quant = export_int8(written, options=int8_options, comparison=comparison, force=force, progress=progress)
         result = replace(result, seconds=time.perf_counter() - start, int8=quant)
         if not quant.parity.passed and not force:
-            raise ParityError("the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written "
-                              "(keep more layers float32 with --int8-float or --int8-scope trunk, calibrate on your own frames "
-                              f"with --calib-images, accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}")
+            raise ParityError(
+                "the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written "
+                "(keep more layers float32 with --int8-float or --int8-scope trunk, calibrate on your own frames "
+                f"with --calib-images, accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}"
+            )
     if fp16 and written is not None:
         half = export_fp16(written, comparison=comparison, force=force, progress=progress)
         result = replace(result, seconds=time.perf_counter() - start, fp16=half)
         if not half.parity.passed and not force:
-            raise ParityError("the fp16 file finds too few of the fp32 file's boxes; fp32 file kept, no fp16 file written "
-                              f"(accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}")
+            raise ParityError(
+                "the fp16 file finds too few of the fp32 file's boxes; fp32 file kept, no fp16 file written "
+                f"(accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}"
+            )
     return result

@@ -36,7 +36,15 @@ from fisheye_infer.geometry.tables import PREFIX as GEOMETRY_PREFIX
 __all__ = ["GEOMETRY_PREFIX", "Float16Plan", "to_float16"]
 
 _FLOAT, _HALF = TensorProto.FLOAT, TensorProto.FLOAT16
-_INTEGERS = {TensorProto.INT64, TensorProto.INT32, TensorProto.INT16, TensorProto.INT8, TensorProto.UINT64, TensorProto.UINT32, TensorProto.UINT16}
+_INTEGERS = {
+    TensorProto.INT64,
+    TensorProto.INT32,
+    TensorProto.INT16,
+    TensorProto.INT8,
+    TensorProto.UINT64,
+    TensorProto.UINT32,
+    TensorProto.UINT16,
+}
 _HALF_MAX = float(np.finfo(np.float16).max)
 #: Ops that read only the shape of their input: whatever its precision, no Cast is needed.
 _SHAPE_READERS = ("Shape", "Size")
@@ -57,17 +65,23 @@ class Float16Plan:
     def scope(self) -> str:
         kept = f"; kept float32: {', '.join(self.kept_nodes)}" if self.kept_nodes else ""
         clipped = f"; {self.clipped_weights} weight value(s) clipped to +-65504" if self.clipped_weights else ""
-        return (f"float16 weights and compute in {self.half_nodes} of {self.nodes} nodes; float32: {self.geometry_tables} geometry tables (geom.*), "
-                f"{self.index_nodes} index-arithmetic node(s){kept}; {self.casts} Casts inserted{clipped}; uint8/bool inputs and float32 outputs as in fp32")
+        return (
+            f"float16 weights and compute in {self.half_nodes} of {self.nodes} nodes; float32: {self.geometry_tables} geometry tables (geom.*), "
+            f"{self.index_nodes} index-arithmetic node(s){kept}; {self.casts} Casts inserted{clipped}; uint8/bool inputs and float32 outputs as in fp32"
+        )
 
 
 def _types(model: onnx.ModelProto) -> dict[str, int]:
     try:
         inferred = onnx.shape_inference.infer_shapes(model, strict_mode=True)
     except Exception as exc:  # the checker's errors are untyped
-        raise ExportError(f"fp16: ONNX shape inference fails on the fp32 graph ({exc}); cannot tell float values apart") from exc
+        raise ExportError(
+            f"fp16: ONNX shape inference fails on the fp32 graph ({exc}); cannot tell float values apart"
+        ) from exc
     graph = inferred.graph
-    types = {v.name: v.type.tensor_type.elem_type for v in list(graph.value_info) + list(graph.input) + list(graph.output)}
+    types = {
+        v.name: v.type.tensor_type.elem_type for v in list(graph.value_info) + list(graph.input) + list(graph.output)
+    }
     types.update({i.name: i.data_type for i in graph.initializer})
     return types
 
@@ -77,7 +91,9 @@ def _half_slot(node: onnx.NodeProto, index: int, opset: int, output: bool = Fals
     schema = onnx.defs.get_schema(node.op_type, opset, node.domain)
     formals = schema.outputs if output else schema.inputs
     formal = formals[min(index, len(formals) - 1)]  # a variadic last parameter covers the rest
-    allowed = next((c.allowed_type_strs for c in schema.type_constraints if c.type_param_str == formal.type_str), [formal.type_str])
+    allowed = next(
+        (c.allowed_type_strs for c in schema.type_constraints if c.type_param_str == formal.type_str), [formal.type_str]
+    )
     return "tensor(float16)" in allowed
 
 
@@ -105,7 +121,9 @@ def to_float16(model: onnx.ModelProto, keep: Iterable[str] = ()) -> tuple[onnx.M
     index_nodes = 0
     for i, node in enumerate(nodes):
         float_in = [n for n in node.input if types.get(n) == _FLOAT]
-        from_integer = node.op_type == "Cast" and types.get(node.input[0]) in _INTEGERS and types.get(node.output[0]) == _FLOAT
+        from_integer = (
+            node.op_type == "Cast" and types.get(node.input[0]) in _INTEGERS and types.get(node.output[0]) == _FLOAT
+        )
         if from_integer or any(n in index_values for n in float_in):
             index_values.update(o for o in node.output if types.get(o) == _FLOAT)
             half[i] = False
@@ -147,7 +165,11 @@ def to_float16(model: onnx.ModelProto, keep: Iterable[str] = ()) -> tuple[onnx.M
                 to = _HALF if want_half else _FLOAT
                 if (name, to) not in casts:
                     casts[(name, to)] = f"{name}.{'fp16' if want_half else 'fp32'}"
-                    rewired.append(onnx.helper.make_node("Cast", [name], [casts[(name, to)]], name=f"cast_{casts[(name, to)]}", to=to))
+                    rewired.append(
+                        onnx.helper.make_node(
+                            "Cast", [name], [casts[(name, to)]], name=f"cast_{casts[(name, to)]}", to=to
+                        )
+                    )
                 node.input[k] = casts[(name, to)]
         if half[i]:
             clipped += _half_attributes(node)
@@ -170,8 +192,15 @@ def to_float16(model: onnx.ModelProto, keep: Iterable[str] = ()) -> tuple[onnx.M
         onnx.shape_inference.infer_shapes(out, strict_mode=True)
     except Exception as exc:
         raise ExportError(f"fp16: the converted graph is not valid ONNX ({exc})") from exc
-    plan = Float16Plan(nodes=len(nodes), half_nodes=sum(half.values()), kept_nodes=tuple(n.name for n in nodes if n.name in keep),
-                       index_nodes=index_nodes, geometry_tables=geometry, casts=len(casts) + len(tail), clipped_weights=clipped)
+    plan = Float16Plan(
+        nodes=len(nodes),
+        half_nodes=sum(half.values()),
+        kept_nodes=tuple(n.name for n in nodes if n.name in keep),
+        index_nodes=index_nodes,
+        geometry_tables=geometry,
+        casts=len(casts) + len(tail),
+        clipped_weights=clipped,
+    )
     return out, plan
 
 
@@ -184,7 +213,9 @@ def _half_attributes(node: onnx.NodeProto) -> int:
         elif node.op_type in ("Constant", "ConstantOfShape") and attr.name == "value" and attr.t.data_type == _FLOAT:
             new, clipped = _to_half_tensor(attr.t)
             attr.t.CopyFrom(new)
-    if node.op_type == "ConstantOfShape" and not any(a.name == "value" for a in node.attribute):  # the default is a float32 zero
+    if node.op_type == "ConstantOfShape" and not any(
+        a.name == "value" for a in node.attribute
+    ):  # the default is a float32 zero
         node.attribute.append(onnx.helper.make_attribute("value", numpy_helper.from_array(np.zeros(1, np.float16))))
     if node.op_type == "Constant" and any(a.name in ("value_float", "value_floats") for a in node.attribute):
         attr = next(a for a in node.attribute if a.name in ("value_float", "value_floats"))

@@ -30,7 +30,14 @@ import onnxruntime as ort
 from fisheye_infer.errors import ExportError
 from fisheye_infer.eval.top_match import MATCH_RADIUS_M, top_matched
 from fisheye_infer.precision import MIN_TOP_MATCHED
-from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS, ReducedParityReport, ReplayedChoice
+from fisheye_infer.runtime.artifact import (
+    INPUT_CAMERA_VALID,
+    INPUT_IMAGES,
+    OUTPUTS,
+    RANKING_OUTPUTS,
+    ReducedParityReport,
+    ReplayedChoice,
+)
 from fisheye_infer.runtime.box_geometry import box_diff
 from fisheye_infer.runtime.session import Provider, open_session, provider_name, resolve_providers
 
@@ -53,8 +60,15 @@ def replay_choice(model: onnx.ModelProto) -> onnx.ModelProto:
         raise ExportError(f"fp16: the graph has no TopK producing '{_INDICES}'; cannot replay a ranking")
     topk = graph.node[position]
     axis = next((a.i for a in topk.attribute if a.name == "axis"), -1)
-    replacement = [onnx.helper.make_node("GatherElements", [topk.input[0], _INDICES], [topk.output[0]], name=f"{topk.name}_replayed",
-                                         axis=axis)] if topk.output[0] else []
+    replacement = (
+        [
+            onnx.helper.make_node(
+                "GatherElements", [topk.input[0], _INDICES], [topk.output[0]], name=f"{topk.name}_replayed", axis=axis
+            )
+        ]
+        if topk.output[0]
+        else []
+    )
     del graph.node[position]
     for node in reversed(replacement):
         graph.node.insert(position, node)
@@ -62,7 +76,9 @@ def replay_choice(model: onnx.ModelProto) -> onnx.ModelProto:
     return out
 
 
-def _session(model: onnx.ModelProto, threads: int, providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> ort.InferenceSession:
+def _session(
+    model: onnx.ModelProto, threads: int, providers: Sequence[Provider] = ("CPUExecutionProvider",)
+) -> ort.InferenceSession:
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
@@ -99,8 +115,14 @@ def _ties(dense: np.ndarray, k: int) -> int:
     return int(max(np.count_nonzero(d == s) for d, s in zip(dense, kth)))
 
 
-def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray, threads: int = 2,
-                min_fraction: float = MIN_TOP_MATCHED, candidate_providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> ReducedParityReport:
+def fp16_parity(
+    fp32_path: str | Path,
+    fp16_path: str | Path,
+    frames: np.ndarray,
+    threads: int = 2,
+    min_fraction: float = MIN_TOP_MATCHED,
+    candidate_providers: Sequence[Provider] = ("CPUExecutionProvider",),
+) -> ReducedParityReport:
     """The fp16 file against the fp32 file on ``frames`` (F, N, H, W, 3) uint8; see the module docstring.
 
     Passes when at least ``min_fraction`` of the fp32 top-50 boxes are found again (comparison 1).
@@ -113,7 +135,9 @@ def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray
         raise ExportError("fp16: candidate_providers: expected at least one provider")
     where = evaluated_with(providers)
     try:
-        session = _session(_with_ranking(onnx.load(str(fp16_path))), threads, resolve_providers(providers))  # no silent fallback to the CPU
+        session = _session(
+            _with_ranking(onnx.load(str(fp16_path))), threads, resolve_providers(providers)
+        )  # no silent fallback to the CPU
         half = _run(session, frames)
     except Exception as exc:  # ORT's errors are untyped
         raise ExportError(f"fp16: ONNX Runtime ({where}) cannot run {fp16_path} ({exc}); no parity") from exc
@@ -124,18 +148,35 @@ def fp16_parity(fp32_path: str | Path, fp16_path: str | Path, frames: np.ndarray
     at_own_choice = top_matched(at_choice, cand)
     k = half[_INDICES].shape[1]
     ties = _ties(full[_SCORES], k)
-    problems = (f"the fp32 file's dense scores tie: up to {ties} of them equal the {k}-th largest, so which tied cells its top-{k} keeps "
-                "is not defined; the replayed comparison measures float16 alone",) if ties > 1 else ()
-    return ReducedParityReport(
-        frames=len(frames), threads=(threads,), top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error,
-        top_matched_by_score=kept.by_score, min_top_matched=min_fraction, match_radius_m=MATCH_RADIUS_M,
-        unmatched=kept.considered - kept.matched, max_box_abs_diff_m=kept.max_box_diff, max_score_abs_diff=kept.max_score_diff,
-        max_rank_score_abs_diff=float(np.abs(full[_SCORES].astype(np.float64) - half[_SCORES]).max()),
-        labels_equal=bool(np.array_equal(ref[2], cand[2])), valid_equal=bool(np.array_equal(ref[3], cand[3])),
-        passed=kept.fraction >= min_fraction, evaluated_with=evaluated_with(session.get_providers()), problems=problems,
-        replayed=ReplayedChoice(top_matched_fraction=at_own_choice.fraction,
-                                max_box_abs_diff_m=float(box_diff(at_choice[0], cand[0]).max()),
-                                max_score_abs_diff=float(np.abs(at_choice[1].astype(np.float64) - cand[1]).max()),
-                                labels_equal=bool(np.array_equal(at_choice[2], cand[2]))),
+    problems = (
+        (
+            f"the fp32 file's dense scores tie: up to {ties} of them equal the {k}-th largest, so which tied cells its top-{k} keeps "
+            "is not defined; the replayed comparison measures float16 alone",
+        )
+        if ties > 1
+        else ()
     )
-
+    return ReducedParityReport(
+        frames=len(frames),
+        threads=(threads,),
+        top_matched_fraction=kept.fraction,
+        top_matched_standard_error=kept.standard_error,
+        top_matched_by_score=kept.by_score,
+        min_top_matched=min_fraction,
+        match_radius_m=MATCH_RADIUS_M,
+        unmatched=kept.considered - kept.matched,
+        max_box_abs_diff_m=kept.max_box_diff,
+        max_score_abs_diff=kept.max_score_diff,
+        max_rank_score_abs_diff=float(np.abs(full[_SCORES].astype(np.float64) - half[_SCORES]).max()),
+        labels_equal=bool(np.array_equal(ref[2], cand[2])),
+        valid_equal=bool(np.array_equal(ref[3], cand[3])),
+        passed=kept.fraction >= min_fraction,
+        evaluated_with=evaluated_with(session.get_providers()),
+        problems=problems,
+        replayed=ReplayedChoice(
+            top_matched_fraction=at_own_choice.fraction,
+            max_box_abs_diff_m=float(box_diff(at_choice[0], cand[0]).max()),
+            max_score_abs_diff=float(np.abs(at_choice[1].astype(np.float64) - cand[1]).max()),
+            labels_equal=bool(np.array_equal(at_choice[2], cand[2])),
+        ),
+    )

@@ -83,7 +83,9 @@ def replace_initializers(model: onnx.ModelProto, tables: Mapping[str, np.ndarray
         old = by_name[name]
         new = numpy_helper.from_array(np.ascontiguousarray(array), name)
         if new.data_type != old.data_type:
-            raise ArtifactError(f"initializer {name}: new table is {array.dtype}, the graph holds {onnx.TensorProto.DataType.Name(old.data_type)}")
+            raise ArtifactError(
+                f"initializer {name}: new table is {array.dtype}, the graph holds {onnx.TensorProto.DataType.Name(old.data_type)}"
+            )
         old.CopyFrom(new)
 
 
@@ -126,7 +128,9 @@ def with_outputs(model: onnx.ModelProto, outputs: Mapping[str, int]) -> onnx.Mod
     out = onnx.ModelProto()
     out.CopyFrom(model)
     present = {o.name for o in out.graph.output}
-    out.graph.output.extend(onnx.helper.make_tensor_value_info(name, elem, None) for name, elem in outputs.items() if name not in present)
+    out.graph.output.extend(
+        onnx.helper.make_tensor_value_info(name, elem, None) for name, elem in outputs.items() if name not in present
+    )
     return out
 
 
@@ -162,7 +166,9 @@ def check_standard_ops(model: onnx.ModelProto, min_opset: int = 18) -> None:
     if custom:
         raise ExportError(f"the graph uses non-standard ops: {', '.join(custom)}")
     if model.functions:
-        raise ExportError(f"the graph holds local functions ({', '.join(f.name for f in model.functions)}); expected plain ops")
+        raise ExportError(
+            f"the graph holds local functions ({', '.join(f.name for f in model.functions)}); expected plain ops"
+        )
     opset = max((o.version for o in model.opset_import if o.domain in STANDARD_DOMAINS), default=0)
     if opset < min_opset:
         raise ExportError(f"the graph uses opset {opset}; at least {min_opset} is required")
@@ -223,16 +229,27 @@ def fold_input_scale(model: onnx.ModelProto) -> list[str]:
         if scale is None or len(consumers.get(div.output[0], [])) != 1:
             continue
         node, value = consumers[div.output[0]][0], div.output[0]
-        while node.op_type == "Reshape" and _keeps_chw(shapes.get(node.input[0]), shapes.get(node.output[0])) \
-                and len(consumers.get(node.output[0], [])) == 1:
+        while (
+            node.op_type == "Reshape"
+            and _keeps_chw(shapes.get(node.input[0]), shapes.get(node.output[0]))
+            and len(consumers.get(node.output[0], [])) == 1
+        ):
             node, value = consumers[node.output[0]][0], node.output[0]
         weight = inits.get(node.input[1]) if node.op_type == "Conv" and len(node.input) > 1 else None
         group = next((a.i for a in node.attribute if a.name == "group"), 1)
-        if weight is None or node.input[0] != value or group != 1 or len(consumers[weight.name]) != 1 \
-                or len(weight.dims) != 4 or weight.dims[1] != scale.size:
+        if (
+            weight is None
+            or node.input[0] != value
+            or group != 1
+            or len(consumers[weight.name]) != 1
+            or len(weight.dims) != 4
+            or weight.dims[1] != scale.size
+        ):
             continue
         w = numpy_helper.to_array(weight)
-        weight.CopyFrom(numpy_helper.from_array((w / scale.astype(w.dtype)[None, :, None, None]).astype(w.dtype), weight.name))
+        weight.CopyFrom(
+            numpy_helper.from_array((w / scale.astype(w.dtype)[None, :, None, None]).astype(w.dtype), weight.name)
+        )
         for reader in consumers[div.output[0]]:
             reader.input[:] = [div.input[0] if i == div.output[0] else i for i in reader.input]
         graph.node.remove(div)
@@ -252,8 +269,14 @@ def _channel_constant(init: onnx.TensorProto | None) -> np.ndarray | None:
 
 def _keeps_chw(before: tuple[int, ...] | None, after: tuple[int, ...] | None) -> bool:
     """A Reshape that merges or splits leading axes only: the last three (C, H, W) known and unchanged."""
-    return before is not None and after is not None and len(before) >= 3 and len(after) >= 3 \
-        and before[-3:] == after[-3:] and all(d > 0 for d in before[-3:])
+    return (
+        before is not None
+        and after is not None
+        and len(before) >= 3
+        and len(after) >= 3
+        and before[-3:] == after[-3:]
+        and all(d > 0 for d in before[-3:])
+    )
 
 
 def static_shapes(model: onnx.ModelProto) -> dict[str, tuple[int, ...]]:
@@ -262,5 +285,7 @@ def static_shapes(model: onnx.ModelProto) -> dict[str, tuple[int, ...]]:
     shapes = {}
     for info in [*inferred.graph.value_info, *inferred.graph.input, *inferred.graph.output]:
         if info.type.HasField("tensor_type") and info.type.tensor_type.HasField("shape"):
-            shapes[info.name] = tuple(d.dim_value if d.HasField("dim_value") else -1 for d in info.type.tensor_type.shape.dim)
+            shapes[info.name] = tuple(
+                d.dim_value if d.HasField("dim_value") else -1 for d in info.type.tensor_type.shape.dim
+            )
     return shapes

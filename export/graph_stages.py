@@ -84,7 +84,9 @@ def image_region(model: onnx.ModelProto) -> list[str]:
         elif any(n in from_images for n in ins):
             from_images.update(node.output)
     if not anchors:
-        raise ArtifactError("no node samples the image features with a geometry table (geom.*); cannot locate the image backbone and neck")
+        raise ArtifactError(
+            "no node samples the image features with a geometry table (geom.*); cannot locate the image backbone and neck"
+        )
     region: set[str] = set()
     stack = [n for a in anchors for n in a.input if n in from_images]
     while stack:
@@ -112,7 +114,10 @@ def _assign(model: onnx.ModelProto) -> dict[str, str]:
             continue
         view.add(node.name)
         stack.extend(producer[i] for i in node.input if i in producer)
-    return {n.name: "backbone_neck" if n.name in trunk else "view_transform" if n.name in view else "head" for n in graph.node}
+    return {
+        n.name: "backbone_neck" if n.name in trunk else "view_transform" if n.name in view else "head"
+        for n in graph.node
+    }
 
 
 def split_stages(model: onnx.ModelProto) -> list[Stage]:
@@ -126,29 +131,55 @@ def split_stages(model: onnx.ModelProto) -> list[Stage]:
     graph_inputs = {i.name: i for i in graph.input}
     inits = {i.name: i for i in graph.initializer}
     inferred = onnx.shape_inference.infer_shapes(model_copy, strict_mode=False)
-    types = {v.name: v.type.tensor_type.elem_type for v in list(inferred.graph.value_info) + list(inferred.graph.output)}
+    types = {
+        v.name: v.type.tensor_type.elem_type for v in list(inferred.graph.value_info) + list(inferred.graph.output)
+    }
     stages = []
     for name in STAGES:
         nodes = [n for n in graph.node if stage_of[n.name] == name]
         reads = [i for n in nodes for i in n.input if i and i not in inits]
         ins = list(dict.fromkeys(i for i in reads if produced_in.get(i, "input") != name))
-        read_later = {i for n in graph.node if stage_of[n.name] != name for i in n.input} | {o.name for o in graph.output}
+        read_later = {i for n in graph.node if stage_of[n.name] != name for i in n.input} | {
+            o.name for o in graph.output
+        }
         outs = list(dict.fromkeys(o for n in nodes for o in n.output if o in read_later))
-        in_info = [graph_inputs[i] if i in graph_inputs else onnx.helper.make_tensor_value_info(i, types.get(i, onnx.TensorProto.FLOAT), None) for i in ins]
+        in_info = [
+            graph_inputs[i]
+            if i in graph_inputs
+            else onnx.helper.make_tensor_value_info(i, types.get(i, onnx.TensorProto.FLOAT), None)
+            for i in ins
+        ]
         out_info = [onnx.helper.make_tensor_value_info(o, types.get(o, onnx.TensorProto.FLOAT), None) for o in outs]
         used = {i for n in nodes for i in n.input}
         sub = onnx.helper.make_graph(nodes, name, in_info, out_info, [inits[i] for i in inits if i in used])
-        stages.append(Stage(name, onnx.helper.make_model(sub, opset_imports=list(model_copy.opset_import), ir_version=model_copy.ir_version),
-                            tuple(ins), tuple(outs), len(nodes)))
+        stages.append(
+            Stage(
+                name,
+                onnx.helper.make_model(
+                    sub, opset_imports=list(model_copy.opset_import), ir_version=model_copy.ir_version
+                ),
+                tuple(ins),
+                tuple(outs),
+                len(nodes),
+            )
+        )
     return stages
 
 
-def _session(model: onnx.ModelProto, options: ort.SessionOptions, providers: Sequence[Provider]) -> ort.InferenceSession:
+def _session(
+    model: onnx.ModelProto, options: ort.SessionOptions, providers: Sequence[Provider]
+) -> ort.InferenceSession:
     return open_session(model.SerializeToString(), options, providers, f"stage model {model.graph.name}")
 
 
-def time_stages(path: str | Path, feeds: dict[str, np.ndarray], options_for: Callable[[], ort.SessionOptions],
-                repeat: int = 5, warmup: int = 1, providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> dict[str, list[float]]:
+def time_stages(
+    path: str | Path,
+    feeds: dict[str, np.ndarray],
+    options_for: Callable[[], ort.SessionOptions],
+    repeat: int = 5,
+    warmup: int = 1,
+    providers: Sequence[Provider] = ("CPUExecutionProvider",),
+) -> dict[str, list[float]]:
     """Per-stage wall times (ms, one entry per repeat), stages run one after another on real cut values.
 
     In a GPU provider each stage's time includes copying its inputs in and its outputs back."""

@@ -36,8 +36,14 @@ from onnx import helper, numpy_helper
 
 from .graph import readers_of, static_shapes
 
-__all__ = ["before_quantization", "after_quantization", "stem_as_space_to_depth", "upsample_as_depth_to_space",
-           "data_movement_on_quantized_values", "neighbour_swap_as_concat"]
+__all__ = [
+    "before_quantization",
+    "after_quantization",
+    "stem_as_space_to_depth",
+    "upsample_as_depth_to_space",
+    "data_movement_on_quantized_values",
+    "neighbour_swap_as_concat",
+]
 
 #: A stride-2 convolution over at most this many input channels is a stem worth rewriting.
 STEM_MAX_CHANNELS = 4
@@ -64,6 +70,7 @@ def after_quantization(model: onnx.ModelProto) -> list[str]:
 
 # -- helpers ---------------------------------------------------------------------------------------
 
+
 def _attrs(node: onnx.NodeProto) -> dict[str, Any]:
     return {a.name: helper.get_attribute_value(a) for a in node.attribute}
 
@@ -73,7 +80,9 @@ def _int64s(name: str, values: list[int]) -> onnx.TensorProto:
 
 
 def _value_names(graph: onnx.GraphProto) -> set[str]:
-    return {i.name for i in graph.input} | {i.name for i in graph.initializer} | {o for n in graph.node for o in n.output}
+    return (
+        {i.name for i in graph.input} | {i.name for i in graph.initializer} | {o for n in graph.node for o in n.output}
+    )
 
 
 def _fresh(taken: set[str], base: str) -> str:
@@ -107,6 +116,7 @@ def _like(node: onnx.NodeProto, template: onnx.NodeProto) -> onnx.NodeProto:
 
 # -- before quantization ---------------------------------------------------------------------------
 
+
 def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None = None) -> list[str]:
     """Rewrite a stride-2 convolution of a channels-last input as a stride-1 one over its 2x2 blocks.
 
@@ -129,8 +139,14 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
     for conv in [n for n in graph.node if n.op_type == "Conv" and (only is None or n.name in only)]:
         transpose = producers.get(conv.input[0])
         weight = inits.get(conv.input[1]) if len(conv.input) > 1 else None
-        if transpose is None or transpose.op_type != "Transpose" or list(_attrs(transpose).get("perm", [])) != [0, 3, 1, 2] \
-                or weight is None or len(weight.dims) != 4 or len(readers[weight.name]) != 1:
+        if (
+            transpose is None
+            or transpose.op_type != "Transpose"
+            or list(_attrs(transpose).get("perm", [])) != [0, 3, 1, 2]
+            or weight is None
+            or len(weight.dims) != 4
+            or len(readers[weight.name]) != 1
+        ):
             continue
         nhwc = shapes.get(transpose.input[0])
         plan = _stem_plan(conv, tuple(weight.dims), nhwc)
@@ -140,8 +156,12 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
         out_c, c, k, _ = w.shape
         blocks, e, begin, end_h, end_w = plan
         padded = np.zeros((out_c, c, 2 * blocks, 2 * blocks), dtype=w.dtype)
-        padded[:, :, e:e + k, e:e + k] = w
-        block_weight = padded.reshape(out_c, c, blocks, 2, blocks, 2).transpose(0, 3, 5, 1, 2, 4).reshape(out_c, 4 * c, blocks, blocks)
+        padded[:, :, e : e + k, e : e + k] = w
+        block_weight = (
+            padded.reshape(out_c, c, blocks, 2, blocks, 2)
+            .transpose(0, 3, 5, 1, 2, 4)
+            .reshape(out_c, 4 * c, blocks, blocks)
+        )
         weight.CopyFrom(numpy_helper.from_array(np.ascontiguousarray(block_weight), weight.name))
         assert nhwc is not None
         h, wd = nhwc[1] // 2, nhwc[2] // 2
@@ -151,29 +171,66 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
         graph.initializer.extend([_int64s(split, [0, h, 2, wd, 2, c]), _int64s(merged, [0, h, wd, 4 * c])])
         chain = [
             _like(helper.make_node("Reshape", [source, split], [f"{name}.rows2"], name=f"{name}.blocks.split"), conv),
-            _like(helper.make_node("Transpose", [f"{name}.rows2"], [f"{name}.blocks6"], name=f"{name}.blocks.gather", perm=[0, 1, 3, 2, 4, 5]), conv),
-            _like(helper.make_node("Reshape", [f"{name}.blocks6", merged], [f"{name}.blocks_nhwc"], name=f"{name}.blocks.merge"), conv),
-            _like(helper.make_node("Transpose", [f"{name}.blocks_nhwc"], [f"{name}.blocks_nchw"], name=f"{name}.blocks.nchw", perm=[0, 3, 1, 2]), conv),
+            _like(
+                helper.make_node(
+                    "Transpose",
+                    [f"{name}.rows2"],
+                    [f"{name}.blocks6"],
+                    name=f"{name}.blocks.gather",
+                    perm=[0, 1, 3, 2, 4, 5],
+                ),
+                conv,
+            ),
+            _like(
+                helper.make_node(
+                    "Reshape", [f"{name}.blocks6", merged], [f"{name}.blocks_nhwc"], name=f"{name}.blocks.merge"
+                ),
+                conv,
+            ),
+            _like(
+                helper.make_node(
+                    "Transpose",
+                    [f"{name}.blocks_nhwc"],
+                    [f"{name}.blocks_nchw"],
+                    name=f"{name}.blocks.nchw",
+                    perm=[0, 3, 1, 2],
+                ),
+                conv,
+            ),
         ]
         attrs = _attrs(conv)
         attrs.update(kernel_shape=[blocks, blocks], strides=[1, 1], pads=[begin, begin, end_h, end_w])
         attrs.pop("auto_pad", None)
-        new_conv = _like(helper.make_node("Conv", [chain[-1].output[0], *conv.input[1:]], list(conv.output), name=name, **attrs), conv)
+        new_conv = _like(
+            helper.make_node("Conv", [chain[-1].output[0], *conv.input[1:]], list(conv.output), name=name, **attrs),
+            conv,
+        )
         readers[transpose.output[0]].remove(conv)
         _replace(graph, [conv] + ([transpose] if not readers[transpose.output[0]] else []), [*chain, new_conv])
         changed.append(name)
     return changed
 
 
-def _stem_plan(conv: onnx.NodeProto, weight_shape: tuple[int, ...], nhwc: tuple[int, ...] | None) -> tuple[int, int, int, int, int] | None:
+def _stem_plan(
+    conv: onnx.NodeProto, weight_shape: tuple[int, ...], nhwc: tuple[int, ...] | None
+) -> tuple[int, int, int, int, int] | None:
     """(kernel in blocks, shift e, front padding in blocks, end padding in blocks (rows, columns)), or ``None``."""
     attrs = _attrs(conv)
     _, c, k, k2 = weight_shape
     pads = list(attrs.get("pads", [0, 0, 0, 0]))
-    if nhwc is None or len(nhwc) != 4 or nhwc[3] != c or c > STEM_MAX_CHANNELS or k != k2 \
-            or any(d <= 0 or d % 2 for d in nhwc[1:3]) or list(attrs.get("strides", [1, 1])) != [2, 2] \
-            or attrs.get("group", 1) != 1 or list(attrs.get("dilations", [1, 1])) != [1, 1] \
-            or attrs.get("auto_pad", b"NOTSET") not in (b"NOTSET", "NOTSET") or len(set(pads)) != 1:
+    if (
+        nhwc is None
+        or len(nhwc) != 4
+        or nhwc[3] != c
+        or c > STEM_MAX_CHANNELS
+        or k != k2
+        or any(d <= 0 or d % 2 for d in nhwc[1:3])
+        or list(attrs.get("strides", [1, 1])) != [2, 2]
+        or attrs.get("group", 1) != 1
+        or list(attrs.get("dilations", [1, 1])) != [1, 1]
+        or attrs.get("auto_pad", b"NOTSET") not in (b"NOTSET", "NOTSET")
+        or len(set(pads)) != 1
+    ):
         return None
     p = pads[0]
     begin = math.ceil(p / 2)
@@ -206,24 +263,48 @@ def upsample_as_depth_to_space(model: onnx.ModelProto, only: Collection[str] | N
         weight = inits.get(node.input[1]) if len(node.input) > 1 else None
         has_bias = len(node.input) > 2 and bool(node.input[2])
         bias = inits.get(node.input[2]) if has_bias else None
-        if weight is None or len(weight.dims) != 4 or not _is_block_upsample(node, tuple(weight.dims)) \
-                or len(readers[weight.name]) != 1 or (has_bias and (bias is None or len(readers[bias.name]) != 1)):
+        if (
+            weight is None
+            or len(weight.dims) != 4
+            or not _is_block_upsample(node, tuple(weight.dims))
+            or len(readers[weight.name]) != 1
+            or (has_bias and (bias is None or len(readers[bias.name]) != 1))
+        ):
             continue
         w = numpy_helper.to_array(weight)
         cin, cout, s, _ = w.shape
-        weight.CopyFrom(numpy_helper.from_array(np.ascontiguousarray(w.transpose(1, 2, 3, 0)).reshape(cout * s * s, cin, 1, 1), weight.name))
+        weight.CopyFrom(
+            numpy_helper.from_array(
+                np.ascontiguousarray(w.transpose(1, 2, 3, 0)).reshape(cout * s * s, cin, 1, 1), weight.name
+            )
+        )
         if bias is not None:
             bias.CopyFrom(numpy_helper.from_array(np.repeat(numpy_helper.to_array(bias), s * s), bias.name))
         name = node.name or node.output[0]
         after = readers.get(node.output[0], [])
         relu = after[0] if len(after) == 1 and after[0].op_type == "Relu" else None
         blocks = f"{name}.blocks"
-        chain = [_like(helper.make_node("Conv", list(node.input), [blocks], name=f"{name}.conv", kernel_shape=[1, 1]), node)]
+        chain = [
+            _like(helper.make_node("Conv", list(node.input), [blocks], name=f"{name}.conv", kernel_shape=[1, 1]), node)
+        ]
         if relu is not None:
-            chain.append(_like(helper.make_node("Relu", [blocks], [f"{blocks}.relu"], name=relu.name or f"{name}.relu"), relu))
+            chain.append(
+                _like(helper.make_node("Relu", [blocks], [f"{blocks}.relu"], name=relu.name or f"{name}.relu"), relu)
+            )
         final = (relu or node).output[0]
-        chain.append(_like(helper.make_node("DepthToSpace", [chain[-1].output[0]], [final], name=f"{name}.depth_to_space",
-                                            blocksize=s, mode="CRD"), node))
+        chain.append(
+            _like(
+                helper.make_node(
+                    "DepthToSpace",
+                    [chain[-1].output[0]],
+                    [final],
+                    name=f"{name}.depth_to_space",
+                    blocksize=s,
+                    mode="CRD",
+                ),
+                node,
+            )
+        )
         _replace(graph, [node] + ([relu] if relu is not None else []), chain)
         changed.append(name)
     return changed
@@ -233,14 +314,25 @@ def _is_block_upsample(node: onnx.NodeProto, weight_shape: tuple[int, ...]) -> b
     """ConvTranspose with kernel = stride (square, > 1), group 1, no padding, dilation or output padding."""
     attrs = _attrs(node)
     k = list(weight_shape[2:])
-    pad_free = attrs.get("auto_pad", b"NOTSET") in (b"NOTSET", b"VALID", "NOTSET", "VALID") \
-        and not any(attrs.get("pads", [0])) and not any(attrs.get("output_padding", [0])) and "output_shape" not in attrs
-    return len(k) == 2 and k[0] == k[1] > 1 and list(attrs.get("strides", [1, 1])) == k \
-        and list(attrs.get("kernel_shape", k)) == k and attrs.get("group", 1) == 1 \
-        and list(attrs.get("dilations", [1, 1])) == [1, 1] and pad_free
+    pad_free = (
+        attrs.get("auto_pad", b"NOTSET") in (b"NOTSET", b"VALID", "NOTSET", "VALID")
+        and not any(attrs.get("pads", [0]))
+        and not any(attrs.get("output_padding", [0]))
+        and "output_shape" not in attrs
+    )
+    return (
+        len(k) == 2
+        and k[0] == k[1] > 1
+        and list(attrs.get("strides", [1, 1])) == k
+        and list(attrs.get("kernel_shape", k)) == k
+        and attrs.get("group", 1) == 1
+        and list(attrs.get("dilations", [1, 1])) == [1, 1]
+        and pad_free
+    )
 
 
 # -- after quantization ----------------------------------------------------------------------------
+
 
 def data_movement_on_quantized_values(model: onnx.ModelProto) -> list[str]:
     """Move value-permuting ops to the uint8 side of per-tensor quantization; returns the ops moved.
@@ -299,7 +391,9 @@ def data_movement_on_quantized_values(model: onnx.ModelProto) -> list[str]:
     return moved
 
 
-def _movement_chain(value: str, producers: dict[str, onnx.NodeProto], readers: dict[str, list[onnx.NodeProto]]) -> Iterator[onnx.NodeProto]:
+def _movement_chain(
+    value: str, producers: dict[str, onnx.NodeProto], readers: dict[str, list[onnx.NodeProto]]
+) -> Iterator[onnx.NodeProto]:
     """The data-movement nodes that lead to ``value``, nearest first, each the only reader of its input."""
     node = producers.get(value)
     while node is not None and node.op_type in DATA_MOVEMENT and len(readers.get(node.output[0], [])) == 1:
@@ -324,7 +418,11 @@ def neighbour_swap_as_concat(model: onnx.ModelProto) -> list[str]:
     """
     graph = model.graph
     inferred = onnx.shape_inference.infer_shapes(model).graph
-    uint8 = {v.name for v in [*inferred.value_info, *inferred.input] if v.type.tensor_type.elem_type == onnx.TensorProto.UINT8}
+    uint8 = {
+        v.name
+        for v in [*inferred.value_info, *inferred.input]
+        if v.type.tensor_type.elem_type == onnx.TensorProto.UINT8
+    }
     shapes = static_shapes(model)
     taken = _value_names(graph)
     names = {n.name for n in graph.node}
@@ -337,18 +435,31 @@ def neighbour_swap_as_concat(model: onnx.ModelProto) -> list[str]:
             continue
         a = moved[0]
         tail = shape[a:]
-        if any(d <= 0 for d in tail) or not 2 <= tail[0] <= SWAP_MAX_SLICES or math.prod(tail[2:]) < SWAP_MIN_RUN \
-                or math.prod(d for d in shape[1:] if d > 0) < SWAP_MIN_VALUES:
+        if (
+            any(d <= 0 for d in tail)
+            or not 2 <= tail[0] <= SWAP_MAX_SLICES
+            or math.prod(tail[2:]) < SWAP_MIN_RUN
+            or math.prod(d for d in shape[1:] if d > 0) < SWAP_MIN_VALUES
+        ):
             continue
         name = node.name or node.output[0]
         sizes, piece = _fresh(taken, f"{name}.slice_sizes"), _fresh(taken, f"{name}.slice_shape")
         graph.initializer.extend([_int64s(sizes, [1] * tail[0]), _int64s(piece, [0] * a + [tail[1], 1, *tail[2:]])])
         slices = [_fresh(taken, f"{name}.slice{j}") for j in range(tail[0])]
         moved_slices = [_fresh(taken, f"{name}.slice{j}.moved") for j in range(tail[0])]
-        chain = [_like(helper.make_node("Split", [node.input[0], sizes], slices, name=_fresh(names, f"{name}.split"), axis=a), node)]
-        chain += [_like(helper.make_node("Reshape", [s, piece], [m], name=_fresh(names, f"{name}.move{j}")), node)
-                  for j, (s, m) in enumerate(zip(slices, moved_slices, strict=True))]
-        chain.append(_like(helper.make_node("Concat", moved_slices, list(node.output), name=node.name, axis=a + 1), node))
+        chain = [
+            _like(
+                helper.make_node("Split", [node.input[0], sizes], slices, name=_fresh(names, f"{name}.split"), axis=a),
+                node,
+            )
+        ]
+        chain += [
+            _like(helper.make_node("Reshape", [s, piece], [m], name=_fresh(names, f"{name}.move{j}")), node)
+            for j, (s, m) in enumerate(zip(slices, moved_slices, strict=True))
+        ]
+        chain.append(
+            _like(helper.make_node("Concat", moved_slices, list(node.output), name=node.name, axis=a + 1), node)
+        )
         _replace(graph, [node], chain)
         changed.append(name)
     return changed

@@ -69,22 +69,39 @@ class Comparison:
 
     def __post_init__(self) -> None:
         if self.frames < 0 or (self.frames == 0 and self.images is None):
-            raise ExportError(f"--compare-frames {self.frames}: expected 1 or more seeded frames (or 0 with --verify-images)")
+            raise ExportError(
+                f"--compare-frames {self.frames}: expected 1 or more seeded frames (or 0 with --verify-images)"
+            )
         if not 0.0 < self.min_kept <= 1.0:
-            raise ExportError(f"--min-kept {self.min_kept}: expected a share of the fp32 top-50 boxes in (0, 1], e.g. 0.9")
+            raise ExportError(
+                f"--min-kept {self.min_kept}: expected a share of the fp32 top-50 boxes in (0, 1], e.g. 0.9"
+            )
         if self.threads < 1:
             raise ExportError(f"comparison threads {self.threads}: expected 1 or more")
 
 
 #: The previous release's keyword arguments that now live in ``Int8Options``, and their fields.
-_INT8_KEYWORDS = {"calib_images": "calib_images", "calib_frames": "calib_frames", "int8_scope": "scope", "scope": "scope",
-                  "int8_float": "keep_float", "keep_float": "keep_float", "weight_bits": "weight_bits"}
+_INT8_KEYWORDS = {
+    "calib_images": "calib_images",
+    "calib_frames": "calib_frames",
+    "int8_scope": "scope",
+    "scope": "scope",
+    "int8_float": "keep_float",
+    "keep_float": "keep_float",
+    "weight_bits": "weight_bits",
+}
 #: ... and those of ``export`` that now live in ``Comparison``.
 _COMPARISON_KEYWORDS = {"compare_frames": "frames", "min_kept": "min_kept"}
 
 
-def options_from_keywords(int8: Int8Options | None, comparison: Comparison, keywords: Mapping[str, Any], *,
-                          comparison_names: Mapping[str, str] | None = None, caller: str = "export") -> tuple[Int8Options | None, Comparison]:
+def options_from_keywords(
+    int8: Int8Options | None,
+    comparison: Comparison,
+    keywords: Mapping[str, Any],
+    *,
+    comparison_names: Mapping[str, str] | None = None,
+    caller: str = "export",
+) -> tuple[Int8Options | None, Comparison]:
     """Fold the previous release's keyword arguments (``calib_frames=``, ``min_kept=``, ...) into the option
     objects, with a DeprecationWarning; an unknown keyword is a TypeError, as for any function."""
     if not keywords:
@@ -93,8 +110,12 @@ def options_from_keywords(int8: Int8Options | None, comparison: Comparison, keyw
     unknown = sorted(set(keywords) - set(_INT8_KEYWORDS) - set(names))
     if unknown:
         raise TypeError(f"{caller}() got unexpected keyword argument(s): {', '.join(unknown)}")
-    warnings.warn(f"{caller}({', '.join(f'{k}=' for k in keywords)}): pass int8=Int8Options(...) and comparison=Comparison(...) "
-                  "(fisheye_infer.export.options); the keywords will be removed in the next release", DeprecationWarning, stacklevel=3)
+    warnings.warn(
+        f"{caller}({', '.join(f'{k}=' for k in keywords)}): pass int8=Int8Options(...) and comparison=Comparison(...) "
+        "(fisheye_infer.export.options); the keywords will be removed in the next release",
+        DeprecationWarning,
+        stacklevel=3,
+    )
     int8_fields = {_INT8_KEYWORDS[k]: v for k, v in keywords.items() if k in _INT8_KEYWORDS}
     if int8_fields:
         int8 = replace(int8 or Int8Options(), **int8_fields)

@@ -61,8 +61,24 @@ from .options import SCOPES
 from .trace import TRACE_ROOT
 from .verify import run_onnx
 
-__all__ = ["GEOMETRY_PREFIX", "QUANT_OPS", "SCOPES", "TRUNK_OPS", "WEIGHTED_OPS", "FrameReader", "architecture_float", "check_weight_range",
-           "eight_bit_constants", "image_region", "int8_nodes", "int8_parity", "int8_path_for", "module_of", "quantize", "quantized_scope"]
+__all__ = [
+    "GEOMETRY_PREFIX",
+    "QUANT_OPS",
+    "SCOPES",
+    "TRUNK_OPS",
+    "WEIGHTED_OPS",
+    "FrameReader",
+    "architecture_float",
+    "check_weight_range",
+    "eight_bit_constants",
+    "image_region",
+    "int8_nodes",
+    "int8_parity",
+    "int8_path_for",
+    "module_of",
+    "quantize",
+    "quantized_scope",
+]
 
 #: QuantizeLinear / DequantizeLinear: what a QDQ model adds, and what must stay inside the region.
 QUANT_OPS = ("QuantizeLinear", "DequantizeLinear")
@@ -97,7 +113,9 @@ class FrameReader(CalibrationDataReader):
 
     def __init__(self, frames: np.ndarray, valid: np.ndarray | None = None) -> None:
         if frames.ndim != 5 or frames.dtype != np.uint8 or len(frames) == 0:
-            raise ExportError(f"calibration frames: expected a non-empty (F, N, H, W, 3) uint8 array, got {frames.dtype} {frames.shape}")
+            raise ExportError(
+                f"calibration frames: expected a non-empty (F, N, H, W, 3) uint8 array, got {frames.dtype} {frames.shape}"
+            )
         self.frames = frames
         self.valid = np.ones(frames.shape[:2], bool) if valid is None else valid
         self.set_range(0, len(frames))
@@ -148,8 +166,10 @@ def int8_nodes(model: onnx.ModelProto, scope: str = "network", keep_float: Seque
     modules = {n.name: module_of(n, weights) for n in graph.node}
     for prefix in keep_float:
         if not any(under_module(m, prefix) for m in modules.values()):
-            raise ExportError(f"int8: keep float32 {prefix!r}: no node of the graph belongs to that module "
-                              "(expected a state-dict prefix such as 'img_backbone.conv1' or 'bbox_head')")
+            raise ExportError(
+                f"int8: keep float32 {prefix!r}: no node of the graph belongs to that module "
+                "(expected a state-dict prefix such as 'img_backbone.conv1' or 'bbox_head')"
+            )
     floats = {name for name, m in modules.items() if any(under_module(m, prefix) for prefix in keep_float)}
     trunk = {n.name for n in graph.node if n.name in image and n.op_type in TRUNK_OPS and n.name not in floats}
     region = set(trunk)
@@ -158,7 +178,11 @@ def int8_nodes(model: onnx.ModelProto, scope: str = "network", keep_float: Seque
         for node in graph.node:  # graph order: a follower comes after the layer it follows
             weighted = node.op_type in WEIGHTED_OPS and len(node.input) > 1 and node.input[1] in weights
             follower = node.op_type in TRUNK_OPS and any(i in made_in_region for i in node.input)
-            if (weighted or follower or node.name in trunk) and not geometry.intersection(node.input) and node.name not in floats:
+            if (
+                (weighted or follower or node.name in trunk)
+                and not geometry.intersection(node.input)
+                and node.name not in floats
+            ):
                 region.add(node.name)
                 made_in_region.update(node.output)
     return [n.name for n in graph.node if n.name in region]
@@ -173,7 +197,12 @@ def module_of(node: onnx.NodeProto, weights: set[str] | None = None) -> str:
     exporter records in their metadata (``pkg.torch.onnx.name_scopes``, under the trace wrapper's
     ``model``). Empty when neither says.
     """
-    if weights is not None and len(node.input) > 1 and node.input[1] in weights and node.input[1].startswith(TRACE_ROOT + "."):
+    if (
+        weights is not None
+        and len(node.input) > 1
+        and node.input[1] in weights
+        and node.input[1].startswith(TRACE_ROOT + ".")
+    ):
         return node.input[1].removeprefix(TRACE_ROOT + ".").rsplit(".", 1)[0]
     for prop in node.metadata_props:
         if prop.key == "pkg.torch.onnx.name_scopes":
@@ -182,8 +211,12 @@ def module_of(node: onnx.NodeProto, weights: set[str] | None = None) -> str:
     return ""
 
 
-def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: Sequence[str] = (),
-                    chosen_by: str = "the architecture's int8_float") -> str:
+def quantized_scope(
+    model: onnx.ModelProto,
+    scope: str = "network",
+    keep_float: Sequence[str] = (),
+    chosen_by: str = "the architecture's int8_float",
+) -> str:
     """A one-line description of what ``quantize`` covers, for the file's metadata; ``chosen_by``
     says where ``keep_float`` came from."""
     model = _named(model)
@@ -192,13 +225,21 @@ def quantized_scope(model: onnx.ModelProto, scope: str = "network", keep_float: 
     in_trunk = sum(1 for n in layers if n.name in trunk)
     if scope == "trunk":  # only the float modules inside the trunk change what this scope covers
         weights = {i.name for i in model.graph.initializer}
-        keep_float = [p for p in keep_float if any(under_module(module_of(n, weights), p) for n in model.graph.node if n.name in trunk)]
+        keep_float = [
+            p
+            for p in keep_float
+            if any(under_module(module_of(n, weights), p) for n in model.graph.node if n.name in trunk)
+        ]
     kept = f"{', '.join(keep_float)} ({chosen_by}), " if keep_float else ""
     if scope == "trunk":
-        return (f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's warp; "
-                f"float32: {kept}geometry, pooling and heads")
-    return (f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} beyond it; "
-            f"float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding")
+        return (
+            f"image backbone+neck: {in_trunk} weighted layers upstream of the view transform's warp; "
+            f"float32: {kept}geometry, pooling and heads"
+        )
+    return (
+        f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} beyond it; "
+        f"float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding"
+    )
 
 
 def _named(model: onnx.ModelProto) -> onnx.ModelProto:
@@ -210,7 +251,11 @@ def _named(model: onnx.ModelProto) -> onnx.ModelProto:
 
 
 def _geometry_bytes(model: onnx.ModelProto) -> dict[str, bytes]:
-    return {i.name: numpy_helper.to_array(i).tobytes() for i in model.graph.initializer if i.name.startswith(GEOMETRY_PREFIX)}
+    return {
+        i.name: numpy_helper.to_array(i).tobytes()
+        for i in model.graph.initializer
+        if i.name.startswith(GEOMETRY_PREFIX)
+    }
 
 
 def architecture_float(model_path: str | Path) -> tuple[str, ...]:
@@ -221,8 +266,16 @@ def architecture_float(model_path: str | Path) -> tuple[str, ...]:
     return get_model_entry(read_meta(model_path).architecture).int8_float
 
 
-def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, scope: str = "network",
-             keep_float: Sequence[str] | None = None, per_channel: bool = True, weight_bits: int = WEIGHT_BITS) -> Path:
+def quantize(
+    onnx_path: str | Path,
+    out: str | Path,
+    reader: FrameReader,
+    *,
+    scope: str = "network",
+    keep_float: Sequence[str] | None = None,
+    per_channel: bool = True,
+    weight_bits: int = WEIGHT_BITS,
+) -> Path:
     """Static QDQ quantization of ``onnx_path``'s ``int8_nodes(scope, keep_float)`` into ``out``; returns ``out``.
     ``keep_float`` defaults to the file's architecture's (``architecture_float``).
 
@@ -242,7 +295,9 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
     keep_float = architecture_float(src) if keep_float is None else tuple(keep_float)
     model = onnx.load(str(src))
     name_nodes(model)
-    before_quantization(model, int8_nodes(model, scope, keep_float))  # exact rewrites ORT runs faster in int8 (int8_rewrites)
+    before_quantization(
+        model, int8_nodes(model, scope, keep_float)
+    )  # exact rewrites ORT runs faster in int8 (int8_rewrites)
     nodes = int8_nodes(model, scope, keep_float)
     chosen = set(nodes)
     op_types = sorted({n.op_type for n in model.graph.node if n.name in chosen})
@@ -251,11 +306,15 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
         named = save_model(model, Path(tmp) / "named.onnx")
         quantized = Path(tmp) / "model.int8.onnx"
         level = logging.getLogger().level
-        logging.getLogger().setLevel(logging.ERROR)  # the quantizer suggests pre-processing at WARNING on the root logger
+        logging.getLogger().setLevel(
+            logging.ERROR
+        )  # the quantizer suggests pre-processing at WARNING on the root logger
         try:
             with contextlib.redirect_stdout(io.StringIO()):  # the histogram calibrator prints its progress
                 quantize_static(
-                    str(named), str(quantized), reader,
+                    str(named),
+                    str(quantized),
+                    reader,
                     quant_format=QuantFormat.QDQ,
                     op_types_to_quantize=op_types,
                     nodes_to_quantize=nodes,
@@ -264,9 +323,13 @@ def quantize(onnx_path: str | Path, out: str | Path, reader: FrameReader, *, sco
                     per_channel=per_channel,
                     reduce_range=weight_bits == 7,  # weights; activations keep 8 bits, and so do the constants below
                     calibrate_method=CalibrationMethod.Percentile,
-                    extra_options={"WeightSymmetric": True, "ActivationSymmetric": False, "CalibPercentile": CALIBRATION_PERCENTILE,
-                                   "CalibStridedMinMax": 1,  # frame by frame: see FrameReader
-                                   "TensorQuantOverrides": eight_bit_constants(model, nodes)},
+                    extra_options={
+                        "WeightSymmetric": True,
+                        "ActivationSymmetric": False,
+                        "CalibPercentile": CALIBRATION_PERCENTILE,
+                        "CalibStridedMinMax": 1,  # frame by frame: see FrameReader
+                        "TensorQuantOverrides": eight_bit_constants(model, nodes),
+                    },
                 )
         except Exception as exc:  # ORT's quantizer raises untyped errors
             raise ExportError(f"int8: quantize_static failed on {src} ({scope}): {exc}") from exc
@@ -298,9 +361,13 @@ def eight_bit_constants(model: onnx.ModelProto, nodes: Sequence[str]) -> dict[st
     to [0, 127] although only weights are multiplied in int16 pairs."""
     chosen = set(nodes)
     initializers = {i.name for i in model.graph.initializer}
-    return {name: [{"reduce_range": False}] for node in model.graph.node if node.name in chosen
-            for index, name in enumerate(node.input)
-            if name in initializers and not (node.op_type in WEIGHTED_OPS and index >= 1)}
+    return {
+        name: [{"reduce_range": False}]
+        for node in model.graph.node
+        if node.name in chosen
+        for index, name in enumerate(node.input)
+        if name in initializers and not (node.op_type in WEIGHTED_OPS and index >= 1)
+    }
 
 
 def check_weight_range(model: onnx.ModelProto, weight_bits: int = WEIGHT_BITS) -> None:
@@ -314,27 +381,47 @@ def check_weight_range(model: onnx.ModelProto, weight_bits: int = WEIGHT_BITS) -
         if initializers[node.input[0]].data_type != onnx.TensorProto.INT8:
             continue
         values = numpy_helper.to_array(initializers[node.input[0]]).astype(np.int32)
-        zero = (numpy_helper.to_array(initializers[node.input[2]]).astype(np.int32)
-                if len(node.input) > 2 and node.input[2] in initializers else np.zeros(1, np.int32))
+        zero = (
+            numpy_helper.to_array(initializers[node.input[2]]).astype(np.int32)
+            if len(node.input) > 2 and node.input[2] in initializers
+            else np.zeros(1, np.int32)
+        )
         if values.size and (np.abs(values).max() > qmax or np.any(zero != 0)):
-            raise ExportError(f"int8: weight {node.input[0]} spans [{values.min()}, {values.max()}] with zero point "
-                              f"{sorted(set(zero.ravel().tolist()))[:3]}; expected {weight_bits}-bit weights, [-{qmax}, {qmax}] around 0")
+            raise ExportError(
+                f"int8: weight {node.input[0]} spans [{values.min()}, {values.max()}] with zero point "
+                f"{sorted(set(zero.ravel().tolist()))[:3]}; expected {weight_bits}-bit weights, [-{qmax}, {qmax}] around 0"
+            )
 
 
-def int8_parity(fp32_path: str | Path, int8_path: str | Path, frames: np.ndarray, threads: int = 2,
-                min_fraction: float = MIN_TOP_MATCHED) -> ReducedParityReport:
+def int8_parity(
+    fp32_path: str | Path,
+    int8_path: str | Path,
+    frames: np.ndarray,
+    threads: int = 2,
+    min_fraction: float = MIN_TOP_MATCHED,
+) -> ReducedParityReport:
     """The int8 file against the fp32 ONNX file on ``frames``, one frame at a time.
 
     int8 is not expected to reproduce fp32 to 1e-3 m; the criterion is detection-level: at
     least ``min_fraction`` of the fp32 top-50 boxes found again within 0.5 m with the same label.
     """
     valid = np.ones(frames.shape[:2], bool)
-    ref, cand = ([run_onnx(path, frames, valid, threads, per_frame=True)[k] for k in OUTPUTS] for path in (fp32_path, int8_path))
+    ref, cand = (
+        [run_onnx(path, frames, valid, threads, per_frame=True)[k] for k in OUTPUTS] for path in (fp32_path, int8_path)
+    )
     kept = top_matched(ref, cand)
     return ReducedParityReport(
-        frames=len(frames), threads=(threads,), top_matched_fraction=kept.fraction, top_matched_standard_error=kept.standard_error,
-        top_matched_by_score=kept.by_score, min_top_matched=min_fraction, match_radius_m=MATCH_RADIUS_M,
-        unmatched=kept.considered - kept.matched, max_box_abs_diff_m=kept.max_box_diff, max_score_abs_diff=kept.max_score_diff,
-        labels_equal=bool(np.array_equal(ref[2], cand[2])), valid_equal=bool(np.array_equal(ref[3], cand[3])),
+        frames=len(frames),
+        threads=(threads,),
+        top_matched_fraction=kept.fraction,
+        top_matched_standard_error=kept.standard_error,
+        top_matched_by_score=kept.by_score,
+        min_top_matched=min_fraction,
+        match_radius_m=MATCH_RADIUS_M,
+        unmatched=kept.considered - kept.matched,
+        max_box_abs_diff_m=kept.max_box_diff,
+        max_score_abs_diff=kept.max_score_diff,
+        labels_equal=bool(np.array_equal(ref[2], cand[2])),
+        valid_equal=bool(np.array_equal(ref[3], cand[3])),
         passed=kept.fraction >= min_fraction,
     )

@@ -40,7 +40,9 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
     meta = parse_meta(props.get(METADATA_KEY), source=f"model {model_path}")
     new_rig = rig if isinstance(rig, Rig) else resolve_rig(rig)
     if len(new_rig) != len(meta.cameras):
-        raise RigError(f"the rig has {len(new_rig)} cameras, the model was built for {len(meta.cameras)} ({', '.join(meta.cameras)})")
+        raise RigError(
+            f"the rig has {len(new_rig)} cameras, the model was built for {len(meta.cameras)} ({', '.join(meta.cameras)})"
+        )
     new_rig.require(meta.cameras, meta.image_size)
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
     try:
@@ -48,12 +50,22 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
     except ConfigError as exc:  # e.g. a PETR file without the weights its key embedding needs
         raise ArtifactError(f"model {model_path}: {exc}") from None
     if set(tables) != set(meta.geometry_initializers):
-        raise ArtifactError(f"model {model_path}: its geometry initializers {sorted(meta.geometry_initializers)} differ from those "
-                            f"its parameters define {sorted(tables)}")
+        raise ArtifactError(
+            f"model {model_path}: its geometry initializers {sorted(meta.geometry_initializers)} differ from those "
+            f"its parameters define {sorted(tables)}"
+        )
     replace_initializers(proto, tables)
     model_id = f"{meta.architecture}-{new_rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
-    new_meta = meta.model_copy(update={"rig": new_rig, "rig_hash": new_rig.hash, "model_id": model_id, "geometry_source": "rig", "parity": None,
-                                       "tensorrt": check_tensorrt(proto)})  # its notes quote table values, which the rig changes
+    new_meta = meta.model_copy(
+        update={
+            "rig": new_rig,
+            "rig_hash": new_rig.hash,
+            "model_id": model_id,
+            "geometry_source": "rig",
+            "parity": None,
+            "tensorrt": check_tensorrt(proto),
+        }
+    )  # its notes quote table values, which the rig changes
     set_metadata(proto, new_meta.check())
     save_model(proto, out)
     return new_meta

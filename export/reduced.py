@@ -58,13 +58,16 @@ def export_fp16(
     Evidence: the fp16 file against the fp32 file in ONNX Runtime's CPU execution provider, on the
     ``comparison``'s frames.
     """
-    _, comparison = options_from_keywords(None, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS,
-                                          caller="export_fp16")
+    _, comparison = options_from_keywords(
+        None, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS, caller="export_fp16"
+    )
     start = time.perf_counter()
     src = Path(fp32_path)
     out = Path(out) if out is not None else fp16_path_for(src)
     meta = _fp32_meta(src, "fp16", "already a reduced-precision file")
-    progress("fp16 [1/2] converting weights and compute to float16 (geometry tables, index arithmetic and the interface stay as in fp32)")
+    progress(
+        "fp16 [1/2] converting weights and compute to float16 (geometry tables, index arithmetic and the interface stay as in fp32)"
+    )
     proto, plan = to_float16(onnx.load(str(src)))
     with pending_file(out, "h") as pending:
         save_model(proto, pending.path)
@@ -91,25 +94,41 @@ def export_int8(
     ``CALIBRATION_SEED``, disjoint from the comparison's) plus the user's calibration frames.
     Evidence: the int8 file against the fp32 file on the ``comparison``'s frames.
     """
-    options, comparison = options_from_keywords(options, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS,
-                                                caller="export_int8")
+    options, comparison = options_from_keywords(
+        options, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS, caller="export_int8"
+    )
     options = options or Int8Options()
     start = time.perf_counter()
     src = Path(fp32_path)
     out = Path(out) if out is not None else int8_path_for(src)
     meta = _fp32_meta(src, "int8", "already quantized")
-    progress(f"int8 [1/3] rendering {options.calib_frames} calibration frame(s){' + ' + str(options.calib_images) if options.calib_images else ''}")
-    calibration = verification_frames(meta.rig, options.calib_frames, seed=CALIBRATION_SEED, images=options.calib_images)
+    progress(
+        f"int8 [1/3] rendering {options.calib_frames} calibration frame(s){' + ' + str(options.calib_images) if options.calib_images else ''}"
+    )
+    calibration = verification_frames(
+        meta.rig, options.calib_frames, seed=CALIBRATION_SEED, images=options.calib_images
+    )
     with pending_file(out, "q") as pending:
-        progress(f"int8 [2/3] static QDQ quantization, scope {options.scope} (U8 activations, S8 per-channel {options.weight_bits}-bit weights)")
+        progress(
+            f"int8 [2/3] static QDQ quantization, scope {options.scope} (U8 activations, S8 per-channel {options.weight_bits}-bit weights)"
+        )
         chosen_by = "the architecture's int8_float" if options.keep_float is None else "asked for at export"
         keep_float = architecture_float(src) if options.keep_float is None else tuple(options.keep_float)
-        quantize(src, pending.path, FrameReader(calibration), scope=options.scope, keep_float=keep_float, weight_bits=options.weight_bits)
+        quantize(
+            src,
+            pending.path,
+            FrameReader(calibration),
+            scope=options.scope,
+            keep_float=keep_float,
+            weight_bits=options.weight_bits,
+        )
         proto = onnx.load(str(pending.path))
         covered = quantized_scope(onnx.load(str(src), load_external_data=False), options.scope, keep_float, chosen_by)
         batch = _comparison_frames(meta, comparison, "int8 [3/3]", progress)
         parity = int8_parity(src, pending.path, batch, threads=comparison.threads, min_fraction=comparison.min_kept)
-        quantization = Quantization(mode="int8-qdq", scope=covered, calibration_frames=len(calibration), weight_bits=options.weight_bits)
+        quantization = Quantization(
+            mode="int8-qdq", scope=covered, calibration_frames=len(calibration), weight_bits=options.weight_bits
+        )
         reduced = _reduced_meta(proto, meta, parity, quantization)
         written = _publish(proto, reduced, pending, parity.passed or force)
     return Int8Result(written, reduced, parity, time.perf_counter() - start, out.stat().st_size if written else 0)
@@ -123,18 +142,30 @@ def _fp32_meta(src: Path, kind: str, already: str) -> ArtifactMeta:
     return meta
 
 
-def _comparison_frames(meta: ArtifactMeta, comparison: Comparison, step: str, progress: Callable[[str], None]) -> np.ndarray:
+def _comparison_frames(
+    meta: ArtifactMeta, comparison: Comparison, step: str, progress: Callable[[str], None]
+) -> np.ndarray:
     """The frames a reduced file is compared on: seeded renders (the first ones are the fp32 export's own), then the user's."""
     images = comparison.images
-    progress(f"{step} comparing with the fp32 file on {comparison.frames} seeded frame(s){' + ' + str(images) if images else ''}")
+    progress(
+        f"{step} comparing with the fp32 file on {comparison.frames} seeded frame(s){' + ' + str(images) if images else ''}"
+    )
     return verification_frames(meta.rig, comparison.frames, images=images)
 
 
-def _reduced_meta(proto: onnx.ModelProto, meta: ArtifactMeta, parity: ReducedParityReport, quantization: Quantization) -> ArtifactMeta:
+def _reduced_meta(
+    proto: onnx.ModelProto, meta: ArtifactMeta, parity: ReducedParityReport, quantization: Quantization
+) -> ArtifactMeta:
     """The reduced file's metadata: its parity, what was reduced, the TensorRT check of its own graph."""
     suffix = "int8" if quantization.mode == "int8-qdq" else quantization.mode
-    return meta.model_copy(update={"model_id": f"{meta.model_id}-{suffix}", "parity": parity, "quantization": quantization,
-                                   "tensorrt": check_tensorrt(proto)})
+    return meta.model_copy(
+        update={
+            "model_id": f"{meta.model_id}-{suffix}",
+            "parity": parity,
+            "quantization": quantization,
+            "tensorrt": check_tensorrt(proto),
+        }
+    )
 
 
 def _publish(proto: onnx.ModelProto, meta: ArtifactMeta, pending: PendingFile, keep: bool) -> Path | None:

@@ -31,15 +31,20 @@ class Int8Result(ReducedResult):
 
     def summary(self) -> str:
         p, q = self.parity, self.meta.quantization
-        how = (f"{q.mode}, {q.scope}, {q.weight_bits}-bit weights, calibrated on {q.calibration_frames} frame(s)" if q is not None
-               else "not quantized")
-        return "\n".join([
-            f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
-            f"int8 vs the fp32 ONNX file on {p.frames} frames: {_kept(p)} of the top-50 boxes matched within "
-            f"{p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
-            *_by_score_lines(p),
-            *_tensorrt_lines(self.meta, "int8 file: "),
-        ])
+        how = (
+            f"{q.mode}, {q.scope}, {q.weight_bits}-bit weights, calibrated on {q.calibration_frames} frame(s)"
+            if q is not None
+            else "not quantized"
+        )
+        return "\n".join(
+            [
+                f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
+                f"int8 vs the fp32 ONNX file on {p.frames} frames: {_kept(p)} of the top-50 boxes matched within "
+                f"{p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+                *_by_score_lines(p),
+                *_tensorrt_lines(self.meta, "int8 file: "),
+            ]
+        )
 
 
 class Fp16Result(ReducedResult):
@@ -56,14 +61,16 @@ class Fp16Result(ReducedResult):
         ]
         if p.replayed is not None:
             r = p.replayed
-            lines.append(f"  at the fp16 file's own top-k choice: {r.top_matched_fraction:.1%} matched; position by position max |box| "
-                         f"{r.max_box_abs_diff_m:.3f} m, |score| {r.max_score_abs_diff:.4f}; dense scores max |diff| {p.max_rank_score_abs_diff or 0.0:.4f}")
+            lines.append(
+                f"  at the fp16 file's own top-k choice: {r.top_matched_fraction:.1%} matched; position by position max |box| "
+                f"{r.max_box_abs_diff_m:.3f} m, |score| {r.max_score_abs_diff:.4f}; dense scores max |diff| {p.max_rank_score_abs_diff or 0.0:.4f}"
+            )
         lines += [f"  {problem}" for problem in p.problems]
         return "\n".join(lines + _tensorrt_lines(self.meta, "fp16 file: "))
 
 
 def _kept(p: ReducedParityReport) -> str:
-    """"91.2% +- 1.1%": the share of the fp32 top-50 boxes found again and its standard error over the frames."""
+    """ "91.2% +- 1.1%": the share of the fp32 top-50 boxes found again and its standard error over the frames."""
     spread = f" +- {p.top_matched_standard_error:.1%}" if p.top_matched_standard_error else ""
     return f"{p.top_matched_fraction:.1%}{spread}"
 
@@ -121,7 +128,9 @@ class ExportResult:
         if self.path:
             lines.append(f"next: fisheye-infer detect {self.path} --images DIR --out result.json --viz result.png")
         if self.int8 is not None and self.int8.path:
-            lines.append(f"      fisheye-infer detect {self.int8.path} ...   (int8); fisheye-infer bench {self.int8.path}")
+            lines.append(
+                f"      fisheye-infer detect {self.int8.path} ...   (int8); fisheye-infer bench {self.int8.path}"
+            )
         if self.fp16 is not None and self.fp16.path:
             lines.append(f"      {self.fp16.path}: for GPU execution providers (CUDA, TensorRT)")
         return "\n".join(lines)

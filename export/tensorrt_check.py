@@ -62,7 +62,16 @@ from .tensorrt_matrix import (
     WEIGHTS_INPUTS,
 )
 
-__all__ = ["MAX_OPSET", "MAX_RANK", "MAX_TOPK_K", "MIN_OPSET", "SUPPORTED_OPS", "TARGET", "UNSUPPORTED_OPS", "check_tensorrt"]
+__all__ = [
+    "MAX_OPSET",
+    "MAX_RANK",
+    "MAX_TOPK_K",
+    "MIN_OPSET",
+    "SUPPORTED_OPS",
+    "TARGET",
+    "UNSUPPORTED_OPS",
+    "check_tensorrt",
+]
 
 _INT32 = np.iinfo(np.int32)
 _EXAMPLES = 3
@@ -82,7 +91,9 @@ def check_tensorrt(model: onnx.ModelProto) -> TensorRTReport:
                 _check_node(g, node, found)
     _note_doubles(g, found)
     _note_int64(g, found)
-    return TensorRTReport(target=TARGET, compatible=not any(f.severity == "error" for f in found), findings=tuple(found))
+    return TensorRTReport(
+        target=TARGET, compatible=not any(f.severity == "error" for f in found), findings=tuple(found)
+    )
 
 
 def _check_opset(model: onnx.ModelProto, found: Findings) -> None:
@@ -110,20 +121,28 @@ def _check_inputs(g: GraphFacts, found: Findings) -> None:
             continue
         dynamic = [i for i, d in enumerate(shape) if i > 0 and not isinstance(d, int)]
         if dynamic:
-            found.note(None, f"graph input '{value.name}' has dynamic dimension(s) {dynamic} beyond the batch axis "
-                             f"({shape}): the engine needs an optimization profile whose min/opt/max cover them, and is tuned for that range")
+            found.note(
+                None,
+                f"graph input '{value.name}' has dynamic dimension(s) {dynamic} beyond the batch axis "
+                f"({shape}): the engine needs an optimization profile whose min/opt/max cover them, and is tuned for that range",
+            )
 
 
 def _check_op(node: onnx.NodeProto, found: Findings) -> bool:
     """False when the op itself is refused (the other checks would say nothing useful)."""
     if node.domain not in ("", "ai.onnx"):
-        found.error(node, f"custom op {node.domain}::{node.op_type}: the parser has no importer for it and needs a TensorRT plugin registered under that name")
+        found.error(
+            node,
+            f"custom op {node.domain}::{node.op_type}: the parser has no importer for it and needs a TensorRT plugin registered under that name",
+        )
         return False
     if node.op_type in UNSUPPORTED_OPS:
         found.error(node, f"{node.op_type} is not supported by TensorRT's ONNX parser (operator matrix: N)")
         return False
     if node.op_type not in SUPPORTED_OPS:
-        found.error(node, f"{node.op_type} is not in TensorRT's ONNX operator matrix: the parser has no importer for it")
+        found.error(
+            node, f"{node.op_type} is not in TensorRT's ONNX operator matrix: the parser has no importer for it"
+        )
         return False
     return True
 
@@ -146,10 +165,15 @@ def _check_types(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> None:
     for value in _checked_values(node):
         name = g.type_name(value)
         if name is not None and name not in allowed:
-            found.error(node, f"{node.op_type} on {name} ('{value}'): TensorRT's parser supports it on {', '.join(allowed)} only")
+            found.error(
+                node,
+                f"{node.op_type} on {name} ('{value}'): TensorRT's parser supports it on {', '.join(allowed)} only",
+            )
     for out in node.output:
         if out and g.types.get(out) == TensorProto.UINT8 and out not in g.outputs:
-            found.error(node, f"'{out}' is UINT8 inside the network: TensorRT has UINT8 only as a network input or output type")
+            found.error(
+                node, f"'{out}' is UINT8 inside the network: TensorRT has UINT8 only as a network input or output type"
+            )
 
 
 def _check_node(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> None:
@@ -161,7 +185,10 @@ def _check_node(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> None:
     elif op == "GridSample":
         _check_grid_sample(g, node, found)
     elif op == "ScatterND" and any(a.name == "reduction" for a in node.attribute):
-        found.error(node, f"ScatterND with reduction='{attribute(node, 'reduction')}': the parser refuses the reduction attribute (even 'none')")
+        found.error(
+            node,
+            f"ScatterND with reduction='{attribute(node, 'reduction')}': the parser refuses the reduction attribute (even 'none')",
+        )
     elif op == "Clip" and g.type_name(node.input[0]) in FLOAT_TYPES:
         _require_weights(g, node, 1, "min", found)
         _require_weights(g, node, 2, "max", found)
@@ -174,9 +201,14 @@ def _check_node(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> None:
     elif op == "Squeeze" and len([n for n in node.input if n]) < 2:
         shape = g.shapes.get(node.input[0])
         if shape is None:
-            found.note(node, "Squeeze without axes on a value of unknown shape: the parser needs its shape to be static")
+            found.note(
+                node, "Squeeze without axes on a value of unknown shape: the parser needs its shape to be static"
+            )
         elif not all(isinstance(d, int) for d in shape):
-            found.error(node, f"Squeeze without axes on the dynamic shape {shape}: the parser cannot infer which axes to squeeze")
+            found.error(
+                node,
+                f"Squeeze without axes on the dynamic shape {shape}: the parser cannot infer which axes to squeeze",
+            )
     elif op in ("QuantizeLinear", "DequantizeLinear"):
         _check_zero_point(g, node, found)
     elif op == "Constant" and any(a.name in ("sparse_value", "value_string", "value_strings") for a in node.attribute):
@@ -190,9 +222,14 @@ def _require_weights(g: GraphFacts, node: onnx.NodeProto, index: int, what: str,
     if value in g.constants:
         return
     if value in g.derived:
-        found.note(node, f"{node.op_type} {what} '{value}' is computed from constants: the parser needs it as an initializer; fold constants first")
+        found.note(
+            node,
+            f"{node.op_type} {what} '{value}' is computed from constants: the parser needs it as an initializer; fold constants first",
+        )
     else:
-        found.error(node, f"{node.op_type} {what} '{value}' is computed at run time: the parser needs it as an initializer")
+        found.error(
+            node, f"{node.op_type} {what} '{value}' is computed at run time: the parser needs it as an initializer"
+        )
 
 
 def _check_topk(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> None:
@@ -203,8 +240,11 @@ def _check_topk(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> None:
         k_attr = attribute(node, "k")
         k = None if k_attr is None else np.asarray(k_attr)
     if k is None:
-        found.note(node, f"TopK K '{node.input[1] if len(node.input) > 1 else ''}' is computed at run time: "
-                         f"TensorRT's TopK keeps at most {MAX_TOPK_K}; cannot check it here")
+        found.note(
+            node,
+            f"TopK K '{node.input[1] if len(node.input) > 1 else ''}' is computed at run time: "
+            f"TensorRT's TopK keeps at most {MAX_TOPK_K}; cannot check it here",
+        )
     elif int(np.max(k)) > MAX_TOPK_K:
         found.error(node, f"TopK K={int(np.max(k))}: TensorRT's TopK layer keeps at most {MAX_TOPK_K} elements")
 
@@ -214,11 +254,16 @@ def _check_grid_sample(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> 
     if rank is None:
         found.note(node, "GridSample input of unknown rank: TensorRT's GridSample layer takes 4-D input only")
     elif rank != 4:
-        found.error(node, f"GridSample on a {rank}-D input: TensorRT's GridSample layer takes 4-D input (N, C, H, W) only")
+        found.error(
+            node, f"GridSample on a {rank}-D input: TensorRT's GridSample layer takes 4-D input (N, C, H, W) only"
+        )
     mode = attribute(node, "mode", "bilinear")
     if mode not in GRID_MODES:
-        found.error(node, f"GridSample mode='{mode}': the parser knows {', '.join(GRID_MODES)} and turns any other value into nearest "
-                          f"without an error (opset 20 renamed them 'linear'/'cubic'; export at opset 16 to 19)")
+        found.error(
+            node,
+            f"GridSample mode='{mode}': the parser knows {', '.join(GRID_MODES)} and turns any other value into nearest "
+            f"without an error (opset 20 renamed them 'linear'/'cubic'; export at opset 16 to 19)",
+        )
     padding = attribute(node, "padding_mode", "zeros")
     if padding not in GRID_PADDING:
         found.error(node, f"GridSample padding_mode='{padding}': TensorRT supports {', '.join(GRID_PADDING)} only")
@@ -241,9 +286,18 @@ def _check_resize(node: onnx.NodeProto, found: Findings) -> None:
     if mode not in RESIZE_MODES:
         found.error(node, f"Resize mode='{mode}': the parser supports {', '.join(RESIZE_MODES)}")
     if transform not in RESIZE_TRANSFORMS:
-        found.error(node, f"Resize coordinate_transformation_mode='{transform}': the parser supports {', '.join(RESIZE_TRANSFORMS)}")
-    if transform == "tf_half_pixel_for_nn" and attribute(node, "nearest_mode", "round_prefer_floor") != "round_prefer_floor":
-        found.error(node, "Resize tf_half_pixel_for_nn with a nearest_mode other than round_prefer_floor: not supported by the parser")
+        found.error(
+            node,
+            f"Resize coordinate_transformation_mode='{transform}': the parser supports {', '.join(RESIZE_TRANSFORMS)}",
+        )
+    if (
+        transform == "tf_half_pixel_for_nn"
+        and attribute(node, "nearest_mode", "round_prefer_floor") != "round_prefer_floor"
+    ):
+        found.error(
+            node,
+            "Resize tf_half_pixel_for_nn with a nearest_mode other than round_prefer_floor: not supported by the parser",
+        )
     if attribute(node, "antialias", 0):
         found.error(node, "Resize with antialias=1: the parser does not support antialiasing")
     if attribute(node, "keep_aspect_ratio_policy", "stretch") != "stretch":
@@ -256,16 +310,24 @@ def _check_zero_point(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> N
     zero = g.constant(node.input[2])
     what = "x_zero_point" if node.op_type == "DequantizeLinear" else "y_zero_point"
     if zero is None:
-        found.error(node, f"{node.op_type} {what} '{node.input[2]}' is not a constant: TensorRT needs a zero point of 0")
+        found.error(
+            node, f"{node.op_type} {what} '{node.input[2]}' is not a constant: TensorRT needs a zero point of 0"
+        )
     elif np.any(zero != 0):
-        found.error(node, f"{node.op_type} {what} is {zero.dtype} with non-zero values: TensorRT quantizes symmetrically (zero point 0) only")
+        found.error(
+            node,
+            f"{node.op_type} {what} is {zero.dtype} with non-zero values: TensorRT quantizes symmetrically (zero point 0) only",
+        )
 
 
 def _note_doubles(g: GraphFacts, found: Findings) -> None:
     doubles = sorted(v for v, t in g.types.items() if t == TensorProto.DOUBLE)
     if doubles:
-        found.note(None, f"{len(doubles)} DOUBLE value(s) (e.g. {', '.join(doubles[:_EXAMPLES])}): the parser casts DOUBLE down to FLOAT, "
-                         "clamping to +-FLT_MAX")
+        found.note(
+            None,
+            f"{len(doubles)} DOUBLE value(s) (e.g. {', '.join(doubles[:_EXAMPLES])}): the parser casts DOUBLE down to FLOAT, "
+            "clamping to +-FLT_MAX",
+        )
 
 
 def _shape_like(g: GraphFacts) -> set[str]:
@@ -285,8 +347,11 @@ def _shape_like(g: GraphFacts) -> set[str]:
     def decide(value: str) -> None:
         if value in g.outputs or not uses.get(value):
             return
-        if all(i in SHAPE_INPUTS.get(n.op_type, ()) or (n.op_type in SHAPE_ARITHMETIC and all(o in shape_like for o in n.output if o))
-               for n, i in uses[value]):
+        if all(
+            i in SHAPE_INPUTS.get(n.op_type, ())
+            or (n.op_type in SHAPE_ARITHMETIC and all(o in shape_like for o in n.output if o))
+            for n, i in uses[value]
+        ):
             shape_like.add(value)
 
     for node in reversed(graph.node):  # consumers before producers
@@ -299,19 +364,35 @@ def _shape_like(g: GraphFacts) -> set[str]:
 
 def _note_int64(g: GraphFacts, found: Findings) -> None:
     shape_like = _shape_like(g)
-    tables = sorted((i for name, i in g.initializers.items() if i.data_type == TensorProto.INT64 and name not in shape_like),
-                    key=lambda t: -int(np.prod(t.dims, dtype=np.int64)))  # the largest tables make the best examples
+    tables = sorted(
+        (i for name, i in g.initializers.items() if i.data_type == TensorProto.INT64 and name not in shape_like),
+        key=lambda t: -int(np.prod(t.dims, dtype=np.int64)),
+    )  # the largest tables make the best examples
     if tables:
         arrays = [numpy_helper.to_array(t) for t in tables]
         largest = max((int(np.abs(a).max()) for a in arrays if a.size), default=0)
         fits = all(a.size == 0 or (a.min() >= _INT32.min and a.max() <= _INT32.max) for a in arrays)
         examples = ", ".join(f"{t.name} {tuple(t.dims)}" for t in tables[:_EXAMPLES])
-        found.note(None, f"{len(tables)} INT64 initializer(s) hold data, not shapes (e.g. {examples}): TensorRT 10 keeps INT64 "
-                         f"for the ops the matrix lists it for; TensorRT 8.x casts INT64 down to INT32, clamping to +-2^31-1: "
-                         + (f"every value fits in INT32 (largest |value| {largest})" if fits else f"values up to {largest} do NOT fit in INT32"))
-    values = [(node, out) for node in g.model.graph.node for out in node.output
-              if out and g.types.get(out) == TensorProto.INT64 and out not in shape_like]
+        found.note(
+            None,
+            f"{len(tables)} INT64 initializer(s) hold data, not shapes (e.g. {examples}): TensorRT 10 keeps INT64 "
+            f"for the ops the matrix lists it for; TensorRT 8.x casts INT64 down to INT32, clamping to +-2^31-1: "
+            + (
+                f"every value fits in INT32 (largest |value| {largest})"
+                if fits
+                else f"values up to {largest} do NOT fit in INT32"
+            ),
+        )
+    values = [
+        (node, out)
+        for node in g.model.graph.node
+        for out in node.output
+        if out and g.types.get(out) == TensorProto.INT64 and out not in shape_like
+    ]
     if values:
         examples = ", ".join(f"{out} ({node.op_type})" for node, out in values[:_EXAMPLES])
-        found.note(None, f"{len(values)} INT64 value(s) computed at run time hold data, not shapes (e.g. {examples}): TensorRT 10 "
-                         "computes them in INT64; TensorRT 8.x computes them in INT32")
+        found.note(
+            None,
+            f"{len(values)} INT64 value(s) computed at run time hold data, not shapes (e.g. {examples}): TensorRT 10 "
+            "computes them in INT64; TensorRT 8.x computes them in INT32",
+        )

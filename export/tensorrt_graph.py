@@ -48,7 +48,11 @@ class GraphFacts:
                 t = value.type.tensor_type
                 if t.elem_type:
                     g.types[value.name] = t.elem_type
-                g.shapes[value.name] = [d.dim_value if d.HasField("dim_value") else (d.dim_param or None) for d in t.shape.dim] if t.HasField("shape") else None
+                g.shapes[value.name] = (
+                    [d.dim_value if d.HasField("dim_value") else (d.dim_param or None) for d in t.shape.dim]
+                    if t.HasField("shape")
+                    else None
+                )
             for init in graph.initializer:
                 g.types[init.name] = init.data_type
                 g.shapes[init.name] = list(init.dims)
@@ -59,7 +63,11 @@ class GraphFacts:
         for node in model.graph.node:
             if node.op_type == "Constant" and node.attribute and node.attribute[0].name == "value":
                 g.constants[node.output[0]] = node.attribute[0].t
-            elif node.op_type != "Shape" and node.input and all(not n or n in g.constants or n in g.derived for n in node.input):
+            elif (
+                node.op_type != "Shape"
+                and node.input
+                and all(not n or n in g.constants or n in g.derived for n in node.input)
+            ):
                 g.derived.update(node.output)
         return g
 
@@ -104,7 +112,15 @@ class Findings(list[TensorRTFinding]):
     """The findings of one check run, in the order the checks make them."""
 
     def error(self, node: onnx.NodeProto | None, message: str) -> None:
-        self.append(TensorRTFinding(severity="error", node=node.name if node else "", op_type=node.op_type if node else "", message=message))
+        self.append(
+            TensorRTFinding(
+                severity="error", node=node.name if node else "", op_type=node.op_type if node else "", message=message
+            )
+        )
 
     def note(self, node: onnx.NodeProto | None, message: str) -> None:
-        self.append(TensorRTFinding(severity="note", node=node.name if node else "", op_type=node.op_type if node else "", message=message))
+        self.append(
+            TensorRTFinding(
+                severity="note", node=node.name if node else "", op_type=node.op_type if node else "", message=message
+            )
+        )

@@ -11,9 +11,24 @@ from __future__ import annotations
 
 from onnx import TensorProto
 
-__all__ = ["FLOAT_TYPES", "GRID_MODES", "GRID_PADDING", "MAX_OPSET", "MAX_RANK", "MAX_TOPK_K", "MIN_OPSET", "RESIZE_MODES",
-           "RESIZE_TRANSFORMS", "SHAPE_ARITHMETIC", "SHAPE_INPUTS", "SUPPORTED_OPS", "TARGET", "TYPE_NAMES", "UNSUPPORTED_OPS",
-           "WEIGHTS_INPUTS"]
+__all__ = [
+    "FLOAT_TYPES",
+    "GRID_MODES",
+    "GRID_PADDING",
+    "MAX_OPSET",
+    "MAX_RANK",
+    "MAX_TOPK_K",
+    "MIN_OPSET",
+    "RESIZE_MODES",
+    "RESIZE_TRANSFORMS",
+    "SHAPE_ARITHMETIC",
+    "SHAPE_INPUTS",
+    "SUPPORTED_OPS",
+    "TARGET",
+    "TYPE_NAMES",
+    "UNSUPPORTED_OPS",
+    "WEIGHTS_INPUTS",
+]
 
 TARGET = "TensorRT 10, onnx-tensorrt 10.1 operator matrix"
 MIN_OPSET, MAX_OPSET = 9, 20
@@ -29,17 +44,23 @@ SUPPORTED_OPS: dict[str, tuple[str, ...]] = {
     **dict.fromkeys(
         "Abs Add ArgMax ArgMin DepthToSpace Div Equal Greater GreaterOrEqual IsNaN Less LessOrEqual Max Min Mod Mul Neg Pad "
         "Range ReduceL1 ReduceL2 ReduceLogSum ReduceLogSumExp ReduceMax ReduceMean ReduceMin ReduceProd ReduceSum "
-        "ReduceSumSquare Relu Scatter ScatterElements ScatterND Shrink Sign SpaceToDepth Sub Sum TopK".split(), _FI),
+        "ReduceSumSquare Relu Scatter ScatterElements ScatterND Shrink Sign SpaceToDepth Sub Sum TopK".split(),
+        _FI,
+    ),
     **dict.fromkeys(
         "Acos Acosh Asin Asinh Atan Atanh AveragePool BatchNormalization Ceil Celu Clip Conv ConvTranspose Cos Cosh CumSum "
         "Dropout Einsum Elu Erf Exp Floor Gemm GlobalAveragePool GlobalLpPool GlobalMaxPool GroupNormalization GRU HardSigmoid "
         "HardSwish Hardmax ImageScaler InstanceNormalization IsInf LayerNormalization LeakyRelu Log LogSoftmax LRN LSTM "
         "LpNormalization LpPool MatMul MaxPool MeanVarianceNormalization ParametricSoftplus Pow PRelu QuantizeLinear RandomNormal "
         "RandomNormalLike RandomUniform RandomUniformLike Reciprocal Resize RNN Round ScaledTanh Scan Selu Sigmoid Sin Sinh "
-        "Softmax Softplus Softsign Sqrt Tan Tanh ThresholdedRelu Upsample".split(), FLOAT_TYPES),
+        "Softmax Softplus Softsign Sqrt Tan Tanh ThresholdedRelu Upsample".split(),
+        FLOAT_TYPES,
+    ),
     **dict.fromkeys(
         "Concat Constant ConstantOfShape Expand EyeLike Flatten Gather GatherElements GatherND Identity If Loop OneHot Reshape "
-        "ReverseSequence Shape Size Slice Split Squeeze Tile Transpose Trilu Unsqueeze Where".split(), _FIB),
+        "ReverseSequence Shape Size Slice Split Squeeze Tile Transpose Trilu Unsqueeze Where".split(),
+        _FIB,
+    ),
     **dict.fromkeys("And Not Or Xor".split(), ("BOOL",)),
     **dict.fromkeys("Cast CastLike".split(), _FIB + ("UINT8",)),
     **dict.fromkeys("DeformConv GridSample Mish NonMaxSuppression NonZero RoiAlign".split(), ("FP32", "FP16")),
@@ -54,12 +75,20 @@ UNSUPPORTED_OPS = frozenset(
     "ConcatFromSequence ConvInteger DFT Det DynamicQuantizeLinear HammingWindow HannWindow ImageDecoder MatMulInteger MaxRoiPool "
     "MaxUnpool MelWeightMatrix Multinomial NegativeLogLikelihoodLoss Optional OptionalGetElement OptionalHasElement QLinearConv "
     "QLinearMatMul RegexFullMatch STFT SequenceAt SequenceConstruct SequenceEmpty SequenceErase SequenceInsert SequenceLength "
-    "SequenceMap SoftmaxCrossEntropyLoss SplitToSequence StringConcat StringNormalizer StringSplit TfIdfVectorizer Unique".split())
+    "SequenceMap SoftmaxCrossEntropyLoss SplitToSequence StringConcat StringNormalizer StringSplit TfIdfVectorizer Unique".split()
+)
 
 TYPE_NAMES: dict[int, str] = {
-    TensorProto.FLOAT: "FP32", TensorProto.FLOAT16: "FP16", TensorProto.BFLOAT16: "BF16", TensorProto.INT32: "INT32",
-    TensorProto.INT64: "INT64", TensorProto.BOOL: "BOOL", TensorProto.UINT8: "UINT8", TensorProto.INT8: "INT8",
-    TensorProto.FLOAT8E4M3FN: "FP8", TensorProto.INT4: "INT4",
+    TensorProto.FLOAT: "FP32",
+    TensorProto.FLOAT16: "FP16",
+    TensorProto.BFLOAT16: "BF16",
+    TensorProto.INT32: "INT32",
+    TensorProto.INT64: "INT64",
+    TensorProto.BOOL: "BOOL",
+    TensorProto.UINT8: "UINT8",
+    TensorProto.INT8: "INT8",
+    TensorProto.FLOAT8E4M3FN: "FP8",
+    TensorProto.INT4: "INT4",
     TensorProto.DOUBLE: "FP32",  # the parser casts DOUBLE down to FLOAT (a note says so)
 }
 
@@ -73,22 +102,60 @@ WEIGHTS_INPUTS: dict[str, dict[int, str]] = {
     "Pad": {3: "axes"},
     "Dropout": {2: "training_mode"},
     "OneHot": {1: "depth"},
-    **{op: {1: "axes"} for op in ("ReduceL1", "ReduceL2", "ReduceLogSum", "ReduceLogSumExp", "ReduceMax", "ReduceMean",
-                                  "ReduceMin", "ReduceProd", "ReduceSum", "ReduceSumSquare")},
+    **{
+        op: {1: "axes"}
+        for op in (
+            "ReduceL1",
+            "ReduceL2",
+            "ReduceLogSum",
+            "ReduceLogSumExp",
+            "ReduceMax",
+            "ReduceMean",
+            "ReduceMin",
+            "ReduceProd",
+            "ReduceSum",
+            "ReduceSumSquare",
+        )
+    },
 }
 
 #: Inputs that hold shapes, axes or counts rather than data: INT64 there is what every exporter writes.
 SHAPE_INPUTS: dict[str, frozenset[int]] = {
-    "Reshape": frozenset({1}), "Expand": frozenset({1}), "Tile": frozenset({1}), "ConstantOfShape": frozenset({0}),
-    "Slice": frozenset({1, 2, 3, 4}), "Unsqueeze": frozenset({1}), "Squeeze": frozenset({1}), "Pad": frozenset({1, 3}),
-    "TopK": frozenset({1}), "Range": frozenset({0, 1, 2}), "Resize": frozenset({1, 2, 3}), "Split": frozenset({1}),
-    "CumSum": frozenset({1}), "OneHot": frozenset({1}),
-    **{op: frozenset({1}) for op in ("ReduceL1", "ReduceL2", "ReduceLogSum", "ReduceLogSumExp", "ReduceMax", "ReduceMean",
-                                     "ReduceMin", "ReduceProd", "ReduceSum", "ReduceSumSquare")},
+    "Reshape": frozenset({1}),
+    "Expand": frozenset({1}),
+    "Tile": frozenset({1}),
+    "ConstantOfShape": frozenset({0}),
+    "Slice": frozenset({1, 2, 3, 4}),
+    "Unsqueeze": frozenset({1}),
+    "Squeeze": frozenset({1}),
+    "Pad": frozenset({1, 3}),
+    "TopK": frozenset({1}),
+    "Range": frozenset({0, 1, 2}),
+    "Resize": frozenset({1, 2, 3}),
+    "Split": frozenset({1}),
+    "CumSum": frozenset({1}),
+    "OneHot": frozenset({1}),
+    **{
+        op: frozenset({1})
+        for op in (
+            "ReduceL1",
+            "ReduceL2",
+            "ReduceLogSum",
+            "ReduceLogSumExp",
+            "ReduceMax",
+            "ReduceMean",
+            "ReduceMin",
+            "ReduceProd",
+            "ReduceSum",
+            "ReduceSumSquare",
+        )
+    },
 }
 #: Ops that compute shapes from shapes (``Shape`` -> ``Gather`` -> ``Concat`` -> ``Reshape``).
-SHAPE_ARITHMETIC = frozenset("Abs Add Cast Concat Div Equal Gather Identity Max Min Mod Mul Neg ReduceProd Reshape Shape Size "
-                              "Slice Squeeze Sub Unsqueeze Where".split())
+SHAPE_ARITHMETIC = frozenset(
+    "Abs Add Cast Concat Div Equal Gather Identity Max Min Mod Mul Neg ReduceProd Reshape Shape Size "
+    "Slice Squeeze Sub Unsqueeze Where".split()
+)
 
 GRID_MODES = ("bilinear", "nearest", "bicubic")
 GRID_PADDING = ("zeros", "border", "reflection")

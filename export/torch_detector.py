@@ -28,8 +28,14 @@ __all__ = ["TorchDetector"]
 class TorchDetector(FrameDetector):
     """Runs ``model`` (eval mode, float32, CPU) for frames described by the exported file ``like``."""
 
-    def __init__(self, model: nn.Module, like: str | Path, *, score_threshold: float | None = None,
-                 nms: NmsConfig | str | None = None) -> None:
+    def __init__(
+        self,
+        model: nn.Module,
+        like: str | Path,
+        *,
+        score_threshold: float | None = None,
+        nms: NmsConfig | str | None = None,
+    ) -> None:
         super().__init__(describe(read_meta(like), ("torch",)), score_threshold=score_threshold, nms=nms)
         self.model = model.eval()
 

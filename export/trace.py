@@ -51,7 +51,9 @@ class _Graph(nn.Module):
         setattr(self, TRACE_ROOT, model)
         self.names = names
 
-    def forward(self, images: torch.Tensor, camera_valid: torch.Tensor, tables: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
+    def forward(
+        self, images: torch.Tensor, camera_valid: torch.Tensor, tables: tuple[torch.Tensor, ...]
+    ) -> tuple[torch.Tensor, ...]:
         out = getattr(self, TRACE_ROOT)(images, camera_valid, tables=dict(zip(self.names, tables)))
         return tuple(out[k] for k in OUTPUTS + RANKING_OUTPUTS)
 
@@ -81,7 +83,9 @@ def _dynamic_shapes(names: list[str]) -> dict[str, Any]:
     return {"images": {0: batch}, "camera_valid": {0: batch}, "tables": tuple(table_shapes)}
 
 
-def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], image_hw: tuple[int, int], num_cameras: int) -> onnx.ModelProto:
+def trace_to_onnx(
+    model: nn.Module, tables: Mapping[str, np.ndarray], image_hw: tuple[int, int], num_cameras: int
+) -> onnx.ModelProto:
     """ONNX model of ``model`` with ``tables`` as initializers named ``geom.*``; its outputs are
     ``OUTPUTS`` then ``RANKING_OUTPUTS`` (``graph.without_outputs`` makes the file to write)."""
     names = list(tables)
@@ -110,7 +114,9 @@ def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], image_hw: 
     proto = program.model_proto
     traced_inputs = [i.name for i in proto.graph.input]
     if len(traced_inputs) != 2 + len(names):
-        raise ExportError(f"the traced graph has inputs {traced_inputs}; expected images, camera_valid and {len(names)} tables")
+        raise ExportError(
+            f"the traced graph has inputs {traced_inputs}; expected images, camera_valid and {len(names)} tables"
+        )
     rename_values(proto, dict(zip(traced_inputs, [INPUT_IMAGES, INPUT_CAMERA_VALID, *names])))
     rename_values(proto, dict(zip([o.name for o in proto.graph.output], OUTPUTS + RANKING_OUTPUTS)))
     inputs_to_initializers(proto, tables)
@@ -123,7 +129,10 @@ def trace_to_onnx(model: nn.Module, tables: Mapping[str, np.ndarray], image_hw: 
 @contextlib.contextmanager
 def _quiet_loggers() -> Iterator[None]:
     """The exporter logs progress and optimiser notes at WARNING; keep the user's terminal readable."""
-    loggers = [logging.getLogger(n) for n in ("torch.onnx", "torch.export", "torch._dynamo", "onnxscript", "torch.fx.experimental.symbolic_shapes")]
+    loggers = [
+        logging.getLogger(n)
+        for n in ("torch.onnx", "torch.export", "torch._dynamo", "onnxscript", "torch.fx.experimental.symbolic_shapes")
+    ]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
         lg.setLevel(logging.ERROR)

@@ -47,7 +47,19 @@ from fisheye_infer.runtime.box_geometry import box_diff
 
 from .graph import save_model, with_outputs
 
-__all__ = ["FLOOR_BOX_M", "FLOOR_SCORE", "PROBE", "SLACK", "Errors", "Reference", "checked_graph", "compare_run", "run_onnx", "run_torch", "verify"]
+__all__ = [
+    "FLOOR_BOX_M",
+    "FLOOR_SCORE",
+    "PROBE",
+    "SLACK",
+    "Errors",
+    "Reference",
+    "checked_graph",
+    "compare_run",
+    "run_onnx",
+    "run_torch",
+    "verify",
+]
 
 FLOOR_BOX_M = 1e-3
 FLOOR_SCORE = 1e-4
@@ -74,7 +86,11 @@ class Errors:
 
     def tolerances(self) -> Errors:
         """What a graph may differ by, given that PyTorch float32 differs by ``self``."""
-        return Errors(max(FLOOR_SCORE, SLACK * self.rank_score), max(FLOOR_BOX_M, SLACK * self.box), max(FLOOR_SCORE, SLACK * self.score))
+        return Errors(
+            max(FLOOR_SCORE, SLACK * self.rank_score),
+            max(FLOOR_BOX_M, SLACK * self.box),
+            max(FLOOR_SCORE, SLACK * self.score),
+        )
 
 
 @dataclass
@@ -99,7 +115,7 @@ class RunDiff:
         return off + self.other_label_or_validity
 
     def passed(self, tol: Errors) -> bool:
-        return (self.errors.rank_score <= tol.rank_score and self.selection_valid and self.mismatched(tol) == 0)
+        return self.errors.rank_score <= tol.rank_score and self.selection_valid and self.mismatched(tol) == 0
 
 
 @torch.no_grad()
@@ -109,8 +125,15 @@ def run_torch(model: nn.Module, images: np.ndarray, valid: np.ndarray) -> Output
     return {k: out[k].cpu().numpy() for k in PROBE}
 
 
-def run_onnx(path: str | Path, images: np.ndarray, valid: np.ndarray, threads: int, outputs: Sequence[str] = OUTPUTS, *,
-             per_frame: bool = False) -> Outputs:
+def run_onnx(
+    path: str | Path,
+    images: np.ndarray,
+    valid: np.ndarray,
+    threads: int,
+    outputs: Sequence[str] = OUTPUTS,
+    *,
+    per_frame: bool = False,
+) -> Outputs:
     """``outputs`` of the file on the batch, in ONNX Runtime's CPU provider. ``per_frame``: each frame
     run alone (batch 1, as a deployed detector runs; batch-1 memory) in the one session, concatenated."""
     options = ort.SessionOptions()
@@ -139,7 +162,9 @@ class _Head:
     def __init__(self, model: nn.Module, frames: np.ndarray, valid: np.ndarray) -> None:
         self.module = _ranking_head(model)
         self.inputs: list[tuple[tuple, dict]] = []
-        hook = self.module.register_forward_pre_hook(lambda _, args, kwargs: self.inputs.append((args, kwargs)), with_kwargs=True)
+        hook = self.module.register_forward_pre_hook(
+            lambda _, args, kwargs: self.inputs.append((args, kwargs)), with_kwargs=True
+        )
         try:
             self.outputs = [run_torch(model, frames[i : i + 1], valid[i : i + 1]) for i in range(len(frames))]
         finally:
@@ -184,10 +209,13 @@ class Reference:
         if key not in self._cache:
             exact = self._cache[key] = self.double.replay(frame, dense, indices)
             single = self.single.replay(frame, dense, indices).out
-            self.float32_errors.update(Errors(
-                float(np.abs(self.float32[frame]["rank_scores"][0].astype(np.float64) - exact.own_dense).max()),
-                float(box_diff(exact.out["boxes"][0], single["boxes"][0]).max()),
-                float(np.abs(exact.out["scores"][0] - single["scores"][0].astype(np.float64)).max())))
+            self.float32_errors.update(
+                Errors(
+                    float(np.abs(self.float32[frame]["rank_scores"][0].astype(np.float64) - exact.own_dense).max()),
+                    float(box_diff(exact.out["boxes"][0], single["boxes"][0]).max()),
+                    float(np.abs(exact.out["scores"][0] - single["scores"][0].astype(np.float64)).max()),
+                )
+            )
         return self._cache[key]
 
     def diff(self, frame: int, got: Outputs, row: int = 0) -> tuple[RunDiff, Outputs]:
@@ -202,7 +230,9 @@ class Reference:
         score = np.abs(exact.out["scores"][0] - got["scores"][row].astype(np.float64))
         labels = exact.out["labels"][0] == got["labels"][row]
         valid = exact.out["valid"][0] == got["valid"][row]
-        diff.errors = Errors(float(np.abs(dense.astype(np.float64) - exact.own_dense).max()), float(box.max()), float(score.max()))
+        diff.errors = Errors(
+            float(np.abs(dense.astype(np.float64) - exact.own_dense).max()), float(box.max()), float(score.max())
+        )
         diff.boxes, diff.scores = [box], [score]
         diff.labels_equal, diff.valid_equal = bool(labels.all()), bool(valid.all())
         diff.other_label_or_validity = int(np.count_nonzero(~labels | ~valid))
@@ -247,11 +277,18 @@ def _outputs_equal(a: Outputs, b: Outputs) -> bool:
 def checked_graph(path: str | Path, out: str | Path) -> Path:
     """Write the file ``path`` with its ranking values (``RANKING_OUTPUTS``) as extra outputs to ``out``."""
     model = onnx.load(str(path))
-    return save_model(with_outputs(model, {"rank_scores": onnx.TensorProto.FLOAT, "rank_indices": onnx.TensorProto.INT64}), out)
+    return save_model(
+        with_outputs(model, {"rank_scores": onnx.TensorProto.FLOAT, "rank_indices": onnx.TensorProto.INT64}), out
+    )
 
 
-def verify(path: str | Path, model: nn.Module, frames: np.ndarray, valid: np.ndarray | None = None,
-           threads: Sequence[int] = (1, 2)) -> ParityReport:
+def verify(
+    path: str | Path,
+    model: nn.Module,
+    frames: np.ndarray,
+    valid: np.ndarray | None = None,
+    threads: Sequence[int] = (1, 2),
+) -> ParityReport:
     """Check the file ``path`` against ``model`` on ``frames`` (F, N, H, W, 3) uint8, one by one and batched."""
     if valid is None:
         valid = np.ones(frames.shape[:2], dtype=bool)
@@ -263,7 +300,9 @@ def verify(path: str | Path, model: nn.Module, frames: np.ndarray, valid: np.nda
         checked.unlink(missing_ok=True)
 
 
-def _verify(path: Path, checked: Path, model: nn.Module, frames: np.ndarray, valid: np.ndarray, threads: Sequence[int]) -> ParityReport:
+def _verify(
+    path: Path, checked: Path, model: nn.Module, frames: np.ndarray, valid: np.ndarray, threads: Sequence[int]
+) -> ParityReport:
     reference = Reference(model, frames, valid)
     diffs = []
     for t in threads:

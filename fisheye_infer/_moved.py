@@ -47,7 +47,7 @@ def new_name(old: str) -> str | None:
     """The module an old path now names, or None when ``old`` did not move."""
     for before, after in MOVED.items():
         if old == before or old.startswith(before + "."):
-            return after + old[len(before):]
+            return after + old[len(before) :]
     return None
 
 
@@ -56,7 +56,9 @@ def _caller_stacklevel() -> int:
     warning is attributed to the module that wrote the old import (and shown there by default)."""
     frame: FrameType | None = sys._getframe(1)
     level = 1
-    while frame is not None and (frame.f_code.co_filename.startswith("<frozen importlib") or frame.f_code.co_filename == __file__):
+    while frame is not None and (
+        frame.f_code.co_filename.startswith("<frozen importlib") or frame.f_code.co_filename == __file__
+    ):
         frame = frame.f_back
         level += 1
     return level
@@ -65,7 +67,9 @@ def _caller_stacklevel() -> int:
 class MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     """Resolves an old module path to the module at its new path."""
 
-    def find_spec(self, fullname: str, path: object = None, target: object = None) -> importlib.machinery.ModuleSpec | None:
+    def find_spec(
+        self, fullname: str, path: object = None, target: object = None
+    ) -> importlib.machinery.ModuleSpec | None:
         if new_name(fullname) is None:
             return None
         return importlib.util.spec_from_loader(fullname, self)
@@ -73,8 +77,11 @@ class MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
         target = new_name(spec.name)
         assert target is not None  # find_spec answered for this name only
-        warnings.warn(f"{spec.name} is now {target}; the old path will be removed in the next release",
-                      DeprecationWarning, stacklevel=_caller_stacklevel())
+        warnings.warn(
+            f"{spec.name} is now {target}; the old path will be removed in the next release",
+            DeprecationWarning,
+            stacklevel=_caller_stacklevel(),
+        )
         return importlib.import_module(target)
 
     def exec_module(self, module: ModuleType) -> None:

@@ -33,7 +33,9 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fisheye-infer", description="Export, run and serve surround-view fisheye 3D object detectors.")
+    parser = argparse.ArgumentParser(
+        prog="fisheye-infer", description="Export, run and serve surround-view fisheye 3D object detectors."
+    )
     parser.add_argument("--version", action="version", version=f"fisheye-infer {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module, help_text in COMMANDS:

@@ -45,8 +45,15 @@ __all__ = [
 ]
 
 
-def load_model(name: str, checkpoint: str | Path | Mapping[str, Any], config: Any = None, rig: Any = None, *,
-               geometry: str = "verify", allow_pickle: bool = False) -> tuple[FisheyeDetector, GeometryReport]:
+def load_model(
+    name: str,
+    checkpoint: str | Path | Mapping[str, Any],
+    config: Any = None,
+    rig: Any = None,
+    *,
+    geometry: str = "verify",
+    allow_pickle: bool = False,
+) -> tuple[FisheyeDetector, GeometryReport]:
     """Build ``name`` and load an official checkpoint (path or state dict) strictly; returns (model, report).
 
     ``geometry`` is the policy for the stored geometry tables: "verify" (default), "checkpoint" or "rig".
@@ -56,6 +63,7 @@ def load_model(name: str, checkpoint: str | Path | Mapping[str, Any], config: An
         state_dict: Mapping[str, torch.Tensor] = checkpoint.get("state_dict", checkpoint)
     else:
         state_dict, _ = load_checkpoint(checkpoint, allow_pickle=allow_pickle)
-    report = load_official_state_dict(model, state_dict, geometry=geometry,
-                                      ignore=get_model_entry(name).ignored_keys, context=f"{name} checkpoint")
+    report = load_official_state_dict(
+        model, state_dict, geometry=geometry, ignore=get_model_entry(name).ignored_keys, context=f"{name} checkpoint"
+    )
     return model.eval(), report

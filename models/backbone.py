@@ -27,11 +27,11 @@ class BasicBlock(nn.Module):
 
     expansion = 1
 
-    def __init__(self, inplanes: int, planes: int, stride: int = 1, dilation: int = 1,
-                 downsample: nn.Module | None = None) -> None:
+    def __init__(
+        self, inplanes: int, planes: int, stride: int = 1, dilation: int = 1, downsample: nn.Module | None = None
+    ) -> None:
         super().__init__()
-        self.conv1 = nn.Conv2d(inplanes, planes, 3, stride=stride, padding=dilation,
-                               dilation=dilation, bias=False)
+        self.conv1 = nn.Conv2d(inplanes, planes, 3, stride=stride, padding=dilation, dilation=dilation, bias=False)
         self.bn1 = nn.BatchNorm2d(planes, eps=1e-5)
         # conv2 is never dilated in mmdet's BasicBlock, even inside a dilated stage.
         self.conv2 = nn.Conv2d(planes, planes, 3, padding=1, bias=False)
@@ -53,9 +53,15 @@ class ResNet(nn.Module):
     C3 = [256, 50, 50] and C4 = [512, 25, 25]: stride 16 for both outputs' parents, dilation keeps size.
     """
 
-    def __init__(self, depth: int = 18, strides: Sequence[int] = (1, 2, 2, 2),
-                 dilations: Sequence[int] = (1, 1, 2, 4), out_indices: Sequence[int] = (2, 3),
-                 in_channels: int = 3, base_channels: int = 64) -> None:
+    def __init__(
+        self,
+        depth: int = 18,
+        strides: Sequence[int] = (1, 2, 2, 2),
+        dilations: Sequence[int] = (1, 1, 2, 4),
+        out_indices: Sequence[int] = (2, 3),
+        in_channels: int = 3,
+        base_channels: int = 64,
+    ) -> None:
         super().__init__()
         if depth not in _ARCH:
             raise ConfigError(f"ResNet depth {depth} is not supported (expected one of {sorted(_ARCH)})")
@@ -118,15 +124,13 @@ class FPN(nn.Module):
     of the last output, as mmdet does without add_extra_convs.
     """
 
-    def __init__(self, in_channels: Sequence[int] = (256, 512), out_channels: int = 256,
-                 num_outs: int = 2) -> None:
+    def __init__(self, in_channels: Sequence[int] = (256, 512), out_channels: int = 256, num_outs: int = 2) -> None:
         super().__init__()
         if num_outs < len(in_channels):
             raise ConfigError(f"FPN num_outs={num_outs} is smaller than the {len(in_channels)} input levels")
         self.num_outs = int(num_outs)
         self.lateral_convs = nn.ModuleList(ConvModule2d(c, out_channels, 1) for c in in_channels)
-        self.fpn_convs = nn.ModuleList(ConvModule2d(out_channels, out_channels, 3, padding=1)
-                                       for _ in in_channels)
+        self.fpn_convs = nn.ModuleList(ConvModule2d(out_channels, out_channels, 3, padding=1) for _ in in_channels)
 
     def forward(self, inputs: Sequence[torch.Tensor]) -> tuple[torch.Tensor, ...]:
         if len(inputs) != len(self.lateral_convs):

@@ -61,8 +61,10 @@ class FisheyeDetector(nn.Module):
 
                 rig = default_rig()
             if len(rig) != cfg.num_cameras:
-                raise ConfigError(f"the rig has {len(rig)} cameras ({', '.join(rig.names)}); the configuration "
-                                  f"expects {cfg.num_cameras} ({', '.join(cfg.image.camera_names)})")
+                raise ConfigError(
+                    f"the rig has {len(rig)} cameras ({', '.join(rig.names)}); the configuration "
+                    f"expects {cfg.num_cameras} ({', '.join(cfg.image.camera_names)})"
+                )
             self._check_rig(rig)
             geometry = geometry_from_rig(rig, cfg.geometry_params())
         self.camera_names = tuple(rig.names) if rig is not None else tuple(cfg.image.camera_names)
@@ -81,8 +83,11 @@ class FisheyeDetector(nn.Module):
 
     def _deprecated(self, old: str, new: str) -> None:
         """Warn that the stage method ``old`` is now ``new``; the old name works for one more release."""
-        warnings.warn(f"{type(self).__name__}.{old} is deprecated and will be removed in the next release; use {new}",
-                      DeprecationWarning, stacklevel=3)
+        warnings.warn(
+            f"{type(self).__name__}.{old} is deprecated and will be removed in the next release; use {new}",
+            DeprecationWarning,
+            stacklevel=3,
+        )
 
     # -- stages ---------------------------------------------------------------------------
 
@@ -102,8 +107,13 @@ class FisheyeDetector(nn.Module):
         p3 = self.img_neck(self.img_backbone(self.normalise(images, tables)))[0]
         return p3.reshape(b, p3.shape[0] // b, *p3.shape[1:])
 
-    def scene_features(self, feats: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                       tables: dict[str, torch.Tensor] | None = None, cam2lidar: Any = None) -> torch.Tensor:
+    def scene_features(
+        self,
+        feats: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        tables: dict[str, torch.Tensor] | None = None,
+        cam2lidar: Any = None,
+    ) -> torch.Tensor:
         """Image features (B, V, C, h, w) -> what the head reads (BEVDet: (B, C, X, Y) BEV features from the view
         transform; PETR: (B, Q, C) object queries decoded against the keys and their 3D position embedding).
 
@@ -118,8 +128,13 @@ class FisheyeDetector(nn.Module):
         """Scene features -> the decoded ``OUTPUTS`` and ``RANKING_OUTPUTS`` (and whatever else the head computes)."""
         raise NotImplementedError
 
-    def predict(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                tables: dict[str, torch.Tensor] | None = None, cam2lidar: Any = None) -> dict[str, torch.Tensor]:
+    def predict(
+        self,
+        images: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        tables: dict[str, torch.Tensor] | None = None,
+        cam2lidar: Any = None,
+    ) -> dict[str, torch.Tensor]:
         """Every stage in order, without the input checks of ``forward``; every head output.
 
         Image size is not checked here: the networks are fully convolutional up to the geometry
@@ -127,7 +142,9 @@ class FisheyeDetector(nn.Module):
         """
         tables = tables or self.geometry_tables()
         feats = self.image_features(images, tables)
-        return self.head_outputs(self.scene_features(feats, self.view_valid(camera_valid, feats.shape[1]), tables, cam2lidar))
+        return self.head_outputs(
+            self.scene_features(feats, self.view_valid(camera_valid, feats.shape[1]), tables, cam2lidar)
+        )
 
     @staticmethod
     def view_valid(camera_valid: torch.Tensor | None, views: int) -> torch.Tensor | None:

@@ -23,21 +23,34 @@ class SECOND(nn.Module):
     Sequential indices match the checkpoint: conv at 0, 3, 6, ...; BN at 1, 4, 7, ...
     """
 
-    def __init__(self, in_channels: int = 96, out_channels: Sequence[int] = (128, 256),
-                 layer_nums: Sequence[int] = (5, 5), layer_strides: Sequence[int] = (2, 2),
-                 bn_eps: float = 1e-3) -> None:
+    def __init__(
+        self,
+        in_channels: int = 96,
+        out_channels: Sequence[int] = (128, 256),
+        layer_nums: Sequence[int] = (5, 5),
+        layer_strides: Sequence[int] = (2, 2),
+        bn_eps: float = 1e-3,
+    ) -> None:
         super().__init__()
         if not (len(out_channels) == len(layer_nums) == len(layer_strides)):
-            raise ConfigError("SECOND out_channels, layer_nums and layer_strides must have equal length, got "
-                              f"{tuple(out_channels)}, {tuple(layer_nums)}, {tuple(layer_strides)}")
+            raise ConfigError(
+                "SECOND out_channels, layer_nums and layer_strides must have equal length, got "
+                f"{tuple(out_channels)}, {tuple(layer_nums)}, {tuple(layer_strides)}"
+            )
         in_filters = [in_channels, *out_channels[:-1]]
         blocks = []
         for cin, cout, n, stride in zip(in_filters, out_channels, layer_nums, layer_strides):
-            layers: list[nn.Module] = [nn.Conv2d(cin, cout, 3, stride=int(stride), padding=1, bias=False),
-                                       nn.BatchNorm2d(cout, eps=bn_eps), nn.ReLU(inplace=False)]
+            layers: list[nn.Module] = [
+                nn.Conv2d(cin, cout, 3, stride=int(stride), padding=1, bias=False),
+                nn.BatchNorm2d(cout, eps=bn_eps),
+                nn.ReLU(inplace=False),
+            ]
             for _ in range(int(n)):
-                layers += [nn.Conv2d(cout, cout, 3, padding=1, bias=False),
-                           nn.BatchNorm2d(cout, eps=bn_eps), nn.ReLU(inplace=False)]
+                layers += [
+                    nn.Conv2d(cout, cout, 3, padding=1, bias=False),
+                    nn.BatchNorm2d(cout, eps=bn_eps),
+                    nn.ReLU(inplace=False),
+                ]
             blocks.append(nn.Sequential(*layers))
         self.blocks = nn.ModuleList(blocks)
 
@@ -57,13 +70,20 @@ class SECONDFPN(nn.Module):
     stride < 1: Conv2d(k=1/s, s=1/s). All without bias, then BN and ReLU.
     """
 
-    def __init__(self, in_channels: Sequence[int] = (128, 256), out_channels: Sequence[int] = (256, 256),
-                 upsample_strides: Sequence[float] = (1, 2), use_conv_for_no_stride: bool = True,
-                 bn_eps: float = 1e-3) -> None:
+    def __init__(
+        self,
+        in_channels: Sequence[int] = (128, 256),
+        out_channels: Sequence[int] = (256, 256),
+        upsample_strides: Sequence[float] = (1, 2),
+        use_conv_for_no_stride: bool = True,
+        bn_eps: float = 1e-3,
+    ) -> None:
         super().__init__()
         if not (len(in_channels) == len(out_channels) == len(upsample_strides)):
-            raise ConfigError("SECONDFPN in_channels, out_channels and upsample_strides must have equal "
-                              f"length, got {tuple(in_channels)}, {tuple(out_channels)}, {tuple(upsample_strides)}")
+            raise ConfigError(
+                "SECONDFPN in_channels, out_channels and upsample_strides must have equal "
+                f"length, got {tuple(in_channels)}, {tuple(out_channels)}, {tuple(upsample_strides)}"
+            )
         deblocks = []
         for cin, cout, stride in zip(in_channels, out_channels, upsample_strides):
             if stride > 1 or (stride == 1 and not use_conv_for_no_stride):

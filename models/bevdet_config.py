@@ -48,8 +48,10 @@ class ViewTransformConfig:
     @property
     def bev_shape(self) -> tuple[int, int]:
         """(X, Y) cells, int((upper - lower) / step) as the official gen_dx_bx."""
-        return (int((self.xbound[1] - self.xbound[0]) / self.xbound[2]),
-                int((self.ybound[1] - self.ybound[0]) / self.ybound[2]))
+        return (
+            int((self.xbound[1] - self.xbound[0]) / self.xbound[2]),
+            int((self.ybound[1] - self.ybound[0]) / self.ybound[2]),
+        )
 
 
 @dataclass(frozen=True)
@@ -81,7 +83,11 @@ class HeadConfig:
     ffn_channels: int = 256
     head_conv: int = 64
     common_heads: tuple[tuple[str, tuple[int, int]], ...] = (
-        ("center", (2, 2)), ("height", (1, 2)), ("dim", (3, 2)), ("rot", (2, 2)))
+        ("center", (2, 2)),
+        ("height", (1, 2)),
+        ("dim", (3, 2)),
+        ("rot", (2, 2)),
+    )
     dataset: str = "Fisheye3DOD"
     grid_size: tuple[int, int, int] = (1280, 1280, 40)
     out_size_factor: int = 8
@@ -115,27 +121,45 @@ class BEVDetConfig(ModelConfig):
     def validate(self) -> None:
         """Cross-field consistency; each message names both fields."""
         vt, enc, head, bb = self.view_transform, self.bev_encoder, self.head, self.backbone
-        stage_channels = tuple(bb.base_channels * 2 ** i for i in bb.out_indices)
+        stage_channels = tuple(bb.base_channels * 2**i for i in bb.out_indices)
         checks = [
-            (tuple(bb.neck_in_channels) == stage_channels,
-             f"backbone.neck_in_channels={tuple(bb.neck_in_channels)} != the channels of ResNet stages {tuple(bb.out_indices)} "
-             f"with base_channels={bb.base_channels}: {stage_channels}"),
-            (bb.neck_out_channels == vt.in_channels,
-             f"backbone.neck_out_channels={bb.neck_out_channels} != view_transform.in_channels={vt.in_channels}"),
-            (vt.out_channels == enc.in_channels,
-             f"view_transform.out_channels={vt.out_channels} != bev_encoder.in_channels={enc.in_channels}"),
-            (tuple(enc.out_channels) == tuple(enc.fpn_in_channels),
-             f"bev_encoder.out_channels={enc.out_channels} != bev_encoder.fpn_in_channels={enc.fpn_in_channels}"),
-            (sum(enc.fpn_out_channels) == head.in_channels,
-             f"sum(bev_encoder.fpn_out_channels)={sum(enc.fpn_out_channels)} != head.in_channels={head.in_channels}"),
-            (len(self.class_names) == head.num_classes,
-             f"{len(self.class_names)} class_names but head.num_classes={head.num_classes}"),
-            (not self.image.bgr_to_rgb,
-             "image.bgr_to_rgb=True is not supported (the official models feed BGR with RGB-ordered statistics)"),
-            (len(self.image.mean) == 3 and len(self.image.std) == 3 and min(self.image.std) > 0,
-             f"image.mean/std must be 3 values with std > 0, got {self.image.mean}, {self.image.std}"),
-            (vt.zbound[1] > vt.zbound[0] and int((vt.zbound[1] - vt.zbound[0]) / vt.zbound[2]) == 1,
-             f"view_transform.zbound={vt.zbound} must give exactly one z cell"),
+            (
+                tuple(bb.neck_in_channels) == stage_channels,
+                f"backbone.neck_in_channels={tuple(bb.neck_in_channels)} != the channels of ResNet stages {tuple(bb.out_indices)} "
+                f"with base_channels={bb.base_channels}: {stage_channels}",
+            ),
+            (
+                bb.neck_out_channels == vt.in_channels,
+                f"backbone.neck_out_channels={bb.neck_out_channels} != view_transform.in_channels={vt.in_channels}",
+            ),
+            (
+                vt.out_channels == enc.in_channels,
+                f"view_transform.out_channels={vt.out_channels} != bev_encoder.in_channels={enc.in_channels}",
+            ),
+            (
+                tuple(enc.out_channels) == tuple(enc.fpn_in_channels),
+                f"bev_encoder.out_channels={enc.out_channels} != bev_encoder.fpn_in_channels={enc.fpn_in_channels}",
+            ),
+            (
+                sum(enc.fpn_out_channels) == head.in_channels,
+                f"sum(bev_encoder.fpn_out_channels)={sum(enc.fpn_out_channels)} != head.in_channels={head.in_channels}",
+            ),
+            (
+                len(self.class_names) == head.num_classes,
+                f"{len(self.class_names)} class_names but head.num_classes={head.num_classes}",
+            ),
+            (
+                not self.image.bgr_to_rgb,
+                "image.bgr_to_rgb=True is not supported (the official models feed BGR with RGB-ordered statistics)",
+            ),
+            (
+                len(self.image.mean) == 3 and len(self.image.std) == 3 and min(self.image.std) > 0,
+                f"image.mean/std must be 3 values with std > 0, got {self.image.mean}, {self.image.std}",
+            ),
+            (
+                vt.zbound[1] > vt.zbound[0] and int((vt.zbound[1] - vt.zbound[0]) / vt.zbound[2]) == 1,
+                f"view_transform.zbound={vt.zbound} must give exactly one z cell",
+            ),
         ]
         for ok, msg in checks:
             if not ok:
@@ -145,15 +169,19 @@ class BEVDetConfig(ModelConfig):
         up0 = enc.upsample_strides[0]
         head_in = (int(x / s * up0), int(y / s * up0))
         if head_in != head.bev_size:
-            raise ConfigError(f"inconsistent FisheyeBEVDet configuration: the BEV grid {x}x{y} reaches the head as "
-                              f"{head_in[0]}x{head_in[1]}, but head.grid_size/out_size_factor gives "
-                              f"{head.bev_size[0]}x{head.bev_size[1]}")
+            raise ConfigError(
+                f"inconsistent FisheyeBEVDet configuration: the BEV grid {x}x{y} reaches the head as "
+                f"{head_in[0]}x{head_in[1]}, but head.grid_size/out_size_factor gives "
+                f"{head.bev_size[0]}x{head.bev_size[1]}"
+            )
         for axis, bound in enumerate((vt.xbound, vt.ybound)):
             span = head.bev_size[axis] * head.out_size_factor * head.voxel_size[axis]
             if abs(head.pc_range[axis] - bound[0]) > 1e-6 or abs(span - (bound[1] - bound[0])) > 1e-6:
-                raise ConfigError(f"inconsistent FisheyeBEVDet configuration: the head decodes axis {'xy'[axis]} over "
-                                  f"[{head.pc_range[axis]}, {head.pc_range[axis] + span}] (pc_range, grid_size, "
-                                  f"out_size_factor, voxel_size) but the BEV grid covers [{bound[0]}, {bound[1]}]")
+                raise ConfigError(
+                    f"inconsistent FisheyeBEVDet configuration: the head decodes axis {'xy'[axis]} over "
+                    f"[{head.pc_range[axis]}, {head.pc_range[axis] + span}] (pc_range, grid_size, "
+                    f"out_size_factor, voxel_size) but the BEV grid covers [{bound[0]}, {bound[1]}]"
+                )
         if head.num_proposals > head.num_classes * head.bev_size[0] * head.bev_size[1]:
             raise ConfigError(f"head.num_proposals={head.num_proposals} exceeds the heatmap size")
 
@@ -163,11 +191,16 @@ class BEVDetConfig(ModelConfig):
 
     def geometry_params(self) -> Any:
         vt = self.view_transform
-        return LSSParams(feature_size=tuple(vt.feature_size), azimuth_range=tuple(vt.azimuth_range),
-                         elevation_range=tuple(vt.elevation_range),
-                         source_size=feature_size_of((self.image.height, self.image.width), self.backbone),
-                         dbound=tuple(vt.dbound), xbound=tuple(vt.xbound),
-                         ybound=tuple(vt.ybound), zbound=tuple(vt.zbound))
+        return LSSParams(
+            feature_size=tuple(vt.feature_size),
+            azimuth_range=tuple(vt.azimuth_range),
+            elevation_range=tuple(vt.elevation_range),
+            source_size=feature_size_of((self.image.height, self.image.width), self.backbone),
+            dbound=tuple(vt.dbound),
+            xbound=tuple(vt.xbound),
+            ybound=tuple(vt.ybound),
+            zbound=tuple(vt.zbound),
+        )
 
     # -- reading an official file ---------------------------------------------------------
 
@@ -177,19 +210,31 @@ class BEVDetConfig(ModelConfig):
         d = cls()
         model = Section(cfg.get("model"), "model", source)
         model.type_is("BEVDet", "FisheyeBEVDet")
-        vt, enc, fpn, head = model.sub("view_transform"), model.sub("pts_backbone"), model.sub("pts_neck"), model.sub("bbox_head")
+        vt, enc, fpn, head = (
+            model.sub("view_transform"),
+            model.sub("pts_backbone"),
+            model.sub("pts_neck"),
+            model.sub("bbox_head"),
+        )
         enc.type_is("SECOND")
         fpn.type_is("SECONDFPN")
         head.type_is("TransFusionHead")
         image = read_image(model, cfg, *cls._image_size(vt, d), d.image)
         if image.bgr_to_rgb:
-            raise ConfigError(f"{source}: model.data_preprocessor.bgr_to_rgb=True is not supported "
-                              "(the official models feed BGR with RGB-ordered statistics)")
+            raise ConfigError(
+                f"{source}: model.data_preprocessor.bgr_to_rgb=True is not supported "
+                "(the official models feed BGR with RGB-ordered statistics)"
+            )
         if vt.get("downsample", 1) != 1:
             raise vt.refuse("downsample", 1, vt.get("downsample"))
-        return cls(image=image, backbone=read_backbone(model, d.backbone), **cls._read_view_transform(vt, cfg, d),
-                   bev_encoder=_read_bev_encoder(enc, fpn, d.bev_encoder), head=_read_head(model, head, d.head),
-                   class_names=read_classes(cfg, d.class_names))
+        return cls(
+            image=image,
+            backbone=read_backbone(model, d.backbone),
+            **cls._read_view_transform(vt, cfg, d),
+            bev_encoder=_read_bev_encoder(enc, fpn, d.bev_encoder),
+            head=_read_head(model, head, d.head),
+            class_names=read_classes(cfg, d.class_names),
+        )
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
@@ -201,16 +246,27 @@ class BEVDetConfig(ModelConfig):
     def _read_view_transform(cls, vt: Section, cfg: Mapping[str, Any], d: BEVDetConfig) -> dict[str, Any]:
         """The sections the view transform defines: here ``view_transform`` (a ``FisheyeLSSTransform``)."""
         vt.type_is("FisheyeLSSTransform")
-        return {"view_transform": ViewTransformConfig(**view_transform_fields(vt, d.view_transform),
-                                                      azimuth_range=vt.get("azimuth_range", d.view_transform.azimuth_range),
-                                                      elevation_range=vt.get("elevation_range", d.view_transform.elevation_range))}
+        return {
+            "view_transform": ViewTransformConfig(
+                **view_transform_fields(vt, d.view_transform),
+                azimuth_range=vt.get("azimuth_range", d.view_transform.azimuth_range),
+                elevation_range=vt.get("elevation_range", d.view_transform.elevation_range),
+            )
+        }
 
 
 def view_transform_fields(vt: Section, d: ViewTransformConfig) -> dict[str, Any]:
     """The view transform's fields that the spherical and the cylindrical transforms share."""
-    return dict(in_channels=vt.get("in_channels", d.in_channels), out_channels=vt.get("out_channels", d.out_channels),
-                feature_size=vt.get("feature_size", d.feature_size), xbound=vt.get("xbound", d.xbound), ybound=vt.get("ybound", d.ybound),
-                zbound=vt.get("zbound", d.zbound), dbound=vt.get("dbound", d.dbound), ocam_fov=float(vt.get("ocam_fov", d.ocam_fov)))
+    return dict(
+        in_channels=vt.get("in_channels", d.in_channels),
+        out_channels=vt.get("out_channels", d.out_channels),
+        feature_size=vt.get("feature_size", d.feature_size),
+        xbound=vt.get("xbound", d.xbound),
+        ybound=vt.get("ybound", d.ybound),
+        zbound=vt.get("zbound", d.zbound),
+        dbound=vt.get("dbound", d.dbound),
+        ocam_fov=float(vt.get("ocam_fov", d.ocam_fov)),
+    )
 
 
 def _read_bev_encoder(enc: Section, fpn: Section, d: BEVEncoderConfig) -> BEVEncoderConfig:
@@ -219,11 +275,15 @@ def _read_bev_encoder(enc: Section, fpn: Section, d: BEVEncoderConfig) -> BEVEnc
         if eps != d.bn_eps:
             raise sec.refuse("norm_cfg.eps", d.bn_eps, eps)
     return BEVEncoderConfig(
-        in_channels=enc.get("in_channels", 96), out_channels=enc.get("out_channels", (128, 256)),
-        layer_nums=enc.get("layer_nums", (5, 5)), layer_strides=enc.get("layer_strides", (2, 2)),
-        fpn_in_channels=fpn.get("in_channels", (128, 256)), fpn_out_channels=fpn.get("out_channels", (256, 256)),
+        in_channels=enc.get("in_channels", 96),
+        out_channels=enc.get("out_channels", (128, 256)),
+        layer_nums=enc.get("layer_nums", (5, 5)),
+        layer_strides=enc.get("layer_strides", (2, 2)),
+        fpn_in_channels=fpn.get("in_channels", (128, 256)),
+        fpn_out_channels=fpn.get("out_channels", (256, 256)),
         upsample_strides=fpn.get("upsample_strides", (1, 2)),
-        use_conv_for_no_stride=bool(fpn.get("use_conv_for_no_stride", False)))
+        use_conv_for_no_stride=bool(fpn.get("use_conv_for_no_stride", False)),
+    )
 
 
 def _read_head(model: Section, head: Section, d: HeadConfig) -> HeadConfig:
@@ -233,22 +293,31 @@ def _read_head(model: Section, head: Section, d: HeadConfig) -> HeadConfig:
     attn, ffn = layer.sub("self_attn_cfg", required=False), layer.sub("ffn_cfg", required=False)
     common = head.data.get("common_heads", dict(d.common_heads))
     hcfg = HeadConfig(
-        in_channels=head.get("in_channels", 512), hidden_channel=head.get("hidden_channel", 128),
-        num_classes=head.get("num_classes", 6), num_proposals=head.get("num_proposals", 200),
-        nms_kernel_size=head.get("nms_kernel_size", 3), num_decoder_layers=head.get("num_decoder_layers", 1),
-        num_heads=attn.get("num_heads", 8), ffn_channels=ffn.get("feedforward_channels", 256),
+        in_channels=head.get("in_channels", 512),
+        hidden_channel=head.get("hidden_channel", 128),
+        num_classes=head.get("num_classes", 6),
+        num_proposals=head.get("num_proposals", 200),
+        nms_kernel_size=head.get("nms_kernel_size", 3),
+        num_decoder_layers=head.get("num_decoder_layers", 1),
+        num_heads=attn.get("num_heads", 8),
+        ffn_channels=ffn.get("feedforward_channels", 256),
         head_conv=head.get("head_conv", 64),
         common_heads=tuple((k, as_tuple(v)) for k, v in common.items()),
-        dataset=test_pts.get("dataset", d.dataset), grid_size=test_pts.get("grid_size", d.grid_size),
+        dataset=test_pts.get("dataset", d.dataset),
+        grid_size=test_pts.get("grid_size", d.grid_size),
         out_size_factor=test_pts.get("out_size_factor", coder.get("out_size_factor", 8)),
         voxel_size=tuple(coder.get("voxel_size", test_pts.get("voxel_size", d.voxel_size))[:2]),
         pc_range=tuple(coder.get("pc_range", test_pts.get("pc_range", d.pc_range))[:2]),
         post_center_range=coder.get("post_center_range", d.post_center_range),
-        score_threshold=coder.get("score_threshold", 0.0), nms_type=test_pts.get("nms_type", None))
+        score_threshold=coder.get("score_threshold", 0.0),
+        nms_type=test_pts.get("nms_type", None),
+    )
     coder_osf = coder.get("out_size_factor", hcfg.out_size_factor)
     if coder_osf != hcfg.out_size_factor:
-        raise ConfigError(f"{head.source}: model.bbox_head.bbox_coder.out_size_factor={coder_osf} differs from "
-                          f"model.test_cfg.pts.out_size_factor={hcfg.out_size_factor}")
+        raise ConfigError(
+            f"{head.source}: model.bbox_head.bbox_coder.out_size_factor={coder_osf} differs from "
+            f"model.test_cfg.pts.out_size_factor={hcfg.out_size_factor}"
+        )
     if hcfg.nms_type is not None:
         raise test_pts.refuse("nms_type", None, hcfg.nms_type)
     if hcfg.score_threshold:

@@ -30,8 +30,18 @@ import torch
 
 from fisheye_infer.errors import CheckpointError
 
-__all__ = ["GeometryPolicy", "GEOMETRY_POLICIES", "KeySpec", "load_checkpoint", "check_keys", "TableCheck",
-           "decide_geometry", "OfficialCheckpointModel", "load_official_state_dict", "GeometryReport"]
+__all__ = [
+    "GeometryPolicy",
+    "GEOMETRY_POLICIES",
+    "KeySpec",
+    "load_checkpoint",
+    "check_keys",
+    "TableCheck",
+    "decide_geometry",
+    "OfficialCheckpointModel",
+    "load_official_state_dict",
+    "GeometryReport",
+]
 
 GeometryPolicy = Literal["verify", "checkpoint", "rig"]
 GEOMETRY_POLICIES: tuple[str, ...] = ("verify", "checkpoint", "rig")
@@ -59,8 +69,12 @@ def load_checkpoint(path: str | Path, *, allow_pickle: bool = False) -> tuple[di
     if not path.is_file():
         raise CheckpointError(f"checkpoint {path}: no such file")
     if allow_pickle:
-        warnings.warn(f"loading {path} with allow_pickle=True: unpickling can execute code stored in the file; "
-                      "use it only for checkpoints from a trusted source", UserWarning, stacklevel=2)
+        warnings.warn(
+            f"loading {path} with allow_pickle=True: unpickling can execute code stored in the file; "
+            "use it only for checkpoints from a trusted source",
+            UserWarning,
+            stacklevel=2,
+        )
     try:
         obj = torch.load(path, map_location="cpu", weights_only=not allow_pickle)
     except (pickle.UnpicklingError, RuntimeError, AttributeError, ModuleNotFoundError, EOFError) as exc:
@@ -73,7 +87,8 @@ def load_checkpoint(path: str | Path, *, allow_pickle: bool = False) -> tuple[di
             f"checkpoint {path}: cannot be read with torch.load(weights_only=True) ({first}).{detail} "
             "If the file comes from a trusted source (e.g. an mmengine training run whose metadata "
             "holds Python objects), load it with allow_pickle=True; that unpickles arbitrary objects "
-            "and can execute code, and a warning is issued.") from None
+            "and can execute code, and a warning is issued."
+        ) from None
     state_dict, meta = _unwrap(obj, path)
     return state_dict, meta
 
@@ -85,18 +100,21 @@ def _unwrap(obj: Any, path: Path) -> tuple[dict[str, torch.Tensor], dict[str, An
         sd, meta = dict(obj), {}
     else:
         kind = f"dict with keys {sorted(map(str, obj))[:10]}" if isinstance(obj, Mapping) else type(obj).__name__
-        raise CheckpointError(f"checkpoint {path}: expected an mmengine checkpoint with 'state_dict' or a "
-                              f"state dict of tensors, got a {kind}")
+        raise CheckpointError(
+            f"checkpoint {path}: expected an mmengine checkpoint with 'state_dict' or a "
+            f"state dict of tensors, got a {kind}"
+        )
     bad = [k for k, v in sd.items() if not isinstance(v, torch.Tensor)]
     if bad:
         raise CheckpointError(f"checkpoint {path}: state_dict entries that are not tensors: {', '.join(map(str, bad))}")
     if sd and all(k.startswith("module.") for k in sd):  # saved from a DataParallel wrapper
-        sd = {k[len("module."):]: v for k, v in sd.items()}
+        sd = {k[len("module.") :]: v for k, v in sd.items()}
     return sd, dict(meta) if isinstance(meta, Mapping) else {"meta": meta}
 
 
-def check_keys(expected: Mapping[str, KeySpec], state_dict: Mapping[str, torch.Tensor], *,
-               context: str = "checkpoint") -> None:
+def check_keys(
+    expected: Mapping[str, KeySpec], state_dict: Mapping[str, torch.Tensor], *, context: str = "checkpoint"
+) -> None:
     """Raise one CheckpointError naming every missing, unexpected, mis-shaped or mistyped key."""
     missing = [k for k in expected if k not in state_dict]
     unexpected = [k for k in state_dict if k not in expected]
@@ -112,8 +130,12 @@ def check_keys(expected: Mapping[str, KeySpec], state_dict: Mapping[str, torch.T
     if not (missing or unexpected or shapes or dtypes):
         return
     lines = [f"{context} does not fit the model:"]
-    for title, items in (("missing keys", missing), ("unexpected keys", unexpected),
-                         ("shape mismatches", shapes), ("dtype mismatches", dtypes)):
+    for title, items in (
+        ("missing keys", missing),
+        ("unexpected keys", unexpected),
+        ("shape mismatches", shapes),
+        ("dtype mismatches", dtypes),
+    ):
         if items:
             lines.append(f"  {len(items)} {title}:")
             lines += [f"    {item}" for item in items]
@@ -149,7 +171,9 @@ class TableCheck:
 def decide_geometry(checks: Sequence[TableCheck], policy: str, *, context: str = "checkpoint") -> str:
     """Return which geometry to use, ``'checkpoint'`` or ``'rig'``, according to ``policy``."""
     if policy not in GEOMETRY_POLICIES:
-        raise CheckpointError(f"geometry={policy!r} is not a geometry policy (use one of {', '.join(GEOMETRY_POLICIES)})")
+        raise CheckpointError(
+            f"geometry={policy!r} is not a geometry policy (use one of {', '.join(GEOMETRY_POLICIES)})"
+        )
     differing = [c for c in checks if not c.agrees]
     if policy == "verify":
         if differing:
@@ -158,13 +182,17 @@ def decide_geometry(checks: Sequence[TableCheck], policy: str, *, context: str =
                 f"{context}: the geometry stored in the checkpoint differs from the one recomputed for this rig "
                 f"and configuration, so the rig (camera intrinsics or view-transform ranges) differs from the one "
                 f"the checkpoint was trained with:\n{details}\n"
-                "Pass geometry='checkpoint' to use the stored tables or geometry='rig' to use the recomputed ones.")
+                "Pass geometry='checkpoint' to use the stored tables or geometry='rig' to use the recomputed ones."
+            )
         return "checkpoint"
     if differing:
         details = "; ".join(c.describe() for c in differing)
-        warnings.warn(f"{context}: stored and recomputed geometry differ ({details}); using the "
-                      f"{'stored' if policy == 'checkpoint' else 'recomputed'} tables as geometry={policy!r} asks",
-                      UserWarning, stacklevel=3)
+        warnings.warn(
+            f"{context}: stored and recomputed geometry differ ({details}); using the "
+            f"{'stored' if policy == 'checkpoint' else 'recomputed'} tables as geometry={policy!r} asks",
+            UserWarning,
+            stacklevel=3,
+        )
     return policy
 
 
@@ -191,18 +219,32 @@ class OfficialCheckpointModel(Protocol):
         """Compare stored geometry with the recomputation and adopt one of them per ``policy``."""
 
 
-def load_official_state_dict(model: OfficialCheckpointModel, state_dict: Mapping[str, torch.Tensor], *,
-                             geometry: str = "verify", ignore: Sequence[str] = (),
-                             context: str = "checkpoint") -> GeometryReport:
+def load_official_state_dict(
+    model: OfficialCheckpointModel,
+    state_dict: Mapping[str, torch.Tensor],
+    *,
+    geometry: str = "verify",
+    ignore: Sequence[str] = (),
+    context: str = "checkpoint",
+) -> GeometryReport:
     """Check every key, load weights strictly and reconcile geometry. ``ignore`` keys are dropped with a warning."""
     if geometry not in GEOMETRY_POLICIES:
-        raise CheckpointError(f"geometry={geometry!r} is not a geometry policy (use one of {', '.join(GEOMETRY_POLICIES)})")
+        raise CheckpointError(
+            f"geometry={geometry!r} is not a geometry policy (use one of {', '.join(GEOMETRY_POLICIES)})"
+        )
     present = [k for k in ignore if k in state_dict]
     if present:
-        warnings.warn(f"{context}: ignoring keys that the inference graph never uses: {', '.join(present)}",
-                      UserWarning, stacklevel=2)
+        warnings.warn(
+            f"{context}: ignoring keys that the inference graph never uses: {', '.join(present)}",
+            UserWarning,
+            stacklevel=2,
+        )
     expected = model.official_keys()
-    sd = {k: _as_scalar(v) if k in expected and len(expected[k][0]) == 0 else v for k, v in state_dict.items() if k not in present}
+    sd = {
+        k: _as_scalar(v) if k in expected and len(expected[k][0]) == 0 else v
+        for k, v in state_dict.items()
+        if k not in present
+    }
     check_keys(expected, sd, context=context)
     from .registry import entry_of
 

@@ -32,8 +32,18 @@ from .mmconfig import Section, as_tuple, read_mmdet3d_config
 if TYPE_CHECKING:
     from fisheye_infer.geometry.kinds import GeometryParams
 
-__all__ = ["Preprocessing", "ImageConfig", "BackboneConfig", "CylinderConfig", "ModelConfig", "feature_size_of", "build_section",
-           "read_image", "read_backbone", "read_classes"]
+__all__ = [
+    "Preprocessing",
+    "ImageConfig",
+    "BackboneConfig",
+    "CylinderConfig",
+    "ModelConfig",
+    "feature_size_of",
+    "build_section",
+    "read_image",
+    "read_backbone",
+    "read_classes",
+]
 
 C = TypeVar("C", bound="ModelConfig")
 
@@ -187,8 +197,14 @@ class ModelConfig:
     def preprocess(self) -> Preprocessing:
         """What the model takes (raw camera images) and how it normalises them."""
         img = self.image
-        return Preprocessing(image_size=(img.width, img.height), colour_order="BGR", mean=tuple(img.mean), std=tuple(img.std),
-                             cameras=tuple(img.camera_names), classes=tuple(self.class_names))
+        return Preprocessing(
+            image_size=(img.width, img.height),
+            colour_order="BGR",
+            mean=tuple(img.mean),
+            std=tuple(img.std),
+            cameras=tuple(img.camera_names),
+            classes=tuple(self.class_names),
+        )
 
     # -- conversion ----------------------------------------------------------------------
 
@@ -235,12 +251,24 @@ class ModelConfig:
 def read_image(model: Section, cfg: Mapping[str, Any], height: int, width: int, default: ImageConfig) -> ImageConfig:
     """The ``image`` section: the data preprocessor's statistics, the test pipeline's camera order."""
     pre = model.sub("data_preprocessor", required=False)
-    cams = next((p.get("load_cam_names") for p in cfg.get("test_pipeline") or [] if isinstance(p, Mapping) and "load_cam_names" in p), None)
+    cams = next(
+        (
+            p.get("load_cam_names")
+            for p in cfg.get("test_pipeline") or []
+            if isinstance(p, Mapping) and "load_cam_names" in p
+        ),
+        None,
+    )
     mean = pre.numbers("mean", 3) if "mean" in pre else default.mean
     std = pre.numbers("std", 3) if "std" in pre else default.std
-    return ImageConfig(height=int(height), width=int(width), mean=mean, std=std,
-                       bgr_to_rgb=bool(pre.get("bgr_to_rgb", False) or pre.get("rgb_to_bgr", False)),
-                       camera_names=tuple(str(c) for c in cams) if cams else default.camera_names)
+    return ImageConfig(
+        height=int(height),
+        width=int(width),
+        mean=mean,
+        std=std,
+        bgr_to_rgb=bool(pre.get("bgr_to_rgb", False) or pre.get("rgb_to_bgr", False)),
+        camera_names=tuple(str(c) for c in cams) if cams else default.camera_names,
+    )
 
 
 def read_backbone(model: Section, default: BackboneConfig, *, required: bool = True) -> BackboneConfig:
@@ -255,12 +283,16 @@ def read_backbone(model: Section, default: BackboneConfig, *, required: bool = T
     # one stride and one dilation per stage (num_stages is 4, checked above)
     strides = bb.numbers("strides", 4, int) if "strides" in bb else default.strides
     dilations = bb.numbers("dilations", 4, int) if "dilations" in bb else default.dilations
-    return BackboneConfig(depth=int(bb.get("depth", default.depth)), base_channels=int(bb.get("base_channels", default.base_channels)),
-                          strides=strides, dilations=dilations,
-                          out_indices=ints(bb, "out_indices", default.out_indices),
-                          neck_in_channels=ints(neck, "in_channels", default.neck_in_channels),
-                          neck_out_channels=int(neck.get("out_channels", default.neck_out_channels)),
-                          neck_num_outs=int(neck.get("num_outs", default.neck_num_outs)))
+    return BackboneConfig(
+        depth=int(bb.get("depth", default.depth)),
+        base_channels=int(bb.get("base_channels", default.base_channels)),
+        strides=strides,
+        dilations=dilations,
+        out_indices=ints(bb, "out_indices", default.out_indices),
+        neck_in_channels=ints(neck, "in_channels", default.neck_in_channels),
+        neck_out_channels=int(neck.get("out_channels", default.neck_out_channels)),
+        neck_num_outs=int(neck.get("num_outs", default.neck_num_outs)),
+    )
 
 
 def read_classes(cfg: Mapping[str, Any], default: tuple[str, ...]) -> tuple[str, ...]:

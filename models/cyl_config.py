@@ -32,8 +32,14 @@ from .config import BackboneConfig, CylinderConfig, feature_size_of
 from .mmconfig import Section
 from .petr_config import PETRConfig, PETRHeadConfig, head_fields
 
-__all__ = ["RELEASED_HORIZONTAL_RANGE", "RELEASED_VERTICAL_RANGE", "CylViewTransformConfig", "BEVDetCylConfig",
-           "CylPETRHeadConfig", "CylPETRConfig"]
+__all__ = [
+    "RELEASED_HORIZONTAL_RANGE",
+    "RELEASED_VERTICAL_RANGE",
+    "CylViewTransformConfig",
+    "BEVDetCylConfig",
+    "CylPETRHeadConfig",
+    "CylPETRConfig",
+]
 
 #: The released configs' ranges, which their code uses as radians (see the module docstring).
 RELEASED_HORIZONTAL_RANGE = (-110.0, 110.0)
@@ -75,25 +81,40 @@ class BEVDetCylConfig(BEVDetConfig):
     def validate(self) -> None:
         """FisheyeBEVDet's cross-field checks, plus the cylinder, feature map and depth bins agreeing."""
         if not isinstance(self.view_transform, CylViewTransformConfig):
-            raise ConfigError(f"view_transform: expected a CylViewTransformConfig, got {type(self.view_transform).__name__}")
+            raise ConfigError(
+                f"view_transform: expected a CylViewTransformConfig, got {type(self.view_transform).__name__}"
+            )
         check_cylinder((self.cylinder.height, self.cylinder.width), "cylinder.height/width")
         super().validate()
         expected = feature_size_of((self.cylinder.height, self.cylinder.width), self.backbone)
         if tuple(self.view_transform.feature_size) != expected:
-            raise ConfigError(f"view_transform.feature_size={tuple(self.view_transform.feature_size)} but a "
-                              f"{self.cylinder.height}x{self.cylinder.width} cylinder (cylinder.height/width) gives "
-                              f"stride-16 features of {expected[0]}x{expected[1]}")
+            raise ConfigError(
+                f"view_transform.feature_size={tuple(self.view_transform.feature_size)} but a "
+                f"{self.cylinder.height}x{self.cylinder.width} cylinder (cylinder.height/width) gives "
+                f"stride-16 features of {expected[0]}x{expected[1]}"
+            )
         if self.view_transform.num_depth_bins < 1:
             raise ConfigError(f"view_transform.dbound={self.view_transform.dbound} gives no depth bin")
-        check_ranges(self.view_transform.azimuth_range, self.view_transform.elevation_range,
-                     "view_transform.azimuth_range", "view_transform.elevation_range")
+        check_ranges(
+            self.view_transform.azimuth_range,
+            self.view_transform.elevation_range,
+            "view_transform.azimuth_range",
+            "view_transform.elevation_range",
+        )
 
     def geometry_params(self) -> Any:
         vt = self.view_transform
-        return CylLSSParams(feature_size=tuple(vt.feature_size), azimuth_range=tuple(vt.azimuth_range),
-                            elevation_range=tuple(vt.elevation_range), image_size=(self.cylinder.height, self.cylinder.width),
-                            source_size=(self.image.height, self.image.width),
-                            dbound=tuple(vt.dbound), xbound=tuple(vt.xbound), ybound=tuple(vt.ybound), zbound=tuple(vt.zbound))
+        return CylLSSParams(
+            feature_size=tuple(vt.feature_size),
+            azimuth_range=tuple(vt.azimuth_range),
+            elevation_range=tuple(vt.elevation_range),
+            image_size=(self.cylinder.height, self.cylinder.width),
+            source_size=(self.image.height, self.image.width),
+            dbound=tuple(vt.dbound),
+            xbound=tuple(vt.xbound),
+            ybound=tuple(vt.ybound),
+            zbound=tuple(vt.zbound),
+        )
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
@@ -110,7 +131,9 @@ class BEVDetCylConfig(BEVDetConfig):
         vt.type_is("CylindricalLSSTransform", required=True)
         size = vt.numbers("image_size", 2, int) if "image_size" in vt else None
         size, hr, vr = _agree_with_pipeline(cfg, size, *_ranges(vt), vt)
-        view = CylViewTransformConfig(**view_transform_fields(vt, d.view_transform), azimuth_range=hr, elevation_range=vr)
+        view = CylViewTransformConfig(
+            **view_transform_fields(vt, d.view_transform), azimuth_range=hr, elevation_range=vr
+        )
         return {"view_transform": view, "cylinder": CylinderConfig(*size) if size is not None else CylinderConfig()}
 
 
@@ -140,17 +163,26 @@ class CylPETRConfig(PETRConfig):
         check_cylinder(size, "cylinder.height/width")
         expected = feature_size_of(size, self.backbone)
         if tuple(self.head.feature_size) != expected:
-            raise ConfigError(f"head.feature_size={tuple(self.head.feature_size)} but cylinder.height/width={size} "
-                              f"gives stride-16 features of {expected[0]}x{expected[1]}")
+            raise ConfigError(
+                f"head.feature_size={tuple(self.head.feature_size)} but cylinder.height/width={size} "
+                f"gives stride-16 features of {expected[0]}x{expected[1]}"
+            )
         check_ranges(self.head.azimuth_range, self.head.elevation_range, "head.azimuth_range", "head.elevation_range")
 
     def geometry_params(self) -> Any:
         h = self.head
-        return CylPETRParams(feature_size=tuple(h.feature_size), azimuth_range=tuple(h.azimuth_range),
-                             elevation_range=tuple(h.elevation_range), image_size=(self.cylinder.height, self.cylinder.width),
-                             source_size=(self.image.height, self.image.width),
-                             depth_num=h.depth_num, depth_start=h.depth_start, position_range=tuple(h.position_range),
-                             num_feats=h.embed_dims // 2, temperature=h.pe_temperature)
+        return CylPETRParams(
+            feature_size=tuple(h.feature_size),
+            azimuth_range=tuple(h.azimuth_range),
+            elevation_range=tuple(h.elevation_range),
+            image_size=(self.cylinder.height, self.cylinder.width),
+            source_size=(self.image.height, self.image.width),
+            depth_num=h.depth_num,
+            depth_start=h.depth_start,
+            position_range=tuple(h.position_range),
+            num_feats=h.embed_dims // 2,
+            temperature=h.pe_temperature,
+        )
 
     @classmethod
     def _read_head(cls, head: Section, cfg: Mapping[str, Any], d: PETRConfig) -> dict[str, Any]:
@@ -164,10 +196,16 @@ class CylPETRConfig(PETRConfig):
         cylinder = CylinderConfig(*size) if size is not None else CylinderConfig()
         model = Section(cfg.get("model"), "model", head.source)
         bb = model.sub("img_backbone", required=False)
-        backbone = BackboneConfig(strides=bb.numbers("strides", 4, int) if "strides" in bb else d.backbone.strides,
-                                  out_indices=tuple(int(i) for i in bb.get("out_indices", d.backbone.out_indices)))
+        backbone = BackboneConfig(
+            strides=bb.numbers("strides", 4, int) if "strides" in bb else d.backbone.strides,
+            out_indices=tuple(int(i) for i in bb.get("out_indices", d.backbone.out_indices)),
+        )
         fields = head_fields(head, d.head)
-        fields.update(azimuth_range=hr, elevation_range=vr, feature_size=feature_size_of((cylinder.height, cylinder.width), backbone))
+        fields.update(
+            azimuth_range=hr,
+            elevation_range=vr,
+            feature_size=feature_size_of((cylinder.height, cylinder.width), backbone),
+        )
         return {"head": CylPETRHeadConfig(**fields), "cylinder": cylinder}
 
 
@@ -194,9 +232,13 @@ def _ranges(section: Section) -> tuple[tuple[float, float], tuple[float, float]]
     return hr, vr
 
 
-def _agree_with_pipeline(cfg: Mapping[str, Any], size: tuple[int, ...] | None, hr: tuple[float, float],
-                         vr: tuple[float, float], model_section: Section
-                         ) -> tuple[tuple[int, int] | None, tuple[float, float], tuple[float, float]]:
+def _agree_with_pipeline(
+    cfg: Mapping[str, Any],
+    size: tuple[int, ...] | None,
+    hr: tuple[float, float],
+    vr: tuple[float, float],
+    model_section: Section,
+) -> tuple[tuple[int, int] | None, tuple[float, float], tuple[float, float]]:
     """Check the test pipeline's rectification step against the model's values; returns (H, W), ranges."""
     steps = [s for s in cfg.get("test_pipeline") or [] if isinstance(s, Mapping) and s.get("type") == _PIPELINE_STEP]
     if not steps:
@@ -205,12 +247,16 @@ def _agree_with_pipeline(cfg: Mapping[str, Any], size: tuple[int, ...] | None, h
     p_hr, p_vr = _ranges(step)
     for name, ours, theirs in (("horizontal_range", hr, p_hr), ("vertical_range", vr, p_vr)):
         if not all(math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12) for a, b in zip(ours, theirs)):
-            raise ConfigError(f"{step.source}: {step.where(name)}={theirs} differs from {model_section.where(name)}={ours}; the images "
-                              "and the 3D rays would describe different cylinders")
+            raise ConfigError(
+                f"{step.source}: {step.where(name)}={theirs} differs from {model_section.where(name)}={ours}; the images "
+                "and the 3D rays would describe different cylinders"
+            )
     if "image_size" in step:
         w, h = step.numbers("image_size", 2, int)  # the pipeline writes (W, H)
         if size is not None and tuple(size) != (h, w):
-            raise ConfigError(f"{step.source}: {step.where('image_size')}=(W={w}, H={h}) differs from "
-                              f"{model_section.where('image_size')}={tuple(size)} (H, W)")
+            raise ConfigError(
+                f"{step.source}: {step.where('image_size')}=(W={w}, H={h}) differs from "
+                f"{model_section.where('image_size')}={tuple(size)} (H, W)"
+            )
         size = (h, w)
     return size, hr, vr  # type: ignore[return-value]

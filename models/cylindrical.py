@@ -40,5 +40,7 @@ def check_rig_image_size(rig: Any, height: int, width: int, field: str) -> None:
     """The rectification grid is in the rig camera's pixels: refuse input images of another size."""
     camera = rig.shared_model()
     if (camera.height, camera.width) != (height, width):
-        raise ConfigError(f"{field}: the configuration expects {height}x{width} fisheye images, but the rig's "
-                          f"camera model is {camera.height}x{camera.width}")
+        raise ConfigError(
+            f"{field}: the configuration expects {height}x{width} fisheye images, but the rig's "
+            f"camera model is {camera.height}x{camera.width}"
+        )

@@ -32,11 +32,20 @@ from .registry import register_model
 from .transfusion import INT8_FLOAT, SCORE_SEMANTICS, TransFusionHead
 from .view_transform import AnyLSSGeometry, FisheyeLSS
 
-__all__ = ["FisheyeBEVDet", "checkpoint_filter_fn", "bev_grid_checks", "GEOMETRY_KEYS", "IGNORED_KEYS", "SIGNATURE_KEYS"]
+__all__ = [
+    "FisheyeBEVDet",
+    "checkpoint_filter_fn",
+    "bev_grid_checks",
+    "GEOMETRY_KEYS",
+    "IGNORED_KEYS",
+    "SIGNATURE_KEYS",
+]
 
 _VT = "view_transform."
 #: Official checkpoint keys holding geometry tables (not weights of this model).
-GEOMETRY_KEYS = tuple(_VT + k for k in ("frustum", "sphere_grid_3d", "dx", "bx", "nx", "valid_fov_mask", "sphere_grid_2d"))
+GEOMETRY_KEYS = tuple(
+    _VT + k for k in ("frustum", "sphere_grid_3d", "dx", "bx", "nx", "valid_fov_mask", "sphere_grid_2d")
+)
 #: Keys an older code version may have saved; never used by the inference graph. At the released
 #: commit (84a5bbd) they cannot occur: ``BaseFisheyeLSSTransform.__init__`` calls ``self.init_layer()``,
 #: which dispatches to ``FisheyeLSSTransform.init_layer`` (depthnet only), so the base class's
@@ -57,19 +66,29 @@ def checkpoint_filter_fn(state_dict: Mapping[str, torch.Tensor]) -> dict[str, to
 
 def bev_grid_checks(state_dict: Mapping[str, torch.Tensor], bev: BevGrid) -> tuple[TableCheck, ...]:
     """dx, bx, nx must equal the configuration's grid whatever the policy: they size the BEV tensor."""
-    hard = (TableCheck(_VT + "dx", as_numpy(state_dict[_VT + "dx"]), bev.dx, atol=BEV_ATOL),
-            TableCheck(_VT + "bx", as_numpy(state_dict[_VT + "bx"]), bev.bx, atol=BEV_ATOL),
-            TableCheck(_VT + "nx", as_numpy(state_dict[_VT + "nx"]), np.array(bev.nx)))
+    hard = (
+        TableCheck(_VT + "dx", as_numpy(state_dict[_VT + "dx"]), bev.dx, atol=BEV_ATOL),
+        TableCheck(_VT + "bx", as_numpy(state_dict[_VT + "bx"]), bev.bx, atol=BEV_ATOL),
+        TableCheck(_VT + "nx", as_numpy(state_dict[_VT + "nx"]), np.array(bev.nx)),
+    )
     bad = [c for c in hard if not c.agrees]
     if bad:
-        raise CheckpointError("the checkpoint's BEV grid differs from the configuration's (xbound/ybound/zbound): "
-                              + "; ".join(c.describe() for c in bad))
+        raise CheckpointError(
+            "the checkpoint's BEV grid differs from the configuration's (xbound/ybound/zbound): "
+            + "; ".join(c.describe() for c in bad)
+        )
     return hard
 
 
-@register_model("fisheye-bevdet", manifest="fisheye_bevdet_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=(*SIGNATURE_KEYS, _VT + "sphere_grid_2d"), ignored_keys=IGNORED_KEYS, score_semantics=SCORE_SEMANTICS,
-                int8_float=INT8_FLOAT)
+@register_model(
+    "fisheye-bevdet",
+    manifest="fisheye_bevdet_keys.json",
+    checkpoint_filter=checkpoint_filter_fn,
+    signature_keys=(*SIGNATURE_KEYS, _VT + "sphere_grid_2d"),
+    ignored_keys=IGNORED_KEYS,
+    score_semantics=SCORE_SEMANTICS,
+    int8_float=INT8_FLOAT,
+)
 class FisheyeBEVDet(FisheyeDetector):
     """Camera-only BEV detector: ResNet-18 + FPN, fisheye LSS, SECOND + SECONDFPN, TransFusion head."""
 
@@ -79,7 +98,9 @@ class FisheyeBEVDet(FisheyeDetector):
     mean: torch.Tensor  # (3,) buffers
     std: torch.Tensor
 
-    def __init__(self, config: BEVDetConfig | None = None, rig: Any = None, geometry: AnyLSSGeometry | None = None) -> None:
+    def __init__(
+        self, config: BEVDetConfig | None = None, rig: Any = None, geometry: AnyLSSGeometry | None = None
+    ) -> None:
         super().__init__(config, rig, geometry)
         cfg = self.config
         img = cfg.image
@@ -90,13 +111,27 @@ class FisheyeBEVDet(FisheyeDetector):
         self.img_neck = FPN(bb.neck_in_channels, bb.neck_out_channels, bb.neck_num_outs)
         self.view_transform = self._build_view_transform(vt, self.rig_geometry)
         self.pts_backbone = SECOND(enc.in_channels, enc.out_channels, enc.layer_nums, enc.layer_strides, enc.bn_eps)
-        self.pts_neck = SECONDFPN(enc.fpn_in_channels, enc.fpn_out_channels, enc.upsample_strides,
-                                  enc.use_conv_for_no_stride, enc.bn_eps)
+        self.pts_neck = SECONDFPN(
+            enc.fpn_in_channels, enc.fpn_out_channels, enc.upsample_strides, enc.use_conv_for_no_stride, enc.bn_eps
+        )
         self.bbox_head = TransFusionHead(
-            hd.in_channels, hd.hidden_channel, hd.num_classes, hd.num_proposals, hd.nms_kernel_size,
-            hd.unsuppressed_classes, hd.num_decoder_layers, hd.num_heads, hd.ffn_channels,
-            dict(hd.common_heads), hd.head_conv, hd.bev_size, hd.out_size_factor, hd.voxel_size,
-            hd.pc_range, hd.post_center_range)
+            hd.in_channels,
+            hd.hidden_channel,
+            hd.num_classes,
+            hd.num_proposals,
+            hd.nms_kernel_size,
+            hd.unsuppressed_classes,
+            hd.num_decoder_layers,
+            hd.num_heads,
+            hd.ffn_channels,
+            dict(hd.common_heads),
+            hd.head_conv,
+            hd.bev_size,
+            hd.out_size_factor,
+            hd.voxel_size,
+            hd.pc_range,
+            hd.post_center_range,
+        )
         self.eval()
 
     def _build_view_transform(self, cfg: ViewTransformConfig, geometry: Any) -> FisheyeLSS:
@@ -110,8 +145,13 @@ class FisheyeBEVDet(FisheyeDetector):
         (see ``normalise_frames`` for where each step runs); no front end, so ``tables`` is not read."""
         return normalise_frames(images, self.mean, self.std)
 
-    def scene_features(self, feats: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                       tables: dict[str, torch.Tensor] | None = None, cam2lidar: Any = None) -> torch.Tensor:
+    def scene_features(
+        self,
+        feats: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        tables: dict[str, torch.Tensor] | None = None,
+        cam2lidar: Any = None,
+    ) -> torch.Tensor:
         """Image features B x V x C x h x w -> B x C x X x Y BEV features (before SECOND), by the view transform.
 
         With ``cam2lidar`` the view transform pools per sample with ``index_add_`` (reference speed,
@@ -127,8 +167,12 @@ class FisheyeBEVDet(FisheyeDetector):
         out["bev"] = scene
         return out
 
-    def extract_bev(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                    tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+    def extract_bev(
+        self,
+        images: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        tables: dict[str, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         """Deprecated: ``scene_features(image_features(images, tables), camera_valid, tables)``."""
         self._deprecated("extract_bev", "scene_features(image_features(images))")
         tables = tables or self.geometry_tables()
@@ -143,8 +187,13 @@ class FisheyeBEVDet(FisheyeDetector):
         raw: dict[str, torch.Tensor] = self.bbox_head.forward_raw(self.pts_neck(self.pts_backbone(bev)))
         return raw
 
-    def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                return_extras: bool = False, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self,
+        images: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        return_extras: bool = False,
+        tables: dict[str, torch.Tensor] | None = None,
+    ) -> dict[str, torch.Tensor]:
         """images B x N x H x W x 3 (uint8 BGR), camera_valid B x N (1 = present) ->
         boxes B x P x 7 (x, y, z_bottom, l, w, h, yaw), scores B x P, labels B x P int64, valid B x P bool,
         and the ranking step's ``rank_scores`` / ``rank_indices`` (see ``models.ranking``).
@@ -158,8 +207,9 @@ class FisheyeBEVDet(FisheyeDetector):
             return out
         return {k: out[k] for k in OUTPUTS + RANKING_OUTPUTS}
 
-    def forward_dynamic(self, images: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray,
-                        camera_valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward_dynamic(
+        self, images: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray, camera_valid: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """Per-sample extrinsics (B x N x 4 x 4) instead of the baked rig, for parity on dataset frames.
 
         Pools with ``index_add_`` per sample (reference speed, not exportable). The intrinsic grid
@@ -180,9 +230,15 @@ class FisheyeBEVDet(FisheyeDetector):
         h, w = vt.feature_size
         d = vt.num_depth_bins
         f32 = torch.float32
-        return {_VT + "frustum": ((d, h, w, 3), f32), _VT + "sphere_grid_3d": ((d, h, w, 3), f32),
-                _VT + "dx": ((3,), f32), _VT + "bx": ((3,), f32), _VT + "nx": ((3,), torch.int64),
-                _VT + "valid_fov_mask": ((1, 1, h, w), f32), _VT + "sphere_grid_2d": ((h, w, 2), f32)}
+        return {
+            _VT + "frustum": ((d, h, w, 3), f32),
+            _VT + "sphere_grid_3d": ((d, h, w, 3), f32),
+            _VT + "dx": ((3,), f32),
+            _VT + "bx": ((3,), f32),
+            _VT + "nx": ((3,), torch.int64),
+            _VT + "valid_fov_mask": ((1, 1, h, w), f32),
+            _VT + "sphere_grid_2d": ((h, w, 2), f32),
+        }
 
     def official_keys(self) -> dict[str, KeySpec]:
         """All official keys in checkpoint order: weights, with the geometry tables before depthnet."""
@@ -198,13 +254,19 @@ class FisheyeBEVDet(FisheyeDetector):
         g = self.view_transform.geometry
         assert isinstance(g, LSSGeometry)  # FrustumBEVDet overrides this for its geometries
         d = g.frustum.shape[0]
-        grid3d = np.concatenate([np.broadcast_to(g.grid, (d, *g.grid.shape)),
-                                 np.zeros((d, *g.grid.shape[:2], 1), np.float32)], axis=-1)
+        grid3d = np.concatenate(
+            [np.broadcast_to(g.grid, (d, *g.grid.shape)), np.zeros((d, *g.grid.shape[:2], 1), np.float32)], axis=-1
+        )
         t = torch.from_numpy
-        return {_VT + "frustum": t(g.frustum.copy()), _VT + "sphere_grid_3d": t(np.ascontiguousarray(grid3d)),
-                _VT + "dx": t(g.bev_grid.dx.copy()), _VT + "bx": t(g.bev_grid.bx.copy()),
-                _VT + "nx": torch.tensor(g.bev_grid.nx, dtype=torch.int64),
-                _VT + "valid_fov_mask": t(g.valid_fov_mask.copy()), _VT + "sphere_grid_2d": t(g.grid.copy())}
+        return {
+            _VT + "frustum": t(g.frustum.copy()),
+            _VT + "sphere_grid_3d": t(np.ascontiguousarray(grid3d)),
+            _VT + "dx": t(g.bev_grid.dx.copy()),
+            _VT + "bx": t(g.bev_grid.bx.copy()),
+            _VT + "nx": torch.tensor(g.bev_grid.nx, dtype=torch.int64),
+            _VT + "valid_fov_mask": t(g.valid_fov_mask.copy()),
+            _VT + "sphere_grid_2d": t(g.grid.copy()),
+        }
 
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
         """Compare the stored tables with the rig's and install the ones ``policy`` selects."""
@@ -216,9 +278,11 @@ class FisheyeBEVDet(FisheyeDetector):
         frustum = as_numpy(state_dict[_VT + "frustum"])
         # Only slice 0 of sphere_grid_3d is ever used (it is sphere_grid_2d); in the other slices
         # float32 noise flips the two horizon rays at exactly +-110 degrees to the out-of-fov sentinel.
-        checks = (TableCheck(_VT + "sphere_grid_2d", grid2d, ref.grid, atol=GRID_ATOL),
-                  TableCheck(_VT + "sphere_grid_3d[0]", grid3d[0, ..., :2], ref.grid, atol=GRID_ATOL),
-                  TableCheck(_VT + "frustum", frustum, ref.frustum, atol=FRUSTUM_ATOL, rtol=FRUSTUM_RTOL))
+        checks = (
+            TableCheck(_VT + "sphere_grid_2d", grid2d, ref.grid, atol=GRID_ATOL),
+            TableCheck(_VT + "sphere_grid_3d[0]", grid3d[0, ..., :2], ref.grid, atol=GRID_ATOL),
+            TableCheck(_VT + "frustum", frustum, ref.frustum, atol=FRUSTUM_ATOL, rtol=FRUSTUM_RTOL),
+        )
         source = decide_geometry(checks, policy, context="FisheyeBEVDet checkpoint")
         geometry = ref.with_tables(grid=grid2d, frustum=frustum) if source == "checkpoint" else ref
         self.set_geometry(geometry)

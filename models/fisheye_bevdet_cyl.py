@@ -41,9 +41,16 @@ __all__ = ["FisheyeBEVDetCyl", "checkpoint_filter_fn", "GEOMETRY_KEYS", "FRUSTUM
 FRUSTUM_ATOL = 2e-3
 
 
-@register_model("fisheye-bevdet-cyl", manifest="fisheye_bevdet_cyl_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=SIGNATURE_KEYS, absent_keys=("view_transform.sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
-                int8_float=INT8_FLOAT, predicate=has_camera_frame_frustum)
+@register_model(
+    "fisheye-bevdet-cyl",
+    manifest="fisheye_bevdet_cyl_keys.json",
+    checkpoint_filter=checkpoint_filter_fn,
+    signature_keys=SIGNATURE_KEYS,
+    absent_keys=("view_transform.sphere_grid_2d",),
+    score_semantics=SCORE_SEMANTICS,
+    int8_float=INT8_FLOAT,
+    predicate=has_camera_frame_frustum,
+)
 class FisheyeBEVDetCyl(FrustumBEVDet):
     """Cylindrical-image BEV detector: rectification, ResNet-18 + FPN, cylindrical LSS, SECOND, TransFusion.
 
@@ -81,8 +88,14 @@ class FisheyeBEVDetCyl(FrustumBEVDet):
         """
         g = self.view_transform.geometry
         assert isinstance(g, CylLSSGeometry)  # what CylindricalLSS installs
-        index, weight = taps_for(tables or self.geometry_tables(), RECTIFY, g.image_grid, g.params.source_size,
-                                 images.shape[2:4], images.device)
+        index, weight = taps_for(
+            tables or self.geometry_tables(),
+            RECTIFY,
+            g.image_grid,
+            g.params.source_size,
+            images.shape[2:4],
+            images.device,
+        )
         x = rectify(images, index, weight, g.params.image_size)  # B x N x 3 x Hc x Wc
         x = (x - self.mean.reshape(1, 1, 3, 1, 1)) / self.std.reshape(1, 1, 3, 1, 1)
         return x.flatten(0, 1)

@@ -36,9 +36,16 @@ from .view_transform import RectifiedLSS
 __all__ = ["FisheyeBEVDetPersp"]
 
 
-@register_model("fisheye-bevdet-persp", manifest="fisheye_bevdet_persp_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=SIGNATURE_KEYS, absent_keys=("view_transform.sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
-                int8_float=INT8_FLOAT, predicate=has_image_plane_frustum)
+@register_model(
+    "fisheye-bevdet-persp",
+    manifest="fisheye_bevdet_persp_keys.json",
+    checkpoint_filter=checkpoint_filter_fn,
+    signature_keys=SIGNATURE_KEYS,
+    absent_keys=("view_transform.sphere_grid_2d",),
+    score_semantics=SCORE_SEMANTICS,
+    int8_float=INT8_FLOAT,
+    predicate=has_image_plane_frustum,
+)
 class FisheyeBEVDetPersp(FrustumBEVDet):
     """Perspective-view BEV detector: cv2.remap rectification (two views per fisheye), ResNet-18 + FPN, standard LSS, SECOND, TransFusion."""
 
@@ -60,11 +67,21 @@ class FisheyeBEVDetPersp(FrustumBEVDet):
         """
         g, p = self.view_transform.geometry, self.config.perspective
         assert isinstance(g, PinholeLSSGeometry) and g.image_grid is not None  # perspective views have a remap grid
-        x = perspective_views(images, tables or self.geometry_tables(), g.image_grid, g.params.source_size,
-                              len(p.yaws), p.size, p.truncate)
+        x = perspective_views(
+            images,
+            tables or self.geometry_tables(),
+            g.image_grid,
+            g.params.source_size,
+            len(p.yaws),
+            p.size,
+            p.truncate,
+        )
         x = (x - self.mean.reshape(1, 1, 1, 3, 1, 1)) / self.std.reshape(1, 1, 1, 3, 1, 1)
         return x.reshape(-1, 3, *p.size)
 
-    def forward_dynamic(self, images: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray,
-                        camera_valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        raise ConfigError("fisheye-bevdet-persp: per-frame extrinsics are not supported; build the model for the frame's rig instead")
+    def forward_dynamic(
+        self, images: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray, camera_valid: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
+        raise ConfigError(
+            "fisheye-bevdet-persp: per-frame extrinsics are not supported; build the model for the frame's rig instead"
+        )

@@ -43,8 +43,11 @@ MASK_ATOL = 5e-3  # sampled validity; a 1e-5 grid shift moves a lens-edge sample
 FRUSTUM_RTOL, FRUSTUM_ATOL = 1e-6, 5e-5
 #: Keys every FisheyePETR-family checkpoint holds; the spherical one also ``sphere_grid_2d``.
 SIGNATURE_KEYS = (_HEAD + "position_encoder.0.weight", _HEAD + "query_embedding.0.weight")
-_PRE_V2_RENAMES = ((".self_attn.", ".attentions.0."), (".multihead_attn.", ".attentions.1."),
-                   (".decoder.norm.", ".decoder.post_norm."))
+_PRE_V2_RENAMES = (
+    (".self_attn.", ".attentions.0."),
+    (".multihead_attn.", ".attentions.1."),
+    (".decoder.norm.", ".decoder.post_norm."),
+)
 
 
 def rename_official_keys(state_dict: Mapping[str, Any]) -> dict[str, Any]:
@@ -72,9 +75,14 @@ def checkpoint_filter_fn(state_dict: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in rename_official_keys(state_dict).items() if k not in GEOMETRY_KEYS}
 
 
-@register_model("fisheye-petr", manifest="fisheye_petr_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=(*SIGNATURE_KEYS, _HEAD + "sphere_grid_2d"), score_semantics=SCORE_SEMANTICS,
-                int8_float=INT8_FLOAT)
+@register_model(
+    "fisheye-petr",
+    manifest="fisheye_petr_keys.json",
+    checkpoint_filter=checkpoint_filter_fn,
+    signature_keys=(*SIGNATURE_KEYS, _HEAD + "sphere_grid_2d"),
+    score_semantics=SCORE_SEMANTICS,
+    int8_float=INT8_FLOAT,
+)
 class FisheyePETR(FisheyeDetector):
     """Normalisation -> ResNet-18 -> FPN (P3 only) -> FisheyePETRHead -> NMS-free decoding.
 
@@ -94,8 +102,9 @@ class FisheyePETR(FisheyeDetector):
     pixel_mean: torch.Tensor  # (1, 1, 3, 1, 1) buffers
     pixel_std: torch.Tensor
 
-    def __init__(self, config: PETRConfig | None = None, rig: Any = None,
-                 geometry: AnyPETRGeometry | None = None) -> None:
+    def __init__(
+        self, config: PETRConfig | None = None, rig: Any = None, geometry: AnyPETRGeometry | None = None
+    ) -> None:
         super().__init__(config, rig, geometry)
         cfg, bb = self.config, self.config.backbone
         self.pts_bbox_head = self._build_head(cfg, self.rig_geometry)
@@ -116,8 +125,13 @@ class FisheyePETR(FisheyeDetector):
         no front end, so ``tables`` is not read."""
         return normalise_frames(images, self.pixel_mean, self.pixel_std, self.config.image.bgr_to_rgb)
 
-    def scene_features(self, feats: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                       tables: dict[str, torch.Tensor] | None = None, cam2lidar: Any = None) -> torch.Tensor:
+    def scene_features(
+        self,
+        feats: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        tables: dict[str, torch.Tensor] | None = None,
+        cam2lidar: Any = None,
+    ) -> torch.Tensor:
         """P3 B x V x C x h x w -> decoder output B x Q x C: the features warped onto the key grid and attended
         with the keys' 3D position embedding (recomputed per frame from ``cam2lidar``, untraceable)."""
         return self.pts_bbox_head.forward_decoder(feats, camera_valid, cam2lidar, tables=tables)
@@ -128,18 +142,30 @@ class FisheyePETR(FisheyeDetector):
         cls, preds = head.predict(scene)
         return decode_predictions(cls, preds, head.select, head.cfg.post_center_range)
 
-    def predict(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                tables: dict[str, torch.Tensor] | None = None, cam2lidar: Any = None) -> dict[str, torch.Tensor]:
+    def predict(
+        self,
+        images: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        tables: dict[str, torch.Tensor] | None = None,
+        cam2lidar: Any = None,
+    ) -> dict[str, torch.Tensor]:
         """As :meth:`FisheyeDetector.predict`, with ``scene_features`` and ``head_outputs`` run as one call of
         ``pts_bbox_head``: a traced graph then records their nodes under that module, the path the int8
         file's float-kept modules (``INT8_FLOAT``) are named by."""
         tables = tables or self.geometry_tables()
         feats = self.image_features(images, tables)
-        out: dict[str, torch.Tensor] = self.pts_bbox_head(feats, self.view_valid(camera_valid, feats.shape[1]), cam2lidar, tables)
+        out: dict[str, torch.Tensor] = self.pts_bbox_head(
+            feats, self.view_valid(camera_valid, feats.shape[1]), cam2lidar, tables
+        )
         return out
 
-    def forward(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                cam2lidar: Any = None, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self,
+        images: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        cam2lidar: Any = None,
+        tables: dict[str, torch.Tensor] | None = None,
+    ) -> dict[str, torch.Tensor]:
         """images uint8 (B, N, H, W, 3) BGR, camera_valid bool (B, N) -> dict of
 
         boxes (B, 300, 7) [x, y, z_bottom, dx, dy, dz, yaw] lidar frame, scores (B, 300),
@@ -177,8 +203,12 @@ class FisheyePETR(FisheyeDetector):
     def official_geometry_specs(self) -> dict[str, KeySpec]:
         fh, fw = self.config.head.feature_size
         d, f32 = self.config.head.num_frustum_depths, torch.float32
-        return {GEOMETRY_KEYS[0]: ((d, fh, fw, 3), f32), GEOMETRY_KEYS[1]: ((d, fh, fw, 3), f32),
-                GEOMETRY_KEYS[2]: ((fh, fw, 2), f32), GEOMETRY_KEYS[3]: ((1, 1, fh, fw), f32)}
+        return {
+            GEOMETRY_KEYS[0]: ((d, fh, fw, 3), f32),
+            GEOMETRY_KEYS[1]: ((d, fh, fw, 3), f32),
+            GEOMETRY_KEYS[2]: ((fh, fw, 2), f32),
+            GEOMETRY_KEYS[3]: ((1, 1, fh, fw), f32),
+        }
 
     def official_keys(self) -> dict[str, KeySpec]:
         """All official keys in checkpoint order: the geometry tables follow ``code_weights``."""
@@ -196,8 +226,10 @@ class FisheyePETR(FisheyeDetector):
         frustum = spherical_frustum(depth_bins(cfg.dbound), cfg.feature_size, cfg.azimuth_range, cfg.elevation_range)
         grid = np.asarray(geometry.grid, dtype=np.float32)
         # world2cam depends only on the ray direction, so every depth slice holds the same grid.
-        grid3d = np.concatenate([np.broadcast_to(grid, (frustum.shape[0], *grid.shape)),
-                                 np.zeros((*frustum.shape[:3], 1), np.float32)], axis=-1)
+        grid3d = np.concatenate(
+            [np.broadcast_to(grid, (frustum.shape[0], *grid.shape)), np.zeros((*frustum.shape[:3], 1), np.float32)],
+            axis=-1,
+        )
         mask = np.asarray(geometry.unvalid_area, dtype=np.float32).reshape(1, 1, *grid.shape[:2])
         return dict(zip(GEOMETRY_KEYS, (frustum, np.ascontiguousarray(grid3d), grid, mask)))
 
@@ -215,16 +247,27 @@ class FisheyePETR(FisheyeDetector):
         stored = {k: as_numpy(state_dict[k]) for k in GEOMETRY_KEYS}
         grid2d, grid3d = stored[GEOMETRY_KEYS[2]], stored[GEOMETRY_KEYS[1]]
         if not np.array_equal(grid3d[0, ..., :2], grid2d):
-            raise CheckpointError(f"{GEOMETRY_KEYS[2]} is not {GEOMETRY_KEYS[1]}[0, ..., :2]; the checkpoint's "
-                                  "geometry tables are inconsistent")
+            raise CheckpointError(
+                f"{GEOMETRY_KEYS[2]} is not {GEOMETRY_KEYS[1]}[0, ..., :2]; the checkpoint's "
+                "geometry tables are inconsistent"
+            )
         ref = self.rig_geometry
         assert isinstance(ref, PETRGeometry)  # ResampledPETR overrides this for its geometries
         tables = self._official_tables(ref)
-        checks = (TableCheck(GEOMETRY_KEYS[2], grid2d, tables[GEOMETRY_KEYS[2]], atol=GRID_ATOL),
-                  TableCheck(GEOMETRY_KEYS[3], stored[GEOMETRY_KEYS[3]], tables[GEOMETRY_KEYS[3]], atol=MASK_ATOL),
-                  TableCheck(GEOMETRY_KEYS[0], stored[GEOMETRY_KEYS[0]], tables[GEOMETRY_KEYS[0]],
-                             atol=FRUSTUM_ATOL, rtol=FRUSTUM_RTOL))
+        checks = (
+            TableCheck(GEOMETRY_KEYS[2], grid2d, tables[GEOMETRY_KEYS[2]], atol=GRID_ATOL),
+            TableCheck(GEOMETRY_KEYS[3], stored[GEOMETRY_KEYS[3]], tables[GEOMETRY_KEYS[3]], atol=MASK_ATOL),
+            TableCheck(
+                GEOMETRY_KEYS[0],
+                stored[GEOMETRY_KEYS[0]],
+                tables[GEOMETRY_KEYS[0]],
+                atol=FRUSTUM_ATOL,
+                rtol=FRUSTUM_RTOL,
+            ),
+        )
         source = decide_geometry(checks, policy, context="FisheyePETR checkpoint")
-        geometry = ref.with_tables(grid=grid2d, unvalid_area=stored[GEOMETRY_KEYS[3]]) if source == "checkpoint" else ref
+        geometry = (
+            ref.with_tables(grid=grid2d, unvalid_area=stored[GEOMETRY_KEYS[3]]) if source == "checkpoint" else ref
+        )
         self.set_geometry(geometry)
         return GeometryReport(source, checks)

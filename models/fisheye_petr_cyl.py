@@ -34,9 +34,15 @@ from .resampled_petr import ResampledPETR
 __all__ = ["FisheyePETRCyl"]
 
 
-@register_model("fisheye-petr-cyl", manifest="fisheye_petr_cyl_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=SIGNATURE_KEYS, absent_keys=(_HEAD + "sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
-                int8_float=INT8_FLOAT)
+@register_model(
+    "fisheye-petr-cyl",
+    manifest="fisheye_petr_cyl_keys.json",
+    checkpoint_filter=checkpoint_filter_fn,
+    signature_keys=SIGNATURE_KEYS,
+    absent_keys=(_HEAD + "sphere_grid_2d",),
+    score_semantics=SCORE_SEMANTICS,
+    int8_float=INT8_FLOAT,
+)
 class FisheyePETRCyl(ResampledPETR):
     """Rectification -> normalisation -> ResNet-18 -> FPN (P3 only) -> CylindricalPETRHead -> NMS-free decoding.
 
@@ -70,8 +76,14 @@ class FisheyePETRCyl(ResampledPETR):
         """
         g = self.pts_bbox_head.geometry
         assert isinstance(g, CylPETRGeometry)  # what CylindricalPETRHead installs
-        index, weight = taps_for(tables or self.geometry_tables(), RECTIFY, g.image_grid, g.params.source_size,
-                                 images.shape[2:4], images.device)
+        index, weight = taps_for(
+            tables or self.geometry_tables(),
+            RECTIFY,
+            g.image_grid,
+            g.params.source_size,
+            images.shape[2:4],
+            images.device,
+        )
         x = rectify(images, index, weight, g.params.image_size)
         if self.config.image.bgr_to_rgb:
             x = x[:, :, [2, 1, 0]]

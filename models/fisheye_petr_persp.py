@@ -37,9 +37,15 @@ from .resampled_petr import ResampledPETR
 __all__ = ["FisheyePETRPersp"]
 
 
-@register_model("fisheye-petr-persp", manifest="fisheye_petr_persp_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=SIGNATURE_KEYS, absent_keys=(_HEAD + "sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
-                int8_float=INT8_FLOAT)
+@register_model(
+    "fisheye-petr-persp",
+    manifest="fisheye_petr_persp_keys.json",
+    checkpoint_filter=checkpoint_filter_fn,
+    signature_keys=SIGNATURE_KEYS,
+    absent_keys=(_HEAD + "sphere_grid_2d",),
+    score_semantics=SCORE_SEMANTICS,
+    int8_float=INT8_FLOAT,
+)
 class FisheyePETRPersp(ResampledPETR):
     """cv2.remap rectification (two views per fisheye) -> normalisation -> ResNet-18 -> FPN (P3 only) -> PETRHead -> NMS-free decoding."""
 
@@ -56,8 +62,15 @@ class FisheyePETRPersp(ResampledPETR):
         """uint8 B x N x H x W x 3 raw fisheye (BGR) -> float (B*N*Y) x 3 x h x w normalised views, camera by camera."""
         g, p = self.pts_bbox_head.geometry, self.config.perspective
         assert isinstance(g, PinholePETRGeometry)  # what RectifiedPETRHead installs for perspective views
-        x = perspective_views(images, tables or self.geometry_tables(), g.image_grid, g.params.source_size,
-                              len(p.yaws), p.size, p.truncate)
+        x = perspective_views(
+            images,
+            tables or self.geometry_tables(),
+            g.image_grid,
+            g.params.source_size,
+            len(p.yaws),
+            p.size,
+            p.truncate,
+        )
         if self.config.image.bgr_to_rgb:
             x = x[:, :, :, [2, 1, 0]]
         x = (x - self.pixel_mean.reshape(1, 1, 1, 3, 1, 1)) / self.pixel_std.reshape(1, 1, 1, 3, 1, 1)

@@ -42,8 +42,9 @@ def _computed(in_size: int, out_size: int, device: torch.device) -> Taps:
     return index, high, low
 
 
-def resized_views(images: torch.Tensor, tables: Mapping[str, torch.Tensor], source_hw: tuple[int, int],
-                  view_hw: tuple[int, int]) -> torch.Tensor:
+def resized_views(
+    images: torch.Tensor, tables: Mapping[str, torch.Tensor], source_hw: tuple[int, int], view_hw: tuple[int, int]
+) -> torch.Tensor:
     """uint8 B x N x H x W x 3 -> float32 B x N x h x w x 3 (uint8 values): PIL's resize and the crop, one view per camera."""
     h, w = images.shape[2], images.shape[3]
     if (h, w) == tuple(source_hw):
@@ -53,8 +54,15 @@ def resized_views(images: torch.Tensor, tables: Mapping[str, torch.Tensor], sour
     return pil_resize(images.to(torch.float32), horizontal, vertical)
 
 
-def perspective_views(images: torch.Tensor, tables: Mapping[str, torch.Tensor], image_grid: np.ndarray, source_hw: tuple[int, int],
-                      yaws: int, view_hw: tuple[int, int], truncate: bool) -> torch.Tensor:
+def perspective_views(
+    images: torch.Tensor,
+    tables: Mapping[str, torch.Tensor],
+    image_grid: np.ndarray,
+    source_hw: tuple[int, int],
+    yaws: int,
+    view_hw: tuple[int, int],
+    truncate: bool,
+) -> torch.Tensor:
     """uint8 B x N x H x W x 3 -> float32 B x N x Y x 3 x h x w: cv2.remap's views, camera by camera, yaw by yaw.
 
     ``image_grid`` is the (Y * h, w, 2) remap grid of the stacked yaws; ``truncate`` floors the

@@ -23,7 +23,13 @@ from fisheye_infer.geometry.pinhole_lss import PinholeLSSGeometry
 from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
 from .fisheye_bevdet import FisheyeBEVDet, bev_grid_checks
 
-__all__ = ["FrustumBEVDet", "GEOMETRY_KEYS", "checkpoint_filter_fn", "has_image_plane_frustum", "has_camera_frame_frustum"]
+__all__ = [
+    "FrustumBEVDet",
+    "GEOMETRY_KEYS",
+    "checkpoint_filter_fn",
+    "has_image_plane_frustum",
+    "has_camera_frame_frustum",
+]
 
 _VT = "view_transform."
 #: Official checkpoint keys holding geometry tables (not weights of this model), in official order.
@@ -41,7 +47,11 @@ def has_image_plane_frustum(state_dict: Mapping[str, torch.Tensor]) -> bool:
     f = as_numpy(state_dict[_VT + "frustum"]) if _VT + "frustum" in state_dict else None
     if f is None or f.ndim != 4 or f.shape[-1] != 3:
         return False
-    return bool(np.all(f[..., 2] == f[:, :1, :1, 2]) and np.all(f[..., 0] == f[:1, :1, :, 0]) and np.all(f[..., 1] == f[:1, :, :1, 1]))
+    return bool(
+        np.all(f[..., 2] == f[:, :1, :1, 2])
+        and np.all(f[..., 0] == f[:1, :1, :, 0])
+        and np.all(f[..., 1] == f[:1, :, :1, 1])
+    )
 
 
 def has_camera_frame_frustum(state_dict: Mapping[str, torch.Tensor]) -> bool:
@@ -64,16 +74,24 @@ class FrustumBEVDet(FisheyeBEVDet):
         vt = self.config.view_transform
         h, w = vt.feature_size
         f32 = torch.float32
-        return {_VT + "frustum": ((vt.num_depth_bins, h, w, 3), f32), _VT + "dx": ((3,), f32),
-                _VT + "bx": ((3,), f32), _VT + "nx": ((3,), torch.int64)}
+        return {
+            _VT + "frustum": ((vt.num_depth_bins, h, w, 3), f32),
+            _VT + "dx": ((3,), f32),
+            _VT + "bx": ((3,), f32),
+            _VT + "nx": ((3,), torch.int64),
+        }
 
     def official_geometry_state(self) -> dict[str, torch.Tensor]:
         """The geometry tables in official form, as an official checkpoint stores them."""
         g = self.view_transform.geometry
         bev = g.bev_grid
         t = torch.from_numpy
-        return {_VT + "frustum": t(g.frustum.copy()), _VT + "dx": t(bev.dx.copy()), _VT + "bx": t(bev.bx.copy()),
-                _VT + "nx": torch.tensor(bev.nx, dtype=torch.int64)}
+        return {
+            _VT + "frustum": t(g.frustum.copy()),
+            _VT + "dx": t(bev.dx.copy()),
+            _VT + "bx": t(bev.bx.copy()),
+            _VT + "nx": torch.tensor(bev.nx, dtype=torch.int64),
+        }
 
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
         """Compare the stored frustum and BEV grid with the rig's and install what ``policy`` selects."""

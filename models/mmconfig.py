@@ -38,13 +38,25 @@ from fisheye_infer.errors import ConfigError
 __all__ = ["read_mmdet3d_config", "evaluate_config_source", "Section", "as_tuple"]
 
 _BINOPS: dict[type, Callable[[Any, Any], Any]] = {
-    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
-    ast.FloorDiv: operator.floordiv, ast.Mod: operator.mod, ast.Pow: operator.pow,
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Div: operator.truediv,
+    ast.FloorDiv: operator.floordiv,
+    ast.Mod: operator.mod,
+    ast.Pow: operator.pow,
 }
 _UNARY: dict[type, Callable[[Any], Any]] = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 _BUILTINS: dict[str, Callable[..., Any]] = {
-    "dict": dict, "list": list, "tuple": tuple, "int": int, "float": float, "abs": abs, "round": round,
-    "min": min, "max": max,
+    "dict": dict,
+    "list": list,
+    "tuple": tuple,
+    "int": int,
+    "float": float,
+    "abs": abs,
+    "round": round,
+    "min": min,
+    "max": max,
 }
 # module -> attribute -> value or pure function
 _MODULES: dict[str, dict[str, Any]] = {
@@ -89,13 +101,19 @@ class _Evaluator:
         line = getattr(node, "lineno", "?")
         snippet = ast.get_source_segment(self.source, node) or type(node).__name__
         snippet = snippet.splitlines()[0][:80]
-        return ConfigError(f"{self.filename} line {line}: {what} is not allowed in a configuration "
-                           f"(found `{snippet}`); only literals, arithmetic, dict/list/tuple and "
-                           "math.radians/math.pi are evaluated")
+        return ConfigError(
+            f"{self.filename} line {line}: {what} is not allowed in a configuration "
+            f"(found `{snippet}`); only literals, arithmetic, dict/list/tuple and "
+            "math.radians/math.pi are evaluated"
+        )
 
     def run(self, tree: ast.Module) -> dict[str, Any]:
         for stmt in tree.body:
-            if isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) and isinstance(stmt.value.value, str):
+            if (
+                isinstance(stmt, ast.Expr)
+                and isinstance(stmt.value, ast.Constant)
+                and isinstance(stmt.value.value, str)
+            ):
                 continue  # docstring
             if isinstance(stmt, ast.Import):
                 for alias in stmt.names:
@@ -208,8 +226,11 @@ class _Evaluator:
         func: Callable[..., Any] | None = None
         if isinstance(node.func, ast.Name) and node.func.id not in self.env:
             func = _BUILTINS.get(node.func.id) or self.imported.get(node.func.id)
-        elif (isinstance(node.func, ast.Attribute) and isinstance(node.func.value, ast.Name)
-              and node.func.value.id in self.aliases):
+        elif (
+            isinstance(node.func, ast.Attribute)
+            and isinstance(node.func.value, ast.Name)
+            and node.func.value.id in self.aliases
+        ):
             value = _MODULES[self.aliases[node.func.value.id]].get(node.func.attr)
             func = value if callable(value) else None
         if func is None or not callable(func):
@@ -297,10 +318,10 @@ def as_tuple(value: Any) -> Any:
 class Section:
     """One dict of an official config namespace, read with the file and the key's path named in every error.
 
-        model = Section(cfg.get("model"), "model", "fisheye_bevdet.py")
-        head = model.sub("bbox_head")                  # missing: "fisheye_bevdet.py: 'model.bbox_head' is missing"
-        head.get("num_proposals", 200)                 # lists come back as tuples
-        head.numbers("post_center_range", 6)           # six numbers, or a ConfigError naming the key
+    model = Section(cfg.get("model"), "model", "fisheye_bevdet.py")
+    head = model.sub("bbox_head")                  # missing: "fisheye_bevdet.py: 'model.bbox_head' is missing"
+    head.get("num_proposals", 200)                 # lists come back as tuples
+    head.numbers("post_center_range", 6)           # six numbers, or a ConfigError naming the key
     """
 
     def __init__(self, data: Any, path: str, source: str) -> None:
@@ -342,7 +363,9 @@ class Section:
         """Refuse a ``type`` other than ``allowed`` (and a missing one when ``required``)."""
         kind = self.data.get("type")
         if (kind is not None or required) and kind not in allowed:
-            raise ConfigError(f"{self.source}: '{self.where('type')}' is {kind!r}, expected {' or '.join(map(repr, allowed))}")
+            raise ConfigError(
+                f"{self.source}: '{self.where('type')}' is {kind!r}, expected {' or '.join(map(repr, allowed))}"
+            )
 
     def refuse(self, key: str, expected: Any, value: Any, why: str = "") -> ConfigError:
         return ConfigError(f"{self.source}: {self.where(key)}={value!r} is not supported (expected {expected!r}{why})")

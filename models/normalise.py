@@ -21,7 +21,9 @@ import torch
 __all__ = ["normalise_frames"]
 
 
-def normalise_frames(images: torch.Tensor, mean: torch.Tensor, std: torch.Tensor, bgr_to_rgb: bool = False) -> torch.Tensor:
+def normalise_frames(
+    images: torch.Tensor, mean: torch.Tensor, std: torch.Tensor, bgr_to_rgb: bool = False
+) -> torch.Tensor:
     """uint8 B x N x H x W x 3 -> float32 (B*N) x 3 x H x W, ``(x - mean[c]) / std[c]``.
 
     ``mean`` and ``std``: 3 values, in the order of the output channels. ``bgr_to_rgb`` swaps the

@@ -94,13 +94,19 @@ class PETRConfig(ModelConfig):
         if h.embed_dims % 2:
             raise ConfigError(f"head.embed_dims={h.embed_dims} must be even (sine features are embed_dims/2 per axis)")
         if not h.lid:
-            raise ConfigError("head.lid=False (uniform depth bins) is not supported; the Fisheye3DOD "
-                              "FisheyePETR uses linear-increasing depths (LID=True)")
+            raise ConfigError(
+                "head.lid=False (uniform depth bins) is not supported; the Fisheye3DOD "
+                "FisheyePETR uses linear-increasing depths (LID=True)"
+            )
         if h.code_size != 8:
-            raise ConfigError(f"head.code_size: only the 8-value layout [x,y,log dx,log dy,z,log dz,sin,cos] "
-                              f"is supported, got {h.code_size}")
+            raise ConfigError(
+                f"head.code_size: only the 8-value layout [x,y,log dx,log dy,z,log dz,sin,cos] "
+                f"is supported, got {h.code_size}"
+            )
         if h.max_num > h.num_query * self.num_classes:
-            raise ConfigError(f"head.max_num={h.max_num} exceeds num_query*num_classes={h.num_query * self.num_classes}")
+            raise ConfigError(
+                f"head.max_num={h.max_num} exceeds num_query*num_classes={h.num_query * self.num_classes}"
+            )
         if min(h.feature_size) < 2:
             raise ConfigError(f"head.feature_size must be at least 2x2, got {h.feature_size}")
         for name in ("position_range", "point_cloud_range", "post_center_range"):
@@ -114,11 +120,17 @@ class PETRConfig(ModelConfig):
 
     def geometry_params(self) -> Any:
         h = self.head
-        return PETRParams(feature_size=tuple(h.feature_size), azimuth_range=tuple(h.azimuth_range),
-                          elevation_range=tuple(h.elevation_range),
-                          source_size=feature_size_of((self.image.height, self.image.width), self.backbone),
-                          depth_num=h.depth_num, depth_start=h.depth_start,
-                          position_range=tuple(h.position_range), num_feats=h.embed_dims // 2, temperature=h.pe_temperature)
+        return PETRParams(
+            feature_size=tuple(h.feature_size),
+            azimuth_range=tuple(h.azimuth_range),
+            elevation_range=tuple(h.elevation_range),
+            source_size=feature_size_of((self.image.height, self.image.width), self.backbone),
+            depth_num=h.depth_num,
+            depth_start=h.depth_start,
+            position_range=tuple(h.position_range),
+            num_feats=h.embed_dims // 2,
+            temperature=h.pe_temperature,
+        )
 
     # -- reading an official file ---------------------------------------------------------
 
@@ -133,10 +145,16 @@ class PETRConfig(ModelConfig):
         head = model.sub("pts_bbox_head")
         classes = read_classes(cfg, d.class_names)
         if "num_classes" in head and int(head.get("num_classes")) != len(classes):
-            raise ConfigError(f"{source}: pts_bbox_head.num_classes={head.get('num_classes')} but {len(classes)} class names are listed")
+            raise ConfigError(
+                f"{source}: pts_bbox_head.num_classes={head.get('num_classes')} but {len(classes)} class names are listed"
+            )
         sections = cls._read_head(head, cfg, d)
-        return cls(image=read_image(model, cfg, *cls._image_size(head, d), d.image),
-                   backbone=read_backbone(model, d.backbone, required=False), **sections, class_names=classes)
+        return cls(
+            image=read_image(model, cfg, *cls._image_size(head, d), d.image),
+            backbone=read_backbone(model, d.backbone, required=False),
+            **sections,
+            class_names=classes,
+        )
 
     @classmethod
     def _image_size(cls, head: Section, d: PETRConfig) -> tuple[int, int]:
@@ -157,9 +175,15 @@ class PETRConfig(ModelConfig):
 def head_fields(head: Section, d: PETRHeadConfig) -> dict[str, Any]:
     """The head's fields that the spherical and the cylindrical heads share (all but the warp's)."""
     out: dict[str, Any] = {f: getattr(d, f) for f in PETRHeadConfig.__dataclass_fields__}
-    for src, (dst, kind) in {"ocam_fov": ("cam_fov", float), "num_query": ("num_query", int), "depth_num": ("depth_num", int),
-                             "depth_start": ("depth_start", float), "LID": ("lid", bool), "code_size": ("code_size", int),
-                             "num_reg_fcs": ("num_reg_fcs", int)}.items():
+    for src, (dst, kind) in {
+        "ocam_fov": ("cam_fov", float),
+        "num_query": ("num_query", int),
+        "depth_num": ("depth_num", int),
+        "depth_start": ("depth_start", float),
+        "LID": ("lid", bool),
+        "code_size": ("code_size", int),
+        "num_reg_fcs": ("num_reg_fcs", int),
+    }.items():
         if src in head:
             out[dst] = kind(head.data[src])
     for key, n in (("dbound", 3), ("position_range", 6)):
@@ -173,7 +197,9 @@ def head_fields(head: Section, d: PETRHeadConfig) -> dict[str, Any]:
         out["ffn_dims"] = int(layer.data["feedforward_channels"])
     order = layer.get("operation_order")
     if order is not None and tuple(order) != _POST_NORM_ORDER:
-        raise ConfigError(f"{head.source}: decoder operation_order {tuple(order)} is not the post-norm order {_POST_NORM_ORDER}")
+        raise ConfigError(
+            f"{head.source}: decoder operation_order {tuple(order)} is not the post-norm order {_POST_NORM_ORDER}"
+        )
     attn = layer.get("attn_cfgs") or ()
     if attn:
         first = attn[0]

@@ -30,8 +30,9 @@ def inverse_sigmoid(x: torch.Tensor, eps: float = INVERSE_SIGMOID_EPS) -> torch.
     return torch.log(x.clamp(min=eps) / (1.0 - x).clamp(min=eps))
 
 
-def sine_frequencies(num_feats: int = 128, temperature: float = 10000.0,
-                     device: torch.device | None = None) -> torch.Tensor:
+def sine_frequencies(
+    num_feats: int = 128, temperature: float = 10000.0, device: torch.device | None = None
+) -> torch.Tensor:
     """(num_feats,) float32 divisors t_k, computed like the official code (float32 pow)."""
     dim_t = torch.arange(num_feats, dtype=torch.float32, device=device)
     return temperature ** (2 * torch.div(dim_t, 2, rounding_mode="floor") / num_feats)

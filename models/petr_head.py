@@ -38,13 +38,22 @@ from .ranking import TopK
 from .resample import resample, taps_for
 from .table_buffers import install_tables, installed_tables
 
-__all__ = ["FisheyePETRHead", "RectifiedPETRHead", "CylindricalPETRHead", "decode_predictions", "SCORE_SEMANTICS", "INT8_FLOAT"]
+__all__ = [
+    "FisheyePETRHead",
+    "RectifiedPETRHead",
+    "CylindricalPETRHead",
+    "decode_predictions",
+    "SCORE_SEMANTICS",
+    "INT8_FLOAT",
+]
 
 #: The geometry objects a PETR head installs.
 AnyPETRGeometry = PETRGeometry | CylPETRGeometry | PinholePETRGeometry
 
 #: What the scores of a PETR head mean (recorded in an exported file's metadata).
-SCORE_SEMANTICS = "sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time"
+SCORE_SEMANTICS = (
+    "sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time"
+)
 
 #: The classification and regression branches stay float32 in the int8 file (the counterpart of
 #: the TransFusion head's branches, which FisheyeBEVDet's measurement keeps float); the transformer's linear
@@ -123,13 +132,17 @@ class FisheyePETRHead(nn.Module):
     # ------------------------------------------------------------------ geometry and caches
     def _install_sampling(self, geometry: AnyPETRGeometry) -> None:
         """The resampling taps (``geom.warp.*``, or ``geom.rectify.*`` of the cylindrical head) as buffers."""
-        self._sampling_names = install_tables(self, geometry.sampling_tables(), self._sampling_names, self.code_weights.device)
+        self._sampling_names = install_tables(
+            self, geometry.sampling_tables(), self._sampling_names, self.code_weights.device
+        )
 
     def set_geometry(self, geometry: AnyPETRGeometry) -> None:
         """Install a rig's tables (warp grid, key mask, cam2lidar) and recompute the cached embeddings."""
         if tuple(geometry.params.feature_size) != tuple(self.cfg.feature_size):
-            raise ConfigError(f"geometry feature_size {tuple(geometry.params.feature_size)} differs from the configuration's "
-                              f"head.feature_size {tuple(self.cfg.feature_size)}")
+            raise ConfigError(
+                f"geometry feature_size {tuple(geometry.params.feature_size)} differs from the configuration's "
+                f"head.feature_size {tuple(self.cfg.feature_size)}"
+            )
         geometry.check(self.config.num_views)
         current = getattr(self, "geometry", None)
         if current is not None and current is not geometry and _same_tables(current, geometry):
@@ -158,7 +171,11 @@ class FisheyePETRHead(nn.Module):
     def embedding_weights(self) -> dict[str, np.ndarray]:
         """The weights the key embedding needs, by name (what re-baking for a new rig needs)."""
         modules = {"position_encoder": self.position_encoder, "adapt_pos3d": self.adapt_pos3d}
-        return {f"{name}.{k}": v.detach().cpu().numpy().copy() for name, m in modules.items() for k, v in m.state_dict().items()}
+        return {
+            f"{name}.{k}": v.detach().cpu().numpy().copy()
+            for name, m in modules.items()
+            for k, v in m.state_dict().items()
+        }
 
     def position_embedding(self, cam2lidar: Any = None) -> torch.Tensor:
         """Key positional embedding PE3D + adapt_pos3d(sine PE), (1|B, N, C, H, W).
@@ -182,12 +199,17 @@ class FisheyePETRHead(nn.Module):
 
     def tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables an exported graph holds as named initializers."""
-        return {**installed_tables(self, self._sampling_names), PETR_KEY_POS: self.key_pos, PETR_KEY_MASK: self.key_mask_flat}
+        return {
+            **installed_tables(self, self._sampling_names),
+            PETR_KEY_POS: self.key_pos,
+            PETR_KEY_MASK: self.key_mask_flat,
+        }
 
     def query_positions(self) -> torch.Tensor:
         """(Q, C): query_embedding(pos2posemb3d(raw reference points))."""
-        return self.query_embedding(pos2posemb3d(self.reference_points.weight, self.cfg.embed_dims // 2,
-                                                 self.cfg.pe_temperature))
+        return self.query_embedding(
+            pos2posemb3d(self.reference_points.weight, self.cfg.embed_dims // 2, self.cfg.pe_temperature)
+        )
 
     # ------------------------------------------------------------------ forward
     def warp(self, p3: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
@@ -203,9 +225,14 @@ class FisheyePETRHead(nn.Module):
         index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, (h, w), p3.device)
         return resample(p3.reshape(b * n, c, h, w), index, weight, (fh, fw)).reshape(b, n, c, fh, fw)
 
-    def forward_decoder(self, p3: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                        cam2lidar: Any = None, return_intermediate: bool = False,
-                        tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+    def forward_decoder(
+        self,
+        p3: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        cam2lidar: Any = None,
+        return_intermediate: bool = False,
+        tables: dict[str, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         """P3 (B, N, C, h, w) -> decoder output (B, Q, C), or (L, B, Q, C) for all layers.
 
         A camera with ``camera_valid`` False gets zero warped features and all its keys masked;
@@ -246,8 +273,13 @@ class FisheyePETRHead(nn.Module):
         preds = torch.cat((x, y, reg[..., 2:4], z, reg[..., 5:8]), dim=-1)
         return cls, preds
 
-    def forward(self, p3: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                cam2lidar: Any = None, tables: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self,
+        p3: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        cam2lidar: Any = None,
+        tables: dict[str, torch.Tensor] | None = None,
+    ) -> dict[str, torch.Tensor]:
         """P3 (B, N, C, h, w) -> decoded detections (see ``decode_predictions``)."""
         cls, preds = self.predict(self.forward_decoder(p3, camera_valid, cam2lidar, tables=tables))
         return decode_predictions(cls, preds, self.select, self.cfg.post_center_range)
@@ -265,8 +297,10 @@ class RectifiedPETRHead(FisheyePETRHead):
         """No feature warp: B x N x C x H x W features of the resampled images are the keys."""
         fh, fw = self.cfg.feature_size
         if tuple(p3.shape[-2:]) != (fh, fw):
-            raise ConfigError(f"image features are {tuple(p3.shape[-2:])}, the keys need ({fh}, {fw}): "
-                              "the resampled images do not have the configured size")
+            raise ConfigError(
+                f"image features are {tuple(p3.shape[-2:])}, the keys need ({fh}, {fw}): "
+                "the resampled images do not have the configured size"
+            )
         return p3
 
 
@@ -276,9 +310,12 @@ class CylindricalPETRHead(RectifiedPETRHead):
     minus the four geometry tensors."""
 
 
-def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, select: TopK,
-                       post_center_range: tuple[float, ...] = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0),
-                       ) -> dict[str, torch.Tensor]:
+def decode_predictions(
+    cls: torch.Tensor,
+    preds: torch.Tensor,
+    select: TopK,
+    post_center_range: tuple[float, ...] = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0),
+) -> dict[str, torch.Tensor]:
     """NMSFreeCoder: top-k (``select``, M = select.k) of all Q*K sigmoid scores, then boxes in the lidar frame.
 
     cls (B, Q, K) logits and preds (B, Q, 8) -> boxes (B, M, 7) = [x, y, z_bottom, dx, dy, dz, yaw],
@@ -304,30 +341,42 @@ def decode_predictions(cls: torch.Tensor, preds: torch.Tensor, select: TopK,
     valid = torch.ones_like(scores, dtype=torch.bool)
     for axis in range(3):
         valid = valid & (centre[..., axis] >= lo[axis]) & (centre[..., axis] <= hi[axis])
-    return {"boxes": boxes, "scores": scores, "labels": labels, "valid": valid,
-            "rank_scores": rank_scores, "rank_indices": idx}
+    return {
+        "boxes": boxes,
+        "scores": scores,
+        "labels": labels,
+        "valid": valid,
+        "rank_scores": rank_scores,
+        "rank_indices": idx,
+    }
 
 
 def _same_tables(a: AnyPETRGeometry, b: AnyPETRGeometry) -> bool:
     keys = ("grid", "unvalid_area", "cam2lidar") if isinstance(b, PETRGeometry) else ("image_grid", "cam2lidar")
     if isinstance(b, PinholePETRGeometry):
         keys = ("image_grid", "lidar2img")
-    return type(a) is type(b) and all(np.array_equal(np.asarray(getattr(a, k), np.float64).ravel(),
-                                                     np.asarray(getattr(b, k), np.float64).ravel()) for k in keys)
+    return type(a) is type(b) and all(
+        np.array_equal(np.asarray(getattr(a, k), np.float64).ravel(), np.asarray(getattr(b, k), np.float64).ravel())
+        for k in keys
+    )
 
 
-def _check_shared_branches(module: FisheyePETRHead, state_dict: dict[str, Any], prefix: str,
-                           *_args: Any) -> None:
+def _check_shared_branches(module: FisheyePETRHead, state_dict: dict[str, Any], prefix: str, *_args: Any) -> None:
     """Refuse a checkpoint whose copies of the shared cls/reg branch differ."""
     for name in ("cls_branches", "reg_branches"):
         head = f"{prefix}{name}."
-        first = {k[len(head) + 2:]: v for k, v in state_dict.items() if k.startswith(head + "0.")}
+        first = {k[len(head) + 2 :]: v for k, v in state_dict.items() if k.startswith(head + "0.")}
         for copy in range(1, len(getattr(module, name))):
             for suffix, ref in first.items():
                 key = f"{head}{copy}.{suffix}"
                 other = state_dict.get(key)
-                if other is not None and torch.is_tensor(other) and torch.is_tensor(ref) and \
-                        (other.shape != ref.shape or not torch.equal(other, ref)):
+                if (
+                    other is not None
+                    and torch.is_tensor(other)
+                    and torch.is_tensor(ref)
+                    and (other.shape != ref.shape or not torch.equal(other, ref))
+                ):
                     raise CheckpointError(
                         f"checkpoint key '{key}' differs from '{head}0.{suffix}': the official head "
-                        f"shares one {name[:3]} branch across all decoder layers, so the copies must be equal")
+                        f"shares one {name[:3]} branch across all decoder layers, so the copies must be equal"
+                    )

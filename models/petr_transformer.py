@@ -24,8 +24,16 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["MASK_BIAS", "MultiheadAttention", "AttentionBlock", "FFN", "PETRDecoderLayer",
-           "PETRTransformerDecoder", "PETRTransformer", "key_padding_bias"]
+__all__ = [
+    "MASK_BIAS",
+    "MultiheadAttention",
+    "AttentionBlock",
+    "FFN",
+    "PETRDecoderLayer",
+    "PETRTransformerDecoder",
+    "PETRTransformer",
+    "key_padding_bias",
+]
 
 #: Additive logit for ignored keys. -1e30 gives exactly 0 after exp in float32 (like -inf), but a
 #: row whose keys are all ignored stays finite (uniform attention) instead of turning into NaN.
@@ -34,8 +42,9 @@ MASK_BIAS = -1e30
 
 def key_padding_bias(mask: torch.Tensor) -> torch.Tensor:
     """Bool key padding mask (True = ignore), any shape -> float bias of the same shape."""
-    return torch.where(mask, torch.full_like(mask, MASK_BIAS, dtype=torch.float32),
-                       torch.zeros_like(mask, dtype=torch.float32))
+    return torch.where(
+        mask, torch.full_like(mask, MASK_BIAS, dtype=torch.float32), torch.zeros_like(mask, dtype=torch.float32)
+    )
 
 
 class MultiheadAttention(nn.Module):
@@ -60,8 +69,9 @@ class MultiheadAttention(nn.Module):
         b, length, _ = x.shape
         return x.reshape(b, length, self.num_heads, self.head_dims).transpose(1, 2)
 
-    def forward(self, query: torch.Tensor, key: torch.Tensor, value: torch.Tensor,
-                key_bias: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self, query: torch.Tensor, key: torch.Tensor, value: torch.Tensor, key_bias: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """query B x Q x C, key/value B x K x C, key_bias B|1 x K (additive, per key) -> B x Q x C.
 
         The key bias enters the logits through the product itself: q gets a last coordinate 1
@@ -73,8 +83,8 @@ class MultiheadAttention(nn.Module):
         c = self.embed_dims
         w, b = self.in_proj_weight, self.in_proj_bias
         q = self._heads(F.linear(query, w[:c], b[:c]))
-        k = self._heads(F.linear(key, w[c:2 * c], b[c:2 * c]))
-        v = self._heads(F.linear(value, w[2 * c:], b[2 * c:]))
+        k = self._heads(F.linear(key, w[c : 2 * c], b[c : 2 * c]))
+        v = self._heads(F.linear(value, w[2 * c :], b[2 * c :]))
         q = q * math.sqrt(1.0 / self.head_dims)
         if key_bias is not None:
             q = torch.cat((q, torch.ones_like(q[..., :1])), dim=-1)
@@ -94,9 +104,15 @@ class AttentionBlock(nn.Module):
         super().__init__()
         self.attn = MultiheadAttention(embed_dims, num_heads)
 
-    def forward(self, query: torch.Tensor, key: torch.Tensor, value: torch.Tensor,
-                query_pos: torch.Tensor, key_pos: torch.Tensor,
-                key_bias: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self,
+        query: torch.Tensor,
+        key: torch.Tensor,
+        value: torch.Tensor,
+        query_pos: torch.Tensor,
+        key_pos: torch.Tensor,
+        key_bias: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         return query + self.attn(query + query_pos, key + key_pos, value, key_bias)
 
 
@@ -119,13 +135,18 @@ class PETRDecoderLayer(nn.Module):
 
     def __init__(self, embed_dims: int = 256, num_heads: int = 8, ffn_dims: int = 2048) -> None:
         super().__init__()
-        self.attentions = nn.ModuleList([AttentionBlock(embed_dims, num_heads),
-                                         AttentionBlock(embed_dims, num_heads)])
+        self.attentions = nn.ModuleList([AttentionBlock(embed_dims, num_heads), AttentionBlock(embed_dims, num_heads)])
         self.ffns = nn.ModuleList([FFN(embed_dims, ffn_dims)])
         self.norms = nn.ModuleList([nn.LayerNorm(embed_dims) for _ in range(3)])
 
-    def forward(self, target: torch.Tensor, memory: torch.Tensor, query_pos: torch.Tensor,
-                key_pos: torch.Tensor, key_bias: torch.Tensor | None) -> torch.Tensor:
+    def forward(
+        self,
+        target: torch.Tensor,
+        memory: torch.Tensor,
+        query_pos: torch.Tensor,
+        key_pos: torch.Tensor,
+        key_bias: torch.Tensor | None,
+    ) -> torch.Tensor:
         # target B x Q x C; memory B x K x C; query_pos 1|B x Q x C; key_pos 1|B x K x C
         # self-attention: q = k = t + query_pos, v = t
         t = self.attentions[0](target, target, target, query_pos, query_pos)
@@ -143,16 +164,20 @@ class PETRTransformerDecoder(nn.Module):
     ``PETRTransformerDecoder``), so ``post_norm`` never enters the recurrence.
     """
 
-    def __init__(self, num_layers: int = 6, embed_dims: int = 256, num_heads: int = 8,
-                 ffn_dims: int = 2048) -> None:
+    def __init__(self, num_layers: int = 6, embed_dims: int = 256, num_heads: int = 8, ffn_dims: int = 2048) -> None:
         super().__init__()
-        self.layers = nn.ModuleList(PETRDecoderLayer(embed_dims, num_heads, ffn_dims)
-                                    for _ in range(num_layers))
+        self.layers = nn.ModuleList(PETRDecoderLayer(embed_dims, num_heads, ffn_dims) for _ in range(num_layers))
         self.post_norm = nn.LayerNorm(embed_dims)
 
-    def forward(self, target: torch.Tensor, memory: torch.Tensor, query_pos: torch.Tensor,
-                key_pos: torch.Tensor, key_bias: torch.Tensor | None,
-                return_intermediate: bool = False) -> torch.Tensor:
+    def forward(
+        self,
+        target: torch.Tensor,
+        memory: torch.Tensor,
+        query_pos: torch.Tensor,
+        key_pos: torch.Tensor,
+        key_bias: torch.Tensor | None,
+        return_intermediate: bool = False,
+    ) -> torch.Tensor:
         """-> B x Q x C (last layer, post-normed) or L x B x Q x C with ``return_intermediate``."""
         outs = []
         t = target
@@ -168,16 +193,20 @@ class PETRTransformerDecoder(nn.Module):
 class PETRTransformer(nn.Module):
     """Flattens the camera features into keys (order n, h, w) and runs the decoder from zero targets."""
 
-    def __init__(self, num_layers: int = 6, embed_dims: int = 256, num_heads: int = 8,
-                 ffn_dims: int = 2048) -> None:
+    def __init__(self, num_layers: int = 6, embed_dims: int = 256, num_heads: int = 8, ffn_dims: int = 2048) -> None:
         super().__init__()
         self.decoder = PETRTransformerDecoder(num_layers, embed_dims, num_heads, ffn_dims)
 
-    def forward(self, memory: torch.Tensor, query_pos: torch.Tensor, key_pos: torch.Tensor,
-                key_bias: torch.Tensor | None, return_intermediate: bool = False) -> torch.Tensor:
+    def forward(
+        self,
+        memory: torch.Tensor,
+        query_pos: torch.Tensor,
+        key_pos: torch.Tensor,
+        key_bias: torch.Tensor | None,
+        return_intermediate: bool = False,
+    ) -> torch.Tensor:
         """memory B x K x C, query_pos Q x C, key_pos 1|B x K x C, key_bias B|1 x K (additive)."""
         bsz = memory.shape[0]
         query_pos = query_pos.unsqueeze(0)  # 1 x Q x C
-        target = torch.zeros(bsz, query_pos.shape[1], query_pos.shape[2],
-                             dtype=memory.dtype, device=memory.device)
+        target = torch.zeros(bsz, query_pos.shape[1], query_pos.shape[2], dtype=memory.dtype, device=memory.device)
         return self.decoder(target, memory, query_pos, key_pos, key_bias, return_intermediate)

@@ -34,9 +34,17 @@ __all__ = ["PinholeBEVDet"]
 #: The stored frustum's pixel coordinates come from float32 ``linspace`` (up to one ulp of 799, 6e-5).
 FRUSTUM_ATOL = 1e-3
 
-@register_model("pinhole-bevdet", manifest="pinhole_bevdet_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=SIGNATURE_KEYS, absent_keys=("view_transform.sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
-                int8_float=INT8_FLOAT, predicate=has_image_plane_frustum)
+
+@register_model(
+    "pinhole-bevdet",
+    manifest="pinhole_bevdet_keys.json",
+    checkpoint_filter=checkpoint_filter_fn,
+    signature_keys=SIGNATURE_KEYS,
+    absent_keys=("view_transform.sphere_grid_2d",),
+    score_semantics=SCORE_SEMANTICS,
+    int8_float=INT8_FLOAT,
+    predicate=has_image_plane_frustum,
+)
 class PinholeBEVDet(FrustumBEVDet):
     """Pinhole BEV detector: PIL resize and crop, ResNet-18 + FPN, standard LSS, SECOND, TransFusion."""
 
@@ -54,9 +62,14 @@ class PinholeBEVDet(FrustumBEVDet):
         them), normalisation after it (:func:`.front_end.resized_views`).
         """
         cfg = self.config
-        views = resized_views(images, tables or self.geometry_tables(), (cfg.image.height, cfg.image.width), cfg.view_transform.image_size)
+        views = resized_views(
+            images, tables or self.geometry_tables(), (cfg.image.height, cfg.image.width), cfg.view_transform.image_size
+        )
         return normalise_frames(views, self.mean, self.std)
 
-    def forward_dynamic(self, images: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray,
-                        camera_valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        raise ConfigError("pinhole-bevdet: per-frame extrinsics are not supported; build the model for the frame's rig instead")
+    def forward_dynamic(
+        self, images: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray, camera_valid: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
+        raise ConfigError(
+            "pinhole-bevdet: per-frame extrinsics are not supported; build the model for the frame's rig instead"
+        )

@@ -35,8 +35,19 @@ from .config import ImageConfig, feature_size_of, read_backbone
 from .mmconfig import Section
 from .petr_config import PETRConfig, PETRHeadConfig, head_fields
 
-__all__ = ["PinholeViewTransformConfig", "ImageAugConfig", "PerspectiveConfig", "PinholeBEVDetConfig", "PerspBEVDetConfig",
-           "PinholePETRHeadConfig", "PinholePETRConfig", "PerspPETRConfig", "PERSPECTIVE_STEP", "IMAGE_AUG_STEP", "RESIZE_CROP_STEP"]
+__all__ = [
+    "PinholeViewTransformConfig",
+    "ImageAugConfig",
+    "PerspectiveConfig",
+    "PinholeBEVDetConfig",
+    "PerspBEVDetConfig",
+    "PinholePETRHeadConfig",
+    "PinholePETRConfig",
+    "PerspPETRConfig",
+    "PERSPECTIVE_STEP",
+    "IMAGE_AUG_STEP",
+    "RESIZE_CROP_STEP",
+]
 
 PERSPECTIVE_STEP = "MultiViewFisheyePerspectiveProjection"
 IMAGE_AUG_STEP = "ImageAug3D"
@@ -89,15 +100,18 @@ def _pinhole_view_transform(vt: Section, d: PinholeViewTransformConfig) -> Pinho
     return PinholeViewTransformConfig(**view_transform_fields(vt, d), image_size=size)
 
 
-def _check_views(section: str, image_size: tuple[int, int], feature_size: tuple[int, int], view_size: tuple[int, int],
-                 backbone: Any) -> None:
+def _check_views(
+    section: str, image_size: tuple[int, int], feature_size: tuple[int, int], view_size: tuple[int, int], backbone: Any
+) -> None:
     """The section's image size is the views' size, and its feature map their stride-16 features."""
     if tuple(image_size) != tuple(view_size):
         raise ConfigError(f"{section}.image_size={tuple(image_size)} but the views are {tuple(view_size)} (H, W)")
     expected = feature_size_of(tuple(image_size), backbone)  # type: ignore[arg-type]
     if tuple(feature_size) != expected:
-        raise ConfigError(f"{section}.feature_size={tuple(feature_size)} but {image_size[0]}x{image_size[1]} views "
-                          f"give stride-16 features of {expected[0]}x{expected[1]}")
+        raise ConfigError(
+            f"{section}.feature_size={tuple(feature_size)} but {image_size[0]}x{image_size[1]} views "
+            f"give stride-16 features of {expected[0]}x{expected[1]}"
+        )
 
 
 def _check_crop(image: ImageConfig, aug: ImageAugConfig, view_size: tuple[int, int]) -> None:
@@ -105,8 +119,10 @@ def _check_crop(image: ImageConfig, aug: ImageAugConfig, view_size: tuple[int, i
     (vh, vw), (left, top) = view_size, aug.crop
     rw, rh = ResizeCrop(scale=aug.scale).resized_size(image.width, image.height) if aug.scale > 0 else (0, 0)
     if aug.scale <= 0 or left < 0 or top < 0 or left + vw > rw or top + vh > rh:
-        raise ConfigError(f"image_aug: a {vw}x{vh} crop at (left, top)={tuple(aug.crop)} does not fit the {rw}x{rh} image that "
-                          f"scale={aug.scale} makes of the {image.width}x{image.height} input")
+        raise ConfigError(
+            f"image_aug: a {vw}x{vh} crop at (left, top)={tuple(aug.crop)} does not fit the {rw}x{rh} image that "
+            f"scale={aug.scale} makes of the {image.width}x{image.height} input"
+        )
 
 
 def _test_mode_crop(scale: float, width: int, height: int, final: tuple[int, int], bot_pct: float) -> ImageAugConfig:
@@ -129,7 +145,9 @@ def _mean(section: Section, key: str, default: tuple[float, float]) -> float:
 class PinholeBEVDetConfig(BEVDetConfig):
     """BEVDet on six pinhole cameras: ``image`` the raw 1280x720 input, ``image_aug`` the resize and crop."""
 
-    image: ImageConfig = field(default_factory=lambda: ImageConfig(height=720, width=1280, camera_names=PINHOLE_CAMERAS))
+    image: ImageConfig = field(
+        default_factory=lambda: ImageConfig(height=720, width=1280, camera_names=PINHOLE_CAMERAS)
+    )
     view_transform: PinholeViewTransformConfig = field(default_factory=PinholeViewTransformConfig)
     image_aug: ImageAugConfig = field(default_factory=ImageAugConfig)
 
@@ -144,9 +162,16 @@ class PinholeBEVDetConfig(BEVDetConfig):
 
     def geometry_params(self) -> Any:
         vt = self.view_transform
-        return PinholeLSSParams(feature_size=tuple(vt.feature_size), image_size=tuple(vt.image_size),
-                                source_size=(self.image.height, self.image.width), views=self.views(),
-                                dbound=tuple(vt.dbound), xbound=tuple(vt.xbound), ybound=tuple(vt.ybound), zbound=tuple(vt.zbound))
+        return PinholeLSSParams(
+            feature_size=tuple(vt.feature_size),
+            image_size=tuple(vt.image_size),
+            source_size=(self.image.height, self.image.width),
+            views=self.views(),
+            dbound=tuple(vt.dbound),
+            xbound=tuple(vt.xbound),
+            ybound=tuple(vt.ybound),
+            zbound=tuple(vt.zbound),
+        )
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
@@ -157,20 +182,31 @@ class PinholeBEVDetConfig(BEVDetConfig):
     def _read_view_transform(cls, vt: Section, cfg: Mapping[str, Any], d: BEVDetConfig) -> dict[str, Any]:
         """``view_transform`` (an ``LSSTransform``) and ``image_aug`` from the test pipeline's ``ImageAug3D``."""
         if _steps(cfg, PERSPECTIVE_STEP):
-            raise ConfigError(f"{vt.source}: the test pipeline rectifies fisheye images ({PERSPECTIVE_STEP}): a fisheye-bevdet-persp "
-                              "configuration, not a pinhole-camera one")
+            raise ConfigError(
+                f"{vt.source}: the test pipeline rectifies fisheye images ({PERSPECTIVE_STEP}): a fisheye-bevdet-persp "
+                "configuration, not a pinhole-camera one"
+            )
         view = _pinhole_view_transform(vt, d.view_transform)  # type: ignore[arg-type]
         steps = _steps(cfg, IMAGE_AUG_STEP)
         if not steps:
             return {"view_transform": view, "image_aug": d.image_aug}  # type: ignore[attr-defined]
         step = Section(steps[0], f"test_pipeline.{IMAGE_AUG_STEP}", vt.source)
         if step.get("is_train", False):
-            raise step.refuse("is_train", False, True, "; the test pipeline's augmentation must be the deterministic one")
+            raise step.refuse(
+                "is_train", False, True, "; the test pipeline's augmentation must be the deterministic one"
+            )
         fh, fw = step.numbers("final_dim", 2, int)
         if (fh, fw) != tuple(view.image_size):
-            raise ConfigError(f"{vt.source}: {step.where('final_dim')}={(fh, fw)} differs from {vt.where('image_size')}={view.image_size}")
-        aug = _test_mode_crop(_mean(step, "resize_lim", (1.0, 1.0)), d.image.width, d.image.height, (fh, fw),
-                              _mean(step, "bot_pct_lim", (0.0, 0.0)))
+            raise ConfigError(
+                f"{vt.source}: {step.where('final_dim')}={(fh, fw)} differs from {vt.where('image_size')}={view.image_size}"
+            )
+        aug = _test_mode_crop(
+            _mean(step, "resize_lim", (1.0, 1.0)),
+            d.image.width,
+            d.image.height,
+            (fh, fw),
+            _mean(step, "bot_pct_lim", (0.0, 0.0)),
+        )
         return {"view_transform": view, "image_aug": aug}
 
 
@@ -178,8 +214,9 @@ class PinholeBEVDetConfig(BEVDetConfig):
 class PerspBEVDetConfig(BEVDetConfig):
     """BEVDet on perspective views rectified from four fisheye cameras: ``image`` the raw 800x800 fisheye input."""
 
-    view_transform: PinholeViewTransformConfig = field(default_factory=lambda: PinholeViewTransformConfig(image_size=(400, 400),
-                                                                                                         feature_size=(25, 25)))
+    view_transform: PinholeViewTransformConfig = field(
+        default_factory=lambda: PinholeViewTransformConfig(image_size=(400, 400), feature_size=(25, 25))
+    )
     perspective: PerspectiveConfig = field(default_factory=PerspectiveConfig)
 
     def validate(self) -> None:
@@ -198,9 +235,16 @@ class PerspBEVDetConfig(BEVDetConfig):
 
     def geometry_params(self) -> Any:
         vt = self.view_transform
-        return PinholeLSSParams(feature_size=tuple(vt.feature_size), image_size=tuple(vt.image_size),
-                                source_size=(self.image.height, self.image.width), views=self.views(),
-                                dbound=tuple(vt.dbound), xbound=tuple(vt.xbound), ybound=tuple(vt.ybound), zbound=tuple(vt.zbound))
+        return PinholeLSSParams(
+            feature_size=tuple(vt.feature_size),
+            image_size=tuple(vt.image_size),
+            source_size=(self.image.height, self.image.width),
+            views=self.views(),
+            dbound=tuple(vt.dbound),
+            xbound=tuple(vt.xbound),
+            ybound=tuple(vt.ybound),
+            zbound=tuple(vt.zbound),
+        )
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
@@ -212,10 +256,15 @@ class PerspBEVDetConfig(BEVDetConfig):
         """``view_transform`` (an ``LSSTransform``) and ``perspective`` from the test pipeline's rectification step."""
         steps = _steps(cfg, PERSPECTIVE_STEP)
         if not steps:
-            raise ConfigError(f"{vt.source}: the test pipeline has no {PERSPECTIVE_STEP} step: not a perspective-rectified "
-                              "fisheye configuration")
+            raise ConfigError(
+                f"{vt.source}: the test pipeline has no {PERSPECTIVE_STEP} step: not a perspective-rectified "
+                "fisheye configuration"
+            )
         view = _pinhole_view_transform(vt, d.view_transform)  # type: ignore[arg-type]
-        return {"view_transform": view, "perspective": read_perspective(cfg, Section(steps[0], f"test_pipeline.{PERSPECTIVE_STEP}", vt.source))}
+        return {
+            "view_transform": view,
+            "perspective": read_perspective(cfg, Section(steps[0], f"test_pipeline.{PERSPECTIVE_STEP}", vt.source)),
+        }
 
 
 def read_perspective(cfg: Mapping[str, Any], step: Section) -> PerspectiveConfig:
@@ -229,14 +278,18 @@ def read_perspective(cfg: Mapping[str, Any], step: Section) -> PerspectiveConfig
     yaws = tuple(float(y) for y in step.get("camera_orientation", d.yaws))
     count = int(step.get("num_imgs_of_per_view", len(yaws)))
     if count != len(yaws):
-        raise ConfigError(f"{step.source}: {step.where('num_imgs_of_per_view')}={count} but {step.where('camera_orientation')} "
-                          f"has {len(yaws)} yaws")
+        raise ConfigError(
+            f"{step.source}: {step.where('num_imgs_of_per_view')}={count} but {step.where('camera_orientation')} "
+            f"has {len(yaws)} yaws"
+        )
     augs = _steps(cfg, IMAGE_AUG_STEP)
     for aug in augs:
         s = Section(aug, f"test_pipeline.{IMAGE_AUG_STEP}", step.source)
         if tuple(s.numbers("final_dim", 2, int)) != (h, w) or _mean(s, "resize_lim", (1.0, 1.0)) != 1.0:
-            raise ConfigError(f"{step.source}: {s.where('final_dim')}/{s.where('resize_lim')} resize the {h}x{w} perspective views; "
-                              "only the identity (the uint8 cast) is supported after the rectification")
+            raise ConfigError(
+                f"{step.source}: {s.where('final_dim')}/{s.where('resize_lim')} resize the {h}x{w} perspective views; "
+                "only the identity (the uint8 cast) is supported after the rectification"
+            )
     return PerspectiveConfig(size=(h, w), fov=float(step.get("perspective_fov", d.fov)), yaws=yaws, truncate=bool(augs))
 
 
@@ -253,18 +306,29 @@ class PinholePETRHeadConfig(PETRHeadConfig):
     feature_size: tuple[int, int] = (25, 50)
 
 
-def _pinhole_head(head: Section, d: PinholePETRHeadConfig, image_size: tuple[int, int], backbone: Any) -> PinholePETRHeadConfig:
+def _pinhole_head(
+    head: Section, d: PinholePETRHeadConfig, image_size: tuple[int, int], backbone: Any
+) -> PinholePETRHeadConfig:
     head.type_is("PETRHead", required=True)
     fields = head_fields(head, d)
-    return PinholePETRHeadConfig(**{**fields, "image_size": tuple(image_size), "feature_size": feature_size_of(image_size, backbone)})
+    return PinholePETRHeadConfig(
+        **{**fields, "image_size": tuple(image_size), "feature_size": feature_size_of(image_size, backbone)}
+    )
 
 
 def _pinhole_petr_params(cfg: PETRConfig, views: ResizeCrop | Perspective) -> PinholePETRParams:
     h = cfg.head
-    return PinholePETRParams(feature_size=tuple(h.feature_size), image_size=tuple(h.image_size),  # type: ignore[attr-defined]
-                             source_size=(cfg.image.height, cfg.image.width), views=views, depth_num=h.depth_num,
-                             depth_start=h.depth_start, position_range=tuple(h.position_range), num_feats=h.embed_dims // 2,
-                             temperature=h.pe_temperature)
+    return PinholePETRParams(
+        feature_size=tuple(h.feature_size),
+        image_size=tuple(h.image_size),  # type: ignore[attr-defined]
+        source_size=(cfg.image.height, cfg.image.width),
+        views=views,
+        depth_num=h.depth_num,
+        depth_start=h.depth_start,
+        position_range=tuple(h.position_range),
+        num_feats=h.embed_dims // 2,
+        temperature=h.pe_temperature,
+    )
 
 
 def _backbone_of(cfg: Mapping[str, Any], source: str, d: PETRConfig) -> Any:
@@ -275,7 +339,9 @@ def _backbone_of(cfg: Mapping[str, Any], source: str, d: PETRConfig) -> Any:
 class PinholePETRConfig(PETRConfig):
     """PETR on six pinhole cameras: ``image`` the raw 1280x720 input, ``image_aug`` the resize and crop."""
 
-    image: ImageConfig = field(default_factory=lambda: ImageConfig(height=720, width=1280, camera_names=PINHOLE_CAMERAS))
+    image: ImageConfig = field(
+        default_factory=lambda: ImageConfig(height=720, width=1280, camera_names=PINHOLE_CAMERAS)
+    )
     head: PinholePETRHeadConfig = field(default_factory=PinholePETRHeadConfig)
     image_aug: ImageAugConfig = field(default_factory=ImageAugConfig)
 
@@ -300,21 +366,31 @@ class PinholePETRConfig(PETRConfig):
     def _read_head(cls, head: Section, cfg: Mapping[str, Any], d: PETRConfig) -> dict[str, Any]:
         """``head`` (a ``PETRHead``) and ``image_aug`` from the test pipeline's ``ResizeCropFlipImage``."""
         if _steps(cfg, PERSPECTIVE_STEP):
-            raise ConfigError(f"{head.source}: the test pipeline rectifies fisheye images ({PERSPECTIVE_STEP}): a fisheye-petr-persp "
-                              "configuration, not a pinhole-camera one")
+            raise ConfigError(
+                f"{head.source}: the test pipeline rectifies fisheye images ({PERSPECTIVE_STEP}): a fisheye-petr-persp "
+                "configuration, not a pinhole-camera one"
+            )
         steps = _steps(cfg, RESIZE_CROP_STEP)
         if not steps:
-            raise ConfigError(f"{head.source}: the test pipeline has no {RESIZE_CROP_STEP} step: not a pinhole-camera PETR configuration")
+            raise ConfigError(
+                f"{head.source}: the test pipeline has no {RESIZE_CROP_STEP} step: not a pinhole-camera PETR configuration"
+            )
         step = Section(steps[0], f"test_pipeline.{RESIZE_CROP_STEP}", head.source)
         if step.get("training", False):
-            raise step.refuse("training", False, True, "; the test pipeline's augmentation must be the deterministic one")
+            raise step.refuse(
+                "training", False, True, "; the test pipeline's augmentation must be the deterministic one"
+            )
         conf = step.sub("data_aug_conf")
         fh, fw = conf.numbers("final_dim", 2, int)
         height, width = int(conf.get("H", d.image.height)), int(conf.get("W", d.image.width))
         if (height, width) != (d.image.height, d.image.width):
-            raise ConfigError(f"{head.source}: {conf.where('H')}/{conf.where('W')}={height}x{width}: the pinhole cameras are "
-                              f"{d.image.height}x{d.image.width} (the official converter's size)")
-        aug = _test_mode_crop(max(fh / height, fw / width), width, height, (fh, fw), _mean(conf, "bot_pct_lim", (0.0, 0.0)))
+            raise ConfigError(
+                f"{head.source}: {conf.where('H')}/{conf.where('W')}={height}x{width}: the pinhole cameras are "
+                f"{d.image.height}x{d.image.width} (the official converter's size)"
+            )
+        aug = _test_mode_crop(
+            max(fh / height, fw / width), width, height, (fh, fw), _mean(conf, "bot_pct_lim", (0.0, 0.0))
+        )
         return {"head": _pinhole_head(head, d.head, (fh, fw), _backbone_of(cfg, head.source, d)), "image_aug": aug}  # type: ignore[arg-type]
 
 
@@ -322,7 +398,9 @@ class PinholePETRConfig(PETRConfig):
 class PerspPETRConfig(PETRConfig):
     """PETR on perspective views rectified from four fisheye cameras: ``image`` the raw 800x800 fisheye input."""
 
-    head: PinholePETRHeadConfig = field(default_factory=lambda: PinholePETRHeadConfig(image_size=(400, 400), feature_size=(25, 25)))
+    head: PinholePETRHeadConfig = field(
+        default_factory=lambda: PinholePETRHeadConfig(image_size=(400, 400), feature_size=(25, 25))
+    )
     perspective: PerspectiveConfig = field(default_factory=lambda: PerspectiveConfig(truncate=False))
 
     def validate(self) -> None:
@@ -347,8 +425,12 @@ class PerspPETRConfig(PETRConfig):
         """``head`` (a ``PETRHead``) and ``perspective`` from the test pipeline's rectification step."""
         steps = _steps(cfg, PERSPECTIVE_STEP)
         if not steps:
-            raise ConfigError(f"{head.source}: the test pipeline has no {PERSPECTIVE_STEP} step: not a perspective-rectified "
-                              "fisheye configuration")
+            raise ConfigError(
+                f"{head.source}: the test pipeline has no {PERSPECTIVE_STEP} step: not a perspective-rectified "
+                "fisheye configuration"
+            )
         perspective = read_perspective(cfg, Section(steps[0], f"test_pipeline.{PERSPECTIVE_STEP}", head.source))
-        return {"head": _pinhole_head(head, d.head, perspective.size, _backbone_of(cfg, head.source, d)),  # type: ignore[arg-type]
-                "perspective": perspective}
+        return {
+            "head": _pinhole_head(head, d.head, perspective.size, _backbone_of(cfg, head.source, d)),  # type: ignore[arg-type]
+            "perspective": perspective,
+        }

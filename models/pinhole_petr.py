@@ -33,9 +33,15 @@ from .resampled_petr import ResampledPETR
 __all__ = ["PinholePETR"]
 
 
-@register_model("pinhole-petr", manifest="pinhole_petr_keys.json", checkpoint_filter=checkpoint_filter_fn,
-                signature_keys=SIGNATURE_KEYS, absent_keys=(_HEAD + "sphere_grid_2d",), score_semantics=SCORE_SEMANTICS,
-                int8_float=INT8_FLOAT)
+@register_model(
+    "pinhole-petr",
+    manifest="pinhole_petr_keys.json",
+    checkpoint_filter=checkpoint_filter_fn,
+    signature_keys=SIGNATURE_KEYS,
+    absent_keys=(_HEAD + "sphere_grid_2d",),
+    score_semantics=SCORE_SEMANTICS,
+    int8_float=INT8_FLOAT,
+)
 class PinholePETR(ResampledPETR):
     """PIL resize and crop -> normalisation -> ResNet-18 -> FPN (P3 only) -> PETRHead -> NMS-free decoding."""
 
@@ -48,5 +54,7 @@ class PinholePETR(ResampledPETR):
     def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """uint8 B x N x H x W x 3 raw pinhole images (BGR) -> float (B*N) x 3 x h x w normalised views."""
         cfg = self.config
-        views = resized_views(images, tables or self.geometry_tables(), (cfg.image.height, cfg.image.width), cfg.head.image_size)
+        views = resized_views(
+            images, tables or self.geometry_tables(), (cfg.image.height, cfg.image.width), cfg.head.image_size
+        )
         return normalise_frames(views, self.pixel_mean, self.pixel_std, cfg.image.bgr_to_rgb)

@@ -67,7 +67,7 @@ class TopK(nn.Module):
 
 
 def _not_a_top_k(scores: torch.Tensor, indices: torch.Tensor) -> str:
-    """"" if ``indices`` (B, K) are a top-k of ``scores`` (B, M) in descending order, else why not.
+    """ "" if ``indices`` (B, K) are a top-k of ``scores`` (B, M) in descending order, else why not.
 
     Exact comparisons: the replay runs on the very scores the indices were chosen from.
     """

@@ -35,8 +35,16 @@ from fisheye_infer.errors import ConfigError
 from .base import FisheyeDetector
 from .config import ModelConfig
 
-__all__ = ["ModelEntry", "register_model", "create_model", "list_models", "get_model_entry", "entry_of",
-           "matching_architectures", "read_manifest"]
+__all__ = [
+    "ModelEntry",
+    "register_model",
+    "create_model",
+    "list_models",
+    "get_model_entry",
+    "entry_of",
+    "matching_architectures",
+    "read_manifest",
+]
 
 #: The package's architecture modules, one per registered detector, are named ``fisheye_*.py`` (fisheye
 #: input) or ``pinhole_*.py`` (pinhole input); they are imported on first use of the registry, so a new
@@ -76,20 +84,44 @@ _REGISTRY: dict[str, ModelEntry] = {}
 _loaded = False
 
 
-def register_model(name: str, *, manifest: str, signature_keys: tuple[str, ...], checkpoint_filter: Callable[[StateDict], dict[str, Any]],
-                   score_semantics: str, absent_keys: tuple[str, ...] = (), ignored_keys: tuple[str, ...] = (),
-                   int8_float: tuple[str, ...] = (), predicate: Callable[[StateDict], bool] | None = None) -> Callable[[M], M]:
+def register_model(
+    name: str,
+    *,
+    manifest: str,
+    signature_keys: tuple[str, ...],
+    checkpoint_filter: Callable[[StateDict], dict[str, Any]],
+    score_semantics: str,
+    absent_keys: tuple[str, ...] = (),
+    ignored_keys: tuple[str, ...] = (),
+    int8_float: tuple[str, ...] = (),
+    predicate: Callable[[StateDict], bool] | None = None,
+) -> Callable[[M], M]:
     """Class decorator registering a detector (a class with a ``config_cls``) under ``name``."""
 
     def wrap(builder: M) -> M:
         existing = _REGISTRY.get(name)
-        if existing is not None and existing.builder is not builder and existing.builder.__qualname__ != builder.__qualname__:
+        if (
+            existing is not None
+            and existing.builder is not builder
+            and existing.builder.__qualname__ != builder.__qualname__
+        ):
             raise ConfigError(f"model '{name}' is already registered by {existing.builder!r}")
         config_cls = getattr(builder, "config_cls", None)
         if not (isinstance(config_cls, type) and issubclass(config_cls, ModelConfig)):
             raise ConfigError(f"model '{name}': {builder.__qualname__} has no config_cls (a ModelConfig subclass)")
-        _REGISTRY[name] = ModelEntry(name, builder, config_cls, manifest, tuple(signature_keys), tuple(absent_keys), checkpoint_filter,
-                                     tuple(ignored_keys), score_semantics, tuple(int8_float), predicate)
+        _REGISTRY[name] = ModelEntry(
+            name,
+            builder,
+            config_cls,
+            manifest,
+            tuple(signature_keys),
+            tuple(absent_keys),
+            checkpoint_filter,
+            tuple(ignored_keys),
+            score_semantics,
+            tuple(int8_float),
+            predicate,
+        )
         return builder
 
     return wrap
@@ -101,7 +133,9 @@ def _load_builtin() -> None:
         return
     _loaded = True
     package = importlib.import_module(__package__ or "fisheye_infer.models")
-    for module in sorted(m.name for m in pkgutil.iter_modules(package.__path__) if m.name.startswith(_ARCHITECTURE_MODULES)):
+    for module in sorted(
+        m.name for m in pkgutil.iter_modules(package.__path__) if m.name.startswith(_ARCHITECTURE_MODULES)
+    ):
         importlib.import_module(f"{package.__name__}.{module}")
 
 

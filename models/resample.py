@@ -35,8 +35,14 @@ def resample(x: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, size: t
     return sample_rows(rows, index, weight).transpose(0, 1).reshape(m, c, *size)
 
 
-def taps_for(tables: Mapping[str, torch.Tensor], prefix: str, grid: np.ndarray, source_size: tuple[int, int] | None,
-             source_hw: Sequence[int], device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+def taps_for(
+    tables: Mapping[str, torch.Tensor],
+    prefix: str,
+    grid: np.ndarray,
+    source_size: tuple[int, int] | None,
+    source_hw: Sequence[int],
+    device: torch.device,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The taps (index, weight) that resample a ``source_hw`` source with ``grid``.
 
     The tables (``prefix`` + index / weight) are built for ``source_size``, the configured input;

@@ -45,6 +45,8 @@ class ResampledPETR(FisheyePETR):
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
         """Nothing to compare: the tables always come from the rig, whatever the (valid) policy."""
         if policy not in GEOMETRY_POLICIES:
-            raise CheckpointError(f"geometry={policy!r} is not a geometry policy (use one of {', '.join(GEOMETRY_POLICIES)})")
+            raise CheckpointError(
+                f"geometry={policy!r} is not a geometry policy (use one of {', '.join(GEOMETRY_POLICIES)})"
+            )
         self.set_geometry(self.rig_geometry)
         return GeometryReport("rig", ())

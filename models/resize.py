@@ -50,8 +50,11 @@ def resize_axis(x: torch.Tensor, index: torch.Tensor, high: torch.Tensor, low: t
     return torch.clamp(q, 0.0, 255.0)
 
 
-def pil_resize(images: torch.Tensor, horizontal: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
-               vertical: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
+def pil_resize(
+    images: torch.Tensor,
+    horizontal: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+    vertical: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+) -> torch.Tensor:
     """B x N x H x W x 3 float32 (uint8 values) -> B x N x h x w x 3, Pillow's BICUBIC resize.
 
     ``horizontal`` and ``vertical`` are the (index, high, low) tables of the two axes; a crop is
@@ -60,6 +63,8 @@ def pil_resize(images: torch.Tensor, horizontal: tuple[torch.Tensor, torch.Tenso
     Pillow's order before version 13, and Pillow 13's wherever
     :func:`fisheye_infer.geometry.resize.pil_horizontal_first` holds (1280x720 -> 800x450 included).
     """
-    columns_first = images.permute(3, 0, 1, 2, 4)  # W x B x N x H x 3: each tap gathers whole blocks, not 3-value pixels
+    columns_first = images.permute(
+        3, 0, 1, 2, 4
+    )  # W x B x N x H x 3: each tap gathers whole blocks, not 3-value pixels
     rows = resize_axis(columns_first, *horizontal, dim=0).permute(1, 2, 3, 0, 4)
     return resize_axis(rows, *vertical, dim=2)

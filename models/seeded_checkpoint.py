@@ -33,8 +33,15 @@ from .fisheye_bevdet import FisheyeBEVDet
 from .fisheye_petr import FisheyePETR
 from .registry import create_model, read_manifest
 
-__all__ = ["make_checkpoint", "calibrated_checkpoint", "calibrate", "init_weights", "batchnorm_statistics", "synthetic_images",
-           "manifest_specs"]
+__all__ = [
+    "make_checkpoint",
+    "calibrated_checkpoint",
+    "calibrate",
+    "init_weights",
+    "batchnorm_statistics",
+    "synthetic_images",
+    "manifest_specs",
+]
 
 _BN = (nn.BatchNorm1d, nn.BatchNorm2d)
 _DTYPES = {"float32": torch.float32, "int64": torch.int64}
@@ -216,7 +223,12 @@ def calibrate_bevdet(model: FisheyeBEVDet, seed: int) -> None:
 #: gravity-centre height (m), log box sizes (l, w, h of a car-sized box), and sin/cos of yaw with
 #: a norm near 1 (atan2 of a near-zero vector turns float32 rounding into large yaw errors; a
 #: trained head predicts unit vectors, a random one does not unless told).
-BOX_HEAD_TARGETS = {"center": ((0.0, 0.0), 0.3), "height": ((-0.8,), 0.4), "dim": ((1.4, 0.65, 0.45), 0.25), "rot": ((0.7, 0.7), 0.1)}
+BOX_HEAD_TARGETS = {
+    "center": ((0.0, 0.0), 0.3),
+    "height": ((-0.8,), 0.4),
+    "dim": ((1.4, 0.65, 0.45), 0.25),
+    "rot": ((0.7, 0.7), 0.1),
+}
 
 
 @torch.no_grad()
@@ -228,8 +240,10 @@ def _shape_box_heads(model: FisheyeBEVDet, frame: torch.Tensor) -> None:
     """
     head = model.bbox_head.prediction_heads[0]
     outputs: dict[str, torch.Tensor] = {}
-    hooks = [getattr(head, name)[-1].register_forward_hook(lambda m, i, o, name=name: outputs.__setitem__(name, o))
-             for name in BOX_HEAD_TARGETS]
+    hooks = [
+        getattr(head, name)[-1].register_forward_hook(lambda m, i, o, name=name: outputs.__setitem__(name, o))
+        for name in BOX_HEAD_TARGETS
+    ]
     try:
         model.predict(frame)
     finally:
@@ -289,14 +303,18 @@ def _verify_manifest(arch: str, state_dict: dict[str, torch.Tensor]) -> None:
     specs = manifest_specs(arch)
     problems = [f"missing {k}" for k in specs if k not in state_dict]
     problems += [f"unexpected {k}" for k in state_dict if k not in specs]
-    problems += [f"{k}: {list(v.shape)}/{v.dtype} vs manifest {list(specs[k][0])}/{specs[k][1]}"
-                 for k, v in state_dict.items() if k in specs and (tuple(v.shape) != specs[k][0] or v.dtype != specs[k][1])]
+    problems += [
+        f"{k}: {list(v.shape)}/{v.dtype} vs manifest {list(specs[k][0])}/{specs[k][1]}"
+        for k, v in state_dict.items()
+        if k in specs and (tuple(v.shape) != specs[k][0] or v.dtype != specs[k][1])
+    ]
     if problems:
         raise CheckpointError(f"synthetic {arch} checkpoint disagrees with its manifest: " + "; ".join(problems))
 
 
-def make_checkpoint(arch: str, seed: int = 0, path: str | Path | None = None, *, config: Any = None,
-                    rig: Any = None) -> dict[str, Any]:
+def make_checkpoint(
+    arch: str, seed: int = 0, path: str | Path | None = None, *, config: Any = None, rig: Any = None
+) -> dict[str, Any]:
     """Seeded synthetic checkpoint ``{'state_dict', 'meta'}`` for a registered architecture.
 
     With the default configuration the keys, shapes and dtypes are checked against the
@@ -340,8 +358,13 @@ def _keyed_tensor(key: str, shape: tuple[int, ...], dtype: str, seed: int) -> np
     return x.astype(np.int64 if "int" in dtype else np.float32)
 
 
-def calibrated_checkpoint(arch: str, statistics: Mapping[str, np.ndarray], geometry: Mapping[str, np.ndarray],
-                          seed: int = 0, path: str | Path | None = None) -> dict[str, Any]:
+def calibrated_checkpoint(
+    arch: str,
+    statistics: Mapping[str, np.ndarray],
+    geometry: Mapping[str, np.ndarray],
+    seed: int = 0,
+    path: str | Path | None = None,
+) -> dict[str, Any]:
     """An official-format checkpoint whose BatchNorm statistics were measured elsewhere.
 
     Learnable tensors come from per-key seeded generators (``_keyed_tensor``); BatchNorm running
@@ -364,7 +387,10 @@ def calibrated_checkpoint(arch: str, statistics: Mapping[str, np.ndarray], geome
             last = max(int(k.split(".")[2]) for k in state if k.startswith(m.group(1)))
             state[key] = state[f"{m.group(1)}{last}{m.group(3)}"].clone()
     _verify_manifest(arch, state)
-    ckpt = {"state_dict": state, "meta": {"arch": arch, "seed": int(seed), "synthetic": True, "statistics": "calibrated"}}
+    ckpt = {
+        "state_dict": state,
+        "meta": {"arch": arch, "seed": int(seed), "synthetic": True, "statistics": "calibrated"},
+    }
     if path is not None:
         torch.save(ckpt, Path(path))
     return ckpt

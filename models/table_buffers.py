@@ -19,13 +19,19 @@ def _buffer_name(table: str) -> str:
     return table.replace(".", "_")
 
 
-def install_tables(module: nn.Module, tables: Mapping[str, np.ndarray], replacing: Iterable[str] = (),
-                   device: torch.device | None = None) -> tuple[str, ...]:
+def install_tables(
+    module: nn.Module,
+    tables: Mapping[str, np.ndarray],
+    replacing: Iterable[str] = (),
+    device: torch.device | None = None,
+) -> tuple[str, ...]:
     """Register ``tables`` as buffers of ``module`` (dropping the ``replacing`` ones first); returns their names."""
     for name in replacing:
         delattr(module, _buffer_name(name))
     for name, value in tables.items():
-        module.register_buffer(_buffer_name(name), torch.from_numpy(np.ascontiguousarray(value)).to(device), persistent=False)
+        module.register_buffer(
+            _buffer_name(name), torch.from_numpy(np.ascontiguousarray(value)).to(device), persistent=False
+        )
     return tuple(tables)
 
 

@@ -25,10 +25,19 @@ from torch import nn
 
 from .ranking import TopK
 
-__all__ = ["TransFusionHead", "SeparateHead", "TransFusionDecoderLayer", "PositionEncodingLearned", "SCORE_SEMANTICS", "INT8_FLOAT"]
+__all__ = [
+    "TransFusionHead",
+    "SeparateHead",
+    "TransFusionDecoderLayer",
+    "PositionEncodingLearned",
+    "SCORE_SEMANTICS",
+    "INT8_FLOAT",
+]
 
 #: What the scores of a TransFusion head mean (recorded in an exported file's metadata).
-SCORE_SEMANTICS = "sigmoid(class logit) x the proposal's heatmap peak (TransFusion); no threshold, no NMS, as the official test time"
+SCORE_SEMANTICS = (
+    "sigmoid(class logit) x the proposal's heatmap peak (TransFusion); no threshold, no NMS, as the official test time"
+)
 
 #: The head stays float32 in the int8 file, but for its shared convolution and the first
 #: convolution of its heatmap branch: both are 3x3 over the whole BEV grid and the head's largest
@@ -61,8 +70,11 @@ class PositionEncodingLearned(nn.Module):
     def __init__(self, input_channel: int = 2, num_pos_feats: int = 128) -> None:
         super().__init__()
         self.position_embedding_head = nn.Sequential(
-            nn.Conv1d(input_channel, num_pos_feats, 1), nn.BatchNorm1d(num_pos_feats, eps=1e-5),
-            nn.ReLU(inplace=False), nn.Conv1d(num_pos_feats, num_pos_feats, 1))
+            nn.Conv1d(input_channel, num_pos_feats, 1),
+            nn.BatchNorm1d(num_pos_feats, eps=1e-5),
+            nn.ReLU(inplace=False),
+            nn.Conv1d(num_pos_feats, num_pos_feats, 1),
+        )
 
     def forward(self, xy: torch.Tensor) -> torch.Tensor:
         # xy: B x P x 2 -> B x P x C
@@ -117,7 +129,8 @@ class FFN(nn.Module):
         super().__init__()
         self.layers = nn.Sequential(
             nn.Sequential(nn.Linear(embed_dims, feedforward_channels), nn.ReLU(inplace=False)),
-            nn.Linear(feedforward_channels, embed_dims))
+            nn.Linear(feedforward_channels, embed_dims),
+        )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.layers(x)
@@ -135,8 +148,9 @@ class TransFusionDecoderLayer(nn.Module):
         self.self_posembed = PositionEncodingLearned(2, embed_dims)
         self.cross_posembed = PositionEncodingLearned(2, embed_dims)
 
-    def forward(self, query: torch.Tensor, key: torch.Tensor, query_pos: torch.Tensor,
-                key_pos: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, query: torch.Tensor, key: torch.Tensor, query_pos: torch.Tensor, key_pos: torch.Tensor
+    ) -> torch.Tensor:
         # query: B x P x C, key: B x K x C, query_pos: B x P x 2, key_pos: 1 x K x 2
         qe = self.self_posembed(query_pos)
         ke = self.cross_posembed(key_pos)
@@ -150,8 +164,9 @@ class TransFusionDecoderLayer(nn.Module):
 class SeparateHead(nn.Module):
     """mmdet3d SeparateHead with Conv1d/BN1d: per head (num_conv-1) x ConvBN then Conv1d with bias."""
 
-    def __init__(self, in_channels: int, heads: Mapping[str, Sequence[int]], head_conv: int = 64,
-                 final_kernel: int = 1) -> None:
+    def __init__(
+        self, in_channels: int, heads: Mapping[str, Sequence[int]], head_conv: int = 64, final_kernel: int = 1
+    ) -> None:
         super().__init__()
         self.heads = tuple(heads)
         for name, (classes, num_conv) in heads.items():
@@ -176,14 +191,25 @@ class TransFusionHead(nn.Module):
     unsuppressed: torch.Tensor
     post_center_range: torch.Tensor
 
-    def __init__(self, in_channels: int = 512, hidden_channel: int = 128, num_classes: int = 6,
-                 num_proposals: int = 200, nms_kernel_size: int = 3,
-                 unsuppressed_classes: Sequence[int] = (4, 5), num_decoder_layers: int = 1,
-                 num_heads: int = 8, ffn_channels: int = 256,
-                 common_heads: Mapping[str, Sequence[int]] | None = None, head_conv: int = 64,
-                 bev_size: tuple[int, int] = (160, 160), out_size_factor: int = 8,
-                 voxel_size: Sequence[float] = (0.075, 0.075), pc_range: Sequence[float] = (-48.0, -48.0),
-                 post_center_range: Sequence[float] = (-50.0, -50.0, -5.0, 50.0, 50.0, 5.0)) -> None:
+    def __init__(
+        self,
+        in_channels: int = 512,
+        hidden_channel: int = 128,
+        num_classes: int = 6,
+        num_proposals: int = 200,
+        nms_kernel_size: int = 3,
+        unsuppressed_classes: Sequence[int] = (4, 5),
+        num_decoder_layers: int = 1,
+        num_heads: int = 8,
+        ffn_channels: int = 256,
+        common_heads: Mapping[str, Sequence[int]] | None = None,
+        head_conv: int = 64,
+        bev_size: tuple[int, int] = (160, 160),
+        out_size_factor: int = 8,
+        voxel_size: Sequence[float] = (0.075, 0.075),
+        pc_range: Sequence[float] = (-48.0, -48.0),
+        post_center_range: Sequence[float] = (-50.0, -50.0, -5.0, 50.0, 50.0, 5.0),
+    ) -> None:
         super().__init__()
         self.num_classes, self.num_proposals = num_classes, num_proposals
         self.nms_kernel_size = nms_kernel_size
@@ -193,20 +219,25 @@ class TransFusionHead(nn.Module):
         self.pc_range = (float(pc_range[0]), float(pc_range[1]))
         # mmcv's bias='auto' reaches nn.Conv2d as a truthy string: shared_conv has a bias.
         self.shared_conv = nn.Conv2d(in_channels, hidden_channel, 3, padding=1, bias=True)
-        self.heatmap_head = nn.Sequential(ConvBN(hidden_channel, hidden_channel, 3, dims=2),
-                                          nn.Conv2d(hidden_channel, num_classes, 3, padding=1, bias=True))
+        self.heatmap_head = nn.Sequential(
+            ConvBN(hidden_channel, hidden_channel, 3, dims=2),
+            nn.Conv2d(hidden_channel, num_classes, 3, padding=1, bias=True),
+        )
         self.class_encoding = nn.Conv1d(num_classes, hidden_channel, 1)
         self.select = TopK(num_proposals)
-        self.decoder = nn.ModuleList(TransFusionDecoderLayer(hidden_channel, num_heads, ffn_channels)
-                                     for _ in range(num_decoder_layers))
+        self.decoder = nn.ModuleList(
+            TransFusionDecoderLayer(hidden_channel, num_heads, ffn_channels) for _ in range(num_decoder_layers)
+        )
         heads = dict(DEFAULT_COMMON_HEADS if common_heads is None else common_heads)
         heads["heatmap"] = (num_classes, 2)
-        self.prediction_heads = nn.ModuleList(SeparateHead(hidden_channel, heads, head_conv)
-                                              for _ in range(num_decoder_layers))
+        self.prediction_heads = nn.ModuleList(
+            SeparateHead(hidden_channel, heads, head_conv) for _ in range(num_decoder_layers)
+        )
         x_size, y_size = self.bev_size
         # bev_pos[k = i*Y + j] = (i + 0.5, j + 0.5): rows are x (forward), as in the Fisheye3DOD fork.
-        ii, jj = torch.meshgrid(torch.arange(x_size, dtype=torch.float32),
-                                torch.arange(y_size, dtype=torch.float32), indexing="ij")
+        ii, jj = torch.meshgrid(
+            torch.arange(x_size, dtype=torch.float32), torch.arange(y_size, dtype=torch.float32), indexing="ij"
+        )
         bev_pos = torch.stack([ii + 0.5, jj + 0.5], dim=-1).reshape(1, x_size * y_size, 2)
         self.register_buffer("bev_pos", bev_pos, persistent=False)  # 1 x XY x 2
         keep = torch.zeros(1, num_classes, 1, 1, dtype=torch.bool)
@@ -214,8 +245,9 @@ class TransFusionHead(nn.Module):
             if 0 <= c < num_classes:
                 keep[0, c] = True
         self.register_buffer("unsuppressed", keep, persistent=False)  # 1 x K x 1 x 1
-        self.register_buffer("post_center_range", torch.tensor(list(post_center_range), dtype=torch.float32),
-                             persistent=False)
+        self.register_buffer(
+            "post_center_range", torch.tensor(list(post_center_range), dtype=torch.float32), persistent=False
+        )
 
     def local_max_nms(self, heat: torch.Tensor) -> torch.Tensor:
         """Keep 3x3 local maxima; zero border for suppressed classes; unsuppressed classes pass through."""
@@ -229,8 +261,12 @@ class TransFusionHead(nn.Module):
         # bev: B x Cin x X x Y
         raw = self.forward_raw(bev)
         out = self.decode(raw, raw["peak"], raw["query_labels"])
-        out.update({k: raw[k] for k in ("top_indices", "top_scores", "query_labels", "dense_heatmap",
-                                         "rank_scores", "rank_indices")})
+        out.update(
+            {
+                k: raw[k]
+                for k in ("top_indices", "top_scores", "query_labels", "dense_heatmap", "rank_scores", "rank_indices")
+            }
+        )
         return out
 
     def forward_raw(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -267,12 +303,18 @@ class TransFusionHead(nn.Module):
             res["center"] = res["center"] + query_pos.transpose(1, 2)
             query_pos = res["center"].detach().transpose(1, 2)
         peak = heat.gather(2, cell.unsqueeze(1).expand(b, self.num_classes, self.num_proposals))  # B x K x P
-        res.update(peak=peak, top_indices=top_idx, top_scores=top_score, query_labels=cls,
-                   dense_heatmap=dense_heatmap, rank_scores=rank_scores, rank_indices=top_idx)
+        res.update(
+            peak=peak,
+            top_indices=top_idx,
+            top_scores=top_score,
+            query_labels=cls,
+            dense_heatmap=dense_heatmap,
+            rank_scores=rank_scores,
+            rank_indices=top_idx,
+        )
         return res
 
-    def decode(self, res: Mapping[str, torch.Tensor], peak: torch.Tensor,
-               cls: torch.Tensor) -> dict[str, torch.Tensor]:
+    def decode(self, res: Mapping[str, torch.Tensor], peak: torch.Tensor, cls: torch.Tensor) -> dict[str, torch.Tensor]:
         """Boxes in the lidar frame: (x, y, z_bottom, l, w, h, yaw), plus scores, labels, valid, rot."""
         k = self.num_classes
         own = torch.arange(k, device=cls.device).reshape(1, k, 1) == cls.unsqueeze(1)  # B x K x P
@@ -290,5 +332,4 @@ class TransFusionHead(nn.Module):
         pcr = self.post_center_range
         ctr = boxes[..., :3]
         valid = ((ctr >= pcr[:3]).all(dim=-1)) & ((ctr <= pcr[3:]).all(dim=-1))
-        return {"boxes": boxes, "scores": scores, "labels": labels, "valid": valid,
-                "rot": rot.transpose(1, 2)}
+        return {"boxes": boxes, "scores": scores, "labels": labels, "valid": valid, "rot": rot.transpose(1, 2)}

@@ -42,8 +42,9 @@ AnyLSSGeometry = LSSGeometry | CylLSSGeometry | PinholeLSSGeometry
 __all__ = ["AnyLSSGeometry", "FisheyeLSS", "RectifiedLSS", "CylindricalLSS", "pool_reference_torch"]
 
 
-def pool_reference_torch(depth: torch.Tensor, ctx: torch.Tensor, points_lidar: np.ndarray,
-                         bev_grid: BevGrid) -> torch.Tensor:
+def pool_reference_torch(
+    depth: torch.Tensor, ctx: torch.Tensor, points_lidar: np.ndarray, bev_grid: BevGrid
+) -> torch.Tensor:
     """Plain definition of mean pooling for one sample with ``index_add_`` (tests, dynamic rigs).
 
     depth: N x D x H x W, ctx: N x H x W x C, points_lidar: N x D x H x W x 3 -> C x X x Y.
@@ -81,7 +82,9 @@ class FisheyeLSS(nn.Module):
         """Install geometry tables as non-persistent buffers (they are not checkpoint keys of this model)."""
         self._check_geometry(geometry)
         if tuple(geometry.plan.grid_xy) != self.cfg.bev_shape:
-            raise ConfigError(f"pooling plan grid {geometry.plan.grid_xy} differs from the configuration's {self.cfg.bev_shape}")
+            raise ConfigError(
+                f"pooling plan grid {geometry.plan.grid_xy} differs from the configuration's {self.cfg.bev_shape}"
+            )
         self._table_names = install_tables(self, geometry.tables(), self._table_names)
         self._num_buckets = len(geometry.plan.bucket_points)
         self.geometry = geometry
@@ -91,9 +94,13 @@ class FisheyeLSS(nn.Module):
         h, w = self.cfg.feature_size
         d = self.num_depth
         if not isinstance(geometry, LSSGeometry) or geometry.grid.shape != (h, w, 2):
-            raise ConfigError(f"view transform grid is {getattr(geometry, 'grid', np.empty(0)).shape}, configuration needs ({h}, {w}, 2)")
+            raise ConfigError(
+                f"view transform grid is {getattr(geometry, 'grid', np.empty(0)).shape}, configuration needs ({h}, {w}, 2)"
+            )
         if geometry.frustum.shape != (d, h, w, 3):
-            raise ConfigError(f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)")
+            raise ConfigError(
+                f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)"
+            )
 
     def tables(self) -> dict[str, torch.Tensor]:
         """The installed ``geom.*`` tables as tensors (the buffers), by their graph names."""
@@ -109,17 +116,21 @@ class FisheyeLSS(nn.Module):
         """M x C x Hf x Wf -> M x C x H x W with the grid's bilinear taps (``geom.warp.*``; see :mod:`.resample`)."""
         g = self.geometry
         assert isinstance(g, LSSGeometry)  # _check_geometry installs nothing else; RectifiedLSS has no warp
-        index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, feat.shape[-2:], feat.device)
+        index, weight = taps_for(
+            tables or self.tables(), WARP, g.grid, g.params.source_size, feat.shape[-2:], feat.device
+        )
         return resample(feat, index, weight, self.cfg.feature_size)
 
     def depth_context(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """M x Cin x H x W -> depth probabilities M x D x H x W and context M x C x H x W."""
         y = self.depthnet(x)
         depth = torch.softmax(y[:, : self.num_depth], dim=1)
-        ctx = y[:, self.num_depth: self.num_depth + self.out_channels]
+        ctx = y[:, self.num_depth : self.num_depth + self.out_channels]
         return depth, ctx
 
-    def pool(self, depth: torch.Tensor, ctx: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+    def pool(
+        self, depth: torch.Tensor, ctx: torch.Tensor, tables: dict[str, torch.Tensor] | None = None
+    ) -> torch.Tensor:
         """Mean-pool depth (B x N x D x H x W) times ctx (B x N x H x W x C) into B x C x X x Y.
 
         Only Gather, MatMul and Concat; bucket sizes K_b come from the tables' shapes, so the same
@@ -145,8 +156,9 @@ class FisheyeLSS(nn.Module):
         bev = table.index_select(1, tables[POOL_CELL_ROWS]) / tables[POOL_COUNTS]  # B x XY x C, counts >= 1
         return bev.reshape(b, x_cells, y_cells, c).permute(0, 3, 1, 2)
 
-    def lift(self, feat: torch.Tensor, camera_valid: torch.Tensor | None,
-             tables: dict[str, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def lift(
+        self, feat: torch.Tensor, camera_valid: torch.Tensor | None, tables: dict[str, torch.Tensor] | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """B x N x Cin x Hf x Wf -> depth B x N x D x H x W and ctx B x N x H x W x C (masked cameras zeroed)."""
         b, n = feat.shape[0], feat.shape[1]
         x = self.warp(feat.flatten(0, 1), tables)
@@ -160,8 +172,12 @@ class FisheyeLSS(nn.Module):
             ctx = ctx * camera_valid.to(ctx.dtype).reshape(b, n, 1, 1, 1)
         return depth, ctx
 
-    def forward(self, feat: torch.Tensor, camera_valid: torch.Tensor | None = None,
-                tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+    def forward(
+        self,
+        feat: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        tables: dict[str, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         """B x N x Cin x Hf x Wf image features -> B x C x X x Y BEV (rows x forward, columns y left).
 
         ``tables`` replaces the installed geometry tables (the exporter passes them as graph inputs).
@@ -172,8 +188,9 @@ class FisheyeLSS(nn.Module):
         depth, ctx = self.lift(feat, camera_valid, tables)
         return self.pool(depth, ctx, tables)
 
-    def forward_dynamic(self, feat: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray,
-                        camera_valid: torch.Tensor | None = None) -> torch.Tensor:
+    def forward_dynamic(
+        self, feat: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray, camera_valid: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Same as ``forward`` with per-sample extrinsics cam2lidar (B x N x 4 x 4); reference speed.
 
         The points are transformed by :func:`fisheye_infer.geometry.frustum.frustum_to_lidar` and
@@ -204,14 +221,18 @@ class RectifiedLSS(FisheyeLSS):
         h, w = self.cfg.feature_size
         d = self.num_depth
         if geometry.frustum.shape != (d, h, w, 3):
-            raise ConfigError(f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)")
+            raise ConfigError(
+                f"view transform frustum is {geometry.frustum.shape}, configuration needs ({d}, {h}, {w}, 3)"
+            )
 
     def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """No feature warp: M x C x H x W features of the resampled images are already on the frustum's grid."""
         h, w = self.cfg.feature_size
         if tuple(feat.shape[-2:]) != (h, w):
-            raise ConfigError(f"image features are {tuple(feat.shape[-2:])}, the frustum needs ({h}, {w}): "
-                              "the resampled images do not have the configured size")
+            raise ConfigError(
+                f"image features are {tuple(feat.shape[-2:])}, the frustum needs ({h}, {w}): "
+                "the resampled images do not have the configured size"
+            )
         return feat
 
 
@@ -220,5 +241,11 @@ class CylindricalLSS(RectifiedLSS):
 
     def _check_geometry(self, geometry: AnyLSSGeometry) -> None:
         super()._check_geometry(geometry)
-        if not isinstance(geometry, CylLSSGeometry) or geometry.image_grid.ndim != 3 or geometry.image_grid.shape[-1] != 2:
-            raise ConfigError(f"image rectification grid is {getattr(geometry, 'image_grid', np.empty(0)).shape}, expected (H, W, 2)")
+        if (
+            not isinstance(geometry, CylLSSGeometry)
+            or geometry.image_grid.ndim != 3
+            or geometry.image_grid.shape[-1] != 2
+        ):
+            raise ConfigError(
+                f"image rectification grid is {getattr(geometry, 'image_grid', np.empty(0)).shape}, expected (H, W, 2)"
+            )

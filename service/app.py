@@ -52,7 +52,10 @@ service was started with `docs_public`).
 async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
     """A bug, not a refusal: logged with its traceback, answered without internals."""
     log.exception("unexpected error on %s %s", request.method, request.url.path, exc_info=exc)
-    return JSONResponse({"error": "internal error; see the server log", "status": 500, "type": "InternalError", "field": None}, status_code=500)
+    return JSONResponse(
+        {"error": "internal error; see the server log", "status": 500, "type": "InternalError", "field": None},
+        status_code=500,
+    )
 
 
 def _add_protected_docs(app: FastAPI) -> None:
@@ -83,8 +86,15 @@ def create_app(settings: ServiceSettings, detector: Detector | None = None) -> F
             await service.stop()
 
     if protect_docs:
-        app = FastAPI(title="fisheye-infer", version=__version__, description=DESCRIPTION, lifespan=lifespan,
-                      docs_url=None, redoc_url=None, openapi_url=None)
+        app = FastAPI(
+            title="fisheye-infer",
+            version=__version__,
+            description=DESCRIPTION,
+            lifespan=lifespan,
+            docs_url=None,
+            redoc_url=None,
+            openapi_url=None,
+        )
         _add_protected_docs(app)
     else:
         app = FastAPI(title="fisheye-infer", version=__version__, description=DESCRIPTION, lifespan=lifespan)
@@ -93,7 +103,12 @@ def create_app(settings: ServiceSettings, detector: Detector | None = None) -> F
     app.add_exception_handler(Exception, _unexpected)
     app.add_middleware(ServiceMiddleware, metrics=service.metrics, max_body_bytes=settings.max_body_bytes)
     if settings.cors_origins:
-        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["GET", "POST"], allow_headers=["Content-Type", "X-API-Key"])
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST"],
+            allow_headers=["Content-Type", "X-API-Key"],
+        )
     for group in (health, detect, stream, kserve):
         app.include_router(group.router)
     install_openapi(app, service)

@@ -23,7 +23,9 @@ from fisheye_infer.service.state import Service
 __all__ = ["API_KEY_HEADER", "ServiceDep", "SettingsDep", "DetectorDep", "ApiKeyDep", "get_service", "check_api_key"]
 
 API_KEY_HEADER = "X-API-Key"
-_api_key_header = APIKeyHeader(name=API_KEY_HEADER, auto_error=False, description="required when the service was started with an api_key")
+_api_key_header = APIKeyHeader(
+    name=API_KEY_HEADER, auto_error=False, description="required when the service was started with an api_key"
+)
 
 
 def get_service(connection: HTTPConnection) -> Service:

@@ -28,10 +28,18 @@ LINGER_S = 2.0
 
 
 def _timeout_answer(seconds: float) -> bytes:
-    body = json.dumps({"error": f"headers: not received within header_timeout_s={seconds:g} s", "status": 408,
-                       "type": "RequestTimeout", "field": "headers"}).encode()
-    head = (f"HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\ncontent-length: {len(body)}\r\n"
-            "connection: close\r\n\r\n").encode()
+    body = json.dumps(
+        {
+            "error": f"headers: not received within header_timeout_s={seconds:g} s",
+            "status": 408,
+            "type": "RequestTimeout",
+            "field": "headers",
+        }
+    ).encode()
+    head = (
+        f"HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\ncontent-length: {len(body)}\r\n"
+        "connection: close\r\n\r\n"
+    ).encode()
     return head + body
 
 

@@ -44,7 +44,15 @@ from fisheye_infer.runtime.preprocess import decode_image, encoded_image_size
 from fisheye_infer.service.errors import BadRequest, RequestInvalid, ServiceError, UnsupportedMediaType, listed, shown
 from fisheye_infer.service.schemas import BatchJsonRequest, DetectJsonRequest, DetectOptions
 
-__all__ = ["FrameSpec", "EncodedFrame", "OPTION_FIELDS", "read_request", "parse_options", "check_frame", "decode_frames"]
+__all__ = [
+    "FrameSpec",
+    "EncodedFrame",
+    "OPTION_FIELDS",
+    "read_request",
+    "parse_options",
+    "check_frame",
+    "decode_frames",
+]
 
 EncodedFrame = dict[str, bytes]
 OPTION_FIELDS = ("score_threshold", "classes", "nms", "allow_missing_cameras")
@@ -71,7 +79,9 @@ class FrameSpec:
     def check_frame_count(self, count: int) -> None:
         """At most ``max_batch_frames`` frames in one request (422 beyond)."""
         if count > self.max_batch_frames:
-            raise RequestInvalid(f"frames: got {count}, at most max_batch_frames={self.max_batch_frames} per request", field="frames")
+            raise RequestInvalid(
+                f"frames: got {count}, at most max_batch_frames={self.max_batch_frames} per request", field="frames"
+            )
 
 
 # -- options ------------------------------------------------------------------------------------
@@ -94,7 +104,10 @@ def _invalid(exc: ValidationError, prefix: str = "", body: bytes = b"") -> Servi
     if first["type"] == "json_invalid":
         field = _number_field(body, first["msg"]) if "number out of range" in first["msg"] else None
         if field is not None:
-            return RequestInvalid(f"{shown(field)}: number out of range (too many digits to read); expected an ordinary number", field=field)
+            return RequestInvalid(
+                f"{shown(field)}: number out of range (too many digits to read); expected an ordinary number",
+                field=field,
+            )
         return BadRequest(f"JSON body: {first['msg']}", field="body")
     loc = prefix + ".".join(str(x) for x in first["loc"])
     got = repr(first.get("input"))
@@ -105,7 +118,9 @@ def _invalid(exc: ValidationError, prefix: str = "", body: bytes = b"") -> Servi
 def _check_classes(options: DetectOptions, spec: FrameSpec) -> DetectOptions:
     unknown = sorted(set(options.classes or ()) - set(spec.classes))
     if unknown:
-        raise RequestInvalid(f"classes: unknown {listed(unknown)}; the model's classes are {', '.join(spec.classes)}", field="classes")
+        raise RequestInvalid(
+            f"classes: unknown {listed(unknown)}; the model's classes are {', '.join(spec.classes)}", field="classes"
+        )
     return options
 
 
@@ -126,31 +141,51 @@ def parse_options(fields: Mapping[str, str], spec: FrameSpec) -> DetectOptions:
 def _check_image(data: bytes, label: str, spec: FrameSpec, declared: str | None = None) -> None:
     media = (declared or "").split(";")[0].strip().lower()
     if media and media not in PART_TYPES:
-        raise UnsupportedMediaType(f"camera '{label}': content type {shown(media)}, expected image/jpeg or image/png", field=label)
+        raise UnsupportedMediaType(
+            f"camera '{label}': content type {shown(media)}, expected image/jpeg or image/png", field=label
+        )
     if not data:
-        raise RequestInvalid(f"camera '{label}': empty image, expected a {spec.image_size[0]}x{spec.image_size[1]} JPEG or PNG", field=label)
+        raise RequestInvalid(
+            f"camera '{label}': empty image, expected a {spec.image_size[0]}x{spec.image_size[1]} JPEG or PNG",
+            field=label,
+        )
     if not (data.startswith(_PNG) or data.startswith(_JPEG)):
-        raise UnsupportedMediaType(f"camera '{label}': not a JPEG or PNG image (first bytes {data[:8].hex()})", field=label)
+        raise UnsupportedMediaType(
+            f"camera '{label}': not a JPEG or PNG image (first bytes {data[:8].hex()})", field=label
+        )
     size = encoded_image_size(data)
     width, height = spec.image_size
     if size is None:
-        raise RequestInvalid(f"camera '{label}': image header is truncated or unreadable (no width and height found), "
-                             f"expected a {width}x{height} image", field=label)
+        raise RequestInvalid(
+            f"camera '{label}': image header is truncated or unreadable (no width and height found), "
+            f"expected a {width}x{height} image",
+            field=label,
+        )
     if size != (width, height):
-        raise RequestInvalid(f"camera '{label}': image is {size[0]}x{size[1]}, model expects {width}x{height}", field=label)
+        raise RequestInvalid(
+            f"camera '{label}': image is {size[0]}x{size[1]}, model expects {width}x{height}", field=label
+        )
 
 
-def check_frame(images: Mapping[str, bytes], spec: FrameSpec, options: DetectOptions, types: Mapping[str, str | None] | None = None) -> None:
+def check_frame(
+    images: Mapping[str, bytes], spec: FrameSpec, options: DetectOptions, types: Mapping[str, str | None] | None = None
+) -> None:
     """Names, presence, content types and header sizes of one frame's images (no decoding)."""
     unknown = [name for name in images if name not in spec.cameras]
     if unknown:
-        raise RequestInvalid(f"camera '{shown(unknown[0])}': not a camera of this model (cameras: {', '.join(spec.cameras)})", field=unknown[0])
+        raise RequestInvalid(
+            f"camera '{shown(unknown[0])}': not a camera of this model (cameras: {', '.join(spec.cameras)})",
+            field=unknown[0],
+        )
     if not images:
         raise RequestInvalid(f"images: none given, expected one per camera ({', '.join(spec.cameras)})", field="images")
     missing = [c for c in spec.cameras if c not in images]
     if missing and not options.allow_missing_cameras:
-        raise RequestInvalid(f"camera '{missing[0]}': missing (expected all of {', '.join(spec.cameras)}; "
-                             f"set allow_missing_cameras to run without {', '.join(missing)})", field=missing[0])
+        raise RequestInvalid(
+            f"camera '{missing[0]}': missing (expected all of {', '.join(spec.cameras)}; "
+            f"set allow_missing_cameras to run without {', '.join(missing)})",
+            field=missing[0],
+        )
     for camera, data in images.items():
         _check_image(data, camera, spec, (types or {}).get(camera))
 
@@ -163,7 +198,12 @@ def _in_frame(index: int, exc: FisheyeInferError) -> FisheyeInferError:
     return type(exc)(f"frame {index}: {exc}", field=field, retry_after=exc.retry_after)
 
 
-def check_frames(frames: list[EncodedFrame], spec: FrameSpec, options: DetectOptions, types: list[dict[str, str | None]] | None = None) -> None:
+def check_frames(
+    frames: list[EncodedFrame],
+    spec: FrameSpec,
+    options: DetectOptions,
+    types: list[dict[str, str | None]] | None = None,
+) -> None:
     spec.check_frame_count(len(frames))
     for i, frame in enumerate(frames):
         try:
@@ -172,14 +212,18 @@ def check_frames(frames: list[EncodedFrame], spec: FrameSpec, options: DetectOpt
             raise (_in_frame(i, exc) if len(frames) > 1 else exc) from None
 
 
-def decode_frames(frames: list[EncodedFrame], spec: FrameSpec, map_images: Callable[..., Iterable[Any]] = map,
-                  ) -> tuple[list[list[np.ndarray | None]], list[float]]:
+def decode_frames(
+    frames: list[EncodedFrame],
+    spec: FrameSpec,
+    map_images: Callable[..., Iterable[Any]] = map,
+) -> tuple[list[list[np.ndarray | None]], list[float]]:
     """Decode checked frames (call off the event loop); returns the frames and each one's decode time in ms.
 
     ``map_images`` runs the per-image decoding (the Detector's ``map_images``: its decode threads,
     so a request's cameras decode in parallel); the error reported is the first bad image in
     frame and camera order. Each frame's time is the request's decoding wall time shared evenly.
     """
+
     def one(task: tuple[int, str, bytes | None]) -> np.ndarray | None:
         index, camera, data = task
         try:
@@ -191,10 +235,12 @@ def decode_frames(frames: list[EncodedFrame], spec: FrameSpec, map_images: Calla
     if not frames:
         return [], []
     t0 = time.perf_counter()
-    decoded = list(map_images(one, [(i, camera, frame.get(camera)) for i, frame in enumerate(frames) for camera in spec.cameras]))
+    decoded = list(
+        map_images(one, [(i, camera, frame.get(camera)) for i, frame in enumerate(frames) for camera in spec.cameras])
+    )
     per_frame = (time.perf_counter() - t0) * 1e3 / len(frames)
     n = len(spec.cameras)
-    return [decoded[i * n:(i + 1) * n] for i in range(len(frames))], [per_frame] * len(frames)
+    return [decoded[i * n : (i + 1) * n] for i in range(len(frames))], [per_frame] * len(frames)
 
 
 # -- request bodies -----------------------------------------------------------------------------
@@ -214,8 +260,11 @@ def _check_closed(body: bytes, boundary: bytes) -> None:
     last = body.rfind(b"--" + boundary)
     end = last + 2 + len(boundary)
     if last < 0 or body[end : end + 2] != b"--":
-        raise BadRequest(f"multipart body: ended before its closing boundary '--{shown(boundary.decode('latin-1'))}--' "
-                         f"({len(body)} bytes received); the upload was cut short or the body is not the multipart it claims", field="body")
+        raise BadRequest(
+            f"multipart body: ended before its closing boundary '--{shown(boundary.decode('latin-1'))}--' "
+            f"({len(body)} bytes received); the upload was cut short or the body is not the multipart it claims",
+            field="body",
+        )
 
 
 def _parse_failure(exc: StarletteHTTPException, body: bytes, boundary: bytes | None) -> ServiceError:
@@ -228,14 +277,24 @@ def _parse_failure(exc: StarletteHTTPException, body: bytes, boundary: bytes | N
         found = re.search(rb'name="([^"]*)', body[start : start + (1 << 20)])
         if found:
             name = found.group(1).decode("utf-8", "replace")
-            return RequestInvalid(f"part '{shown(name)}': its name or headers are too long ({reason.lower()}); "
-                                  "expected a camera name or an option", field=name)
+            return RequestInvalid(
+                f"part '{shown(name)}': its name or headers are too long ({reason.lower()}); "
+                "expected a camera name or an option",
+                field=name,
+            )
     if "Field exceeded" in reason:
-        return BadRequest(f"multipart body: {reason} (option fields are short text; images go in file parts)", field="body")
-    return BadRequest(f"multipart body: {exc.detail} ({reason})" if cause is not None else f"multipart body: {exc.detail}", field="body")
+        return BadRequest(
+            f"multipart body: {reason} (option fields are short text; images go in file parts)", field="body"
+        )
+    return BadRequest(
+        f"multipart body: {exc.detail} ({reason})" if cause is not None else f"multipart body: {exc.detail}",
+        field="body",
+    )
 
 
-async def _read_form(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[tuple[str, UploadFile]], dict[str, str]]:
+async def _read_form(
+    request: Request, spec: FrameSpec, batch: bool
+) -> tuple[list[tuple[str, UploadFile]], dict[str, str]]:
     # the whole body first (bounded by max_body_bytes): its end is checked, and parse errors can be located
     body = await request.body()
     boundary = _boundary(request)
@@ -248,8 +307,11 @@ async def _read_form(request: Request, spec: FrameSpec, batch: bool) -> tuple[li
     except StarletteHTTPException as exc:
         if "Too many files" in str(exc.detail):
             expected = len(spec.cameras) * (spec.max_batch_frames if batch else 1)
-            raise RequestInvalid(f"images: more than {max_files} image parts, expected at most {expected} ({len(spec.cameras)} cameras"
-                                 f"{f' x max_batch_frames={spec.max_batch_frames}' if batch else ''})", field="images") from None
+            raise RequestInvalid(
+                f"images: more than {max_files} image parts, expected at most {expected} ({len(spec.cameras)} cameras"
+                f"{f' x max_batch_frames={spec.max_batch_frames}' if batch else ''})",
+                field="images",
+            ) from None
         raise _parse_failure(exc, body, boundary) from None
     try:
         return _split_form(form.multi_items(), spec, batch)
@@ -258,7 +320,9 @@ async def _read_form(request: Request, spec: FrameSpec, batch: bool) -> tuple[li
         raise
 
 
-def _split_form(items: list[tuple[str, UploadFile | str]], spec: FrameSpec, batch: bool) -> tuple[list[tuple[str, UploadFile]], dict[str, str]]:
+def _split_form(
+    items: list[tuple[str, UploadFile | str]], spec: FrameSpec, batch: bool
+) -> tuple[list[tuple[str, UploadFile]], dict[str, str]]:
     files: list[tuple[str, UploadFile]] = []
     fields: dict[str, str] = {}
     for name, value in items:
@@ -270,8 +334,13 @@ def _split_form(items: list[tuple[str, UploadFile | str]], spec: FrameSpec, batc
         if name not in OPTION_FIELDS:
             is_camera = name in spec.cameras or (batch and name.partition(".")[2] in spec.cameras)
             if is_camera:
-                raise RequestInvalid(f"camera '{shown(name)}': send the image as a file part (with a filename), got a text field", field=name)
-            raise RequestInvalid(f"field '{shown(name)}': not an image part or option (options: {', '.join(OPTION_FIELDS)})", field=name)
+                raise RequestInvalid(
+                    f"camera '{shown(name)}': send the image as a file part (with a filename), got a text field",
+                    field=name,
+                )
+            raise RequestInvalid(
+                f"field '{shown(name)}': not an image part or option (options: {', '.join(OPTION_FIELDS)})", field=name
+            )
         if name in fields:
             raise RequestInvalid(f"field '{shown(name)}': given twice", field=name)
         fields[name] = value
@@ -282,12 +351,17 @@ def _batch_index(name: str, spec: FrameSpec) -> tuple[int, str]:
     """``'<frame index>.<camera>'`` -> (index, camera); the index in ASCII digits ("²" is a digit to Python, not here)."""
     index, dot, camera = name.partition(".")
     if not dot or not (index.isascii() and index.isdigit()) or len(index) > MAX_INDEX_DIGITS:
-        raise RequestInvalid(f"part '{shown(name)}': expected '<frame index>.<camera>' with the index in digits 0-9, "
-                             f"e.g. '0.{spec.cameras[0]}'", field=name)
+        raise RequestInvalid(
+            f"part '{shown(name)}': expected '<frame index>.<camera>' with the index in digits 0-9, "
+            f"e.g. '0.{spec.cameras[0]}'",
+            field=name,
+        )
     return int(index), camera
 
 
-async def _multipart(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[EncodedFrame], DetectOptions, list[dict[str, str | None]]]:
+async def _multipart(
+    request: Request, spec: FrameSpec, batch: bool
+) -> tuple[list[EncodedFrame], DetectOptions, list[dict[str, str | None]]]:
     files, fields = await _read_form(request, spec, batch)
     try:
         options = parse_options(fields, spec)
@@ -296,8 +370,10 @@ async def _multipart(request: Request, spec: FrameSpec, batch: bool) -> tuple[li
         for name, upload in files:
             index, camera = _batch_index(name, spec) if batch else (0, name)
             if camera in frames.get(index, {}):
-                raise RequestInvalid(f"frame {index}: camera '{shown(camera)}' given twice (part '{shown(name)}' repeats an earlier part)",
-                                     field=f"{index}.{camera}")
+                raise RequestInvalid(
+                    f"frame {index}: camera '{shown(camera)}' given twice (part '{shown(name)}' repeats an earlier part)",
+                    field=f"{index}.{camera}",
+                )
             frames.setdefault(index, {})[camera] = await upload.read()
             types.setdefault(index, {})[camera] = upload.content_type
     finally:
@@ -307,7 +383,9 @@ async def _multipart(request: Request, spec: FrameSpec, batch: bool) -> tuple[li
     spec.check_frame_count(count)
     gaps = [i for i in range(count) if i not in frames]
     if gaps:
-        raise RequestInvalid(f"frame {gaps[0]}: no image parts, expected frames numbered 0..{count - 1} without gaps", field=str(gaps[0]))
+        raise RequestInvalid(
+            f"frame {gaps[0]}: no image parts, expected frames numbered 0..{count - 1} without gaps", field=str(gaps[0])
+        )
     return [frames[i] for i in range(count)], options, [types[i] for i in range(count)]
 
 
@@ -321,7 +399,9 @@ def _b64(text: str, label: str) -> bytes:
 async def _json(request: Request, spec: FrameSpec, batch: bool) -> tuple[list[EncodedFrame], DetectOptions]:
     body = await request.body()
     try:
-        doc: DetectJsonRequest | BatchJsonRequest = (BatchJsonRequest if batch else DetectJsonRequest).model_validate_json(body)
+        doc: DetectJsonRequest | BatchJsonRequest = (
+            BatchJsonRequest if batch else DetectJsonRequest
+        ).model_validate_json(body)
     except ValidationError as exc:
         raise _invalid(exc, body=body) from None
     options = _check_classes(DetectOptions.model_validate(doc.model_dump(include=set(OPTION_FIELDS))), spec)
@@ -335,16 +415,24 @@ async def read_request(request: Request, spec: FrameSpec, batch: bool) -> tuple[
     media = _media_type(request)
     encoding = request.headers.get("content-encoding", "identity").strip().lower()
     if encoding not in ("", "identity"):
-        raise UnsupportedMediaType(f"Content-Encoding: got '{shown(encoding)}', expected none; send the body uncompressed "
-                                   "(JPEG and PNG images are compressed already)", field="Content-Encoding")
+        raise UnsupportedMediaType(
+            f"Content-Encoding: got '{shown(encoding)}', expected none; send the body uncompressed "
+            "(JPEG and PNG images are compressed already)",
+            field="Content-Encoding",
+        )
     types = None
     if media == "multipart/form-data":
         frames, options, types = await _multipart(request, spec, batch)
     elif media == "application/json" or media.endswith("+json"):
         frames, options = await _json(request, spec, batch)
     else:
-        raise UnsupportedMediaType(f"Content-Type: got '{shown(media) or 'none'}', expected multipart/form-data or application/json", field="Content-Type")
+        raise UnsupportedMediaType(
+            f"Content-Type: got '{shown(media) or 'none'}', expected multipart/form-data or application/json",
+            field="Content-Type",
+        )
     if not frames:
-        raise RequestInvalid(f"images: none given, expected one part per camera ({', '.join(spec.cameras)})", field="images")
+        raise RequestInvalid(
+            f"images: none given, expected one part per camera ({', '.join(spec.cameras)})", field="images"
+        )
     check_frames(frames, spec, options, types)
     return frames, options

@@ -25,7 +25,17 @@ __all__ = ["ServiceMetrics", "CONTENT_TYPE", "ENDPOINTS", "endpoint_label"]
 
 CONTENT_TYPE = CONTENT_TYPE_LATEST
 #: Paths counted under their own name; anything else is "other", so labels stay few.
-ENDPOINTS = ("/detect", "/detect/batch", "/stream", "/healthz", "/readyz", "/metrics", "/model", "/docs", "/openapi.json")
+ENDPOINTS = (
+    "/detect",
+    "/detect/batch",
+    "/stream",
+    "/healthz",
+    "/readyz",
+    "/metrics",
+    "/model",
+    "/docs",
+    "/openapi.json",
+)
 _SECONDS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0)
 
 
@@ -39,16 +49,28 @@ class ServiceMetrics:
     def __init__(self) -> None:
         self.registry = CollectorRegistry()
         r = self.registry
-        self.requests = Counter("fisheye_requests", "HTTP requests answered, by endpoint and status", ["endpoint", "status"], registry=r)
-        self.latency = Histogram("fisheye_request_duration_seconds", "HTTP request duration", ["endpoint"], buckets=_SECONDS, registry=r)
-        self.stage = Histogram("fisheye_stage_duration_seconds", "time per frame in each stage", ["stage"], buckets=_SECONDS, registry=r)
+        self.requests = Counter(
+            "fisheye_requests", "HTTP requests answered, by endpoint and status", ["endpoint", "status"], registry=r
+        )
+        self.latency = Histogram(
+            "fisheye_request_duration_seconds", "HTTP request duration", ["endpoint"], buckets=_SECONDS, registry=r
+        )
+        self.stage = Histogram(
+            "fisheye_stage_duration_seconds", "time per frame in each stage", ["stage"], buckets=_SECONDS, registry=r
+        )
         self.queue_depth = Gauge("fisheye_queue_depth", "requests admitted and not yet running", registry=r)
-        self.inflight = Gauge("fisheye_inflight", "requests and stream frames admitted and not yet answered", registry=r)
-        self.batch_frames = Histogram("fisheye_batch_frames", "frames per detect_batch call", buckets=(1, 2, 3, 4, 6, 8, 12, 16, 32), registry=r)
+        self.inflight = Gauge(
+            "fisheye_inflight", "requests and stream frames admitted and not yet answered", registry=r
+        )
+        self.batch_frames = Histogram(
+            "fisheye_batch_frames", "frames per detect_batch call", buckets=(1, 2, 3, 4, 6, 8, 12, 16, 32), registry=r
+        )
         self.stream_connections = Gauge("fisheye_stream_connections", "open /stream connections", registry=r)
         self.stream_pending = Gauge("fisheye_stream_pending_frames", "stream frames waiting for the model", registry=r)
         self.stream_frames = Counter("fisheye_stream_frames", "stream frames by outcome", ["outcome"], registry=r)
-        self.stream_dropped = Counter("fisheye_stream_dropped_frames", "stream frames replaced by a newer frame", registry=r)
+        self.stream_dropped = Counter(
+            "fisheye_stream_dropped_frames", "stream frames replaced by a newer frame", registry=r
+        )
 
     def observe_stages(self, timings_ms: dict[str, float]) -> None:
         for stage, ms in timings_ms.items():

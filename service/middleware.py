@@ -93,14 +93,19 @@ class ServiceMiddleware:
 
         try:
             if declared is not None and b"transfer-encoding" in headers:
-                refusal = BadRequest("Content-Length and Transfer-Encoding: both given, so the body's end is ambiguous; send one of them "
-                                     "(RFC 9112 section 6.3); the connection is closed", field="Transfer-Encoding")
+                refusal = BadRequest(
+                    "Content-Length and Transfer-Encoding: both given, so the body's end is ambiguous; send one of them "
+                    "(RFC 9112 section 6.3); the connection is closed",
+                    field="Transfer-Encoding",
+                )
                 await error_response(refusal, close=True)(scope, receive, send_counted)
             elif declared is not None and (not declared.isdigit() or int(declared) > self.max_body_bytes):
                 if not waits_for_continue:
                     await discard_body(receive)
                 shown = declared.decode("latin-1")
-                await error_response(self._too_large(shown if len(shown) <= 20 else shown[:20] + "..."))(scope, receive, send_counted)
+                await error_response(self._too_large(shown if len(shown) <= 20 else shown[:20] + "..."))(
+                    scope, receive, send_counted
+                )
             else:
                 await self.app(scope, receive_limited, send_counted)
         except Exception:

@@ -28,10 +28,18 @@ _BINARY = {"type": "string", "format": "binary", "contentMediaType": "applicatio
 
 def _options(classes: tuple[str, ...]) -> dict[str, Any]:
     return {
-        "score_threshold": {"type": "number", "minimum": 0, "maximum": 1, "description": "drop boxes scoring below this"},
+        "score_threshold": {
+            "type": "number",
+            "minimum": 0,
+            "maximum": 1,
+            "description": "drop boxes scoring below this",
+        },
         "classes": {"type": "string", "description": f"comma-separated class names to keep, of: {', '.join(classes)}"},
         "nms": {"type": "string", "enum": ["rotated", "circle"], "description": "optional BEV NMS"},
-        "allow_missing_cameras": {"type": "boolean", "description": "run with the cameras given instead of refusing the frame"},
+        "allow_missing_cameras": {
+            "type": "boolean",
+            "description": "run with the cameras given instead of refusing the frame",
+        },
     }
 
 
@@ -42,8 +50,14 @@ def _image(camera: str, size: tuple[int, int]) -> dict[str, Any]:
 def _multipart_schemas(service: Service) -> dict[str, Any]:
     if service.detector is None:
         return {
-            "DetectMultipart": {"type": "object", "description": "one binary part per camera (see GET /model) and the option fields"},
-            "BatchMultipart": {"type": "object", "description": "parts named '<frame index>.<camera>' and the option fields"},
+            "DetectMultipart": {
+                "type": "object",
+                "description": "one binary part per camera (see GET /model) and the option fields",
+            },
+            "BatchMultipart": {
+                "type": "object",
+                "description": "parts named '<frame index>.<camera>' and the option fields",
+            },
         }
     info = service.detector.info
     cameras, size = info.cameras, info.image_size

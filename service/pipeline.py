@@ -61,7 +61,9 @@ async def run_frames(service: Service, frames: list[EncodedFrame], options: Dete
     if service.spec is None:
         raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
     service.refuse_if_full()  # no decoding for a request the queue would refuse
-    decode = partial(decode_frames, frames, service.spec, map_images=service.detector.map_images if service.detector else map)
+    decode = partial(
+        decode_frames, frames, service.spec, map_images=service.detector.map_images if service.detector else map
+    )
     loaded, decode_ms = await anyio.to_thread.run_sync(decode, limiter=service.decode_limiter)
     ticket = service.admit()
     try:

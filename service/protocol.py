@@ -30,7 +30,16 @@ from dataclasses import dataclass
 
 from fisheye_infer.service.errors import ServiceError
 
-__all__ = ["MAGIC", "VERSION", "HEADER", "StreamFrame", "StreamProtocolError", "encode_frame", "peek_frame_id", "decode_frame"]
+__all__ = [
+    "MAGIC",
+    "VERSION",
+    "HEADER",
+    "StreamFrame",
+    "StreamProtocolError",
+    "encode_frame",
+    "peek_frame_id",
+    "decode_frame",
+]
 
 MAGIC = b"FEYE"
 VERSION = 1
@@ -67,7 +76,9 @@ def encode_frame(frame_id: int, images: Mapping[str, bytes]) -> bytes:
 def peek_frame_id(message: bytes) -> int:
     """The frame id, after checking magic and version only (cheap: the receiver calls it per message)."""
     if len(message) < HEADER.size:
-        raise StreamProtocolError(f"header: message is {len(message)} bytes, a frame header is {HEADER.size}", field="header")
+        raise StreamProtocolError(
+            f"header: message is {len(message)} bytes, a frame header is {HEADER.size}", field="header"
+        )
     magic, version, frame_id, _ = HEADER.unpack_from(message)
     if magic != MAGIC:
         raise StreamProtocolError(f"magic: got {magic!r}, expected {MAGIC!r}", field="magic")
@@ -85,11 +96,15 @@ def decode_frame(message: bytes) -> StreamFrame:
     images: dict[str, bytes] = {}
     for i in range(count):
         if at + _NAME.size > len(view):
-            raise StreamProtocolError(f"camera {i}: message ends inside its name length (byte {at})", field="name_length")
+            raise StreamProtocolError(
+                f"camera {i}: message ends inside its name length (byte {at})", field="name_length"
+            )
         (n,) = _NAME.unpack_from(view, at)
         at += _NAME.size
         if at + n + _IMAGE.size > len(view):
-            raise StreamProtocolError(f"camera {i}: name of {n} bytes and image length overrun the message ({len(view)} bytes)", field="name")
+            raise StreamProtocolError(
+                f"camera {i}: name of {n} bytes and image length overrun the message ({len(view)} bytes)", field="name"
+            )
         try:
             name = bytes(view[at : at + n]).decode()
         except UnicodeDecodeError:
@@ -98,7 +113,9 @@ def decode_frame(message: bytes) -> StreamFrame:
         (m,) = _IMAGE.unpack_from(view, at)
         at += _IMAGE.size
         if at + m > len(view):
-            raise StreamProtocolError(f"camera '{name}': image of {m} bytes overruns the message ({len(view) - at} bytes left)", field=name)
+            raise StreamProtocolError(
+                f"camera '{name}': image of {m} bytes overruns the message ({len(view) - at} bytes left)", field=name
+            )
         if name in images:
             raise StreamProtocolError(f"camera '{name}': given twice", field=name)
         images[name] = bytes(view[at : at + m])

@@ -92,8 +92,10 @@ class Ticket:
         try:
             return await asyncio.wait_for(asyncio.shield(job.future), self._owner.settings.request_timeout_s)
         except asyncio.TimeoutError:
-            raise InferenceTimeout(f"result: not ready within request_timeout_s={self._owner.settings.request_timeout_s:g} s",
-                                   field="request_timeout_s") from None
+            raise InferenceTimeout(
+                f"result: not ready within request_timeout_s={self._owner.settings.request_timeout_s:g} s",
+                field="request_timeout_s",
+            ) from None
 
     def release(self) -> None:
         self._owner._release(self)
@@ -133,8 +135,15 @@ class InferenceQueue:
             self._gauges()
             self._cond.notify_all()
         for _, job in left:
-            self._complete(job, None, Unavailable("service: shutting down before this request's turn", field="service",
-                                                  retry_after=self.settings.retry_after_s))
+            self._complete(
+                job,
+                None,
+                Unavailable(
+                    "service: shutting down before this request's turn",
+                    field="service",
+                    retry_after=self.settings.retry_after_s,
+                ),
+            )
         deadline = time.monotonic() + timeout
         for thread in self._threads:
             thread.join(max(0.0, deadline - time.monotonic()))
@@ -156,8 +165,11 @@ class InferenceQueue:
         if draining or self._stopping:
             raise Unavailable("service: shutting down, not accepting new work", field="service", retry_after=retry)
         if self._pending >= self.settings.queue_size:
-            raise Unavailable(f"queue: full ({self._pending} requests waiting, queue_size={self.settings.queue_size}); retry after {retry} s",
-                              field="queue", retry_after=retry)
+            raise Unavailable(
+                f"queue: full ({self._pending} requests waiting, queue_size={self.settings.queue_size}); retry after {retry} s",
+                field="queue",
+                retry_after=retry,
+            )
 
     def refuse_if_full(self, draining: bool = False) -> None:
         """503 now if ``admit`` would refuse: checked before a body is read, no place is taken."""
@@ -177,7 +189,11 @@ class InferenceQueue:
             if ticket._state != "reserved":
                 raise RuntimeError("a ticket runs once")
             if self._stopping:
-                raise Unavailable("service: shutting down, not accepting new work", field="service", retry_after=self.settings.retry_after_s)
+                raise Unavailable(
+                    "service: shutting down, not accepting new work",
+                    field="service",
+                    retry_after=self.settings.retry_after_s,
+                )
             ticket._job, ticket._state = job, "queued"
             self._jobs.append((ticket, job))
             self._cond.notify()

@@ -69,7 +69,9 @@ class RayServeOptions:
         """The app's settings inside a replica: one queue worker per frame a batch can hold, so that
         that many requests can wait in ``@serve.batch`` together; the queue's own micro-batching off."""
         threads = settings.threads or max(1, int(self.cpus_per_replica))
-        return settings.model_copy(update={"workers": max(settings.workers, self.max_batch_size), "microbatch_max_size": 1, "threads": threads})
+        return settings.model_copy(
+            update={"workers": max(settings.workers, self.max_batch_size), "microbatch_max_size": 1, "threads": threads}
+        )
 
 
 class BatchedDetector:
@@ -79,7 +81,12 @@ class BatchedDetector:
     the replica's event loop, where the batch method collects frames from all callers.
     """
 
-    def __init__(self, detector: Detector, submit: Callable[[Frame], Coroutine[Any, Any, Detections]], loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(
+        self,
+        detector: Detector,
+        submit: Callable[[Frame], Coroutine[Any, Any, Detections]],
+        loop: asyncio.AbstractEventLoop,
+    ) -> None:
         self._detector = detector
         self._submit = submit
         self._loop = loop
@@ -114,8 +121,14 @@ class FisheyeReplica:
 
     def __init__(self, settings: ServiceSettings, options: RayServeOptions) -> None:
         self.settings = options.replica_settings(settings)
-        self.detector = Detector(self.settings.model_path, threads=self.settings.threads, providers=self.settings.session_providers, spin=self.settings.spin,
-                                 warmup=self.settings.warmup, decode_threads=self.settings.threads)  # the replica's CPUs, no more
+        self.detector = Detector(
+            self.settings.model_path,
+            threads=self.settings.threads,
+            providers=self.settings.session_providers,
+            spin=self.settings.spin,
+            warmup=self.settings.warmup,
+            decode_threads=self.settings.threads,
+        )  # the replica's CPUs, no more
         # serve.batch's wrapper has these setters; ray types the decorated method as the plain function
         self._batched.set_max_batch_size(options.max_batch_size)  # type: ignore[attr-defined]
         self._batched.set_batch_wait_timeout_s(options.batch_wait_ms / 1e3)  # type: ignore[attr-defined]
@@ -123,8 +136,12 @@ class FisheyeReplica:
 
     async def __serve_build_asgi_app__(self) -> Any:
         app = create_app(self.settings, BatchedDetector(self.detector, self._batched, asyncio.get_running_loop()))  # type: ignore[arg-type]
-        self._batch_frames = Histogram("fisheye_serve_batch_frames", "frames per @serve.batch run in this replica",
-                                       buckets=(1, 2, 3, 4, 6, 8, 12, 16), registry=app.state.service.metrics.registry)
+        self._batch_frames = Histogram(
+            "fisheye_serve_batch_frames",
+            "frames per @serve.batch run in this replica",
+            buckets=(1, 2, 3, 4, 6, 8, 12, 16),
+            registry=app.state.service.metrics.registry,
+        )
         return app
 
     @serve.batch(max_batch_size=4, batch_wait_timeout_s=0.01)
@@ -142,7 +159,9 @@ class FisheyeReplica:
 def build_app(settings: ServiceSettings, options: RayServeOptions | None = None) -> Application:
     """The Ray Serve application: ``options.replicas`` replicas of the service for ``settings``."""
     options = options or RayServeOptions()
-    settings = settings.model_copy(update={"model_path": settings.model_path.resolve()})  # replicas do not share the caller's cwd
+    settings = settings.model_copy(
+        update={"model_path": settings.model_path.resolve()}
+    )  # replicas do not share the caller's cwd
     # Ray routes at most this many requests to a replica at once; the app's own queue refuses
     # beyond queue_size (503), as the plain service does. Two more leave room for health probes.
     ongoing = options.replica_settings(settings).workers + settings.queue_size + 2

@@ -48,9 +48,16 @@ class DetectOptions(_In):
     """Per-request choices; the default is the official output set (no threshold, no NMS)."""
 
     score_threshold: float | None = Field(default=None, ge=0.0, le=1.0, description="drop boxes scoring below this")
-    classes: list[str] | None = Field(default=None, description="keep only these class names (multipart: comma-separated)")
-    nms: Literal["rotated", "circle"] | None = Field(default=None, description="optional BEV NMS (the official output has none)")
-    allow_missing_cameras: bool = Field(default=False, description="run with the cameras given (degraded mode) instead of refusing a frame that lacks some")
+    classes: list[str] | None = Field(
+        default=None, description="keep only these class names (multipart: comma-separated)"
+    )
+    nms: Literal["rotated", "circle"] | None = Field(
+        default=None, description="optional BEV NMS (the official output has none)"
+    )
+    allow_missing_cameras: bool = Field(
+        default=False,
+        description="run with the cameras given (degraded mode) instead of refusing a frame that lacks some",
+    )
 
 
 class FrameIn(_In):
@@ -126,7 +133,9 @@ class StreamResult(DetectResponse):
 
     kind: Literal["result"] = "result"
     frame_id: int
-    dropped: list[int] = Field(description="frame ids replaced by newer frames since the previous answer (latest frame wins)")
+    dropped: list[int] = Field(
+        description="frame ids replaced by newer frames since the previous answer (latest frame wins)"
+    )
 
 
 class ErrorOut(BaseModel):

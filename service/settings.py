@@ -55,11 +55,16 @@ class ServiceSettings(BaseSettings):
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=0, le=65535)
     threads: int | None = Field(default=None, ge=1, description="ONNX Runtime intra-op threads (default: all cores)")
-    spin: bool = Field(default=True, description="ONNX Runtime's threads spin for a while after a call "
-                                                 "(false: they sleep at once, leaving the cores to other processes)")
+    spin: bool = Field(
+        default=True,
+        description="ONNX Runtime's threads spin for a while after a call "
+        "(false: they sleep at once, leaving the cores to other processes)",
+    )
     providers: Annotated[list[ProviderSetting], NoDecode] = Field(
-        default_factory=list, description="ONNX Runtime execution providers in order of preference (names, or (name, options) pairs), "
-                                          "or ['auto'] for the installed accelerated ones (default: CPU)")
+        default_factory=list,
+        description="ONNX Runtime execution providers in order of preference (names, or (name, options) pairs), "
+        "or ['auto'] for the installed accelerated ones (default: CPU)",
+    )
     workers: int = Field(default=1, ge=1, le=16, description="inference threads calling the Detector")
     queue_size: int = Field(default=8, ge=1, description="requests admitted and not yet running")
     max_body_bytes: int = Field(default=32 * 1024 * 1024, ge=1024)
@@ -67,7 +72,9 @@ class ServiceSettings(BaseSettings):
     microbatch_max_size: int = Field(default=1, ge=1, description="1 turns micro-batching off")
     microbatch_max_wait_ms: float = Field(default=5.0, ge=0.0, le=1000.0)
     request_timeout_s: float = Field(default=60.0, gt=0.0)
-    header_timeout_s: float = Field(default=10.0, gt=0.0, le=300.0, description="time for a request's headers to arrive")
+    header_timeout_s: float = Field(
+        default=10.0, gt=0.0, le=300.0, description="time for a request's headers to arrive"
+    )
     body_timeout_s: float = Field(default=30.0, gt=0.0, description="time for a request's body to arrive")
     max_connections: int = Field(default=64, ge=2, description="open connections and requests in progress")
     drain_timeout_s: float = Field(default=30.0, ge=0.0)
@@ -118,11 +125,17 @@ class ServiceSettings(BaseSettings):
     @model_validator(mode="after")
     def _refuse_unsafe(self) -> ServiceSettings:
         if self.api_key is not None and len(self.api_key.get_secret_value()) < MIN_API_KEY_LENGTH:
-            raise ValueError(f"api_key: expected at least {MIN_API_KEY_LENGTH} characters, got {len(self.api_key.get_secret_value())}")
+            raise ValueError(
+                f"api_key: expected at least {MIN_API_KEY_LENGTH} characters, got {len(self.api_key.get_secret_value())}"
+            )
         if self.microbatch_max_size > self.max_batch_frames:
-            raise ValueError(f"microbatch_max_size: {self.microbatch_max_size} exceeds max_batch_frames {self.max_batch_frames}")
+            raise ValueError(
+                f"microbatch_max_size: {self.microbatch_max_size} exceeds max_batch_frames {self.max_batch_frames}"
+            )
         if "*" in self.cors_origins and self.api_key is not None:
-            raise ValueError("cors_origins: '*' together with an api_key would let any web page use a key it obtains; list the origins")
+            raise ValueError(
+                "cors_origins: '*' together with an api_key would let any web page use a key it obtains; list the origins"
+            )
         return self
 
     @property

@@ -44,15 +44,25 @@ class Service:
         self.spec: FrameSpec | None = None
         self.draining = False
         self.streams: set[_Stream] = set()
-        self.decode_limiter: anyio.CapacityLimiter | None = None  # requests decoding at once, one per core (images: the Detector's threads)
+        self.decode_limiter: anyio.CapacityLimiter | None = (
+            None  # requests decoding at once, one per core (images: the Detector's threads)
+        )
         self.reading = 0  # requests whose body is arriving or whose images are decoding (no queue place yet)
 
     async def start(self, detector: Detector | None = None) -> None:
         """Load (unless given) and warm the Detector in a thread, then start the workers."""
         s = self.settings
         if detector is None:
-            detector = await anyio.to_thread.run_sync(partial(Detector, s.model_path, threads=s.threads, providers=s.session_providers, warmup=s.warmup,
-                                                             spin=s.spin))
+            detector = await anyio.to_thread.run_sync(
+                partial(
+                    Detector,
+                    s.model_path,
+                    threads=s.threads,
+                    providers=s.session_providers,
+                    warmup=s.warmup,
+                    spin=s.spin,
+                )
+            )
         elif s.warmup and not detector.ready:
             await anyio.to_thread.run_sync(detector.warmup)
         if detector.score_threshold is not None or detector.nms is not None:
@@ -62,9 +72,15 @@ class Service:
         self.spec = FrameSpec.of(detector.info, s.max_batch_frames)
         self.queue = InferenceQueue(detector, s, self.metrics)
         self.queue.start()
-        log.info("model %s ready: %d cameras at %dx%d, %d worker(s), queue_size %d, micro-batching %s",
-                 detector.info.model_id, len(detector.info.cameras), *detector.info.image_size, s.workers, s.queue_size,
-                 f"up to {s.microbatch_max_size} frames / {s.microbatch_max_wait_ms:g} ms" if s.microbatching else "off")
+        log.info(
+            "model %s ready: %d cameras at %dx%d, %d worker(s), queue_size %d, micro-batching %s",
+            detector.info.model_id,
+            len(detector.info.cameras),
+            *detector.info.image_size,
+            s.workers,
+            s.queue_size,
+            f"up to {s.microbatch_max_size} frames / {s.microbatch_max_wait_ms:g} ms" if s.microbatching else "off",
+        )
 
     async def stop(self) -> None:
         self.begin_drain()

@@ -21,7 +21,7 @@ def kit_checkpoint(arch: str, path: Path) -> Path:
             geometry = {k: npz[k] for k in npz.files}
     else:
         with np.load(DATA / "official_geometry.npz") as npz:
-            geometry = {k[len(prefix):]: npz[k] for k in npz.files if k.startswith(prefix)}
+            geometry = {k[len(prefix) :]: npz[k] for k in npz.files if k.startswith(prefix)}
     with np.load(folder / "bn_stats.npz") as stats:
         calibrated_checkpoint(arch, dict(stats), geometry, path=path)
     return path

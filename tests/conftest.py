@@ -46,8 +46,22 @@ def ocam1600() -> OCamModel:
 
 #: Fixtures that build, export or run a full-size model (the official configurations, the shipped
 #: model): a test that uses one is marked ``slow`` and left out of ``make test-fast``.
-FULL_SIZE_FIXTURES = frozenset({"bevdet_export", "petr_export", "exported", "petr_fp16", "shipped_export", "full_ckpt", "full_petr",
-                                "full_checkpoint", "full_model", "full_bevdet", "kit_bevdet", "kit_export"})
+FULL_SIZE_FIXTURES = frozenset(
+    {
+        "bevdet_export",
+        "petr_export",
+        "exported",
+        "petr_fp16",
+        "shipped_export",
+        "full_ckpt",
+        "full_petr",
+        "full_checkpoint",
+        "full_model",
+        "full_bevdet",
+        "kit_bevdet",
+        "kit_export",
+    }
+)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
@@ -141,7 +155,14 @@ def small_export(tmp_path_factory: pytest.TempPathFactory, small_bevdet_config) 
 def ray_local():
     """A local Ray for this session only: 2 CPUs, no dashboard, on 127.0.0.1; shut down at the end."""
     ray = pytest.importorskip("ray", reason="needs the [ray] extra")
-    ray.init(address="local", num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", configure_logging=False, log_to_driver=False)
+    ray.init(
+        address="local",
+        num_cpus=2,
+        include_dashboard=False,
+        _node_ip_address="127.0.0.1",
+        configure_logging=False,
+        log_to_driver=False,
+    )
     try:
         yield ray
     finally:

@@ -67,19 +67,39 @@ def test_the_site_builds_strictly(tmp_path: Path) -> None:
     pytest.importorskip("material", reason="needs the [dev] extra")
     site = tmp_path / "site"
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
-    done = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file", str(ROOT / "mkdocs.yml"), "--site-dir", str(site)],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mkdocs",
+            "build",
+            "--strict",
+            "--config-file",
+            str(ROOT / "mkdocs.yml"),
+            "--site-dir",
+            str(site),
+        ],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
     assert (site / "index.html").is_file()
     cli = (site / "reference" / "cli" / "index.html").read_text(encoding="utf-8")
     for name in _subparsers(build_parser()):
         assert f'id="fisheye-infer-{name}"' in cli, f"the generated CLI reference has no section for {name}"
-    assert "fisheye_infer.models.registry" in (site / "reference" / "api" / "models" / "index.html").read_text(encoding="utf-8")
+    assert "fisheye_infer.models.registry" in (site / "reference" / "api" / "models" / "index.html").read_text(
+        encoding="utf-8"
+    )
 
 
 def test_the_readme_is_short() -> None:
     lines = len(README.read_text(encoding="utf-8").splitlines())
-    assert lines < README_MAX_LINES, f"README.md has {lines} lines; keep it under {README_MAX_LINES} and move the rest into docs/"
+    assert lines < README_MAX_LINES, (
+        f"README.md has {lines} lines; keep it under {README_MAX_LINES} and move the rest into docs/"
+    )
 
 
 def test_the_readme_links_resolve() -> None:
@@ -94,9 +114,15 @@ def test_the_readme_links_resolve() -> None:
 
 def test_every_repository_path_named_exists() -> None:
     """Scripts and files the README and the docs tell a reader to run or read are where they say."""
-    named = {(str(page.relative_to(ROOT)), path) for page in _pages() for code in _code(page.read_text(encoding="utf-8"))
-             for path in REPO_PATH.findall(code)}
-    assert any(path.startswith("benchmarks/") for _, path in named), "the docs name benchmark scripts; the search found none"
+    named = {
+        (str(page.relative_to(ROOT)), path)
+        for page in _pages()
+        for code in _code(page.read_text(encoding="utf-8"))
+        for path in REPO_PATH.findall(code)
+    }
+    assert any(path.startswith("benchmarks/") for _, path in named), (
+        "the docs name benchmark scripts; the search found none"
+    )
     missing = sorted(f"{page}: {path}" for page, path in named if not (ROOT / path).exists())
     assert not missing, "paths named in the docs that do not exist:\n" + "\n".join(missing)
 
@@ -115,7 +141,9 @@ def test_every_command_named_exists() -> None:
         name = f"fisheye-infer {words[0]}"
         actions = _subparsers(command)
         if actions and len(words) > 1 and re.match(r"^[a-z][a-z0-9-]*$", words[1]):
-            assert words[1] in actions, f"{page}: `{name} {words[1]}` is not an action of {name} (have {', '.join(actions)})"
+            assert words[1] in actions, (
+                f"{page}: `{name} {words[1]}` is not an action of {name} (have {', '.join(actions)})"
+            )
             command, name = actions[words[1]], f"{name} {words[1]}"
         known = set(command._option_string_actions)
         for word in words[1:]:

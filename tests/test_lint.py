@@ -28,7 +28,9 @@ def _tool(name: str) -> list[str]:
 
 
 def test_ruff_finds_nothing() -> None:
-    result = subprocess.run([*_tool("ruff"), "check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    result = subprocess.run(
+        [*_tool("ruff"), "check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
 
 
@@ -48,11 +50,14 @@ def _imports(path: Path) -> set[str]:
     return names
 
 
-@pytest.mark.parametrize("folder, forbidden", [
-    ("fisheye_infer", ("fisheye_infer.models", "fisheye_infer.export", "fisheye_infer.service")),
-    ("models", ("fisheye_infer.export", "fisheye_infer.service")),
-    ("service", ("fisheye_infer.models", "fisheye_infer.export")),
-])
+@pytest.mark.parametrize(
+    "folder, forbidden",
+    [
+        ("fisheye_infer", ("fisheye_infer.models", "fisheye_infer.export", "fisheye_infer.service")),
+        ("models", ("fisheye_infer.export", "fisheye_infer.service")),
+        ("service", ("fisheye_infer.models", "fisheye_infer.export")),
+    ],
+)
 def test_imports_point_down(folder: str, forbidden: tuple[str, ...]) -> None:
     """The runtime needs none of the extras (only its command modules reach them, lazily); the models
     and the service do not know the exporter; the service does not know the models."""

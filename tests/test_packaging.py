@@ -32,12 +32,26 @@ def test_wheel_installs_one_namespace(wheel: Path) -> None:
     names = zipfile.ZipFile(wheel).namelist()
     top = {n.split("/")[0] for n in names}
     assert {t for t in top if not t.endswith(".dist-info")} == {"fisheye_infer"}
-    for sub in ("models", "export", "service", "cameras", "geometry", "runtime", "deploy", "deploy/triton", "tools", "scenes", "eval"):
+    for sub in (
+        "models",
+        "export",
+        "service",
+        "cameras",
+        "geometry",
+        "runtime",
+        "deploy",
+        "deploy/triton",
+        "tools",
+        "scenes",
+        "eval",
+    ):
         assert f"fisheye_infer/{sub}/__init__.py" in names
     assert "fisheye_infer/data/rig-fisheye3dod/calib_results.txt" in names
     assert "fisheye_infer/models/manifests/fisheye_bevdet_keys.json" in names
     shipped = "fisheye_infer/models/pretrained/fisheye_bevdet_compact"
-    assert {f"{shipped}/{n}" for n in ("model.pth", "config.py", "rig.json", "MODEL_CARD.md", "heldout_frame/labels.json")} <= set(names)
+    assert {
+        f"{shipped}/{n}" for n in ("model.pth", "config.py", "rig.json", "MODEL_CARD.md", "heldout_frame/labels.json")
+    } <= set(names)
 
 
 BLOCK_HEAVY = """
@@ -70,7 +84,9 @@ def test_import_loads_neither_torch_nor_fastapi() -> None:
 def test_public_names() -> None:
     for name in fisheye_infer.__all__:
         assert hasattr(fisheye_infer, name), name
-    assert {"OCamModel", "KannalaBrandt", "Rig", "default_rig", "FisheyeInferError", "__version__"} <= set(fisheye_infer.__all__)
+    assert {"OCamModel", "KannalaBrandt", "Rig", "default_rig", "FisheyeInferError", "__version__"} <= set(
+        fisheye_infer.__all__
+    )
 
 
 def _subcommands() -> list[str]:
@@ -80,7 +96,9 @@ def _subcommands() -> list[str]:
 
 
 def test_version() -> None:
-    result = subprocess.run([sys.executable, "-m", "fisheye_infer", "--version"], capture_output=True, text=True, check=True)
+    result = subprocess.run(
+        [sys.executable, "-m", "fisheye_infer", "--version"], capture_output=True, text=True, check=True
+    )
     assert result.stdout.strip() == f"fisheye-infer {fisheye_infer.__version__}"
 
 
@@ -101,7 +119,9 @@ def test_missing_ray_or_triton_extra_names_the_install_line(tmp_path: Path) -> N
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    assert "pip install 'fisheye-infer[triton]'" in result.stdout and "pip install 'fisheye-infer[ray]'" in result.stdout
+    assert (
+        "pip install 'fisheye-infer[triton]'" in result.stdout and "pip install 'fisheye-infer[ray]'" in result.stdout
+    )
 
 
 @pytest.mark.parametrize("old", sorted(MOVED))

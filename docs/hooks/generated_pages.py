@@ -78,8 +78,13 @@ def _command_section(name: str, summary: str, parser: argparse.ArgumentParser, l
         lines += [_cell(parser.description or summary), ""]
     lines += ["```text", parser.format_usage().strip(), "```", ""]
     for group in parser._action_groups:
-        actions = [a for a in group._group_actions if a.help is not argparse.SUPPRESS and not isinstance(a, argparse._SubParsersAction)
-                   and not isinstance(a, argparse._HelpAction)]
+        actions = [
+            a
+            for a in group._group_actions
+            if a.help is not argparse.SUPPRESS
+            and not isinstance(a, argparse._SubParsersAction)
+            and not isinstance(a, argparse._HelpAction)
+        ]
         if not actions:
             continue
         title = group.title or "options"
@@ -135,11 +140,17 @@ def _reference(parser: argparse.ArgumentParser) -> str:
         "|---|---|",
     ]
     subs = _subparsers(parser)
-    lines += [f"| [`fisheye-infer {name}`](#fisheye-infer-{name}) | {_cell(help_text)} |" for name, help_text, _ in subs]
-    lines += ["", "`fisheye-infer --version` prints the version; without a command, `fisheye-infer` prints its help and exits "
-              "with status 1. A usage error (an unknown flag, a missing argument) prints the usage and exits with status 2. "
-              "A command that fails with one of the package's errors (`FisheyeInferError`) prints "
-              "`fisheye-infer COMMAND: error: MESSAGE` and exits with status 1.", ""]
+    lines += [
+        f"| [`fisheye-infer {name}`](#fisheye-infer-{name}) | {_cell(help_text)} |" for name, help_text, _ in subs
+    ]
+    lines += [
+        "",
+        "`fisheye-infer --version` prints the version; without a command, `fisheye-infer` prints its help and exits "
+        "with status 1. A usage error (an unknown flag, a missing argument) prints the usage and exits with status 2. "
+        "A command that fails with one of the package's errors (`FisheyeInferError`) prints "
+        "`fisheye-infer COMMAND: error: MESSAGE` and exits with status 1.",
+        "",
+    ]
     for name, help_text, sub in subs:
         lines += _command_section(f"fisheye-infer {name}", help_text, sub, 2)
     return "\n".join(lines) + "\n"

@@ -142,10 +142,18 @@ class OCamModel(_Frozen):
             try:
                 rows.append([float(tok) for tok in stripped.split()])
             except ValueError as exc:
-                raise CameraModelError(f"OCam file {source}, line {lineno}: not a row of numbers: {stripped!r}") from exc
+                raise CameraModelError(
+                    f"OCam file {source}, line {lineno}: not a row of numbers: {stripped!r}"
+                ) from exc
             if len(rows) == 5:
                 break
-        fields = ["direct polynomial", "inverse polynomial", "centre (row, column)", "affine (c, d, e)", "image size (height, width)"]
+        fields = [
+            "direct polynomial",
+            "inverse polynomial",
+            "centre (row, column)",
+            "affine (c, d, e)",
+            "image size (height, width)",
+        ]
         if len(rows) < 5:
             raise CameraModelError(f"OCam file {source}: expected 5 data rows ({', '.join(fields)}), found {len(rows)}")
         for row, field, count in zip(rows[:5], fields[:5], (None, None, 2, 3, 2)):
@@ -288,8 +296,15 @@ class KannalaBrandt(_Frozen):
     fov: float = Field(default=220.0, gt=0.0, le=360.0)
 
     @classmethod
-    def from_polynomial(cls, coeffs: tuple[float, float, float, float, float], cx: float, cy: float, width: int, height: int,
-                        fov: float = 220.0) -> KannalaBrandt:
+    def from_polynomial(
+        cls,
+        coeffs: tuple[float, float, float, float, float],
+        cx: float,
+        cy: float,
+        width: int,
+        height: int,
+        fov: float = 220.0,
+    ) -> KannalaBrandt:
         """Build from the paper's radius form r(theta) = k0 theta + k1 theta^3 + ... + k4 theta^9 (pixels)."""
         k0, *rest = coeffs
         if k0 <= 0:

@@ -25,7 +25,15 @@ import numpy as np
 
 from fisheye_infer.errors import RigError
 
-__all__ = ["CarlaPose", "Convention", "parse_sensor_metadata", "read_sensor_metadata", "pose_matrix", "cam2lidar_from_poses", "CAM_TO_SENSOR"]
+__all__ = [
+    "CarlaPose",
+    "Convention",
+    "parse_sensor_metadata",
+    "read_sensor_metadata",
+    "pose_matrix",
+    "cam2lidar_from_poses",
+    "CAM_TO_SENSOR",
+]
 
 Convention = Literal["compat", "exact"]
 

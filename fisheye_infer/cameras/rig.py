@@ -33,14 +33,28 @@ from fisheye_infer.cameras.camera_models import AnyCameraModel, OCamModel
 from fisheye_infer.cameras.carla_poses import Convention, cam2lidar_from_poses, read_sensor_metadata
 from fisheye_infer.errors import CameraModelError, RigError
 
-__all__ = ["Rig", "RigCamera", "FISHEYE3DOD_CAMERAS", "PINHOLE_CAMERAS", "RIG_SCHEMA_VERSION", "default_rig", "resolve_rig"]
+__all__ = [
+    "Rig",
+    "RigCamera",
+    "FISHEYE3DOD_CAMERAS",
+    "PINHOLE_CAMERAS",
+    "RIG_SCHEMA_VERSION",
+    "default_rig",
+    "resolve_rig",
+]
 
 RIG_SCHEMA_VERSION: Final = 1
 #: The detectors' input order for Fisheye3DOD.
 FISHEYE3DOD_CAMERAS = ("fisheye_camera_front", "fisheye_camera_left", "fisheye_camera_right", "fisheye_camera_rear")
 #: The six nuScenes-like pinhole cameras in the pinhole baselines' input order (rear_right before rear_left).
-PINHOLE_CAMERAS = ("nu_rgb_camera_front", "nu_rgb_camera_front_left", "nu_rgb_camera_front_right", "nu_rgb_camera_rear",
-                   "nu_rgb_camera_rear_right", "nu_rgb_camera_rear_left")
+PINHOLE_CAMERAS = (
+    "nu_rgb_camera_front",
+    "nu_rgb_camera_front_left",
+    "nu_rgb_camera_front_right",
+    "nu_rgb_camera_rear",
+    "nu_rgb_camera_rear_right",
+    "nu_rgb_camera_rear_left",
+)
 _RIGID_TOLERANCE = 1e-4
 
 
@@ -114,7 +128,13 @@ class Rig(BaseModel):
             raise RigError(f"{source}: " + _describe(exc, data)) from None
 
     @classmethod
-    def from_cameras(cls, models: dict[str, Any], cam2lidar: dict[str, np.ndarray], order: Sequence[str] | None = None, name: str = "rig") -> Rig:
+    def from_cameras(
+        cls,
+        models: dict[str, Any],
+        cam2lidar: dict[str, np.ndarray],
+        order: Sequence[str] | None = None,
+        name: str = "rig",
+    ) -> Rig:
         """Assemble from per-camera models and cam2lidar matrices, in ``order`` (default: ``models`` order)."""
         order = list(order or models)
         for cam in order:
@@ -123,13 +143,24 @@ class Rig(BaseModel):
             if cam not in cam2lidar:
                 raise RigError(f"camera '{cam}': no extrinsics given (have: {', '.join(cam2lidar)})")
         cameras = [
-            {"name": cam, "model": _as_dict(models[cam]), "cam2lidar": np.asarray(cam2lidar[cam], dtype=np.float64).tolist()} for cam in order
+            {
+                "name": cam,
+                "model": _as_dict(models[cam]),
+                "cam2lidar": np.asarray(cam2lidar[cam], dtype=np.float64).tolist(),
+            }
+            for cam in order
         ]
         return cls.from_dict({"name": name, "cameras": cameras})
 
     @classmethod
-    def from_ocam_extrinsics(cls, calib: str | Path, lidar2cam_json: str | Path, order: Sequence[str] | None = None, fov: float = 220.0,
-                             name: str | None = None) -> Rig:
+    def from_ocam_extrinsics(
+        cls,
+        calib: str | Path,
+        lidar2cam_json: str | Path,
+        order: Sequence[str] | None = None,
+        fov: float = 220.0,
+        name: str | None = None,
+    ) -> Rig:
         """One OCam file shared by all cameras + ``{"cameras": {name: lidar2cam 4x4}}``.
 
         Without ``order``, Fisheye3DOD's order is used when the file has exactly its cameras.
@@ -149,7 +180,9 @@ class Rig(BaseModel):
         for cam, m in cams.items():
             arr = np.asarray(m, dtype=np.float64)
             if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
-                raise RigError(f"camera '{cam}' (lidar2cam in {path}): expected a finite 4x4 matrix, got shape {arr.shape}")
+                raise RigError(
+                    f"camera '{cam}' (lidar2cam in {path}): expected a finite 4x4 matrix, got shape {arr.shape}"
+                )
             cam2lidar[cam] = np.linalg.inv(arr)
         return cls.from_cameras({c: model for c in cams}, cam2lidar, order, name=name or path.parent.name)
 
@@ -184,7 +217,9 @@ class Rig(BaseModel):
             if frame_id not in p:
                 raise RigError(f"camera '{cam}': frame {frame_id} missing from its sensor_metadata.txt")
             cam2lidar[cam] = cam2lidar_from_poses(p[frame_id], lidar[frame_id], convention)
-        return cls.from_cameras({c: model for c in cameras}, cam2lidar, cameras, name=f"{root.parent.name}/{root.name}@{frame_id}")
+        return cls.from_cameras(
+            {c: model for c in cameras}, cam2lidar, cameras, name=f"{root.parent.name}/{root.name}@{frame_id}"
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> Rig:
@@ -197,9 +232,13 @@ class Rig(BaseModel):
         try:
             data = yaml.safe_load(text) if path.suffix.lower() in (".yaml", ".yml") else json.loads(text)
         except (yaml.YAMLError, json.JSONDecodeError) as exc:
-            raise RigError(f"rig file {path}: not valid {'YAML' if path.suffix.lower() in ('.yaml', '.yml') else 'JSON'}: {exc}") from exc
+            raise RigError(
+                f"rig file {path}: not valid {'YAML' if path.suffix.lower() in ('.yaml', '.yml') else 'JSON'}: {exc}"
+            ) from exc
         if isinstance(data, dict) and data.get("schema_version", RIG_SCHEMA_VERSION) != RIG_SCHEMA_VERSION:
-            raise RigError(f"rig file {path}: schema_version {data.get('schema_version')!r} is not supported (expected {RIG_SCHEMA_VERSION})")
+            raise RigError(
+                f"rig file {path}: schema_version {data.get('schema_version')!r} is not supported (expected {RIG_SCHEMA_VERSION})"
+            )
         if _is_pinhole_list(data):
             return cls.from_pinhole_list(data, source=f"rig file {path}", name=path.parent.name or path.stem)
         return cls.from_dict(data, source=f"rig file {path}")
@@ -222,13 +261,22 @@ class Rig(BaseModel):
             if k[0, 1] != 0 or k[1, 0] != 0 or not np.array_equal(k[2], (0.0, 0.0, 1.0)):
                 raise RigError(f"{label} (K): expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {k.tolist()}")
             if cam.get("distortion", "none") not in ("none", None):
-                raise RigError(f"{label} (distortion): {cam.get('distortion')!r} is not supported; expected 'none' (an ideal pinhole)")
+                raise RigError(
+                    f"{label} (distortion): {cam.get('distortion')!r} is not supported; expected 'none' (an ideal pinhole)"
+                )
             if lidar2cam.shape != (4, 4) or not np.all(np.isfinite(lidar2cam)):
                 raise RigError(f"{label} (lidar2cam): expected a finite 4x4 matrix, got shape {lidar2cam.shape}")
             if "name" not in cam or "width" not in cam or "height" not in cam:
                 raise RigError(f"{label}: expected the fields name, width, height, K, lidar2cam")
-            models[cam["name"]] = {"type": "pinhole", "width": cam["width"], "height": cam["height"],
-                                   "fx": k[0, 0], "fy": k[1, 1], "cx": k[0, 2], "cy": k[1, 2]}
+            models[cam["name"]] = {
+                "type": "pinhole",
+                "width": cam["width"],
+                "height": cam["height"],
+                "fx": k[0, 0],
+                "fy": k[1, 1],
+                "cx": k[0, 2],
+                "cy": k[1, 2],
+            }
             cam2lidar[cam["name"]] = np.linalg.inv(lidar2cam)
         return cls.from_cameras(models, cam2lidar, name=name)
 
@@ -270,8 +318,10 @@ class Rig(BaseModel):
         first = self.cameras[0].model
         for cam in self.cameras[1:]:
             if cam.model != first:
-                raise RigError(f"camera '{cam.name}': its camera model differs from '{self.cameras[0].name}'; this model needs one shared "
-                               "intrinsic calibration")
+                raise RigError(
+                    f"camera '{cam.name}': its camera model differs from '{self.cameras[0].name}'; this model needs one shared "
+                    "intrinsic calibration"
+                )
         return first
 
     def require(self, names: Sequence[str], image_size: tuple[int, int] | None = None) -> None:
@@ -285,7 +335,9 @@ class Rig(BaseModel):
             for cam in self.cameras:
                 size = (cam.model.width, cam.model.height)
                 if size != tuple(image_size):
-                    raise RigError(f"camera '{cam.name}': image is {size[0]}x{size[1]}, model expects {image_size[0]}x{image_size[1]}")
+                    raise RigError(
+                        f"camera '{cam.name}': image is {size[0]}x{size[1]}, model expects {image_size[0]}x{image_size[1]}"
+                    )
 
     @property
     def hash(self) -> str:
@@ -296,14 +348,18 @@ class Rig(BaseModel):
         LAPACK, whose rounding may differ between machines; entries that are zero up to 1e-17 noise
         would otherwise change it).
         """
-        doc = json.dumps(_canonical([c.model_dump(mode="json") for c in self.cameras]), sort_keys=True, separators=(",", ":"))
+        doc = json.dumps(
+            _canonical([c.model_dump(mode="json") for c in self.cameras]), sort_keys=True, separators=(",", ":")
+        )
         return hashlib.sha256(doc.encode()).hexdigest()[:16]
 
     def describe(self) -> str:
         """A human-readable table: camera, model, image size, position and heading."""
         width = max(24, *(len(n) for n in self.names))
         lines = [f"rig {self.name!r}  hash {self.hash}  frame: lidar (x forward, y left, z up)"]
-        lines.append(f"  {'camera':<{width}} {'model':<15} {'image':>9} {'fov':>6}   {'position x, y, z (m)':<26} {'heading':>8}")
+        lines.append(
+            f"  {'camera':<{width}} {'model':<15} {'image':>9} {'fov':>6}   {'position x, y, z (m)':<26} {'heading':>8}"
+        )
         for cam in self.cameras:
             x, y, z = np.round(cam.position, 3) + 0.0  # no "-0.000"
             fov = getattr(cam.model, "fov", None)
@@ -317,7 +373,11 @@ class Rig(BaseModel):
 def _is_pinhole_list(data: Any) -> bool:
     """A camera list with ``K`` and ``lidar2cam`` per camera (not the project's rig schema)."""
     cams = data.get("cameras") if isinstance(data, dict) else None
-    return isinstance(cams, list) and bool(cams) and all(isinstance(c, dict) and "K" in c and "lidar2cam" in c for c in cams)
+    return (
+        isinstance(cams, list)
+        and bool(cams)
+        and all(isinstance(c, dict) and "K" in c and "lidar2cam" in c for c in cams)
+    )
 
 
 def _canonical(value: Any) -> Any:
@@ -352,7 +412,10 @@ def _describe(exc: ValidationError, data: Any) -> str:
         if len(loc) >= 2 and loc[0] == "cameras" and isinstance(loc[1], int):
             entry = cameras[loc[1]] if isinstance(cameras, (list, tuple)) and loc[1] < len(cameras) else None
             name = entry.get("name") if isinstance(entry, dict) else None
-            field = ".".join(str(x) for x in loc[2:] if x not in ("ocam", "kannala_brandt", "equidistant", "pinhole")) or "entry"
+            field = (
+                ".".join(str(x) for x in loc[2:] if x not in ("ocam", "kannala_brandt", "equidistant", "pinhole"))
+                or "entry"
+            )
             where = f"camera '{name}' ({field})" if name else f"camera #{loc[1]} ({field})"
         msg = err["msg"].removeprefix("Value error, ")
         parts.append(f"{where}: {msg}")

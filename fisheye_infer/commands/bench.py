@@ -47,8 +47,17 @@ def run(args: argparse.Namespace) -> int:
             print("bench: no onnx package, skipping the per-stage split (pip install onnx)", file=sys.stderr)
         else:
             stages = time_stages
-    result = bench_model(args.model, args.threads, args.batch, max(1, args.repeat), max(0, args.warmup), stages, not args.no_rss,
-                         progress=lambda s: print(s, file=sys.stderr), providers=args.providers)
+    result = bench_model(
+        args.model,
+        args.threads,
+        args.batch,
+        max(1, args.repeat),
+        max(0, args.warmup),
+        stages,
+        not args.no_rss,
+        progress=lambda s: print(s, file=sys.stderr),
+        providers=args.providers,
+    )
     print(format_table(result))
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=2))

@@ -9,15 +9,29 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from fisheye_infer.runtime.session import Provider
 
-__all__ = ["NEEDS_EXPORT", "NEEDS_SERVE", "NEEDS_RAY_SERVE", "missing_extra", "positive_int", "positive_ints", "int_list", "csv_list", "int_pair",
-           "providers_arg", "PROVIDERS_HELP", "RIG_HELP"]
+__all__ = [
+    "NEEDS_EXPORT",
+    "NEEDS_SERVE",
+    "NEEDS_RAY_SERVE",
+    "missing_extra",
+    "positive_int",
+    "positive_ints",
+    "int_list",
+    "csv_list",
+    "int_pair",
+    "providers_arg",
+    "PROVIDERS_HELP",
+    "RIG_HELP",
+]
 
 NEEDS_EXPORT = "this command needs the export extra: pip install 'fisheye-infer[export]' (install torch==2.13.0 first)"
 NEEDS_SERVE = "fisheye-infer serve needs the serve extra: pip install 'fisheye-infer[serve]'"
 NEEDS_RAY_SERVE = "fisheye-infer serve --ray needs the ray extra: pip install 'fisheye-infer[ray]'"
-PROVIDERS_HELP = ("ONNX Runtime execution providers, comma-separated in order of preference (CUDAExecutionProvider,CPUExecutionProvider), "
-                  "a JSON list with provider options ('[[\"CUDAExecutionProvider\", {\"device_id\": 1}], \"CPUExecutionProvider\"]'), "
-                  "or 'auto' for the installed accelerated ones, then CPU (default: CPU)")
+PROVIDERS_HELP = (
+    "ONNX Runtime execution providers, comma-separated in order of preference (CUDAExecutionProvider,CPUExecutionProvider), "
+    'a JSON list with provider options (\'[["CUDAExecutionProvider", {"device_id": 1}], "CPUExecutionProvider"]\'), '
+    "or 'auto' for the installed accelerated ones, then CPU (default: CPU)"
+)
 RIG_HELP = "rig file (.json/.yaml), folder with calib_results.txt + lidar2cam.json, or 'default'"
 
 

@@ -30,7 +30,14 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from fisheye_infer.cameras.rig import default_rig
-    from fisheye_infer.geometry import BevGrid, build_pooling_plan, depth_bins, frustum_to_lidar, spherical_frustum, spherical_grid
+    from fisheye_infer.geometry import (
+        BevGrid,
+        build_pooling_plan,
+        depth_bins,
+        frustum_to_lidar,
+        spherical_frustum,
+        spherical_grid,
+    )
     from fisheye_infer.tools.viz import draw_rig, draw_sampling_grid, save_png
 
     out = Path(args.out)
@@ -55,19 +62,38 @@ def run(args: argparse.Namespace) -> int:
         return 0
     onnx_path = out / f"{shipped.name}.onnx"
     print(f"\nexport: the shipped {shipped.name}, trained on randomised synthetic frames (model card: {shipped.card})")
-    print(export(shipped.checkpoint, onnx_path, config=shipped.config, rig=shipped.rig, verify_images=shipped.heldout_frame).summary())
+    print(
+        export(
+            shipped.checkpoint, onnx_path, config=shipped.config, rig=shipped.rig, verify_images=shipped.heldout_frame
+        ).summary()
+    )
 
     from fisheye_infer.commands import detect
 
     detect_parser = argparse.ArgumentParser(prog="fisheye-infer detect")  # detect's own flags and defaults
     detect.configure(detect_parser)
-    detect.run(detect_parser.parse_args([str(onnx_path), "--images", str(shipped.heldout_frame), "--out", str(out / "result.json"),
-                                         "--viz", str(out / "result.png"), "--score-threshold", str(DEMO_SCORE_THRESHOLD)]))
+    detect.run(
+        detect_parser.parse_args(
+            [
+                str(onnx_path),
+                "--images",
+                str(shipped.heldout_frame),
+                "--out",
+                str(out / "result.json"),
+                "--viz",
+                str(out / "result.png"),
+                "--score-threshold",
+                str(DEMO_SCORE_THRESHOLD),
+            ]
+        )
+    )
     detections = json.loads((out / "result.json").read_text())["frames"][0]["detections"]
     labels = json.loads((shipped.heldout_frame / "labels.json").read_text())["records"]
     found, extra = _match_labels(detections, labels)
-    print(f"\ndemo done: on the held-out frame, {found} of {len(labels)} labelled objects found (same class, centre within "
-          f"{MATCH_RADIUS_M:g} m, score >= {DEMO_SCORE_THRESHOLD}); {extra} box(es) on no object; see {out}/result.png")
+    print(
+        f"\ndemo done: on the held-out frame, {found} of {len(labels)} labelled objects found (same class, centre within "
+        f"{MATCH_RADIUS_M:g} m, score >= {DEMO_SCORE_THRESHOLD}); {extra} box(es) on no object; see {out}/result.png"
+    )
     return 0
 
 

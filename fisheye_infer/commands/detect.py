@@ -28,11 +28,17 @@ __all__ = ["configure", "run"]
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", nargs="?", help="ONNX file written by fisheye-infer export")
-    parser.add_argument("--images", nargs="+", help="a folder (camera-named images, or one sub-folder per camera) or one file per camera in model order")
+    parser.add_argument(
+        "--images",
+        nargs="+",
+        help="a folder (camera-named images, or one sub-folder per camera) or one file per camera in model order",
+    )
     parser.add_argument("--result", help="draw this saved results file instead of running a model")
     parser.add_argument("--out", help="results JSON to write")
     parser.add_argument("--viz", help="PNG to write: fisheye images with projected boxes and a bird's-eye view")
-    parser.add_argument("--score-threshold", type=float, help="drop boxes below this score (default: keep all, as the official output)")
+    parser.add_argument(
+        "--score-threshold", type=float, help="drop boxes below this score (default: keep all, as the official output)"
+    )
     parser.add_argument("--classes", help="comma-separated class names to keep")
     parser.add_argument("--nms", choices=("rotated", "circle"), help="optional NMS (the official output has none)")
     parser.add_argument("--threads", type=positive_int, help="ONNX Runtime intra-op threads (default: all cores)")
@@ -66,7 +72,9 @@ def _draw_saved(args: argparse.Namespace) -> int:
         raise FrameError(f"--result {args.result}: cannot be read as JSON ({exc})") from None
     missing = [k for k in ("rig", "classes", "frames") if not isinstance(doc, dict) or k not in doc]
     if missing:
-        raise FrameError(f"--result {args.result}: missing {', '.join(missing)}; expected a file written by 'fisheye-infer detect --out'")
+        raise FrameError(
+            f"--result {args.result}: missing {', '.join(missing)}; expected a file written by 'fisheye-infer detect --out'"
+        )
     rig = Rig.from_dict(doc["rig"], source=f"results file {args.result}")
     classes = tuple(doc["classes"])
     frames = frames_from_paths(args.images, rig.names) if args.images else [(f["name"], {}) for f in doc["frames"]]
@@ -98,7 +106,9 @@ def run(args: argparse.Namespace) -> int:
     from fisheye_infer.runtime.preprocess import frames_from_paths
 
     nms = NmsConfig(kind=args.nms) if args.nms else None
-    detector = Detector(args.model, threads=args.threads, providers=args.providers, score_threshold=args.score_threshold, nms=nms)
+    detector = Detector(
+        args.model, threads=args.threads, providers=args.providers, score_threshold=args.score_threshold, nms=nms
+    )
     frames = frames_from_paths(args.images, detector.info.cameras)
     classes = [c.strip() for c in args.classes.split(",") if c.strip()] if args.classes else None
     unknown = sorted(set(classes or ()) - set(detector.info.classes))
@@ -109,12 +119,17 @@ def run(args: argparse.Namespace) -> int:
         "model_id": detector.info.model_id,
         "classes": list(detector.info.classes),
         "rig": detector.info.rig.model_dump(mode="json"),
-        "frames": [{"name": name, **json.loads(dets.to_json()), "records": dets.to_nuscenes()} for (name, _), dets in zip(frames, results)],
+        "frames": [
+            {"name": name, **json.loads(dets.to_json()), "records": dets.to_nuscenes()}
+            for (name, _), dets in zip(frames, results)
+        ],
     }
     for (name, _), dets in zip(frames, results):
         t = dets.timings_ms
-        print(f"{name}: {len(dets)} boxes from {len(dets.cameras_used)} cameras in {sum(t.values()):.0f} ms "
-              f"(decode {t['decode']:.0f}, preprocess {t['preprocess']:.0f}, inference {t['inference']:.0f}, postprocess {t['postprocess']:.0f})")
+        print(
+            f"{name}: {len(dets)} boxes from {len(dets.cameras_used)} cameras in {sum(t.values()):.0f} ms "
+            f"(decode {t['decode']:.0f}, preprocess {t['preprocess']:.0f}, inference {t['inference']:.0f}, postprocess {t['postprocess']:.0f})"
+        )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(doc, indent=1))
@@ -130,12 +145,26 @@ def run(args: argparse.Namespace) -> int:
 def _configure_ray(parser: argparse.ArgumentParser) -> None:
     """The ``--ray`` group of ``fisheye-infer detect``."""
     group = parser.add_argument_group("batch inference with Ray Data (--ray; needs the [ray] extra)")
-    group.add_argument("--ray", action="store_true", help="run over many frames with Ray Data; --out is then one results file for 'eval --results'")
-    group.add_argument("--data", help="Fisheye3DOD-layout root to run over (with --split); or give --images with one sub-folder per camera")
+    group.add_argument(
+        "--ray",
+        action="store_true",
+        help="run over many frames with Ray Data; --out is then one results file for 'eval --results'",
+    )
+    group.add_argument(
+        "--data",
+        help="Fisheye3DOD-layout root to run over (with --split); or give --images with one sub-folder per camera",
+    )
     group.add_argument("--split", default="val", help="split file in ImageSets-2hz (default: val)")
     group.add_argument("--batch-size", type=int, default=2, help="frames per detect_batch call (default 2)")
-    group.add_argument("--concurrency", type=int, default=1, help="Detector actors, each with its own session (default 1)")
-    group.add_argument("--cpus-per-actor", type=float, default=1.0, help="CPUs Ray reserves per actor (default 1); also its threads unless --threads")
+    group.add_argument(
+        "--concurrency", type=int, default=1, help="Detector actors, each with its own session (default 1)"
+    )
+    group.add_argument(
+        "--cpus-per-actor",
+        type=float,
+        default=1.0,
+        help="CPUs Ray reserves per actor (default 1); also its threads unless --threads",
+    )
 
 
 def _run_ray(args: argparse.Namespace) -> int:
@@ -143,16 +172,34 @@ def _run_ray(args: argparse.Namespace) -> int:
     from fisheye_infer.deploy.ray_batch import NEEDS_RAY, BatchOptions, dataset_frames, detect_frames
     from fisheye_infer.tools.progress import Progress
 
-    refused = [flag for flag, value in (("--result", args.result), ("--viz", args.viz), ("--score-threshold", args.score_threshold),
-                                        ("--classes", args.classes), ("--nms", args.nms)) if value]
+    refused = [
+        flag
+        for flag, value in (
+            ("--result", args.result),
+            ("--viz", args.viz),
+            ("--score-threshold", args.score_threshold),
+            ("--classes", args.classes),
+            ("--nms", args.nms),
+        )
+        if value
+    ]
     if refused:
-        raise ConfigError(f"--ray writes the official unthresholded output for evaluation; {', '.join(refused)} cannot be combined with it")
+        raise ConfigError(
+            f"--ray writes the official unthresholded output for evaluation; {', '.join(refused)} cannot be combined with it"
+        )
     if args.providers:
-        raise ConfigError("--providers: the --ray actors run on CPU (Ray reserves CPUs for them, not GPUs); run without --ray on a GPU")
+        raise ConfigError(
+            "--providers: the --ray actors run on CPU (Ray reserves CPUs for them, not GPUs); run without --ray on a GPU"
+        )
     if not args.model or not args.out or bool(args.data) == bool(args.images):
         raise ConfigError("--ray needs a MODEL, --out and exactly one of --data ROOT or --images")
     try:
-        options = BatchOptions(batch_size=args.batch_size, concurrency=args.concurrency, cpus_per_actor=args.cpus_per_actor, threads=args.threads)
+        options = BatchOptions(
+            batch_size=args.batch_size,
+            concurrency=args.concurrency,
+            cpus_per_actor=args.cpus_per_actor,
+            threads=args.threads,
+        )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     try:
@@ -177,11 +224,16 @@ def _run_ray(args: argparse.Namespace) -> int:
         raise FrameError("no frames to run")
     if not ray.is_initialized():
         ray.init(include_dashboard=False, configure_logging=False)  # RAY_ADDRESS, when set, joins that cluster
-    print(f"running {len(frames)} frame(s) on {options.concurrency} actor(s), batches of {options.batch_size}", file=sys.stderr)
+    print(
+        f"running {len(frames)} frame(s) on {options.concurrency} actor(s), batches of {options.batch_size}",
+        file=sys.stderr,
+    )
     bar = Progress(len(frames), every=max(1, len(frames) // 20))
     result = detect_frames(args.model, frames, options, progress=lambda done, _: bar.update(done))
     path = result.save(args.out, {"model": str(args.model), **source})
-    print(f"wrote {path}: {len(result.results)} frame(s) in {result.seconds:.1f} s ({result.frames_per_second:.2f} frames/s)")
+    print(
+        f"wrote {path}: {len(result.results)} frame(s) in {result.seconds:.1f} s ({result.frames_per_second:.2f} frames/s)"
+    )
     for token, reason in result.failed.items():
         print(f"failed: {token}: {reason}", file=sys.stderr)
     if result.failed:

@@ -25,21 +25,34 @@ __all__ = ["configure", "run"]
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``fisheye-infer eval``."""
-    parser.add_argument("model", nargs="?", help="exported model (.onnx) to run on --data; omit to evaluate saved results")
+    parser.add_argument(
+        "model", nargs="?", help="exported model (.onnx) to run on --data; omit to evaluate saved results"
+    )
     files = parser.add_argument_group("saved results")
     files.add_argument("--results", help='predictions: {"results": {sample_token: [record, ...]}}')
     files.add_argument("--ground-truth", help="ground truth in the same format (detection_score optional, ignored)")
-    files.add_argument("--allow-missing", action="store_true", help="count ground-truth samples absent from --results as frames with no detections")
+    files.add_argument(
+        "--allow-missing",
+        action="store_true",
+        help="count ground-truth samples absent from --results as frames with no detections",
+    )
     data = parser.add_argument_group("running a model")
     data.add_argument("--data", help="Fisheye3DOD-layout root (calib_results.txt, ImageSets-2hz/, scenes)")
     data.add_argument("--split", default="val", help="split file in ImageSets-2hz (default: val)")
     data.add_argument("--limit", type=int, help="evaluate the first N samples of the split")
     data.add_argument("--scenes", type=csv_list, help="comma-separated scene names to keep")
-    data.add_argument("--cameras", type=csv_list, help="cameras to feed (e.g. front,rear); the others are marked missing")
+    data.add_argument(
+        "--cameras", type=csv_list, help="cameras to feed (e.g. front,rear); the others are marked missing"
+    )
     data.add_argument("--threads", type=int, help="ONNX Runtime intra-op threads")
-    data.add_argument("--save-results", help="also write the predictions to this JSON file and the ground truth beside it (pred.json -> pred.gt.json)")
+    data.add_argument(
+        "--save-results",
+        help="also write the predictions to this JSON file and the ground truth beside it (pred.json -> pred.gt.json)",
+    )
     parser.add_argument("--config", help="metric settings as JSON (default: the official Fisheye3DOD settings)")
-    parser.add_argument("--ref-range", type=float, help="scale every class range by REF_RANGE/48 (the paper's 0-30 m is 30)")
+    parser.add_argument(
+        "--ref-range", type=float, help="scale every class range by REF_RANGE/48 (the paper's 0-30 m is 30)"
+    )
     parser.add_argument("--out", required=True, help="report JSON to write; the Markdown report goes beside it")
     parser.set_defaults(run=run)
 
@@ -80,7 +93,9 @@ def run(args: argparse.Namespace) -> int:
             return _fail("give --results and --ground-truth, or a MODEL with --data")
         if args.data:
             return _fail("--data needs a MODEL to run; saved results are evaluated with --results/--ground-truth only")
-        report = evaluate_results(load_results(args.ground_truth), load_results(args.results), config, allow_missing=args.allow_missing)
+        report = evaluate_results(
+            load_results(args.ground_truth), load_results(args.results), config, allow_missing=args.allow_missing
+        )
         _write_report(report, args.out)
         return 0
     if args.results or args.ground_truth:
@@ -92,9 +107,13 @@ def run(args: argparse.Namespace) -> int:
 
     detector = Detector(args.model, threads=args.threads)
     if tuple(detector.info.classes) != tuple(config.class_names):
-        return _fail(f"the model's classes {list(detector.info.classes)} differ from the metric's {list(config.class_names)}")
+        return _fail(
+            f"the model's classes {list(detector.info.classes)} differ from the metric's {list(config.class_names)}"
+        )
     cameras = [camera_name(c) for c in args.cameras] if args.cameras else list(detector.info.cameras)
-    dataset = Fisheye3DOD(args.data, args.split, cameras=cameras, scenes=args.scenes, limit=args.limit, class_names=config.class_names)
+    dataset = Fisheye3DOD(
+        args.data, args.split, cameras=cameras, scenes=args.scenes, limit=args.limit, class_names=config.class_names
+    )
     gt, pred = detect_dataset(detector, dataset)
     if args.save_results:
         path = Path(args.save_results)

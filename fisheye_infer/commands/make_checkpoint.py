@@ -10,8 +10,13 @@ __all__ = ["configure", "run"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--arch", choices=ArchChoices(), metavar="ARCH", default="fisheye-bevdet",
-                        help="architecture, one of %(choices)s (default: fisheye-bevdet)")
+    parser.add_argument(
+        "--arch",
+        choices=ArchChoices(),
+        metavar="ARCH",
+        default="fisheye-bevdet",
+        help="architecture, one of %(choices)s (default: fisheye-bevdet)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rig", default="default", help="rig whose geometry tables the checkpoint stores")
     parser.add_argument("--out", required=True, help=".pth file to write")

@@ -29,11 +29,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     convert.add_argument("--calib", required=True, help="OCam calib_results.txt shared by the cameras")
     source = convert.add_mutually_exclusive_group(required=True)
     source.add_argument("--extrinsics", help='lidar2cam.json: {"cameras": {name: 4x4}}')
-    source.add_argument("--sensor-metadata", help="Fisheye3DOD <scene>/<vehicle> folder with <camera>/sensor_metadata.txt")
+    source.add_argument(
+        "--sensor-metadata", help="Fisheye3DOD <scene>/<vehicle> folder with <camera>/sensor_metadata.txt"
+    )
     convert.add_argument("--cameras", help="comma-separated camera order (sensor metadata only)")
     convert.add_argument("--frame", help="frame id (sensor metadata only; default: first common frame)")
-    convert.add_argument("--convention", choices=("compat", "exact"), default="compat",
-                         help="CARLA pose conversion (default: compat, as the checkpoints were trained)")
+    convert.add_argument(
+        "--convention",
+        choices=("compat", "exact"),
+        default="compat",
+        help="CARLA pose conversion (default: compat, as the checkpoints were trained)",
+    )
     convert.add_argument("--fov", type=float, default=220.0, help="lens field of view in degrees (default 220)")
     convert.add_argument("--out", required=True, help="rig file to write (.json or .yaml)")
     convert.set_defaults(run=run_convert)
@@ -64,8 +70,10 @@ def run_grid(args: argparse.Namespace) -> int:
     rig = resolve_rig(args.rig)
     camera = rig.camera(args.camera) if args.camera else rig.cameras[0]
     if not isinstance(camera.model, OCamModel):
-        raise RigError(f"camera '{camera.name}': the sampling grid is drawn for OCam models, this camera has a "
-                       f"{type(camera.model).__name__} model")
+        raise RigError(
+            f"camera '{camera.name}': the sampling grid is drawn for OCam models, this camera has a "
+            f"{type(camera.model).__name__} model"
+        )
     grid = spherical_grid(camera.model, (args.rows, args.cols))
     print(f"wrote {save_png(args.out, draw_sampling_grid(camera.model, grid))}")
     return 0
@@ -78,8 +86,14 @@ def run_convert(args: argparse.Namespace) -> int:
         rig = Rig.from_ocam_extrinsics(args.calib, args.extrinsics, fov=args.fov)
     else:
         cameras = args.cameras.split(",") if args.cameras else FISHEYE3DOD_CAMERAS
-        rig = Rig.from_sensor_metadata(args.sensor_metadata, args.calib, cameras=cameras, frame_id=args.frame, convention=args.convention,
-                                       fov=args.fov)
+        rig = Rig.from_sensor_metadata(
+            args.sensor_metadata,
+            args.calib,
+            cameras=cameras,
+            frame_id=args.frame,
+            convention=args.convention,
+            fov=args.fov,
+        )
     rig.save(args.out)
     print(rig.describe())
     print(f"wrote {args.out}")

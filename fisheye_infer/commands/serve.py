@@ -36,7 +36,10 @@ _SETTINGS_FLAGS: dict[str, tuple[type, str]] = {
     "queue_size": (int, "requests waiting before new ones get 503 (default 8)"),
     "max_body_bytes": (int, "largest request body or stream message (default 32 MiB)"),
     "max_batch_frames": (int, "most frames in one /detect/batch request (default 8)"),
-    "microbatch_max_size": (int, "group up to this many concurrent single-frame requests into one run (default 1: off)"),
+    "microbatch_max_size": (
+        int,
+        "group up to this many concurrent single-frame requests into one run (default 1: off)",
+    ),
     "microbatch_max_wait_ms": (float, "how long a request waits for others to group with (default 5)"),
     "request_timeout_s": (float, "longest wait for a result (default 60)"),
     "header_timeout_s": (float, "longest time for a request's headers to arrive (default 10)"),
@@ -48,7 +51,9 @@ _SETTINGS_FLAGS: dict[str, tuple[type, str]] = {
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("model", nargs="?", help="ONNX file written by fisheye-infer export (default: $FISHEYE_MODEL_PATH)")
+    parser.add_argument(
+        "model", nargs="?", help="ONNX file written by fisheye-infer export (default: $FISHEYE_MODEL_PATH)"
+    )
     for name, (kind, help_text) in _SETTINGS_FLAGS.items():
         parser.add_argument(f"--{name.replace('_', '-')}", type=kind, help=help_text)
     parser.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
@@ -96,8 +101,13 @@ def run(args: argparse.Namespace) -> int:
         return _run_ray(args, settings)
     _log_to_stderr(args.log_level)
     print(f"loading {settings.model_path} ...", file=sys.stderr)
-    detector = Detector(settings.model_path, threads=settings.threads, providers=settings.session_providers, warmup=settings.warmup,
-                        spin=settings.spin)
+    detector = Detector(
+        settings.model_path,
+        threads=settings.threads,
+        providers=settings.session_providers,
+        warmup=settings.warmup,
+        spin=settings.spin,
+    )
     server = build_server(settings, create_app(settings, detector), log_level=args.log_level)
     server.run()
     return 0 if server.started else 1
@@ -105,11 +115,22 @@ def run(args: argparse.Namespace) -> int:
 
 def _configure_ray(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("Ray Serve (--ray; needs the [ray] extra)")
-    group.add_argument("--ray", action="store_true", help="run the service on Ray Serve: replicas, @serve.batch across callers")
+    group.add_argument(
+        "--ray", action="store_true", help="run the service on Ray Serve: replicas, @serve.batch across callers"
+    )
     group.add_argument("--replicas", type=int, default=1, help="replicas, each with its own Detector (default 1)")
-    group.add_argument("--cpus-per-replica", type=float, default=1.0, help="CPUs Ray reserves per replica; also its ONNX Runtime threads (default 1)")
-    group.add_argument("--max-batch-size", type=int, default=4, help="most frames of concurrent callers run together (default 4)")
-    group.add_argument("--batch-wait-ms", type=float, default=10.0, help="how long a frame waits for others to batch with (default 10)")
+    group.add_argument(
+        "--cpus-per-replica",
+        type=float,
+        default=1.0,
+        help="CPUs Ray reserves per replica; also its ONNX Runtime threads (default 1)",
+    )
+    group.add_argument(
+        "--max-batch-size", type=int, default=4, help="most frames of concurrent callers run together (default 4)"
+    )
+    group.add_argument(
+        "--batch-wait-ms", type=float, default=10.0, help="how long a frame waits for others to batch with (default 10)"
+    )
 
 
 def _run_ray(args: argparse.Namespace, settings: Any) -> int:
@@ -127,12 +148,19 @@ def _run_ray(args: argparse.Namespace, settings: Any) -> int:
     from fisheye_infer.service.ray_serve import RayServeOptions, build_app
 
     if settings.providers:
-        print("fisheye-infer serve: error: providers: the --ray replicas run on CPU (Ray reserves CPUs for them, not GPUs); "
-              "serve without --ray on a GPU", file=sys.stderr)
+        print(
+            "fisheye-infer serve: error: providers: the --ray replicas run on CPU (Ray reserves CPUs for them, not GPUs); "
+            "serve without --ray on a GPU",
+            file=sys.stderr,
+        )
         return 1
     try:
-        options = RayServeOptions(replicas=args.replicas, cpus_per_replica=args.cpus_per_replica, max_batch_size=args.max_batch_size,
-                                  batch_wait_ms=args.batch_wait_ms)
+        options = RayServeOptions(
+            replicas=args.replicas,
+            cpus_per_replica=args.cpus_per_replica,
+            max_batch_size=args.max_batch_size,
+            batch_wait_ms=args.batch_wait_ms,
+        )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     if not settings.model_path.is_file():
@@ -144,8 +172,11 @@ def _run_ray(args: argparse.Namespace, settings: Any) -> int:
     try:
         serve.start(http_options={"host": settings.host, "port": settings.port})
         serve.run(build_app(settings, options), name="fisheye-infer", route_prefix="/")
-        print(f"serving {settings.model_path} on http://{settings.host}:{settings.port} with {options.replicas} replica(s) "
-              f"(Ctrl-C to stop)", file=sys.stderr)
+        print(
+            f"serving {settings.model_path} on http://{settings.host}:{settings.port} with {options.replicas} replica(s) "
+            f"(Ctrl-C to stop)",
+            file=sys.stderr,
+        )
         stop.wait()
         print("stopping: Ray Serve drains the replicas", file=sys.stderr)
         serve.shutdown()

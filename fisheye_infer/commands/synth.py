@@ -1,7 +1,7 @@
 """``fisheye-infer synth``: synthetic fisheye frames with labels, in the Fisheye3DOD layout.
 
-    fisheye-infer synth --rig default --frames 4 --out data/synth [--seed 0] [--scale 0.25]
-    fisheye-infer synth --stream val --rig runs/compact/rig.json --frames 200 --out data/heldout
+fisheye-infer synth --rig default --frames 4 --out data/synth [--seed 0] [--scale 0.25]
+fisheye-infer synth --stream val --rig runs/compact/rig.json --frames 200 --out data/heldout
 """
 
 from __future__ import annotations
@@ -23,17 +23,30 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``fisheye-infer synth``."""
     parser.add_argument("--rig", default="default", help=RIG_HELP)
     parser.add_argument("--frames", type=int, default=1, help="frames to render (default: 1)")
-    parser.add_argument("--out", required=True, help="dataset root to write (Fisheye3DOD layout; existing splits are extended)")
-    parser.add_argument("--seed", type=int, default=0, help="scene seed (default: 0); the same seed writes the same files")
+    parser.add_argument(
+        "--out", required=True, help="dataset root to write (Fisheye3DOD layout; existing splits are extended)"
+    )
+    parser.add_argument(
+        "--seed", type=int, default=0, help="scene seed (default: 0); the same seed writes the same files"
+    )
     parser.add_argument("--split", help="split file to add the frames to (default: val, or the --stream's name)")
-    parser.add_argument("--scale", type=float, default=1.0, help="image scale, e.g. 0.25 for 200x200 from an 800x800 rig")
+    parser.add_argument(
+        "--scale", type=float, default=1.0, help="image scale, e.g. 0.25 for 200x200 from an 800x800 rig"
+    )
     parser.add_argument("--objects", type=int_pair, default=(6, 14), help="MIN,MAX objects per frame (default: 6,14)")
-    parser.add_argument("--ground-height", type=float, default=2.0, help="ground plane below the lidar, metres (default: 2)")
+    parser.add_argument(
+        "--ground-height", type=float, default=2.0, help="ground plane below the lidar, metres (default: 2)"
+    )
     parser.add_argument("--scene", help="scene name (default: synth-Town00-ClearNoon-seed<SEED>)")
-    parser.add_argument("--stream", choices=("train", "val"),
-                        help="write frames of the randomised stream `fisheye-infer train` draws from (scenes, looks and seeds as it "
-                             "renders them; 'val' is never trained on) instead of the plain scenes; the split file defaults to the stream's name")
-    parser.add_argument("--first", type=int, default=0, help="with --stream: index of the first frame written (default 0)")
+    parser.add_argument(
+        "--stream",
+        choices=("train", "val"),
+        help="write frames of the randomised stream `fisheye-infer train` draws from (scenes, looks and seeds as it "
+        "renders them; 'val' is never trained on) instead of the plain scenes; the split file defaults to the stream's name",
+    )
+    parser.add_argument(
+        "--first", type=int, default=0, help="with --stream: index of the first frame written (default 0)"
+    )
     parser.set_defaults(run=run)
 
 
@@ -54,12 +67,22 @@ def run(args: argparse.Namespace) -> int:
         print("fisheye-infer synth: error: --first needs --stream", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    frames = synthesize(rig, args.out, frames=args.frames, seed=args.seed, split=args.split or "val", scene_name=args.scene,
-                        num_objects=args.objects, ground_height=args.ground_height)
+    frames = synthesize(
+        rig,
+        args.out,
+        frames=args.frames,
+        seed=args.seed,
+        split=args.split or "val",
+        scene_name=args.scene,
+        num_objects=args.objects,
+        ground_height=args.ground_height,
+    )
     seconds = time.perf_counter() - t0
     width, height = rig.cameras[0].model.width, rig.cameras[0].model.height
     boxes = sum(len(f.boxes) for f in frames)
-    print(f"wrote {len(frames)} frame(s) to {args.out}: {len(rig)} cameras at {width}x{height}, {boxes} boxes in all, {seconds / len(frames):.2f} s per frame")
+    print(
+        f"wrote {len(frames)} frame(s) to {args.out}: {len(rig)} cameras at {width}x{height}, {boxes} boxes in all, {seconds / len(frames):.2f} s per frame"
+    )
     print(f"first token: {frames[0].token}")
     print(f"next: fisheye-infer eval MODEL --data {args.out} --split {args.split or 'val'} --out report.json")
     return 0
@@ -69,11 +92,25 @@ def _write_stream(args: argparse.Namespace, rig: Rig) -> int:
     """``--stream``: frames of the training command's randomised stream, in the Fisheye3DOD layout."""
     from fisheye_infer.scenes.streams import SyntheticFrames, write_split
 
-    fixed = [f"--{name}" for name, given in (("objects", args.objects != (6, 14)), ("ground-height", args.ground_height != 2.0),
-                                               ("scene", args.scene is not None)) if given]
+    fixed = [
+        f"--{name}"
+        for name, given in (
+            ("objects", args.objects != (6, 14)),
+            ("ground-height", args.ground_height != 2.0),
+            ("scene", args.scene is not None),
+        )
+        if given
+    ]
     if fixed or args.first < 0:
-        what = f"{', '.join(fixed)} belong(s) to the plain scenes" if fixed else f"--first must be at least 0, got {args.first}"
-        print(f"fisheye-infer synth: error: {what}; a --stream frame is fixed by its stream, --seed and index", file=sys.stderr)
+        what = (
+            f"{', '.join(fixed)} belong(s) to the plain scenes"
+            if fixed
+            else f"--first must be at least 0, got {args.first}"
+        )
+        print(
+            f"fisheye-infer synth: error: {what}; a --stream frame is fixed by its stream, --seed and index",
+            file=sys.stderr,
+        )
         return 2
     split = args.split or args.stream
     t0 = time.perf_counter()
@@ -81,8 +118,10 @@ def _write_stream(args: argparse.Namespace, rig: Rig) -> int:
     tokens = write_split(frames, args.out, range(args.first, args.first + args.frames), split=split)
     seconds = time.perf_counter() - t0
     width, height = rig.cameras[0].model.width, rig.cameras[0].model.height
-    print(f"wrote {len(tokens)} frame(s) of the {args.stream} stream (seed {args.seed}) to {args.out}, split {split}: "
-          f"{len(rig)} cameras at {width}x{height}, {seconds / len(tokens):.2f} s per frame")
+    print(
+        f"wrote {len(tokens)} frame(s) of the {args.stream} stream (seed {args.seed}) to {args.out}, split {split}: "
+        f"{len(rig)} cameras at {width}x{height}, {seconds / len(tokens):.2f} s per frame"
+    )
     print(f"first token: {tokens[0]}")
     print(f"next: fisheye-infer eval MODEL --data {args.out} --split {split} --out report.json")
     return 0

@@ -1,8 +1,8 @@
 """``fisheye-infer train``: train a FisheyeBEVDet on synthetic frames (torch is imported only when the command runs).
 
-    fisheye-infer train --out runs/compact [--until 1000] [--resume]
-    fisheye-infer train --out runs/tuned --init runs/compact/model.pth --seed 1 --lr 5e-5 --steps 2500
-    fisheye-infer train --out runs/qat --init runs/compact/model.pth --qat 0.5 --device cuda --workers 7 --batch-size 8
+fisheye-infer train --out runs/compact [--until 1000] [--resume]
+fisheye-infer train --out runs/tuned --init runs/compact/model.pth --seed 1 --lr 5e-5 --steps 2500
+fisheye-infer train --out runs/qat --init runs/compact/model.pth --qat 0.5 --device cuda --workers 7 --batch-size 8
 """
 
 from __future__ import annotations
@@ -16,30 +16,69 @@ __all__ = ["configure", "run"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", required=True, help="run folder: config.py, rig.json, model.pth, checkpoint.pth, log.jsonl")
-    parser.add_argument("--config", help="mmdet3d-style FisheyeBEVDet config to train (default: the compact configuration)")
-    parser.add_argument("--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)")
-    parser.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint.pth (config and rig from the folder)")
-    parser.add_argument("--steps", type=int, default=8000,
-                        help="total optimiser steps (default 8000: the shipped model's first run, continued with --resume --steps 14000)")
+    parser.add_argument(
+        "--out", required=True, help="run folder: config.py, rig.json, model.pth, checkpoint.pth, log.jsonl"
+    )
+    parser.add_argument(
+        "--config", help="mmdet3d-style FisheyeBEVDet config to train (default: the compact configuration)"
+    )
+    parser.add_argument(
+        "--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)"
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the run in --out from its checkpoint.pth (config and rig from the folder)",
+    )
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=8000,
+        help="total optimiser steps (default 8000: the shipped model's first run, continued with --resume --steps 14000)",
+    )
     parser.add_argument("--batch-size", type=int, default=2, help="frames per step (default 2)")
     parser.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of AdamW (default 2e-4)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the weights and of the training frames (default 0)")
-    parser.add_argument("--threads", type=int, default=1,
-                        help="PyTorch threads (default 1: on a shared machine two spin-waiting threads can be ten times slower)")
-    parser.add_argument("--until", type=int, help="stop after this step (checkpointed) and continue later with --resume")
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seed of the weights and of the training frames (default 0)"
+    )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="PyTorch threads (default 1: on a shared machine two spin-waiting threads can be ten times slower)",
+    )
+    parser.add_argument(
+        "--until", type=int, help="stop after this step (checkpointed) and continue later with --resume"
+    )
     parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
-    parser.add_argument("--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)")
-    parser.add_argument("--depth-weight", type=float, default=3.0,
-                        help="weight of the depth loss against the frames' true ray depths (default 3, as BEVDepth; 0: the official losses alone)")
-    parser.add_argument("--qat", type=float, default=0.0,
-                        help="share of steps whose forward rounds weights and activations as the int8 file will "
-                             "(quantization-aware training; default 0: float only)")
+    parser.add_argument(
+        "--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)"
+    )
+    parser.add_argument(
+        "--depth-weight",
+        type=float,
+        default=3.0,
+        help="weight of the depth loss against the frames' true ray depths (default 3, as BEVDepth; 0: the official losses alone)",
+    )
+    parser.add_argument(
+        "--qat",
+        type=float,
+        default=0.0,
+        help="share of steps whose forward rounds weights and activations as the int8 file will "
+        "(quantization-aware training; default 0: float only)",
+    )
     parser.add_argument("--device", default="cpu", help="where the model trains: cpu (default), cuda, cuda:1, ...")
-    parser.add_argument("--workers", type=int, default=0,
-                        help="processes rendering the next steps' frames while a step trains (default 0: rendered in the loop)")
-    parser.add_argument("--init", help="start from this checkpoint's weights (a model.pth of the same configuration and rig): "
-                                       "a fine-tuning run with its own optimiser and schedule")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="processes rendering the next steps' frames while a step trains (default 0: rendered in the loop)",
+    )
+    parser.add_argument(
+        "--init",
+        help="start from this checkpoint's weights (a model.pth of the same configuration and rig): "
+        "a fine-tuning run with its own optimiser and schedule",
+    )
     parser.set_defaults(run=run)
 
 
@@ -65,13 +104,17 @@ def run(args: argparse.Namespace) -> int:
         if args.init:
             raise ConfigError("--resume continues from the run folder's checkpoint.pth; leave out --init")
         if args.config or args.rig:
-            raise ConfigError("--resume takes the configuration and rig from the run folder; leave out --config and --rig")
+            raise ConfigError(
+                "--resume takes the configuration and rig from the run folder; leave out --config and --rig"
+            )
         if not (out / "config.py").is_file() or not (out / "rig.json").is_file():
             raise ConfigError(f"--resume: {out} has no config.py and rig.json; is it a run folder?")
         config, rig = BEVDetConfig.from_mmdet3d_config(out / "config.py"), Rig.load(out / "rig.json")
     else:
         if (out / "checkpoint.pth").exists():
-            raise ConfigError(f"--out {out} already holds a run; pass --resume to continue it, or choose another folder")
+            raise ConfigError(
+                f"--out {out} already holds a run; pass --resume to continue it, or choose another folder"
+            )
         if args.rig and not args.config:
             raise ConfigError("--rig needs --config (the compact configuration comes with its own rig)")
         config = BEVDetConfig.from_mmdet3d_config(args.config) if args.config else compact_bevdet_config()
@@ -83,9 +126,17 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--config needs --rig: the rig whose cameras give the configuration's image size")
         else:
             rig = compact_rig()
-    options = TrainOptions(steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
-                           checkpoint_every=args.checkpoint_every, val_frames=args.val_frames,
-                           depth_weight=args.depth_weight, init=args.init or "", qat=args.qat)
+    options = TrainOptions(
+        steps=args.steps,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        seed=args.seed,
+        checkpoint_every=args.checkpoint_every,
+        val_frames=args.val_frames,
+        depth_weight=args.depth_weight,
+        init=args.init or "",
+        qat=args.qat,
+    )
     previous = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:
@@ -94,5 +145,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         torch.set_num_threads(previous)
     print(f"trained to step {trainer.step} of {options.steps}; wrote {path}")
-    print(f"next: fisheye-infer export --ckpt {path} --config {out / 'config.py'} --rig {out / 'rig.json'} --out {out / 'model.onnx'}")
+    print(
+        f"next: fisheye-infer export --ckpt {path} --config {out / 'config.py'} --rig {out / 'rig.json'} --out {out / 'model.onnx'}"
+    )
     return 0

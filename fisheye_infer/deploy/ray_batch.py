@@ -93,7 +93,12 @@ class BatchResult:
         """``{"meta": {..., "failed": {token: reason}}, "results": {token: [record, ...]}}``, as ``eval --results`` reads."""
         from fisheye_infer.eval.evaluate import save_results
 
-        info = {"model_id": self.model_id, "frames": len(self.results) + len(self.failed), "failed": self.failed, **(meta or {})}
+        info = {
+            "model_id": self.model_id,
+            "frames": len(self.results) + len(self.failed),
+            "failed": self.failed,
+            **(meta or {}),
+        }
         return save_results(path, self.results, info)
 
 
@@ -137,7 +142,12 @@ class DetectorActor:
                     errors[i] = str(exc)
         for i, dets in results.items():
             records[i] = json.dumps(dets.to_nuscenes())
-        return {"index": batch["index"], "token": batch["token"], "records": np.array(records, dtype=object), "error": np.array(errors, dtype=object)}
+        return {
+            "index": batch["index"],
+            "token": batch["token"],
+            "records": np.array(records, dtype=object),
+            "error": np.array(errors, dtype=object),
+        }
 
 
 def _check(frames: Sequence[FrameFiles]) -> None:
@@ -170,7 +180,10 @@ def detect_frames(
     if not frames:
         return BatchResult({}, {}, meta.model_id, 0.0, options)
     ray.data.DataContext.get_current().enable_progress_bars = False  # the caller's progress line instead
-    rows = [{"index": i, "token": token, "files": json.dumps({c: str(Path(p).resolve()) for c, p in files.items()})} for i, (token, files) in enumerate(frames)]
+    rows = [
+        {"index": i, "token": token, "files": json.dumps({c: str(Path(p).resolve()) for c, p in files.items()})}
+        for i, (token, files) in enumerate(frames)
+    ]
     t0 = time.perf_counter()
     dataset = ray.data.from_items(rows, override_num_blocks=math.ceil(len(rows) / options.batch_size)).map_batches(
         DetectorActor,

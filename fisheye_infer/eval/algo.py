@@ -205,7 +205,9 @@ def match_reference(gt: EvalBoxes, pred: EvalBoxes, dist_th: float) -> tuple[np.
     return order, tp, gt_row
 
 
-def accumulate(gt: EvalBoxes, pred: EvalBoxes, dist_th: float, class_id: int | None = None, period: float = 2 * math.pi) -> MetricData:
+def accumulate(
+    gt: EvalBoxes, pred: EvalBoxes, dist_th: float, class_id: int | None = None, period: float = 2 * math.pi
+) -> MetricData:
     """Precision, confidence and TP-error curves of one class at one distance threshold.
 
     ``gt`` and ``pred`` hold one class already, or ``class_id`` selects it.
@@ -226,7 +228,9 @@ def accumulate_thresholds(
     return [_curves(gt, pred, npos, order, tp[t], gt_row[t], period) for t in range(len(dist_ths))]
 
 
-def _curves(gt: EvalBoxes, pred: EvalBoxes, npos: int, order: np.ndarray, tp: np.ndarray, gt_row: np.ndarray, period: float) -> MetricData:
+def _curves(
+    gt: EvalBoxes, pred: EvalBoxes, npos: int, order: np.ndarray, tp: np.ndarray, gt_row: np.ndarray, period: float
+) -> MetricData:
     if not tp.any():
         return MetricData.no_predictions()
     tp_cum = np.cumsum(tp).astype(np.float64)

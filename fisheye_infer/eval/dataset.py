@@ -40,8 +40,18 @@ from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
 from fisheye_infer.errors import CameraModelError, DatasetError, RigError
 from fisheye_infer.runtime.records import CLASSES, boxes_to_records, gravity_to_bottom
 
-__all__ = ["DatasetError", "Fisheye3DOD", "Frame", "SplitEntry", "PINHOLE_CAMERAS", "PINHOLE_MODEL", "read_split", "read_labels", "camera_name",
-           "IMAGESETS"]
+__all__ = [
+    "DatasetError",
+    "Fisheye3DOD",
+    "Frame",
+    "SplitEntry",
+    "PINHOLE_CAMERAS",
+    "PINHOLE_MODEL",
+    "read_split",
+    "read_labels",
+    "camera_name",
+    "IMAGESETS",
+]
 
 IMAGESETS = "ImageSets-2hz"
 #: The pinhole cameras' model, as the official converter builds it: 90 degree hfov, centre at W/2, H/2.
@@ -85,12 +95,22 @@ def read_split(root: str | Path, split: str) -> list[SplitEntry]:
     entries = []
     for i, item in enumerate(doc):
         if not isinstance(item, dict) or not all(isinstance(item.get(k), str) for k in _SPLIT_FIELDS[:4]):
-            raise DatasetError(f"split '{split}': entry {i} must be an object with string fields {', '.join(_SPLIT_FIELDS)}; got {item!r}")
+            raise DatasetError(
+                f"split '{split}': entry {i} must be an object with string fields {', '.join(_SPLIT_FIELDS)}; got {item!r}"
+            )
         frame_id = item["frame_id"]
         if not frame_id.isdigit():
             raise DatasetError(f"split '{split}': entry {i}: frame_id must be digits, got {frame_id!r}")
-        entries.append(SplitEntry(item["scene_name"], item["vehicle_name"], item["weather"], f"{int(frame_id):08d}",
-                                  item.get("prev_id", ""), item.get("next_id", "")))
+        entries.append(
+            SplitEntry(
+                item["scene_name"],
+                item["vehicle_name"],
+                item["weather"],
+                f"{int(frame_id):08d}",
+                item.get("prev_id", ""),
+                item.get("next_id", ""),
+            )
+        )
     return entries
 
 
@@ -111,7 +131,11 @@ def read_labels(path: str | Path, class_names: Sequence[str] = CLASSES) -> tuple
         if not isinstance(obj, dict):
             raise DatasetError(f"{where}: expected an object, got {type(obj).__name__}")
         box = obj.get("bounding_box")
-        ok = isinstance(box, list) and len(box) == 7 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in box)
+        ok = (
+            isinstance(box, list)
+            and len(box) == 7
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in box)
+        )
         if not ok:
             raise DatasetError(f"{where}: 'bounding_box' must be 7 finite numbers [x, y, z, l, w, h, yaw], got {box!r}")
         assert isinstance(box, list)  # checked above; tells the type checker
@@ -147,7 +171,9 @@ class Frame:
         """(H, W, 3) uint8 BGR, decoded as training decoded it (colour, alpha dropped)."""
         name = camera_name(camera)
         if name not in self.image_paths:
-            raise DatasetError(f"frame {self.token}: camera '{name}' was not loaded (have: {', '.join(self.image_paths)})")
+            raise DatasetError(
+                f"frame {self.token}: camera '{name}' was not loaded (have: {', '.join(self.image_paths)})"
+            )
         path = self.image_paths[name]
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
@@ -184,7 +210,9 @@ class _Sequence:
         if lidar is None:
             raise DatasetError(f"frame {token}: no lidar pose for frame {frame_id} in lidar/sensor_metadata.txt")
         if cam is None:
-            raise DatasetError(f"frame {token}: camera '{camera}': no pose for frame {frame_id} in its sensor_metadata.txt")
+            raise DatasetError(
+                f"frame {token}: camera '{camera}': no pose for frame {frame_id} in its sensor_metadata.txt"
+            )
         return cam2lidar_from_poses(cam, lidar, convention)
 
 
@@ -212,13 +240,17 @@ class Fisheye3DOD:
         self.cameras = tuple(camera_name(c) for c in cameras)
         unknown = [c for c in self.cameras if c not in FISHEYE3DOD_CAMERAS + PINHOLE_CAMERAS]
         if unknown or not self.cameras:
-            raise DatasetError(f"cameras: expected a non-empty subset of {', '.join(FISHEYE3DOD_CAMERAS + PINHOLE_CAMERAS)}, got {list(cameras)}")
+            raise DatasetError(
+                f"cameras: expected a non-empty subset of {', '.join(FISHEYE3DOD_CAMERAS + PINHOLE_CAMERAS)}, got {list(cameras)}"
+            )
         self.pinhole_cameras = PINHOLE_CAMERAS if pinhole else ()
         self.model: OCamModel | None = None
         if any(c in FISHEYE3DOD_CAMERAS for c in self.cameras):
             calib = self.root / "calib_results.txt"
             if not calib.is_file():
-                raise DatasetError(f"dataset root {self.root}: calib_results.txt not found (one OCam model for every fisheye camera)")
+                raise DatasetError(
+                    f"dataset root {self.root}: calib_results.txt not found (one OCam model for every fisheye camera)"
+                )
             try:
                 self.model = OCamModel.from_file(calib, fov=fov)
             except CameraModelError as exc:
@@ -252,7 +284,9 @@ class Fisheye3DOD:
         key = (entry.scene, entry.vehicle)
         if key not in self._sequences:
             sensors = tuple(dict.fromkeys((*self.cameras, *self.pinhole_cameras)))
-            self._sequences[key] = _Sequence(self.root / entry.scene / entry.vehicle, f"{entry.scene}/{entry.vehicle}", sensors)
+            self._sequences[key] = _Sequence(
+                self.root / entry.scene / entry.vehicle, f"{entry.scene}/{entry.vehicle}", sensors
+            )
         return self._sequences[key]
 
     def _rig(self, seq: _Sequence, entry: SplitEntry, cameras: Sequence[str]) -> Rig:
@@ -267,7 +301,9 @@ class Fisheye3DOD:
         """Where sample ``index``'s images are (camera -> PNG), without reading or checking them."""
         entry = self.entries[index]
         folder = self.root / entry.scene / entry.vehicle
-        return {cam: folder / cam / f"{entry.frame_id}.png" for cam in dict.fromkeys((*self.cameras, *self.pinhole_cameras))}
+        return {
+            cam: folder / cam / f"{entry.frame_id}.png" for cam in dict.fromkeys((*self.cameras, *self.pinhole_cameras))
+        }
 
     def __getitem__(self, index: int) -> Frame:
         entry = self.entries[index]
@@ -297,6 +333,8 @@ class Fisheye3DOD:
         """``{token: [record, ...]}`` for every sample, reading the label files only."""
         out = {}
         for e in self.entries:
-            boxes, labels, _ = read_labels(self.root / e.scene / e.vehicle / "label_3d" / f"{e.frame_id}.json", self.class_names)
+            boxes, labels, _ = read_labels(
+                self.root / e.scene / e.vehicle / "label_3d" / f"{e.frame_id}.json", self.class_names
+            )
             out[e.token] = boxes_to_records(gravity_to_bottom(boxes), None, labels, self.class_names)
         return out

@@ -45,7 +45,9 @@ class EvalBoxes:
     @classmethod
     def empty(cls, tokens: Sequence[str] = ()) -> EvalBoxes:
         z = np.zeros(0)
-        return cls(tuple(tokens), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), z, z)
+        return cls(
+            tuple(tokens), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), z, z
+        )
 
     @classmethod
     def from_records(
@@ -61,7 +63,9 @@ class EvalBoxes:
         ``ground_truth`` the records' ``detection_score`` is ignored (and may be absent).
         """
         if not isinstance(results, Mapping):
-            raise FrameError(f"results: expected an object mapping sample tokens to lists of records, got {type(results).__name__}")
+            raise FrameError(
+                f"results: expected an object mapping sample tokens to lists of records, got {type(results).__name__}"
+            )
         order = tuple(results) if tokens is None else tuple(tokens)
         flat: list[Mapping[str, Any]] = []
         counts = np.zeros(len(order), np.int64)
@@ -81,13 +85,21 @@ class EvalBoxes:
         return cls(order, sample, cols["label"], cols["translation"], cols["size"], cols["yaw"], cols["score"])
 
     @classmethod
-    def from_arrays(cls, tokens: Sequence[str], boxes: Sequence[np.ndarray], scores: Sequence[np.ndarray | None], labels: Sequence[np.ndarray]) -> EvalBoxes:
+    def from_arrays(
+        cls,
+        tokens: Sequence[str],
+        boxes: Sequence[np.ndarray],
+        scores: Sequence[np.ndarray | None],
+        labels: Sequence[np.ndarray],
+    ) -> EvalBoxes:
         """Per-sample runtime boxes (K_i, 7) ``x, y, z_bottom, l, w, h, yaw``; a ``None`` score marks ground truth.
 
         The yaw goes through the record quaternion, so arrays and records evaluate identically.
         """
         if not (len(tokens) == len(boxes) == len(scores) == len(labels)):
-            raise ValueError(f"tokens, boxes, scores, labels: expected equal lengths, got {len(tokens)}, {len(boxes)}, {len(scores)}, {len(labels)}")
+            raise ValueError(
+                f"tokens, boxes, scores, labels: expected equal lengths, got {len(tokens)}, {len(boxes)}, {len(scores)}, {len(labels)}"
+            )
         parts = []
         for i, (b, s, lab) in enumerate(zip(boxes, scores, labels)):
             b = np.asarray(b, np.float64).reshape(-1, 7)
@@ -112,7 +124,15 @@ class EvalBoxes:
 
     def __getitem__(self, index: Any) -> EvalBoxes:
         """Rows by boolean mask or index array, same tokens."""
-        return EvalBoxes(self.tokens, self.sample[index], self.label[index], self.translation[index], self.size[index], self.yaw[index], self.score[index])
+        return EvalBoxes(
+            self.tokens,
+            self.sample[index],
+            self.label[index],
+            self.translation[index],
+            self.size[index],
+            self.yaw[index],
+            self.score[index],
+        )
 
     @property
     def ego_dist(self) -> np.ndarray:
@@ -125,7 +145,9 @@ class EvalBoxes:
         With ``class_range`` only rows inside their class's range are kept (see ``in_range``).
         """
         if len(self) and (self.label.min() < 0 or self.label.max() >= num_classes):
-            raise ValueError(f"label: expected class ids in [0, {num_classes}), got {self.label.min()}..{self.label.max()}")
+            raise ValueError(
+                f"label: expected class ids in [0, {num_classes}), got {self.label.min()}..{self.label.max()}"
+            )
         rows = np.arange(len(self)) if class_range is None else np.nonzero(self.in_range(class_range))[0]
         rows = rows[np.argsort(self.label[rows], kind="stable")]
         bounds = np.searchsorted(self.label[rows], np.arange(num_classes + 1))

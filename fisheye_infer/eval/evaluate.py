@@ -33,7 +33,15 @@ if TYPE_CHECKING:
     from fisheye_infer.eval.dataset import Fisheye3DOD
     from fisheye_infer.runtime.detector import FrameDetector
 
-__all__ = ["evaluate", "evaluate_results", "summarise", "detect_dataset", "load_results", "save_results", "breakdown_label"]
+__all__ = [
+    "evaluate",
+    "evaluate_results",
+    "summarise",
+    "detect_dataset",
+    "load_results",
+    "save_results",
+    "breakdown_label",
+]
 
 Results = Mapping[str, Sequence[Mapping[str, Any]]]
 
@@ -52,7 +60,9 @@ def summarise(gt: EvalBoxes, pred: EvalBoxes, config: EvalConfig, ref_range: flo
     classes = {}
     for c, name in enumerate(names):
         mds = accumulate_thresholds(gt_by[c], pred_by[c], config.dist_ths, period=config.period(name))
-        aps = {str(float(th)): calc_ap(md, config.min_recall, config.min_precision) for th, md in zip(config.dist_ths, mds)}
+        aps = {
+            str(float(th)): calc_ap(md, config.min_recall, config.min_precision) for th, md in zip(config.dist_ths, mds)
+        }
         tp_md = mds[list(config.dist_ths).index(config.dist_th_tp)]
         errs = {m: calc_tp(tp_md, config.min_recall, m) for m in TP_METRICS}
         classes[name] = ClassMetrics(ap=float(np.mean(list(aps.values()))), ap_by_threshold=aps, **errs)
@@ -77,20 +87,28 @@ def evaluate(gt: EvalBoxes, pred: EvalBoxes, config: EvalConfig | None = None) -
     """The full report: the configured metric, then the distance breakdown at each reference range."""
     config = config or EvalConfig()
     if gt.tokens != pred.tokens:
-        raise ValueError("gt/pred: the two box sets must share their sample tokens, in the same order (see evaluate_results)")
+        raise ValueError(
+            "gt/pred: the two box sets must share their sample tokens, in the same order (see evaluate_results)"
+        )
     t0 = time.perf_counter()
     main = summarise(gt, pred, config)
     distance = {}
     for r in config.distance_breakdown:
         same = np.array_equal(config.class_ranges(r), config.class_ranges())
-        distance[breakdown_label(r)] = main.model_copy(update={"ref_range": r}) if same else summarise(gt, pred, config, r)
-    return MetricsReport(main=main, distance=distance, num_samples=len(gt.tokens), config=config, eval_seconds=time.perf_counter() - t0)
+        distance[breakdown_label(r)] = (
+            main.model_copy(update={"ref_range": r}) if same else summarise(gt, pred, config, r)
+        )
+    return MetricsReport(
+        main=main, distance=distance, num_samples=len(gt.tokens), config=config, eval_seconds=time.perf_counter() - t0
+    )
 
 
 def _sample_order(gt: Results, pred: Results, allow_missing: bool) -> list[str]:
     unknown = [t for t in pred if t not in gt]
     if unknown:
-        raise FrameError(f"predictions: {len(unknown)} sample token(s) have no ground truth, e.g. {', '.join(unknown[:3])}")
+        raise FrameError(
+            f"predictions: {len(unknown)} sample token(s) have no ground truth, e.g. {', '.join(unknown[:3])}"
+        )
     missing = [t for t in gt if t not in pred]
     if missing and not allow_missing:
         raise FrameError(
@@ -100,7 +118,9 @@ def _sample_order(gt: Results, pred: Results, allow_missing: bool) -> list[str]:
     return list(pred) + missing
 
 
-def evaluate_results(gt: Results, pred: Results, config: EvalConfig | None = None, allow_missing: bool = False) -> MetricsReport:
+def evaluate_results(
+    gt: Results, pred: Results, config: EvalConfig | None = None, allow_missing: bool = False
+) -> MetricsReport:
     """``{sample_token: [record, ...]}`` for ground truth and predictions -> report.
 
     Ground-truth records need no ``detection_score``; whatever they carry is ignored.
@@ -108,15 +128,18 @@ def evaluate_results(gt: Results, pred: Results, config: EvalConfig | None = Non
     config = config or EvalConfig()
     for name, results in (("ground truth", gt), ("predictions", pred)):
         if not isinstance(results, Mapping):
-            raise FrameError(f"{name}: expected an object mapping sample tokens to lists of records, got {type(results).__name__}")
+            raise FrameError(
+                f"{name}: expected an object mapping sample tokens to lists of records, got {type(results).__name__}"
+            )
     tokens = _sample_order(gt, pred, allow_missing)
     gt_boxes = EvalBoxes.from_records(gt, config.class_names, tokens, ground_truth=True)
     pred_boxes = EvalBoxes.from_records(pred, config.class_names, tokens)
     return evaluate(gt_boxes, pred_boxes, config)
 
 
-def detect_dataset(detector: FrameDetector, dataset: Fisheye3DOD,
-                   progress: bool = True) -> tuple[dict[str, list[dict[str, Any]]], dict[str, list[dict[str, Any]]]]:
+def detect_dataset(
+    detector: FrameDetector, dataset: Fisheye3DOD, progress: bool = True
+) -> tuple[dict[str, list[dict[str, Any]]], dict[str, list[dict[str, Any]]]]:
     """Run ``detector`` on every frame of ``dataset``: (ground truth, predictions) by sample token.
 
     Predictions are the detector's unthresholded output, as the official numbers are computed;
@@ -164,7 +187,9 @@ def load_results(path: str | Path) -> dict[str, list[dict[str, Any]]]:
     return results
 
 
-def save_results(path: str | Path, results: Mapping[str, Sequence[Mapping[str, Any]]], meta: Mapping[str, Any] | None = None) -> Path:
+def save_results(
+    path: str | Path, results: Mapping[str, Sequence[Mapping[str, Any]]], meta: Mapping[str, Any] | None = None
+) -> Path:
     """Write ``{"meta": ..., "results": ...}``; the format ``load_results`` and nuScenes tools read."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

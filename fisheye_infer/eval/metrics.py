@@ -41,20 +41,36 @@ class EvalConfig(BaseModel):
 
     class_names: tuple[str, ...] = Field(default=CLASSES, min_length=1)
     class_range: dict[str, float] = Field(
-        default_factory=lambda: {"Car": 48.0, "Van": 48.0, "Truck": 48.0, "Bus": 48.0, "Pedestrian": 36.0, "Cyclist": 42.0},
+        default_factory=lambda: {
+            "Car": 48.0,
+            "Van": 48.0,
+            "Truck": 48.0,
+            "Bus": 48.0,
+            "Pedestrian": 36.0,
+            "Cyclist": 42.0,
+        },
         description="x-y range per class (m), stated for a 48 m reference range",
     )
-    ref_range: float | None = Field(default=None, gt=0, description="rescale every class range by ref_range / 48 (the paper's 0-30 m is 30)")
-    dist_ths: tuple[float, ...] = Field(default=(0.5, 1.0, 2.0, 4.0), min_length=1, description="centre-distance thresholds (m) averaged into AP")
+    ref_range: float | None = Field(
+        default=None, gt=0, description="rescale every class range by ref_range / 48 (the paper's 0-30 m is 30)"
+    )
+    dist_ths: tuple[float, ...] = Field(
+        default=(0.5, 1.0, 2.0, 4.0), min_length=1, description="centre-distance thresholds (m) averaged into AP"
+    )
     dist_th_tp: float = Field(default=2.0, description="threshold whose matches give the TP errors (m)")
     min_recall: float = Field(default=0.1, ge=0, le=1)
     min_precision: float = Field(default=0.1, ge=0, lt=1)
     mean_ap_weight: float = Field(default=3.0, ge=0, description="weight of mAP in FDS")
     orientation_period: dict[str, float] = Field(
-        default_factory=dict, description="yaw period per class (rad); classes not named use 2 pi, as the official metric does for all"
+        default_factory=dict,
+        description="yaw period per class (rad); classes not named use 2 pi, as the official metric does for all",
     )
-    max_boxes_per_sample: int | None = Field(default=None, ge=1, description="keep only the top-scoring boxes per sample (not applied officially)")
-    distance_breakdown: tuple[float, ...] = Field(default=(30.0, 48.0), description="reference ranges of the distance breakdown (0-r m)")
+    max_boxes_per_sample: int | None = Field(
+        default=None, ge=1, description="keep only the top-scoring boxes per sample (not applied officially)"
+    )
+    distance_breakdown: tuple[float, ...] = Field(
+        default=(30.0, 48.0), description="reference ranges of the distance breakdown (0-r m)"
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> EvalConfig:
@@ -69,11 +85,17 @@ class EvalConfig(BaseModel):
             raise ValueError(f"class_range: ranges must be positive and finite, got {bad}")
         unknown = [c for c in self.orientation_period if c not in self.class_names]
         if unknown or any(not p > 0 for p in self.orientation_period.values()):
-            raise ValueError(f"orientation_period: expects positive periods of known classes, got {self.orientation_period}")
+            raise ValueError(
+                f"orientation_period: expects positive periods of known classes, got {self.orientation_period}"
+            )
         if any(not t > 0 for t in self.dist_ths) or self.dist_th_tp not in self.dist_ths:
-            raise ValueError(f"dist_ths/dist_th_tp: thresholds must be positive and include dist_th_tp={self.dist_th_tp}, got {list(self.dist_ths)}")
+            raise ValueError(
+                f"dist_ths/dist_th_tp: thresholds must be positive and include dist_th_tp={self.dist_th_tp}, got {list(self.dist_ths)}"
+            )
         if any(not r > 0 for r in self.distance_breakdown):
-            raise ValueError(f"distance_breakdown: reference ranges must be positive, got {list(self.distance_breakdown)}")
+            raise ValueError(
+                f"distance_breakdown: reference ranges must be positive, got {list(self.distance_breakdown)}"
+            )
         return self
 
     # -- derived values ----------------------------------------------------------------------
@@ -95,7 +117,10 @@ class EvalConfig(BaseModel):
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
-            parts = [f"{'.'.join(str(x) for x in e['loc']) or 'config'}: {e['msg'].removeprefix('Value error, ')}" for e in exc.errors()]
+            parts = [
+                f"{'.'.join(str(x) for x in e['loc']) or 'config'}: {e['msg'].removeprefix('Value error, ')}"
+                for e in exc.errors()
+            ]
             raise ConfigError(f"{source}: " + "; ".join(parts)) from None
 
     def serialize(self) -> dict[str, Any]:
@@ -142,13 +167,17 @@ class MetricData:
     def __post_init__(self) -> None:
         for name in ("recall", "precision", "confidence", *TP_METRICS):
             if np.shape(getattr(self, name)) != (self.nelem,):
-                raise ValueError(f"{name}: expected {self.nelem} recall points, got shape {np.shape(getattr(self, name))}")
+                raise ValueError(
+                    f"{name}: expected {self.nelem} recall points, got shape {np.shape(getattr(self, name))}"
+                )
 
     @classmethod
     def no_predictions(cls) -> MetricData:
         """No ground truth or no match: precision and confidence 0, every TP error 1."""
         ones = np.ones(cls.nelem)
-        return cls(np.linspace(0, 1, cls.nelem), np.zeros(cls.nelem), np.zeros(cls.nelem), ones, ones.copy(), ones.copy())
+        return cls(
+            np.linspace(0, 1, cls.nelem), np.zeros(cls.nelem), np.zeros(cls.nelem), ones, ones.copy(), ones.copy()
+        )
 
     @property
     def max_recall_ind(self) -> int:
@@ -161,12 +190,17 @@ class MetricData:
 
     @classmethod
     def deserialize(cls, data: dict[str, list[float]]) -> MetricData:
-        return cls(**{name: np.asarray(data[name], np.float64) for name in ("recall", "precision", "confidence", *TP_METRICS)})
+        return cls(
+            **{name: np.asarray(data[name], np.float64) for name in ("recall", "precision", "confidence", *TP_METRICS)}
+        )
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, MetricData):
             return NotImplemented
-        return all(np.array_equal(getattr(self, n), getattr(other, n)) for n in ("recall", "precision", "confidence", *TP_METRICS))
+        return all(
+            np.array_equal(getattr(self, n), getattr(other, n))
+            for n in ("recall", "precision", "confidence", *TP_METRICS)
+        )
 
 
 class ClassMetrics(BaseModel):
@@ -203,7 +237,9 @@ class MetricsReport(BaseModel):
     model_config = ConfigDict(frozen=True)
 
     main: Summary
-    distance: dict[str, Summary] = Field(description="'0-30 m', '0-48 m', ...: the same metric with class ranges scaled to r / 48")
+    distance: dict[str, Summary] = Field(
+        description="'0-30 m', '0-48 m', ...: the same metric with class ranges scaled to r / 48"
+    )
     num_samples: int
     config: EvalConfig
     eval_seconds: float = 0.0
@@ -239,7 +275,14 @@ class MetricsReport(BaseModel):
         m = self.main
         out = {"mAP": m.mAP, "mATE": m.mATE, "mASE": m.mASE, "mAOE": m.mAOE, "NDS": m.FDS}
         for name, c in m.classes.items():
-            out.update({f"{name}_AP": c.ap, f"{name}_ATE": c.trans_err, f"{name}_ASE": c.scale_err, f"{name}_AOE": c.orient_err})
+            out.update(
+                {
+                    f"{name}_AP": c.ap,
+                    f"{name}_ATE": c.trans_err,
+                    f"{name}_ASE": c.scale_err,
+                    f"{name}_AOE": c.orient_err,
+                }
+            )
             out.update({f"{name}_AP@{t}": v for t, v in c.ap_by_threshold.items()})
         return out
 
@@ -271,7 +314,9 @@ class MetricsReport(BaseModel):
         ]
         for name, c in m.classes.items():
             aps = " | ".join(f"{100 * v:.1f}" for v in c.ap_by_threshold.values())
-            lines.append(f"| {name} | {100 * c.ap:.1f} | {aps} | {c.trans_err:.3f} | {c.scale_err:.3f} | {c.orient_err:.3f} |")
+            lines.append(
+                f"| {name} | {100 * c.ap:.1f} | {aps} | {c.trans_err:.3f} | {c.scale_err:.3f} | {c.orient_err:.3f} |"
+            )
         if self.distance:
             names = list(m.classes)
             lines += [
@@ -285,5 +330,7 @@ class MetricsReport(BaseModel):
             ]
             for label, s in self.distance.items():
                 aps = " | ".join(f"{100 * s.classes[n].ap:.1f}" for n in names)
-                lines.append(f"| {label} | {100 * s.FDS:.1f} | {100 * s.mAP:.1f} | {s.mATE:.3f} | {s.mASE:.3f} | {s.mAOE:.3f} | {aps} |")
+                lines.append(
+                    f"| {label} | {100 * s.FDS:.1f} | {100 * s.mAP:.1f} | {s.mATE:.3f} | {s.mASE:.3f} | {s.mAOE:.3f} | {aps} |"
+                )
         return "\n".join(lines) + "\n"

@@ -17,7 +17,9 @@ from fisheye_infer.runtime.records import CLASSES
 
 __all__ = ["synthetic_boxes", "to_results"]
 
-_SIZES = np.array([[4.5, 1.9, 1.6], [5.0, 2.0, 2.1], [8.0, 2.5, 3.2], [11.0, 2.9, 3.4], [0.7, 0.7, 1.75], [1.8, 0.7, 1.7]])
+_SIZES = np.array(
+    [[4.5, 1.9, 1.6], [5.0, 2.0, 2.1], [8.0, 2.5, 3.2], [11.0, 2.9, 3.4], [0.7, 0.7, 1.75], [1.8, 0.7, 1.7]]
+)
 
 
 def _random_boxes(rng: np.random.Generator, n: int, labels: np.ndarray) -> np.ndarray:
@@ -61,9 +63,24 @@ def synthetic_boxes(frames: int, gt_per_frame: int, pred_per_frame: int, seed: i
 def to_results(boxes: EvalBoxes) -> dict[str, list[dict]]:
     """``EvalBoxes`` back to ``{token: [record, ...]}``."""
     half = boxes.yaw / 2
-    rows = zip(boxes.sample.tolist(), boxes.translation.tolist(), boxes.size.tolist(), np.cos(half).tolist(), np.sin(half).tolist(),
-               boxes.label.tolist(), boxes.score.tolist())
+    rows = zip(
+        boxes.sample.tolist(),
+        boxes.translation.tolist(),
+        boxes.size.tolist(),
+        np.cos(half).tolist(),
+        np.sin(half).tolist(),
+        boxes.label.tolist(),
+        boxes.score.tolist(),
+    )
     out: dict[str, list[dict]] = {t: [] for t in boxes.tokens}
     for s, t, size, w, z, lab, score in rows:
-        out[boxes.tokens[s]].append({"translation": t, "size": size, "rotation": [w, 0.0, 0.0, z], "detection_name": CLASSES[lab], "detection_score": score})
+        out[boxes.tokens[s]].append(
+            {
+                "translation": t,
+                "size": size,
+                "rotation": [w, 0.0, 0.0, z],
+                "detection_name": CLASSES[lab],
+                "detection_score": score,
+            }
+        )
     return out

@@ -18,13 +18,27 @@ import numpy as np
 
 from fisheye_infer.runtime.box_geometry import box_diff
 
-__all__ = ["MATCH_RADIUS_M", "SCORE_BANDS", "TOP_K", "TopMatch", "TopMatched", "match_top", "per_score_band", "top_matched"]
+__all__ = [
+    "MATCH_RADIUS_M",
+    "SCORE_BANDS",
+    "TOP_K",
+    "TopMatch",
+    "TopMatched",
+    "match_top",
+    "per_score_band",
+    "top_matched",
+]
 
 TOP_K = 50
 MATCH_RADIUS_M = 0.5
 #: Bands of the reference box's score the share kept is also counted by: what a detection threshold
 #: keeps. Low-scoring boxes fill most of a top-50 and move first.
-SCORE_BANDS = {"score >= 0.3": (0.3, math.inf), "0.15-0.3": (0.15, 0.3), "0.05-0.15": (0.05, 0.15), "< 0.05": (-math.inf, 0.05)}
+SCORE_BANDS = {
+    "score >= 0.3": (0.3, math.inf),
+    "0.15-0.3": (0.15, 0.3),
+    "0.05-0.15": (0.05, 0.15),
+    "< 0.05": (-math.inf, 0.05),
+}
 
 
 @dataclass(frozen=True)
@@ -39,8 +53,12 @@ class TopMatch:
     frame: int = 0  # which frame the reference box is in
 
 
-def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
-              radius_m: float = MATCH_RADIUS_M) -> list[TopMatch]:
+def match_top(
+    reference: Sequence[np.ndarray],
+    candidate: Sequence[np.ndarray],
+    top_k: int = TOP_K,
+    radius_m: float = MATCH_RADIUS_M,
+) -> list[TopMatch]:
     """Match each frame's top-``top_k`` valid reference boxes (by score) to candidate boxes.
 
     A reference box is matched by the nearest unused valid candidate box of the same label whose
@@ -61,8 +79,16 @@ def match_top(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], 
             if len(pool) and dist.min() <= radius_m:
                 j = int(np.argmin(dist))
                 used[j] = True
-                found.append(TopMatch(int(rl[f][i]), True, float(box_diff(cb[f][pool[j]], rb[f][i])),
-                                      abs(float(cs[f][pool[j]]) - float(rs[f][i])), float(rs[f][i]), f))
+                found.append(
+                    TopMatch(
+                        int(rl[f][i]),
+                        True,
+                        float(box_diff(cb[f][pool[j]], rb[f][i])),
+                        abs(float(cs[f][pool[j]]) - float(rs[f][i])),
+                        float(rs[f][i]),
+                        f,
+                    )
+                )
             else:
                 found.append(TopMatch(int(rl[f][i]), False, score=float(rs[f][i]), frame=f))
     return found
@@ -89,8 +115,12 @@ class TopMatched:
         return self.matched / self.considered if self.considered else 1.0
 
 
-def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], top_k: int = TOP_K,
-                radius_m: float = MATCH_RADIUS_M) -> TopMatched:
+def top_matched(
+    reference: Sequence[np.ndarray],
+    candidate: Sequence[np.ndarray],
+    top_k: int = TOP_K,
+    radius_m: float = MATCH_RADIUS_M,
+) -> TopMatched:
     """``match_top`` summed, with the standard error of the share kept.
 
     The error is the ratio estimator's over frames as clusters: sqrt(F / (F - 1) * sum_f (m_f -
@@ -109,6 +139,10 @@ def top_matched(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray]
             box, score = max(box, p.box_diff), max(score, p.score_diff)
     total = seen.sum()
     share = kept.sum() / total if total else 1.0
-    spread = float(np.sqrt(frames / (frames - 1) * np.sum((kept - share * seen) ** 2)) / total) if frames > 1 and total else 0.0
+    spread = (
+        float(np.sqrt(frames / (frames - 1) * np.sum((kept - share * seen) ** 2)) / total)
+        if frames > 1 and total
+        else 0.0
+    )
     bands = {band: (sum(p.matched for p in group), len(group)) for band, group in per_score_band(pairs).items()}
     return TopMatched(int(kept.sum()), int(total), spread, box, score, bands)

@@ -25,7 +25,14 @@ import cv2
 import numpy as np
 
 from fisheye_infer.cameras.camera_models import OCamModel
-from fisheye_infer.cameras.carla_poses import CAM_TO_SENSOR, CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata, pose_matrix
+from fisheye_infer.cameras.carla_poses import (
+    CAM_TO_SENSOR,
+    CarlaPose,
+    Convention,
+    cam2lidar_from_poses,
+    parse_sensor_metadata,
+    pose_matrix,
+)
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.eval.dataset import IMAGESETS, PINHOLE_CAMERAS, PINHOLE_MODEL, DatasetError
 from fisheye_infer.runtime.records import CLASSES, bottom_to_gravity
@@ -107,9 +114,13 @@ def update_split(root: str | Path, split: str, entries: Sequence[Mapping[str, st
 class Fisheye3DODWriter:
     """Writes the frames of one ``<scene>/<vehicle>`` sequence; call ``close`` to record them in the split."""
 
-    def __init__(self, root: str | Path, scene: str, vehicle: str = "ego0", split: str = "val", convention: Convention = "compat") -> None:
+    def __init__(
+        self, root: str | Path, scene: str, vehicle: str = "ego0", split: str = "val", convention: Convention = "compat"
+    ) -> None:
         if "." in scene or "." in vehicle:
-            raise DatasetError(f"scene/vehicle: names must not contain '.', which separates token parts; got {scene!r}/{vehicle!r}")
+            raise DatasetError(
+                f"scene/vehicle: names must not contain '.', which separates token parts; got {scene!r}/{vehicle!r}"
+            )
         self.root, self.scene, self.vehicle, self.split, self.convention = Path(root), scene, vehicle, split, convention
         parts = scene.split("-")
         self.weather = parts[2] if len(parts) > 2 else ""
@@ -119,7 +130,9 @@ class Fisheye3DODWriter:
     def write_calib(self, model: OCamModel) -> Path:
         """``ROOT/calib_results.txt``; an existing file must describe the same model."""
         if not isinstance(model, OCamModel):
-            raise DatasetError(f"calib: the layout stores one OCam model for all fisheye cameras, got a {type(model).__name__}")
+            raise DatasetError(
+                f"calib: the layout stores one OCam model for all fisheye cameras, got a {type(model).__name__}"
+            )
         path = self.root / "calib_results.txt"
         if path.is_file():
             if OCamModel.from_file(path, fov=model.fov) != model:
@@ -134,11 +147,15 @@ class Fisheye3DODWriter:
         fisheye = [c for c in rig.cameras if c.name not in PINHOLE_CAMERAS]
         for cam in rig.cameras:
             if cam.name in PINHOLE_CAMERAS and cam.model != PINHOLE_MODEL:
-                raise DatasetError(f"camera '{cam.name}': the layout stores no pinhole intrinsics and its reader takes the official "
-                                   f"converter's {PINHOLE_MODEL.width}x{PINHOLE_MODEL.height} 90-degree pinhole; this camera differs")
+                raise DatasetError(
+                    f"camera '{cam.name}': the layout stores no pinhole intrinsics and its reader takes the official "
+                    f"converter's {PINHOLE_MODEL.width}x{PINHOLE_MODEL.height} 90-degree pinhole; this camera differs"
+                )
             if cam.name not in PINHOLE_CAMERAS and not isinstance(cam.model, OCamModel):
-                raise DatasetError(f"camera '{cam.name}': a {cam.model.type} model; the layout's cameras are OCam fisheye cameras "
-                                   f"or the pinhole cameras {', '.join(PINHOLE_CAMERAS)}")
+                raise DatasetError(
+                    f"camera '{cam.name}': a {cam.model.type} model; the layout's cameras are OCam fisheye cameras "
+                    f"or the pinhole cameras {', '.join(PINHOLE_CAMERAS)}"
+                )
         if fisheye:
             self.write_calib(Rig.from_dict({"cameras": [c.model_dump() for c in fisheye]}).shared_model())
 
@@ -163,7 +180,9 @@ class Fisheye3DODWriter:
             _replace_record(folder / "sensor_metadata.txt", frame_id, line)
             written[sensor] = parse_sensor_metadata(line)[frame_id]
         matrices = {c: cam2lidar_from_poses(written[c], written["lidar"], self.convention) for c in rig.names}
-        return Rig.from_cameras({c.name: c.model for c in rig.cameras}, matrices, rig.names, name=f"{self.scene}/{self.vehicle}@{frame_id}")
+        return Rig.from_cameras(
+            {c.name: c.model for c in rig.cameras}, matrices, rig.names, name=f"{self.scene}/{self.vehicle}@{frame_id}"
+        )
 
     def write_images(self, frame_id: str, images: Mapping[str, np.ndarray]) -> None:
         """``<camera>/<frame_id>.png`` for each (H, W, 3) uint8 BGR image."""
@@ -174,20 +193,38 @@ class Fisheye3DODWriter:
             if not cv2.imwrite(str(folder / f"{frame_id}.png"), image):
                 raise DatasetError(f"frame {frame_id}: camera '{camera}': could not write {folder / f'{frame_id}.png'}")
 
-    def write_labels(self, frame_id: str, boxes: np.ndarray, labels: np.ndarray, ids: Sequence[int] | None = None,
-                     class_names: Sequence[str] = CLASSES) -> None:
+    def write_labels(
+        self,
+        frame_id: str,
+        boxes: np.ndarray,
+        labels: np.ndarray,
+        ids: Sequence[int] | None = None,
+        class_names: Sequence[str] = CLASSES,
+    ) -> None:
         """``label_3d/<frame_id>.json`` from runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw``, stored gravity-centred."""
         frame_id = f"{int(frame_id):08d}"
         label_boxes = bottom_to_gravity(boxes)
         lab = np.asarray(labels, np.int64)
         actor = list(ids) if ids is not None else list(range(1, len(lab) + 1))
         objects = [
-            {"id": int(i), "class": class_names[c], "name": f"synthetic.{class_names[c].lower()}", "bounding_box": [float(v) for v in box]}
+            {
+                "id": int(i),
+                "class": class_names[c],
+                "name": f"synthetic.{class_names[c].lower()}",
+                "bounding_box": [float(v) for v in box],
+            }
             for i, c, box in zip(actor, lab.tolist(), label_boxes)
         ]
         (self.folder / "label_3d").mkdir(parents=True, exist_ok=True)
         (self.folder / "label_3d" / f"{frame_id}.json").write_text(json.dumps(objects))
-        entry = {"scene_name": self.scene, "vehicle_name": self.vehicle, "weather": self.weather, "frame_id": frame_id, "prev_id": "", "next_id": ""}
+        entry = {
+            "scene_name": self.scene,
+            "vehicle_name": self.vehicle,
+            "weather": self.weather,
+            "frame_id": frame_id,
+            "prev_id": "",
+            "next_id": "",
+        }
         self._entries.append(entry)
 
     def write_frame(

@@ -11,7 +11,13 @@ geometry object of a parameter kind.
 
 from fisheye_infer.geometry.cyl_lss import CylLSSGeometry, CylLSSParams
 from fisheye_infer.geometry.cyl_petr import CylPETRGeometry, CylPETRParams
-from fisheye_infer.geometry.frustum import cylindrical_frustum, depth_bins, frustum_to_lidar, linspace_depth_bins, spherical_frustum
+from fisheye_infer.geometry.frustum import (
+    cylindrical_frustum,
+    depth_bins,
+    frustum_to_lidar,
+    linspace_depth_bins,
+    spherical_frustum,
+)
 from fisheye_infer.geometry.grids import (
     BilinearTaps,
     bilinear_taps,

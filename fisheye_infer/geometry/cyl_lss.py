@@ -33,7 +33,9 @@ class CylLSSParams(LSSParams, CylParams):
 
     def frustum(self) -> np.ndarray:
         """(D, H, W, 3) float32 camera-frame points: linspace depths times rays of unit cylinder radius."""
-        return cylindrical_frustum(linspace_depth_bins(self.dbound), self.feature_size, self.azimuth_range, self.height_range)
+        return cylindrical_frustum(
+            linspace_depth_bins(self.dbound), self.feature_size, self.azimuth_range, self.height_range
+        )
 
 
 def cyl_image_grid(rig: Rig, params: CylParams) -> np.ndarray:
@@ -58,7 +60,9 @@ class CylLSSGeometry:
         frustum = np.ascontiguousarray(params.frustum(), dtype=np.float32)
         cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
         plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), params.bev_grid, params.bucket_sizes)
-        return cls(params=params, image_grid=cyl_image_grid(rig, params), frustum=frustum, cam2lidar=cam2lidar, plan=plan)
+        return cls(
+            params=params, image_grid=cyl_image_grid(rig, params), frustum=frustum, cam2lidar=cam2lidar, plan=plan
+        )
 
     @property
     def bev_grid(self) -> BevGrid:

@@ -64,12 +64,16 @@ class CylPETRGeometry:
     @classmethod
     def from_rig(cls, rig: Rig, params: CylPETRParams) -> CylPETRGeometry:
         """The rig's shared intrinsic model (one grid for every camera) and its extrinsics in rig order."""
-        return cls(params=params, image_grid=cyl_image_grid(rig, params), cam2lidar=np.asarray(rig.cam2lidar(), np.float64))
+        return cls(
+            params=params, image_grid=cyl_image_grid(rig, params), cam2lidar=np.asarray(rig.cam2lidar(), np.float64)
+        )
 
     def check(self, num_cameras: int) -> None:
         """Raise ``ConfigError`` naming the table whose shape does not fit the parameters and camera count."""
-        check_tables({"image_grid": (*self.params.image_size, 2), "cam2lidar": (num_cameras, 4, 4)},
-                     {"image_grid": self.image_grid, "cam2lidar": self.cam2lidar})
+        check_tables(
+            {"image_grid": (*self.params.image_size, 2), "cam2lidar": (num_cameras, 4, 4)},
+            {"image_grid": self.image_grid, "cam2lidar": self.cam2lidar},
+        )
 
     @property
     def unvalid_area(self) -> np.ndarray:
@@ -86,7 +90,9 @@ class CylPETRGeometry:
 
     def key_pos(self, weights: dict[str, np.ndarray], coords: np.ndarray | None = None) -> np.ndarray:
         """(1, N*H*W, C) float32 key embedding with ``weights``."""
-        return key_position_embedding(self.coords() if coords is None else coords, self.unvalid_area, weights, self.params)
+        return key_position_embedding(
+            self.coords() if coords is None else coords, self.unvalid_area, weights, self.params
+        )
 
     def tables(self, weights: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
         """Every ``geom.*`` table of the graph; the key embedding needs the position-encoder weights."""

@@ -10,7 +10,12 @@ from __future__ import annotations
 import numpy as np
 
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.geometry.grids import DEFAULT_AZIMUTH_RANGE, DEFAULT_ELEVATION_RANGE, cylindrical_directions, spherical_directions
+from fisheye_infer.geometry.grids import (
+    DEFAULT_AZIMUTH_RANGE,
+    DEFAULT_ELEVATION_RANGE,
+    cylindrical_directions,
+    spherical_directions,
+)
 
 __all__ = ["depth_bins", "linspace_depth_bins", "spherical_frustum", "cylindrical_frustum", "frustum_to_lidar"]
 
@@ -40,13 +45,19 @@ def _lift(depths: np.ndarray, rays: np.ndarray) -> np.ndarray:
     return (d[:, None, None, None] * rays[None]).astype(np.float32)
 
 
-def spherical_frustum(depths: np.ndarray, out_hw: tuple[int, int] = (25, 100), azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
-                      elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
+def spherical_frustum(
+    depths: np.ndarray,
+    out_hw: tuple[int, int] = (25, 100),
+    azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
+    elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE,
+) -> np.ndarray:
     """(D, H, W, 3) float32 points in the camera (OpenCV) frame: depth x unit ray."""
     return _lift(depths, spherical_directions(out_hw, azimuth_range, elevation_range))
 
 
-def cylindrical_frustum(depths: np.ndarray, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> np.ndarray:
+def cylindrical_frustum(
+    depths: np.ndarray, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]
+) -> np.ndarray:
     """(D, H, W, 3) float32 points on cylinders of radius ``depth`` in the camera frame."""
     return _lift(depths, cylindrical_directions(out_hw, azimuth_range, height_range))
 

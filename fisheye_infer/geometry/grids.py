@@ -45,14 +45,19 @@ DEFAULT_AZIMUTH_RANGE = (-math.radians(110.0), math.radians(110.0))
 DEFAULT_ELEVATION_RANGE = (-math.pi / 4, math.pi / 4)
 
 
-def angular_axes(out_hw: tuple[int, int], azimuth_range: tuple[float, float], elevation_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def angular_axes(
+    out_hw: tuple[int, int], azimuth_range: tuple[float, float], elevation_range: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
     """Elevation per row (H,) and azimuth per column (W,), linspace with both ends included."""
     h, w = out_hw
     return np.linspace(*elevation_range, h), np.linspace(*azimuth_range, w)
 
 
-def spherical_directions(out_hw: tuple[int, int], azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
-                         elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
+def spherical_directions(
+    out_hw: tuple[int, int],
+    azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
+    elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE,
+) -> np.ndarray:
     """Unit rays (H, W, 3) in the camera frame: (cos el sin az, sin el, cos el cos az).
 
     Row 0 looks up (the camera's y axis points down), column 0 looks left.
@@ -62,7 +67,9 @@ def spherical_directions(out_hw: tuple[int, int], azimuth_range: tuple[float, fl
     return np.stack([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)], axis=-1)
 
 
-def cylindrical_directions(out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> np.ndarray:
+def cylindrical_directions(
+    out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]
+) -> np.ndarray:
     """Rays (H, W, 3) on a unit-radius cylinder: (sin az, y, cos az), y linear in [y0, y1].
 
     ``height_range`` is in tan(elevation) units; the official baselines pass tan of their
@@ -85,8 +92,12 @@ def _grid_from_rays(camera: OCamModel, rays: np.ndarray) -> np.ndarray:
     return normalise_pixels(uv, camera).reshape(*shape, 2).astype(np.float32)
 
 
-def spherical_grid(camera: OCamModel, out_hw: tuple[int, int] = (25, 100), azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
-                   elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE) -> np.ndarray:
+def spherical_grid(
+    camera: OCamModel,
+    out_hw: tuple[int, int] = (25, 100),
+    azimuth_range: tuple[float, float] = DEFAULT_AZIMUTH_RANGE,
+    elevation_range: tuple[float, float] = DEFAULT_ELEVATION_RANGE,
+) -> np.ndarray:
     """Equirectangular grid (H, W, 2) float32 for ``grid_sample(align_corners=True)``.
 
     Rays outside the lens's fov take the OCam sentinel pixel (-1, -1), i.e. g = -1 - 2/W, as the
@@ -95,13 +106,16 @@ def spherical_grid(camera: OCamModel, out_hw: tuple[int, int] = (25, 100), azimu
     return _grid_from_rays(camera, spherical_directions(out_hw, azimuth_range, elevation_range))
 
 
-def cylindrical_grid(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> np.ndarray:
+def cylindrical_grid(
+    camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]
+) -> np.ndarray:
     """Cylindrical grid (H, W, 2) float32 for ``grid_sample(align_corners=True)``."""
     return _grid_from_rays(camera, cylindrical_directions(out_hw, azimuth_range, height_range))
 
 
-def cylindrical_remap(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float],
-                      height_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def cylindrical_remap(
+    camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
     """Pixel maps (map_x, map_y), each (H, W) float32, for ``cv2.remap`` of a whole fisheye image.
 
     This is the image-level cylindrical rectification of the cylindrical baselines.
@@ -153,7 +167,9 @@ def remap_grid(map_x: np.ndarray, map_y: np.ndarray, width: int, height: int) ->
     return grid.astype(np.float32)
 
 
-def cylindrical_image_grid(camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]) -> np.ndarray:
+def cylindrical_image_grid(
+    camera: OCamModel, out_hw: tuple[int, int], azimuth_range: tuple[float, float], height_range: tuple[float, float]
+) -> np.ndarray:
     """(H, W, 2) float32 grid that rectifies a whole fisheye image onto a cylinder with GridSample.
 
     Equivalent to ``cv2.remap`` with :func:`cylindrical_remap`'s maps (see :func:`remap_grid`):
@@ -231,8 +247,10 @@ def _taps_at(x: np.ndarray, y: np.ndarray, height: int, width: int) -> BilinearT
         inside = (xi >= 0) & (xi < width) & (yi >= 0) & (yi < height)
         index.append(np.where(inside, yi * width + xi, 0).reshape(-1))
         weight.append(np.where(inside, w, np.float32(0.0)).reshape(-1))
-    return BilinearTaps(index=np.stack(index, axis=1).reshape(-1).astype(np.int64),
-                        weight=np.stack(weight, axis=1).astype(np.float32)[:, None, :])
+    return BilinearTaps(
+        index=np.stack(index, axis=1).reshape(-1).astype(np.int64),
+        weight=np.stack(weight, axis=1).astype(np.float32)[:, None, :],
+    )
 
 
 def sample_bilinear(image: np.ndarray, grid: np.ndarray) -> np.ndarray:

@@ -1,9 +1,9 @@
 """FisheyeBEVDet's geometry: the equirectangular warp grid, the frustum and the BEV pooling plan.
 
-    params = LSSParams(feature_size=(25, 100), azimuth_range=..., elevation_range=..., dbound=..., xbound=..., ...)
-    geometry = LSSGeometry.from_rig(rig, params)          # the rig's tables
-    geometry.with_tables(grid=stored_grid)                 # a checkpoint's stored tables instead
-    geometry.tables()                                      # {"geom.warp.*": ..., "geom.pool.*": ...}
+params = LSSParams(feature_size=(25, 100), azimuth_range=..., elevation_range=..., dbound=..., xbound=..., ...)
+geometry = LSSGeometry.from_rig(rig, params)          # the rig's tables
+geometry.with_tables(grid=stored_grid)                 # a checkpoint's stored tables instead
+geometry.tables()                                      # {"geom.warp.*": ..., "geom.pool.*": ...}
 """
 
 from __future__ import annotations
@@ -55,7 +55,9 @@ class LSSGeometry:
     def from_rig(cls, rig: Rig, params: LSSParams) -> LSSGeometry:
         """The rig's tables: its one shared camera model and its extrinsics, in rig order."""
         camera = rig.shared_model()
-        grid = np.ascontiguousarray(spherical_grid(camera, params.feature_size, params.azimuth_range, params.elevation_range), np.float32)
+        grid = np.ascontiguousarray(
+            spherical_grid(camera, params.feature_size, params.azimuth_range, params.elevation_range), np.float32
+        )
         frustum = np.ascontiguousarray(params.frustum(), np.float32)
         cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
         plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), params.bev_grid, params.bucket_sizes)
@@ -66,14 +68,17 @@ class LSSGeometry:
     def bev_grid(self) -> BevGrid:
         return self.params.bev_grid
 
-    def with_tables(self, *, grid: np.ndarray | None = None, frustum: np.ndarray | None = None,
-                    source: str = "checkpoint") -> LSSGeometry:
+    def with_tables(
+        self, *, grid: np.ndarray | None = None, frustum: np.ndarray | None = None, source: str = "checkpoint"
+    ) -> LSSGeometry:
         """Same rig with replaced grid and/or frustum; the pooling plan is rebuilt only if the frustum changed."""
         new_grid = self.grid if grid is None else np.ascontiguousarray(grid, dtype=np.float32)
         new_frustum = self.frustum if frustum is None else np.ascontiguousarray(frustum, dtype=np.float32)
         plan = self.plan
         if not np.array_equal(new_frustum, self.frustum):
-            plan = build_pooling_plan(frustum_to_lidar(new_frustum, self.cam2lidar), self.bev_grid, self.plan.bucket_sizes)
+            plan = build_pooling_plan(
+                frustum_to_lidar(new_frustum, self.cam2lidar), self.bev_grid, self.plan.bucket_sizes
+            )
         return replace(self, grid=new_grid, frustum=new_frustum, plan=plan, source=source)
 
     def sampling_tables(self) -> dict[str, np.ndarray]:

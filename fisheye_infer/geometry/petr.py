@@ -20,12 +20,30 @@ import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.geometry.grids import DEFAULT_AZIMUTH_RANGE, DEFAULT_ELEVATION_RANGE, invalid_mask, spherical_directions, spherical_grid
+from fisheye_infer.geometry.grids import (
+    DEFAULT_AZIMUTH_RANGE,
+    DEFAULT_ELEVATION_RANGE,
+    invalid_mask,
+    spherical_directions,
+    spherical_grid,
+)
 from fisheye_infer.geometry.tables import WARP, Params, key_tables, sampling_tables
 
-__all__ = ["DEFAULT_POSITION_RANGE", "PETRParams", "PETRGeometry", "lid_depths", "inverse_sigmoid", "position_coords",
-           "sine_frequencies", "sine_position_encoding", "KeyParams", "EmbeddingParams", "key_coords", "key_position_embedding",
-           "check_tables"]
+__all__ = [
+    "DEFAULT_POSITION_RANGE",
+    "PETRParams",
+    "PETRGeometry",
+    "lid_depths",
+    "inverse_sigmoid",
+    "position_coords",
+    "sine_frequencies",
+    "sine_position_encoding",
+    "KeyParams",
+    "EmbeddingParams",
+    "key_coords",
+    "key_position_embedding",
+    "check_tables",
+]
 
 #: x_min, y_min, z_min, x_max, y_max, z_max in metres (lidar frame).
 DEFAULT_POSITION_RANGE = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0)
@@ -64,7 +82,11 @@ def position_coords(
     if t.ndim != 3 or t.shape[1:] != (4, 4):
         raise ValueError(f"cam2lidar: expected (N, 4, 4), got {t.shape}")
     d = np.asarray(lid_depths() if depths is None else depths, dtype=np.float64)
-    rays = spherical_directions(out_hw, azimuth_range, elevation_range) if directions is None else np.asarray(directions, np.float64)
+    rays = (
+        spherical_directions(out_hw, azimuth_range, elevation_range)
+        if directions is None
+        else np.asarray(directions, np.float64)
+    )
     pts = d[:, None, None, None] * rays[None]  # D x H x W x 3, camera frame
     lidar = np.einsum("nij,dhwj->ndhwi", t[:, :3, :3], pts) + t[:, None, None, None, :3, 3]  # N x D x H x W x 3
     lo = np.asarray(position_range[:3], dtype=np.float64)
@@ -91,7 +113,9 @@ def _blocked_sin_cos(a: np.ndarray, dim_t: np.ndarray) -> np.ndarray:
     return np.concatenate((np.sin(p[..., 0::2]), np.cos(p[..., 1::2])), axis=-1)
 
 
-def sine_position_encoding(mask: np.ndarray, num_feats: int = 128, temperature: float = 10000.0, eps: float = 1e-6, scale: float = 2 * np.pi) -> np.ndarray:
+def sine_position_encoding(
+    mask: np.ndarray, num_feats: int = 128, temperature: float = 10000.0, eps: float = 1e-6, scale: float = 2 * np.pi
+) -> np.ndarray:
     """PETR's 3D sine encoding of a key mask (N, H, W), True = ignored -> (N, 3 * num_feats, H, W) float32.
 
     Counts of valid cells accumulate (float32) along cameras, rows and columns, are normalised
@@ -158,8 +182,12 @@ def key_coords(cam2lidar: np.ndarray, params: KeyParams) -> np.ndarray:
     t = np.asarray(cam2lidar, dtype=np.float64).reshape(-1, 4, 4)
     directions = params.directions()
     if directions is None:
-        return position_coords(t, params.feature_size, params.azimuth_range, params.elevation_range, depths, params.position_range)
-    return position_coords(t, params.feature_size, depths=depths, position_range=params.position_range, directions=directions)
+        return position_coords(
+            t, params.feature_size, params.azimuth_range, params.elevation_range, depths, params.position_range
+        )
+    return position_coords(
+        t, params.feature_size, depths=depths, position_range=params.position_range, directions=directions
+    )
 
 
 class EmbeddingParams(Protocol):
@@ -171,7 +199,9 @@ class EmbeddingParams(Protocol):
     def temperature(self) -> float: ...
 
 
-def key_position_embedding(coords: np.ndarray, mask: np.ndarray, weights: dict[str, np.ndarray], params: EmbeddingParams) -> np.ndarray:
+def key_position_embedding(
+    coords: np.ndarray, mask: np.ndarray, weights: dict[str, np.ndarray], params: EmbeddingParams
+) -> np.ndarray:
     """(1, N*H*W, C) key embedding: position_encoder(coords) + adapt_pos3d(sine(mask)).
 
     ``weights`` holds ``position_encoder.{0,2}.{weight,bias}`` and ``adapt_pos3d.{0,2}.{weight,bias}``.
@@ -180,7 +210,9 @@ def key_position_embedding(coords: np.ndarray, mask: np.ndarray, weights: dict[s
     key_mask = np.broadcast_to(np.asarray(mask) != 0, (n, *mask.shape[-2:]))
     sine = sine_position_encoding(key_mask, params.num_feats, params.temperature)
     w = {k: np.asarray(v, np.float64) for k, v in weights.items()}
-    mlp = lambda x, name: _conv_mlp(x.astype(np.float64), *(w[f"{name}.{i}.{k}"] for i in (0, 2) for k in ("weight", "bias")))
+    mlp = lambda x, name: _conv_mlp(
+        x.astype(np.float64), *(w[f"{name}.{i}.{k}"] for i in (0, 2) for k in ("weight", "bias"))
+    )
     pe = mlp(coords, "position_encoder")
     pe = pe + mlp(sine, "adapt_pos3d")
     return pe.transpose(0, 2, 3, 1).reshape(1, -1, pe.shape[1]).astype(np.float32)
@@ -218,8 +250,9 @@ class PETRGeometry:
         grid = spherical_grid(camera, params.feature_size, params.azimuth_range, params.elevation_range)
         return cls(params=params, grid=grid, unvalid_area=invalid_mask(camera, grid), cam2lidar=rig.cam2lidar())
 
-    def with_tables(self, *, grid: np.ndarray | None = None, unvalid_area: np.ndarray | None = None,
-                    source: str = "checkpoint") -> PETRGeometry:
+    def with_tables(
+        self, *, grid: np.ndarray | None = None, unvalid_area: np.ndarray | None = None, source: str = "checkpoint"
+    ) -> PETRGeometry:
         """Same extrinsics with the warp grid and/or mask replaced (e.g. by a checkpoint's tables)."""
         new_grid = self.grid if grid is None else np.asarray(grid, dtype=np.float32)
         new_mask = self.unvalid_area if unvalid_area is None else np.asarray(unvalid_area, dtype=np.float32)
@@ -229,8 +262,10 @@ class PETRGeometry:
         """Raise ``ConfigError`` naming the table whose shape does not fit the parameters and camera count."""
         fh, fw = self.params.feature_size
         mask = self.unvalid_area.reshape(fh, fw) if np.shape(self.unvalid_area) == (1, 1, fh, fw) else self.unvalid_area
-        check_tables({"grid": (fh, fw, 2), "unvalid_area": (fh, fw), "cam2lidar": (num_cameras, 4, 4)},
-                     {"grid": self.grid, "unvalid_area": mask, "cam2lidar": self.cam2lidar})
+        check_tables(
+            {"grid": (fh, fw, 2), "unvalid_area": (fh, fw), "cam2lidar": (num_cameras, 4, 4)},
+            {"grid": self.grid, "unvalid_area": mask, "cam2lidar": self.cam2lidar},
+        )
 
     def key_mask(self) -> np.ndarray:
         """(N, H, W) bool: keys attention ignores (the sampled lens validity is not exactly 1.0)."""

@@ -24,7 +24,14 @@ from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import depth_bins
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, pool_tables
-from fisheye_infer.geometry.views import Perspective, Views, ViewSource, front_end_tables, perspective_image_grid, views_of
+from fisheye_infer.geometry.views import (
+    Perspective,
+    Views,
+    ViewSource,
+    front_end_tables,
+    perspective_image_grid,
+    views_of,
+)
 
 __all__ = ["PinholeLSSParams", "PinholeLSSGeometry", "image_frustum", "view_points"]
 
@@ -63,7 +70,9 @@ class PinholeLSSParams(BaseModel):
         return image_frustum(self.image_size, self.feature_size, self.dbound)
 
 
-def image_frustum(image_size: tuple[int, int], feature_size: tuple[int, int], dbound: tuple[float, float, float]) -> np.ndarray:
+def image_frustum(
+    image_size: tuple[int, int], feature_size: tuple[int, int], dbound: tuple[float, float, float]
+) -> np.ndarray:
     """(D, fH, fW, 3) float32 (x, y, depth): x = linspace(0, W - 1, fW), y = linspace(0, H - 1, fH), depth = arange(*dbound)."""
     (ih, iw), (fh, fw) = image_size, feature_size
     ds = depth_bins(dbound).astype(np.float64)

@@ -22,7 +22,14 @@ from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.petr import check_tables, inverse_sigmoid, key_position_embedding, lid_depths
 from fisheye_infer.geometry.tables import key_tables
-from fisheye_infer.geometry.views import Perspective, Views, ViewSource, front_end_tables, perspective_image_grid, views_of
+from fisheye_infer.geometry.views import (
+    Perspective,
+    Views,
+    ViewSource,
+    front_end_tables,
+    perspective_image_grid,
+    views_of,
+)
 
 __all__ = ["PinholePETRParams", "PinholePETRGeometry", "view_coords"]
 
@@ -83,7 +90,11 @@ class PinholePETRGeometry:
     @classmethod
     def from_rig(cls, rig: Rig, params: PinholePETRParams) -> PinholePETRGeometry:
         views = views_of(rig, params.views)
-        grid = perspective_image_grid(rig, params.views) if isinstance(params.views, Perspective) else np.zeros((0, 0, 2), np.float32)
+        grid = (
+            perspective_image_grid(rig, params.views)
+            if isinstance(params.views, Perspective)
+            else np.zeros((0, 0, 2), np.float32)
+        )
         return cls(params=params, views=views, image_grid=grid, cam2lidar=views.cam2lidar, lidar2img=views.lidar2img())
 
     def check(self, num_views: int) -> None:
@@ -101,12 +112,16 @@ class PinholePETRGeometry:
     def coords(self, cam2lidar: np.ndarray | None = None) -> np.ndarray:
         """(V, 3 * depth_num, H, W) float32; per-frame extrinsics are not supported (the views' poses come from the rig)."""
         if cam2lidar is not None:
-            raise ConfigError("pinhole PETR: per-frame extrinsics are not supported; build the model for the frame's rig instead")
+            raise ConfigError(
+                "pinhole PETR: per-frame extrinsics are not supported; build the model for the frame's rig instead"
+            )
         return view_coords(self.lidar2img, self.params)
 
     def key_pos(self, weights: dict[str, np.ndarray], coords: np.ndarray | None = None) -> np.ndarray:
         """(1, V*H*W, C) float32 key embedding with ``weights``."""
-        return key_position_embedding(self.coords() if coords is None else coords, self.unvalid_area, weights, self.params)
+        return key_position_embedding(
+            self.coords() if coords is None else coords, self.unvalid_area, weights, self.params
+        )
 
     def sampling_tables(self) -> dict[str, np.ndarray]:
         """The front end's tables: cv2.remap's taps (perspective views) or PIL's resize and crop."""

@@ -104,7 +104,9 @@ def _ladder(max_count: int) -> tuple[int, ...]:
         size *= 2
 
 
-def build_pooling_plan(points_lidar: np.ndarray, grid: BevGrid, bucket_sizes: tuple[int, ...] | None = None) -> PoolingPlan:
+def build_pooling_plan(
+    points_lidar: np.ndarray, grid: BevGrid, bucket_sizes: tuple[int, ...] | None = None
+) -> PoolingPlan:
     """Plan for frustum points (N, D, H, W, 3) in the lidar frame.
 
     ``bucket_sizes`` fixes the bucket ladder (so that two rigs give tables of the same structure);
@@ -179,7 +181,9 @@ def pool_bev(depth: np.ndarray, ctx: np.ndarray, plan: PoolingPlan) -> np.ndarra
     channels = ctx.shape[-1]
     weights = np.append(np.asarray(depth, dtype=np.float32).ravel(), np.float32(0.0))
     features = np.asarray(ctx, dtype=np.float32).reshape(-1, channels)
-    rows = [np.einsum("kl,klc->kc", weights[pts], features[pix]) for pts, pix in zip(plan.bucket_points, plan.bucket_pixels)]
+    rows = [
+        np.einsum("kl,klc->kc", weights[pts], features[pix]) for pts, pix in zip(plan.bucket_points, plan.bucket_pixels)
+    ]
     table = np.concatenate(rows + [np.zeros((1, channels), np.float32)])
     bev = table[plan.cell_rows] / np.maximum(plan.counts, 1.0)[:, None]
     return bev.reshape(*plan.grid_xy, channels).transpose(2, 0, 1)
@@ -190,7 +194,9 @@ def pool_bev_reference(depth: np.ndarray, ctx: np.ndarray, points_lidar: np.ndar
     n, d, h, w = depth.shape
     _check_features(depth, ctx, (n, d, h, w))
     cells, kept = voxelise(points_lidar, grid)
-    lifted = (np.asarray(depth, np.float64)[..., None] * np.asarray(ctx, np.float64)[:, None]).reshape(-1, ctx.shape[-1])
+    lifted = (np.asarray(depth, np.float64)[..., None] * np.asarray(ctx, np.float64)[:, None]).reshape(
+        -1, ctx.shape[-1]
+    )
     nx, ny, _ = grid.nx
     total = np.zeros((nx * ny, ctx.shape[-1]))
     np.add.at(total, cells[kept], lifted[kept])

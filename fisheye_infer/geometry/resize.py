@@ -85,7 +85,9 @@ class ResizeTaps:
         """
         keep = np.flatnonzero((self.coefficients != 0).any(axis=1))
         keep = keep if keep.size else np.arange(1)
-        return ResizeTaps(index=self.index[keep], high=self.high[keep], low=self.low[keep], coefficients=self.coefficients[keep])
+        return ResizeTaps(
+            index=self.index[keep], high=self.high[keep], low=self.low[keep], coefficients=self.coefficients[keep]
+        )
 
 
 def bicubic_kernel(x: np.ndarray) -> np.ndarray:
@@ -176,8 +178,9 @@ def pil_horizontal_first(in_width: int, in_height: int, width: int, height: int)
     return not (lost_rows > 0 and lost_rows > (in_width - width) * 2)
 
 
-def resize_reference(image: np.ndarray, width: int, height: int, rows: tuple[int, int] | None = None, *,
-                     horizontal_first: bool = True) -> np.ndarray:
+def resize_reference(
+    image: np.ndarray, width: int, height: int, rows: tuple[int, int] | None = None, *, horizontal_first: bool = True
+) -> np.ndarray:
     """Pillow's ``Image.resize((width, height), BICUBIC)`` of a uint8 (H, W, C) image, in exact integers.
 
     The first pass's result is rounded to uint8 before the second pass, as in Pillow; that

@@ -130,16 +130,21 @@ def sampling_tables(prefix: str, grid: np.ndarray, source_size: tuple[int, int] 
     a :func:`~fisheye_infer.geometry.grids.remap_grid` grid (the official image rectification).
     """
     if source_size is None:
-        raise ConfigError("geometry parameters: source_size is missing (files exported before the sampling taps held a "
-                          "GridSample grid instead); export the checkpoint again to get tables for it")
+        raise ConfigError(
+            "geometry parameters: source_size is missing (files exported before the sampling taps held a "
+            "GridSample grid instead); export the checkpoint again to get tables for it"
+        )
     taps = remap_taps(grid, *source_size) if prefix == RECTIFY else bilinear_taps(grid, *source_size)
     return {taps_index(prefix): taps.index, taps_weight(prefix): taps.weight}
 
 
 def resize_tables(prefix: str, taps: ResizeTaps) -> dict[str, np.ndarray]:
     """One axis of PIL's resize (:class:`~fisheye_infer.geometry.resize.ResizeTaps`) as the tables ``prefix``."""
-    return {f"{prefix}index": taps.index.astype(np.int64), f"{prefix}high": taps.high.astype(np.float32),
-            f"{prefix}low": taps.low.astype(np.float32)}
+    return {
+        f"{prefix}index": taps.index.astype(np.int64),
+        f"{prefix}high": taps.high.astype(np.float32),
+        f"{prefix}low": taps.low.astype(np.float32),
+    }
 
 
 def pool_tables(plan: PoolingPlan) -> dict[str, np.ndarray]:

@@ -31,8 +31,20 @@ from fisheye_infer.geometry.grids import remap_grid
 from fisheye_infer.geometry.resize import pil_bicubic_taps
 from fisheye_infer.geometry.tables import RECTIFY, RESIZE_X, RESIZE_Y, resize_tables, sampling_tables
 
-__all__ = ["ResizeCrop", "Perspective", "ViewSource", "Views", "views_of", "pinhole_views", "perspective_views", "yaw_rotation",
-           "perspective_intrinsics", "perspective_maps", "perspective_image_grid", "front_end_tables"]
+__all__ = [
+    "ResizeCrop",
+    "Perspective",
+    "ViewSource",
+    "Views",
+    "views_of",
+    "pinhole_views",
+    "perspective_views",
+    "yaw_rotation",
+    "perspective_intrinsics",
+    "perspective_maps",
+    "perspective_image_grid",
+    "front_end_tables",
+]
 
 
 class ResizeCrop(BaseModel):
@@ -99,14 +111,20 @@ def pinhole_views(rig: Rig, source: ResizeCrop) -> Views:
     for cam in rig.cameras:
         model = cam.model
         if not isinstance(model, Pinhole):
-            raise ConfigError(f"camera '{cam.name}': a {model.type} model; the pinhole detectors need pinhole cameras "
-                              "(the rig file of rig-pinhole6 is one)")
+            raise ConfigError(
+                f"camera '{cam.name}': a {model.type} model; the pinhole detectors need pinhole cameras "
+                "(the rig file of rig-pinhole6 is one)"
+            )
         ks.append([[model.fx, 0.0, model.cx], [0.0, model.fy, model.cy], [0.0, 0.0, 1.0]])
     n = len(rig)
     post = np.tile(np.diag([source.scale, source.scale, 1.0]), (n, 1, 1))
     shift = np.tile([-float(source.crop[0]), -float(source.crop[1]), 0.0], (n, 1))
-    return Views(intrinsics=_f32(np.array(ks)), cam2lidar=np.asarray(rig.cam2lidar(), np.float64),
-                 post_rotation=_f32(post), post_translation=_f32(shift))
+    return Views(
+        intrinsics=_f32(np.array(ks)),
+        cam2lidar=np.asarray(rig.cam2lidar(), np.float64),
+        post_rotation=_f32(post),
+        post_translation=_f32(shift),
+    )
 
 
 def yaw_rotation(yaw_deg: float) -> np.ndarray:
@@ -136,8 +154,12 @@ def perspective_views(rig: Rig, source: Perspective) -> Views:
             r[:3, :3] = yaw_rotation(yaw)
             mats.append(m @ r)
     n = len(mats)
-    return Views(intrinsics=np.tile(perspective_intrinsics(source.size, source.fov), (n, 1, 1)), cam2lidar=np.stack(mats),
-                 post_rotation=np.tile(np.eye(3), (n, 1, 1)), post_translation=np.zeros((n, 3)))
+    return Views(
+        intrinsics=np.tile(perspective_intrinsics(source.size, source.fov), (n, 1, 1)),
+        cam2lidar=np.stack(mats),
+        post_rotation=np.tile(np.eye(3), (n, 1, 1)),
+        post_translation=np.zeros((n, 3)),
+    )
 
 
 def perspective_maps(camera: object, source: Perspective) -> tuple[np.ndarray, np.ndarray]:
@@ -163,8 +185,10 @@ def perspective_image_grid(rig: Rig, source: Perspective) -> np.ndarray:
     """(Y * H, W, 2) float32 :func:`remap_grid` of the rig's shared fisheye model: every camera's views, stacked by yaw."""
     camera = rig.shared_model()
     if not hasattr(camera, "world2cam"):
-        raise ConfigError(f"perspective rectification needs the fisheye cameras' OCam model; the rig's cameras are "
-                          f"{getattr(camera, 'type', type(camera).__name__)}")
+        raise ConfigError(
+            f"perspective rectification needs the fisheye cameras' OCam model; the rig's cameras are "
+            f"{getattr(camera, 'type', type(camera).__name__)}"
+        )
     map_x, map_y = perspective_maps(camera, source)
     return remap_grid(map_x, map_y, camera.width, camera.height)
 
@@ -174,8 +198,12 @@ def views_of(rig: Rig, source: ResizeCrop | Perspective) -> Views:
     return perspective_views(rig, source) if isinstance(source, Perspective) else pinhole_views(rig, source)
 
 
-def front_end_tables(source: ResizeCrop | Perspective, source_size: tuple[int, int], image_size: tuple[int, int],
-                     image_grid: np.ndarray | None) -> dict[str, np.ndarray]:
+def front_end_tables(
+    source: ResizeCrop | Perspective,
+    source_size: tuple[int, int],
+    image_size: tuple[int, int],
+    image_grid: np.ndarray | None,
+) -> dict[str, np.ndarray]:
     """The tables that make the views from the raw (H, W) ``source_size`` images: cv2.remap's taps of the
     perspective ``image_grid`` (``geom.rectify.*``), or PIL's resize and the crop to ``image_size`` (``geom.resize.*``)."""
     if isinstance(source, Perspective):
@@ -185,5 +213,7 @@ def front_end_tables(source: ResizeCrop | Perspective, source_size: tuple[int, i
     (sh, sw), (ih, iw) = source_size, image_size
     rw, rh = source.resized_size(sw, sh)
     left, top = source.crop
-    return {**resize_tables(RESIZE_X, pil_bicubic_taps(sw, rw, left, iw).trimmed()),
-            **resize_tables(RESIZE_Y, pil_bicubic_taps(sh, rh, top, ih).trimmed())}
+    return {
+        **resize_tables(RESIZE_X, pil_bicubic_taps(sw, rw, left, iw).trimmed()),
+        **resize_tables(RESIZE_Y, pil_bicubic_taps(sh, rh, top, ih).trimmed()),
+    }

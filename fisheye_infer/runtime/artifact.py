@@ -95,7 +95,9 @@ class ParityReport(_Model):
     max_box_abs_diff_m: float
     max_score_abs_diff: float
     max_rank_score_abs_diff: float | None = None  # the dense scores before ranking (heatmap / class scores)
-    pytorch_float32: tuple[float, float, float] | None = None  # PyTorch float32's (dense score, box m, score) differences
+    pytorch_float32: tuple[float, float, float] | None = (
+        None  # PyTorch float32's (dense score, box m, score) differences
+    )
     labels_equal: bool
     order_equal: bool  # the graph chose exactly PyTorch float32's top k, in the same order
     valid_equal: bool
@@ -124,7 +126,9 @@ class ReducedParityReport(_Model):
     threads: tuple[int, ...]
     top_matched_fraction: float
     top_matched_standard_error: float | None = None  # None: schema-1 files that did not record it
-    top_matched_by_score: dict[str, tuple[int, int]] | None = None  # (matched, considered) per band of the fp32 box's score
+    top_matched_by_score: dict[str, tuple[int, int]] | None = (
+        None  # (matched, considered) per band of the fp32 box's score
+    )
     min_top_matched: float  # the share the file had to reach
     match_radius_m: float  # a box is found again within this centre distance, with the same label
     unmatched: int  # fp32 top boxes not found again
@@ -139,8 +143,14 @@ class ReducedParityReport(_Model):
     passed: bool
 
 
-_REDUCED_ONLY = ("top_matched_fraction", "top_matched_standard_error", "top_matched_by_score", "min_top_matched", "evaluated_with",
-                 "replayed")
+_REDUCED_ONLY = (
+    "top_matched_fraction",
+    "top_matched_standard_error",
+    "top_matched_by_score",
+    "min_top_matched",
+    "evaluated_with",
+    "replayed",
+)
 
 
 def _parity_v1_to_v2(parity: dict[str, Any]) -> dict[str, Any]:
@@ -212,7 +222,9 @@ class ArtifactMeta(_Model):
     box_layout: tuple[str, ...] = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
     box_frame: str = "lidar: x forward, y left, z up (m); yaw about +z, 0 along +x, counter-clockwise"
     score_semantics: str
-    valid_semantics: str = "box centre inside the official post_center_range; the official output set is exactly the valid boxes"
+    valid_semantics: str = (
+        "box centre inside the official post_center_range; the official output set is exactly the valid boxes"
+    )
     rig: Rig
     rig_hash: str
     geometry: Annotated[GeometryParams, Field(discriminator="kind")]
@@ -237,9 +249,13 @@ class ArtifactMeta(_Model):
     def check(self) -> ArtifactMeta:
         """Consistency a reader can verify: the rig matches its hash, cameras and image size."""
         if self.rig.hash != self.rig_hash:
-            raise ArtifactError(f"rig_hash: metadata says {self.rig_hash}, the embedded rig hashes to {self.rig.hash}; the file was altered")
+            raise ArtifactError(
+                f"rig_hash: metadata says {self.rig_hash}, the embedded rig hashes to {self.rig.hash}; the file was altered"
+            )
         if tuple(self.rig.names) != self.cameras:
-            raise ArtifactError(f"cameras: metadata lists {', '.join(self.cameras)}, the embedded rig has {', '.join(self.rig.names)}")
+            raise ArtifactError(
+                f"cameras: metadata lists {', '.join(self.cameras)}, the embedded rig has {', '.join(self.rig.names)}"
+            )
         return self
 
 
@@ -255,8 +271,10 @@ def parse_meta(document: str | None, source: str = "model") -> ArtifactMeta:
         raise ArtifactError(f"{source}: '{METADATA_KEY}' metadata is not JSON ({exc})") from exc
     version = raw.get("schema_version") if isinstance(raw, dict) else None
     if version not in READABLE_SCHEMA_VERSIONS:
-        raise ArtifactError(f"{source}: metadata schema_version {version!r} is not supported by this fisheye-infer "
-                            f"(it reads {' and '.join(map(str, READABLE_SCHEMA_VERSIONS))})")
+        raise ArtifactError(
+            f"{source}: metadata schema_version {version!r} is not supported by this fisheye-infer "
+            f"(it reads {' and '.join(map(str, READABLE_SCHEMA_VERSIONS))})"
+        )
     try:
         return ArtifactMeta.model_validate(raw).check()
     except ValidationError as exc:

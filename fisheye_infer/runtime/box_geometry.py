@@ -81,7 +81,9 @@ def project_boxes(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> di
         for k in range(len(samples)):
             lines: list[np.ndarray] = []
             for e in range(len(BOX_EDGES)):
-                runs = np.split(np.arange(samples_per_edge), np.flatnonzero(np.diff(valid[k, e].astype(np.int8)) != 0) + 1)
+                runs = np.split(
+                    np.arange(samples_per_edge), np.flatnonzero(np.diff(valid[k, e].astype(np.int8)) != 0) + 1
+                )
                 lines.extend(uv[k, e, run] for run in runs if len(run) > 1 and valid[k, e, run[0]])
             per_box.append(lines)
         result[cam.name] = per_box

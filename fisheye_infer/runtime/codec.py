@@ -97,13 +97,17 @@ def jpeg_scan_count(data: bytes, stop_after: int = MAX_JPEG_SCANS) -> int:
 def _decode_jpeg(data: bytes, camera: str) -> np.ndarray:
     scans = jpeg_scan_count(data)
     if scans > MAX_JPEG_SCANS:
-        raise FrameError(f"camera '{camera}': JPEG with more than {MAX_JPEG_SCANS} scans (each costs a pass of decoding); "
-                         "re-encode it as a baseline or ordinary progressive JPEG")
+        raise FrameError(
+            f"camera '{camera}': JPEG with more than {MAX_JPEG_SCANS} scans (each costs a pass of decoding); "
+            "re-encode it as a baseline or ordinary progressive JPEG"
+        )
     try:
         return simplejpeg.decode_jpeg(data, colorspace="BGR", strict=True)
     except ValueError as exc:
         reason = str(exc).strip() or "unreadable data"
-        raise FrameError(f"camera '{camera}': the bytes are not a decodable JPEG image: corrupt data ({reason[:120]})") from None
+        raise FrameError(
+            f"camera '{camera}': the bytes are not a decodable JPEG image: corrupt data ({reason[:120]})"
+        ) from None
 
 
 def decode_image(data: bytes, camera: str, expected_wh: tuple[int, int] | None = None) -> np.ndarray:
@@ -113,9 +117,13 @@ def decode_image(data: bytes, camera: str, expected_wh: tuple[int, int] | None =
     if size is None:
         # Only PNG and JPEG are decoded: their headers state the size, so nothing of unknown size
         # (a decompression bomb in another format) ever reaches the decoder.
-        raise FrameError(f"camera '{camera}': the bytes are not a decodable JPEG or PNG image ({len(buf)} bytes, no PNG or JPEG header)")
+        raise FrameError(
+            f"camera '{camera}': the bytes are not a decodable JPEG or PNG image ({len(buf)} bytes, no PNG or JPEG header)"
+        )
     if expected_wh is not None and size != tuple(expected_wh):
-        raise FrameError(f"camera '{camera}': image is {size[0]}x{size[1]}, model expects {expected_wh[0]}x{expected_wh[1]}")
+        raise FrameError(
+            f"camera '{camera}': image is {size[0]}x{size[1]}, model expects {expected_wh[0]}x{expected_wh[1]}"
+        )
     if buf[:2] == JPEG_SIGNATURE:
         return _decode_jpeg(buf, camera)
     image = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_COLOR)

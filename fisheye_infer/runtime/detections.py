@@ -46,7 +46,9 @@ class Detections:
             if np.shape(value) != (k,):
                 raise ValueError(f"{name}: expected shape ({k},) to match boxes, got {np.shape(value)}")
         if k and (self.labels.min() < 0 or self.labels.max() >= len(self.class_names)):
-            raise ValueError(f"labels: expected values in [0, {len(self.class_names)}), got {self.labels.min()}..{self.labels.max()}")
+            raise ValueError(
+                f"labels: expected values in [0, {len(self.class_names)}), got {self.labels.min()}..{self.labels.max()}"
+            )
 
     @classmethod
     def empty(cls, class_names: Sequence[str]) -> Detections:
@@ -59,7 +61,15 @@ class Detections:
         """Select by integer array, slice or boolean mask; returns a new ``Detections``."""
         if isinstance(index, (int, np.integer)):
             index = [index]
-        return Detections(self.boxes[index], self.scores[index], self.labels[index], self.class_names, self.cameras_used, dict(self.timings_ms), self.model_id)
+        return Detections(
+            self.boxes[index],
+            self.scores[index],
+            self.labels[index],
+            self.class_names,
+            self.cameras_used,
+            dict(self.timings_ms),
+            self.model_id,
+        )
 
     @property
     def names(self) -> list[str]:
@@ -68,7 +78,9 @@ class Detections:
 
     # -- filters ------------------------------------------------------------------------
 
-    def filter(self, min_score: float | None = None, classes: Iterable[str] | None = None, max_range: float | None = None) -> Detections:
+    def filter(
+        self, min_score: float | None = None, classes: Iterable[str] | None = None, max_range: float | None = None
+    ) -> Detections:
         """Boxes with score >= ``min_score``, of the given classes, centre within ``max_range`` m (BEV).
 
         Class names the model does not have are an ``OptionError`` naming them.
@@ -96,7 +108,12 @@ class Detections:
         """One plain dict per box, in this object's layout (bottom-centred, lidar frame)."""
         keys = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
         return [
-            {**{k: float(v) for k, v in zip(keys, box)}, "score": float(score), "label": int(label), "class_name": self.class_names[label]}
+            {
+                **{k: float(v) for k, v in zip(keys, box)},
+                "score": float(score),
+                "label": int(label),
+                "class_name": self.class_names[label],
+            }
             for box, score, label in zip(self.boxes, self.scores, self.labels)
         ]
 
@@ -131,11 +148,21 @@ class Detections:
             if missing:
                 raise FrameError(f"detections[{i}]: missing {', '.join(missing)}")
             if r["class_name"] not in class_names:
-                raise FrameError(f"detections[{i}]: class_name {r['class_name']!r} is not one of {', '.join(class_names)}")
+                raise FrameError(
+                    f"detections[{i}]: class_name {r['class_name']!r} is not one of {', '.join(class_names)}"
+                )
         try:
             values = np.array([[r[k] for k in fields] for r in rows], np.float32).reshape(-1, len(fields))
         except (TypeError, ValueError) as exc:
             raise FrameError(f"detections: box fields must be numbers ({exc})") from None
         boxes, scores = values[:, :7], values[:, 7]
         labels = np.array([list(class_names).index(r["class_name"]) for r in rows], np.int64)
-        return cls(boxes, scores, labels, tuple(class_names), tuple(doc.get("cameras_used", ())), doc.get("timings_ms", {}), doc.get("model_id", ""))
+        return cls(
+            boxes,
+            scores,
+            labels,
+            tuple(class_names),
+            tuple(doc.get("cameras_used", ())),
+            doc.get("timings_ms", {}),
+            doc.get("model_id", ""),
+        )

@@ -33,7 +33,14 @@ import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ArtifactError, FrameError, OptionError
-from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, METADATA_KEY, OUTPUTS, ArtifactMeta, parse_meta
+from fisheye_infer.runtime.artifact import (
+    INPUT_CAMERA_VALID,
+    INPUT_IMAGES,
+    METADATA_KEY,
+    OUTPUTS,
+    ArtifactMeta,
+    parse_meta,
+)
 from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.nms import NmsConfig
 from fisheye_infer.runtime.options import check_classes, check_nms, check_score_threshold
@@ -63,18 +70,24 @@ class DetectorInfo:
     meta: ArtifactMeta
 
 
-def check_interface(inputs: Mapping[str, Sequence[object]], outputs: Sequence[str], meta: ArtifactMeta, source: str) -> None:
+def check_interface(
+    inputs: Mapping[str, Sequence[object]], outputs: Sequence[str], meta: ArtifactMeta, source: str
+) -> None:
     """Refuse a graph (local or served) whose inputs and outputs are not the fisheye-infer interface.
 
     ``inputs`` maps input name -> shape with the batch axis first; the images input must be
     ``(B, N, H, W, 3)`` for the metadata's cameras and image size.
     """
     if set(inputs) != {INPUT_IMAGES, INPUT_CAMERA_VALID} or list(outputs) != list(OUTPUTS):
-        raise ArtifactError(f"{source}: graph inputs {sorted(inputs)} / outputs {list(outputs)} are not the fisheye-infer interface")
+        raise ArtifactError(
+            f"{source}: graph inputs {sorted(inputs)} / outputs {list(outputs)} are not the fisheye-infer interface"
+        )
     shape = list(inputs[INPUT_IMAGES])
     width, height = meta.image_size
     if shape[1:] != [len(meta.cameras), height, width, 3]:
-        raise ArtifactError(f"{source}: images input is {shape}, metadata says (B, {len(meta.cameras)}, {height}, {width}, 3)")
+        raise ArtifactError(
+            f"{source}: images input is {shape}, metadata says (B, {len(meta.cameras)}, {height}, {width}, 3)"
+        )
 
 
 def check_output_shapes(outputs: Mapping[str, Sequence[object]], meta: ArtifactMeta, source: str) -> None:
@@ -82,9 +95,19 @@ def check_output_shapes(outputs: Mapping[str, Sequence[object]], meta: ArtifactM
     for name, shape in outputs.items():
         boxes = shape[1] if len(shape) > 1 else None
         if isinstance(boxes, int) and boxes > 0 and boxes != meta.num_boxes:
-            raise ArtifactError(f"{source}: num_boxes: metadata says {meta.num_boxes}, the graph's '{name}' output has {boxes}")
-        if name == "boxes" and shape and isinstance(shape[-1], int) and shape[-1] > 0 and shape[-1] != len(meta.box_layout):
-            raise ArtifactError(f"{source}: box_layout: metadata names {len(meta.box_layout)} values per box, the graph's 'boxes' output has {shape[-1]}")
+            raise ArtifactError(
+                f"{source}: num_boxes: metadata says {meta.num_boxes}, the graph's '{name}' output has {boxes}"
+            )
+        if (
+            name == "boxes"
+            and shape
+            and isinstance(shape[-1], int)
+            and shape[-1] > 0
+            and shape[-1] != len(meta.box_layout)
+        ):
+            raise ArtifactError(
+                f"{source}: box_layout: metadata names {len(meta.box_layout)} values per box, the graph's 'boxes' output has {shape[-1]}"
+            )
 
 
 def describe(meta: ArtifactMeta, providers: Sequence[str]) -> DetectorInfo:
@@ -117,8 +140,14 @@ class FrameDetector:
 
     info: DetectorInfo
 
-    def __init__(self, info: DetectorInfo, *, score_threshold: float | None = None, nms: NmsConfig | str | None = None,
-                 decode_threads: int | None = None) -> None:
+    def __init__(
+        self,
+        info: DetectorInfo,
+        *,
+        score_threshold: float | None = None,
+        nms: NmsConfig | str | None = None,
+        decode_threads: int | None = None,
+    ) -> None:
         self.info = info
         self.score_threshold = check_score_threshold(score_threshold)
         self.nms = check_nms(nms)
@@ -126,7 +155,9 @@ class FrameDetector:
         _check_decode_threads(decode_threads)
         # Encoded images are decoded in parallel: decoding four PNGs one after another takes longer
         # than the whole graph run on a GPU. Threads start on first use; callers share them.
-        self._decoder = ThreadPoolExecutor(max_workers=decode_threads or usable_cpus(), thread_name_prefix="fisheye-decode")
+        self._decoder = ThreadPoolExecutor(
+            max_workers=decode_threads or usable_cpus(), thread_name_prefix="fisheye-decode"
+        )
 
     def map_images(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
         """``fn`` over ``items`` on the Detector's decode threads, results (and the first error) in order;
@@ -170,29 +201,47 @@ class FrameDetector:
         boxes, _, labels, _ = outputs
         source = f"model {self.info.model_id}"
         if boxes.shape[1] != self.info.num_boxes:
-            raise ArtifactError(f"{source}: num_boxes: metadata says {self.info.num_boxes}, the graph returned {boxes.shape[1]} boxes per frame")
+            raise ArtifactError(
+                f"{source}: num_boxes: metadata says {self.info.num_boxes}, the graph returned {boxes.shape[1]} boxes per frame"
+            )
         if labels.size and (labels.min() < 0 or labels.max() >= len(self.info.classes)):
-            raise ArtifactError(f"{source}: classes: metadata lists {len(self.info.classes)} ({', '.join(self.info.classes)}), "
-                                f"the graph returned label {int(labels.max() if labels.max() >= len(self.info.classes) else labels.min())}; "
-                                "the file's metadata does not match its graph")
+            raise ArtifactError(
+                f"{source}: classes: metadata lists {len(self.info.classes)} ({', '.join(self.info.classes)}), "
+                f"the graph returned label {int(labels.max() if labels.max() >= len(self.info.classes) else labels.min())}; "
+                "the file's metadata does not match its graph"
+            )
 
     def run_arrays(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
         """The raw graph outputs (boxes, scores, labels, valid) for a prepared batch."""
         return self._checked_run(np.ascontiguousarray(images, np.uint8), np.ascontiguousarray(valid, bool))
 
-    def detect(self, frame: Frame, *, score_threshold: float | None = None, classes: Iterable[str] | None = None,
-               nms: NmsConfig | str | None = None) -> Detections:
+    def detect(
+        self,
+        frame: Frame,
+        *,
+        score_threshold: float | None = None,
+        classes: Iterable[str] | None = None,
+        nms: NmsConfig | str | None = None,
+    ) -> Detections:
         """Detections for one frame (mapping camera -> image, or a sequence in camera order)."""
         return self.detect_batch([frame], score_threshold=score_threshold, classes=classes, nms=nms)[0]
 
-    def detect_batch(self, frames: Iterable[Frame], *, score_threshold: float | None = None, classes: Iterable[str] | None = None,
-                     nms: NmsConfig | str | None = None) -> list[Detections]:
+    def detect_batch(
+        self,
+        frames: Iterable[Frame],
+        *,
+        score_threshold: float | None = None,
+        classes: Iterable[str] | None = None,
+        nms: NmsConfig | str | None = None,
+    ) -> list[Detections]:
         """Detections for several frames (a list, or any iterable such as a generator), run as one batch."""
         score_threshold = check_score_threshold(score_threshold)
         classes = check_classes(classes, self.info.classes)
         nms = check_nms(nms)
         if isinstance(frames, (Mapping, str, bytes, np.ndarray)) or not isinstance(frames, Iterable):
-            raise FrameError(f"frames: expected a list (or other iterable) of frames, got {type(frames).__name__}; for one frame use detect()")
+            raise FrameError(
+                f"frames: expected a list (or other iterable) of frames, got {type(frames).__name__}; for one frame use detect()"
+            )
         frames = frames if isinstance(frames, Sequence) else list(frames)
         if len(frames) == 0:
             raise FrameError("frames: expected a non-empty sequence of frames")
@@ -205,16 +254,30 @@ class FrameDetector:
         t3 = time.perf_counter()
         results = [self._postprocess(outputs, b, valid[b], score_threshold, classes, nms) for b in range(len(frames))]
         t4 = time.perf_counter()
-        timings = {"decode": (t1 - t0) * 1e3, "preprocess": (t2 - t1) * 1e3, "inference": (t3 - t2) * 1e3, "postprocess": (t4 - t3) * 1e3}
+        timings = {
+            "decode": (t1 - t0) * 1e3,
+            "preprocess": (t2 - t1) * 1e3,
+            "inference": (t3 - t2) * 1e3,
+            "postprocess": (t4 - t3) * 1e3,
+        }
         for r in results:
             r.timings_ms.update(timings)
         return results
 
-    def _postprocess(self, outputs: list[np.ndarray], b: int, valid_cameras: np.ndarray, score_threshold: float | None,
-                     classes: Iterable[str] | None, nms: NmsConfig | None) -> Detections:
+    def _postprocess(
+        self,
+        outputs: list[np.ndarray],
+        b: int,
+        valid_cameras: np.ndarray,
+        score_threshold: float | None,
+        classes: Iterable[str] | None,
+        nms: NmsConfig | None,
+    ) -> Detections:
         boxes, scores, labels, keep = (o[b] for o in outputs)
         used = tuple(c for c, ok in zip(self.info.cameras, valid_cameras) if ok)
-        dets = Detections(boxes[keep], scores[keep], labels[keep].astype(np.int64), self.info.classes, used, {}, self.info.model_id)
+        dets = Detections(
+            boxes[keep], scores[keep], labels[keep].astype(np.int64), self.info.classes, used, {}, self.info.model_id
+        )
         threshold = self.score_threshold if score_threshold is None else score_threshold
         if threshold is not None or classes is not None:
             dets = dets.filter(min_score=threshold, classes=classes)
@@ -251,11 +314,25 @@ class Detector(FrameDetector):
         if not self.path.is_file():
             raise ArtifactError(f"model {self.path}: no such file")
         self._session = create_session(self.path, threads=threads, providers=providers, spin=spin)
-        meta = parse_meta(self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}")
-        check_interface({i.name: i.shape for i in self._session.get_inputs()}, [o.name for o in self._session.get_outputs()], meta, f"model {self.path}")
+        meta = parse_meta(
+            self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}"
+        )
+        check_interface(
+            {i.name: i.shape for i in self._session.get_inputs()},
+            [o.name for o in self._session.get_outputs()],
+            meta,
+            f"model {self.path}",
+        )
         check_output_shapes({o.name: o.shape for o in self._session.get_outputs()}, meta, f"model {self.path}")
-        super().__init__(describe(meta, self._session.get_providers()), score_threshold=score_threshold, nms=nms, decode_threads=decode_threads)
-        if meta.quantization is not None and (saturation := int8_saturation_warning(meta, self._session.get_providers(), cpu_info())):
+        super().__init__(
+            describe(meta, self._session.get_providers()),
+            score_threshold=score_threshold,
+            nms=nms,
+            decode_threads=decode_threads,
+        )
+        if meta.quantization is not None and (
+            saturation := int8_saturation_warning(meta, self._session.get_providers(), cpu_info())
+        ):
             log.warning(saturation)
         if warmup:
             self.warmup()

@@ -27,8 +27,8 @@ __all__ = ["NmsConfig", "bev_iou", "rotated_bev_nms", "circle_nms", "apply_nms"]
 class NmsConfig(BaseModel):
     """What suppression to run; thresholds per class name override the default.
 
-        NmsConfig(kind="rotated", iou=0.2, per_class={"Pedestrian": 0.5})
-        NmsConfig(kind="circle", radius=2.0, per_class={"Pedestrian": 0.5, "Bus": 4.0})
+    NmsConfig(kind="rotated", iou=0.2, per_class={"Pedestrian": 0.5})
+    NmsConfig(kind="circle", radius=2.0, per_class={"Pedestrian": 0.5, "Bus": 4.0})
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -75,8 +75,9 @@ def _thresholds(labels: np.ndarray, default: float, per_class: Mapping[int, floa
     return out
 
 
-def _greedy(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, class_aware: bool,
-            suppresses: Callable[[int, int], bool]) -> np.ndarray:
+def _greedy(
+    boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, class_aware: bool, suppresses: Callable[[int, int], bool]
+) -> np.ndarray:
     order = np.argsort(-np.asarray(scores), kind="stable")
     alive = np.ones(len(order), dtype=bool)
     keep = []
@@ -99,8 +100,14 @@ def _check(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray) -> tuple[n
     return b, s, lab
 
 
-def rotated_bev_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, iou: float = 0.2, per_class: Mapping[int, float] | None = None,
-                    class_aware: bool = True) -> np.ndarray:
+def rotated_bev_nms(
+    boxes: np.ndarray,
+    scores: np.ndarray,
+    labels: np.ndarray,
+    iou: float = 0.2,
+    per_class: Mapping[int, float] | None = None,
+    class_aware: bool = True,
+) -> np.ndarray:
     """Indices of the boxes kept, highest score first; a box goes when its BEV IoU with a kept
     box of the same class exceeds that class's threshold."""
     b, s, lab = _check(boxes, scores, labels)
@@ -108,8 +115,14 @@ def rotated_bev_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, i
     return _greedy(b, s, lab, class_aware, lambda i, j: bev_iou(b[i], b[j]) > limit[i])
 
 
-def circle_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, radius: float = 2.0, per_class: Mapping[int, float] | None = None,
-               class_aware: bool = True) -> np.ndarray:
+def circle_nms(
+    boxes: np.ndarray,
+    scores: np.ndarray,
+    labels: np.ndarray,
+    radius: float = 2.0,
+    per_class: Mapping[int, float] | None = None,
+    class_aware: bool = True,
+) -> np.ndarray:
     """Indices of the boxes kept, highest score first; a box goes when its centre lies within
     the class's radius of a kept box's centre."""
     b, s, lab = _check(boxes, scores, labels)
@@ -117,7 +130,9 @@ def circle_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, radius
     return _greedy(b, s, lab, class_aware, lambda i, j: np.hypot(b[i, 0] - b[j, 0], b[i, 1] - b[j, 1]) < limit[i])
 
 
-def apply_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, config: NmsConfig, class_names: tuple[str, ...]) -> np.ndarray:
+def apply_nms(
+    boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, config: NmsConfig, class_names: tuple[str, ...]
+) -> np.ndarray:
     """Run the suppression ``config`` describes; class names in ``per_class`` must be known."""
     unknown = set(config.per_class) - set(class_names)
     if unknown:

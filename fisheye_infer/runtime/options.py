@@ -42,7 +42,9 @@ def check_classes(value: object, known: Sequence[str]) -> tuple[str, ...] | None
     if value is None:
         return None
     if isinstance(value, (str, bytes)):
-        raise OptionError(f"classes: got the single string {_shown(value)}; pass a list of class names, e.g. [{_shown(value)}]")
+        raise OptionError(
+            f"classes: got the single string {_shown(value)}; pass a list of class names, e.g. [{_shown(value)}]"
+        )
     if isinstance(value, Mapping) or not isinstance(value, Iterable):
         raise OptionError(f"classes: expected a list of class names, got {type(value).__name__}")
     names = tuple(value)
@@ -51,7 +53,9 @@ def check_classes(value: object, known: Sequence[str]) -> tuple[str, ...] | None
         raise OptionError(f"classes: expected class names (strings), got {type(wrong[0]).__name__} {_shown(wrong[0])}")
     unknown = sorted(set(names) - set(known))
     if unknown:
-        shown = ", ".join(_shown(name) for name in unknown[:20]) + (f" and {len(unknown) - 20} more" if len(unknown) > 20 else "")
+        shown = ", ".join(_shown(name) for name in unknown[:20]) + (
+            f" and {len(unknown) - 20} more" if len(unknown) > 20 else ""
+        )
         raise OptionError(f"classes: unknown {shown}; the model's classes are {', '.join(known)}")
     return names
 
@@ -62,4 +66,6 @@ def check_nms(value: object) -> NmsConfig | None:
         return value
     if isinstance(value, str) and value in NMS_KINDS:
         return NmsConfig(kind=value)
-    raise OptionError(f"nms: expected an NmsConfig or one of {', '.join(repr(k) for k in NMS_KINDS)}, got {type(value).__name__} {_shown(value)}")
+    raise OptionError(
+        f"nms: expected an NmsConfig or one of {', '.join(repr(k) for k in NMS_KINDS)}, got {type(value).__name__} {_shown(value)}"
+    )

@@ -19,7 +19,17 @@ import numpy as np
 from fisheye_infer.errors import FrameError
 from fisheye_infer.runtime.codec import decode_image, encoded_image_size
 
-__all__ = ["ImageInput", "Frame", "encoded_image_size", "decode_image", "load_frame", "load_frames", "stack_frames", "prepare_batch", "frames_from_paths"]
+__all__ = [
+    "ImageInput",
+    "Frame",
+    "encoded_image_size",
+    "decode_image",
+    "load_frame",
+    "load_frames",
+    "stack_frames",
+    "prepare_batch",
+    "frames_from_paths",
+]
 
 ImageInput = np.ndarray | bytes | bytearray | memoryview | str | os.PathLike | None
 Frame = Mapping[str, ImageInput] | Sequence[ImageInput]
@@ -52,7 +62,9 @@ def _check_array(image: np.ndarray, camera: str, expected_wh: tuple[int, int]) -
     if image.ndim != 3 or image.shape[2] != 3:
         raise FrameError(f"camera '{camera}': image shape is {image.shape}, expected (H, W, 3) with 3 colour channels")
     if image.shape[:2] != (height, width):
-        raise FrameError(f"camera '{camera}': image is {image.shape[1]}x{image.shape[0]}, model expects {width}x{height}")
+        raise FrameError(
+            f"camera '{camera}': image is {image.shape[1]}x{image.shape[0]}, model expects {width}x{height}"
+        )
     return image
 
 
@@ -63,7 +75,9 @@ def _as_mapping(frame: Frame, cameras: Sequence[str]) -> Mapping[str, ImageInput
             raise FrameError(f"camera '{unknown[0]}': not a camera of this model (cameras: {', '.join(cameras)})")
         return frame
     if isinstance(frame, (str, bytes, np.ndarray)) or not isinstance(frame, Sequence):
-        raise FrameError(f"frame: expected a mapping camera name -> image or a sequence of {len(cameras)} images, got {type(frame).__name__}")
+        raise FrameError(
+            f"frame: expected a mapping camera name -> image or a sequence of {len(cameras)} images, got {type(frame).__name__}"
+        )
     if len(frame) != len(cameras):
         raise FrameError(f"frame: got {len(frame)} images, expected {len(cameras)} in the order {', '.join(cameras)}")
     return dict(zip(cameras, frame))
@@ -74,9 +88,12 @@ def load_frame(frame: Frame, cameras: Sequence[str], image_wh: tuple[int, int]) 
     return load_frames([frame], cameras, image_wh)[0]
 
 
-def load_frames(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple[int, int],
-                map_images: Callable[[Callable[[Any], np.ndarray | None], Iterable[Any]], Iterable[np.ndarray | None]] = map,
-                ) -> list[list[np.ndarray | None]]:
+def load_frames(
+    frames: Sequence[Frame],
+    cameras: Sequence[str],
+    image_wh: tuple[int, int],
+    map_images: Callable[[Callable[[Any], np.ndarray | None], Iterable[Any]], Iterable[np.ndarray | None]] = map,
+) -> list[list[np.ndarray | None]]:
     """Decode and validate several frames; errors name the frame (when there are several) and the camera.
 
     ``map_images`` runs the per-image work when more than one image needs decoding: a thread
@@ -85,6 +102,7 @@ def load_frames(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple
     Results and errors are those of the sequential order either way: the first bad image in
     frame and camera order is reported.
     """
+
     def named(b: int, exc: FrameError) -> FrameError:
         return FrameError(f"frame {b}: {exc}") if len(frames) > 1 else exc
 
@@ -99,7 +117,9 @@ def load_frames(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple
         camera, image = task
         return None if image is None else _check_array(_to_array(image, camera, image_wh), camera, image_wh)
 
-    tasks = [(camera, images.get(camera)) for images in mappings if not isinstance(images, FrameError) for camera in cameras]
+    tasks = [
+        (camera, images.get(camera)) for images in mappings if not isinstance(images, FrameError) for camera in cameras
+    ]
     encoded = sum(isinstance(image, (*_BYTES, *_PATHS)) for _, image in tasks)
     results = iter((map_images if encoded > 1 else map)(one, tasks))
     loaded: list[list[np.ndarray | None]] = []
@@ -135,7 +155,9 @@ def stack_frames(frames: Sequence[list[np.ndarray | None]], image_wh: tuple[int,
     return images, valid
 
 
-def prepare_batch(frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def prepare_batch(
+    frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
     """Frames -> ``(B, N, H, W, 3)`` uint8 and ``(B, N)`` bool; errors name the frame index too."""
     if isinstance(frames, Mapping) or len(frames) == 0:
         raise FrameError("frames: expected a non-empty sequence of frames")
@@ -177,11 +199,15 @@ def frames_from_paths(paths: Sequence[str | os.PathLike], cameras: Sequence[str]
         for camera in cameras:
             found = [p for p in files if p.stem in (camera, _short(camera))]
             if not found:
-                raise FrameError(f"camera '{camera}': no image in {folder} (expected {camera}.png, {_short(camera)}.png or a folder {camera}/)")
+                raise FrameError(
+                    f"camera '{camera}': no image in {folder} (expected {camera}.png, {_short(camera)}.png or a folder {camera}/)"
+                )
             frame[camera] = found[0]
         return [(folder.name, frame)]
     if len(items) != len(cameras):
-        raise FrameError(f"images: got {len(items)} paths; give one folder, or {len(cameras)} files in the order {', '.join(cameras)}")
+        raise FrameError(
+            f"images: got {len(items)} paths; give one folder, or {len(cameras)} files in the order {', '.join(cameras)}"
+        )
     for path in items:
         if not path.is_file():
             raise FrameError(f"images: {path} is not a file")

@@ -111,7 +111,9 @@ def boxes_to_records(
     if lab.shape != (k,):
         raise ValueError(f"labels: expected shape ({k},) to match boxes, got {lab.shape}")
     if k and (not np.issubdtype(lab.dtype, np.integer) or lab.min() < 0 or lab.max() >= len(class_names)):
-        raise ValueError(f"labels: expected integers in [0, {len(class_names)}), got {lab.dtype} {lab.min()}..{lab.max()}")
+        raise ValueError(
+            f"labels: expected integers in [0, {len(class_names)}), got {lab.dtype} {lab.min()}..{lab.max()}"
+        )
     if scores is None:
         sc = np.full(k, GT_SCORE)
     else:
@@ -195,7 +197,13 @@ def record_columns(
         raise FrameError(f"{source}: expected a list of records, got {type(records).__name__}")
     k = len(records)
     if k == 0:
-        return {"translation": np.zeros((0, 3)), "size": np.zeros((0, 3)), "yaw": np.zeros(0), "score": np.zeros(0), "label": np.zeros(0, np.int64)}
+        return {
+            "translation": np.zeros((0, 3)),
+            "size": np.zeros((0, 3)),
+            "yaw": np.zeros(0),
+            "score": np.zeros(0),
+            "label": np.zeros(0, np.int64),
+        }
     lookup = {name: i for i, name in enumerate(class_names)}
     try:
         translation = _column(records, "translation", 3)
@@ -210,7 +218,13 @@ def record_columns(
     finite = all(np.all(np.isfinite(c)) for c in (translation, size, rotation, score))
     if not finite or np.any(label < 0) or np.any(size <= 0) or np.any(~rotation.any(axis=1)):
         raise _diagnose(records, class_names, source, scored)
-    return {"translation": translation, "size": size, "yaw": quaternion_to_yaw(rotation), "score": score, "label": label}
+    return {
+        "translation": translation,
+        "size": size,
+        "yaw": quaternion_to_yaw(rotation),
+        "score": score,
+        "label": label,
+    }
 
 
 def records_to_arrays(

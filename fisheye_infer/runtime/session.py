@@ -19,13 +19,30 @@ import onnxruntime as ort
 
 from fisheye_infer.errors import ArtifactError, ConfigError, InferenceError
 
-__all__ = ["PREFERRED_PROVIDERS", "Provider", "available_providers", "resolve_providers", "parse_providers", "provider_name", "session_options",
-           "create_session", "open_session", "check_started", "map_ort_errors", "usable_cpus"]
+__all__ = [
+    "PREFERRED_PROVIDERS",
+    "Provider",
+    "available_providers",
+    "resolve_providers",
+    "parse_providers",
+    "provider_name",
+    "session_options",
+    "create_session",
+    "open_session",
+    "check_started",
+    "map_ort_errors",
+    "usable_cpus",
+]
 
 log = logging.getLogger("fisheye_infer")
 
 #: Accelerated providers tried in this order when ``providers="auto"``; CPU always comes last.
-PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "OpenVINOExecutionProvider", "CPUExecutionProvider")
+PREFERRED_PROVIDERS = (
+    "TensorrtExecutionProvider",
+    "CUDAExecutionProvider",
+    "OpenVINOExecutionProvider",
+    "CPUExecutionProvider",
+)
 
 
 def available_providers() -> list[str]:
@@ -45,13 +62,20 @@ def resolve_providers(providers: str | Sequence[Provider] | None) -> list[Provid
         return [p for p in PREFERRED_PROVIDERS if p in installed]
     wanted: list[Provider] = [providers] if isinstance(providers, str) else list(providers)
     if "auto" in wanted:
-        raise ConfigError(f"providers: 'auto' stands alone (the installed accelerated providers, then CPU), got {', '.join(map(str, wanted))}")
+        raise ConfigError(
+            f"providers: 'auto' stands alone (the installed accelerated providers, then CPU), got {', '.join(map(str, wanted))}"
+        )
     for p in wanted:
-        if not (isinstance(p, str) or (isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], str) and isinstance(p[1], dict))):
+        if not (
+            isinstance(p, str)
+            or (isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], str) and isinstance(p[1], dict))
+        ):
             raise ConfigError(f"providers: expected a provider name or a (name, options dict) pair, got {p!r}")
     missing = [name for name in map(provider_name, wanted) if name not in installed]
     if missing:
-        raise ConfigError(f"providers: {', '.join(missing)} not offered by the installed onnxruntime (available: {', '.join(installed)})")
+        raise ConfigError(
+            f"providers: {', '.join(missing)} not offered by the installed onnxruntime (available: {', '.join(installed)})"
+        )
     return wanted
 
 
@@ -119,8 +143,9 @@ def session_options(threads: int | None = None, spin: bool = True) -> ort.Sessio
     return options
 
 
-def create_session(path: str | Path, threads: int | None = None, providers: str | Sequence[Provider] | None = None,
-                   spin: bool = True) -> ort.InferenceSession:
+def create_session(
+    path: str | Path, threads: int | None = None, providers: str | Sequence[Provider] | None = None, spin: bool = True
+) -> ort.InferenceSession:
     """An inference session with the project's defaults; ``threads`` sets intra-op parallelism,
     ``spin`` whether its threads spin for a while after a call (``session_options``).
 
@@ -137,17 +162,25 @@ def create_session(path: str | Path, threads: int | None = None, providers: str 
             break
         except Exception as exc:  # onnxruntime raises untyped RuntimeErrors for bad files
             if providers != "auto" or len(wanted) == 1:
-                raise ArtifactError(f"model {path}: ONNX Runtime cannot load it with {', '.join(map(provider_name, wanted))} ({exc})") from exc
+                raise ArtifactError(
+                    f"model {path}: ONNX Runtime cannot load it with {', '.join(map(provider_name, wanted))} ({exc})"
+                ) from exc
             # onnxruntime-gpu lists TensorRT whether or not its libraries are installed: try the next one
-            log.warning("providers auto: %s did not start (%s); trying %s", provider_name(wanted[0]), str(exc).strip()[:300],
-                        ", ".join(map(provider_name, wanted[1:])))
+            log.warning(
+                "providers auto: %s did not start (%s); trying %s",
+                provider_name(wanted[0]),
+                str(exc).strip()[:300],
+                ", ".join(map(provider_name, wanted[1:])),
+            )
             wanted = wanted[1:]
     if providers != "auto":
         check_started(session, wanted, f"model {path}")
     return session
 
 
-def open_session(model: str | bytes, options: ort.SessionOptions, providers: Sequence[Provider], context: str) -> ort.InferenceSession:
+def open_session(
+    model: str | bytes, options: ort.SessionOptions, providers: Sequence[Provider], context: str
+) -> ort.InferenceSession:
     """A session on exactly ``providers`` (a path or serialized model): no fallback to the CPU (``check_started``)."""
     session = ort.InferenceSession(model, options, providers=list(providers), enable_fallback=0)
     check_started(session, providers, context)
@@ -158,9 +191,11 @@ def check_started(session: ort.InferenceSession, wanted: Sequence[Provider], con
     """Raise ``ConfigError`` unless every provider asked for is one the session runs with."""
     missing = [name for name in map(provider_name, wanted) if name not in session.get_providers()]
     if missing:
-        raise ConfigError(f"{context}: ONNX Runtime did not start {', '.join(missing)} (the session runs on {', '.join(session.get_providers())}); "
-                          "its log says why (a CUDA provider needs a GPU, its driver, and the CUDA and cuDNN versions the installed "
-                          "onnxruntime-gpu was built for)")
+        raise ConfigError(
+            f"{context}: ONNX Runtime did not start {', '.join(missing)} (the session runs on {', '.join(session.get_providers())}); "
+            "its log says why (a CUDA provider needs a GPU, its driver, and the CUDA and cuDNN versions the installed "
+            "onnxruntime-gpu was built for)"
+        )
 
 
 @contextmanager

@@ -31,15 +31,37 @@ from fisheye_infer.cameras.rig import Rig, RigCamera
 from fisheye_infer.errors import RigError
 from fisheye_infer.runtime.records import CLASSES
 
-__all__ = ["CLASS_SIZES", "CLASS_COLOURS", "Scene", "SynthFrame", "Appearance", "random_appearance", "random_scene", "Renderer",
-           "synthesize", "resized_rig"]
+__all__ = [
+    "CLASS_SIZES",
+    "CLASS_COLOURS",
+    "Scene",
+    "SynthFrame",
+    "Appearance",
+    "random_appearance",
+    "random_scene",
+    "Renderer",
+    "synthesize",
+    "resized_rig",
+]
 
 #: Typical (length, width, height) in metres per class.
-CLASS_SIZES = {"Car": (4.5, 1.9, 1.6), "Van": (5.0, 2.0, 2.1), "Truck": (7.5, 2.5, 3.2), "Bus": (11.0, 2.9, 3.3),
-               "Pedestrian": (0.7, 0.7, 1.75), "Cyclist": (1.8, 0.7, 1.7)}
+CLASS_SIZES = {
+    "Car": (4.5, 1.9, 1.6),
+    "Van": (5.0, 2.0, 2.1),
+    "Truck": (7.5, 2.5, 3.2),
+    "Bus": (11.0, 2.9, 3.3),
+    "Pedestrian": (0.7, 0.7, 1.75),
+    "Cyclist": (1.8, 0.7, 1.7),
+}
 #: BGR colour per class, far from the greys of the ground and the blues of the sky.
-CLASS_COLOURS = {"Car": (40, 40, 210), "Van": (0, 140, 255), "Truck": (0, 215, 235), "Bus": (210, 110, 20), "Pedestrian": (200, 40, 200),
-                 "Cyclist": (40, 190, 40)}
+CLASS_COLOURS = {
+    "Car": (40, 40, 210),
+    "Van": (0, 140, 255),
+    "Truck": (0, 215, 235),
+    "Bus": (210, 110, 20),
+    "Pedestrian": (200, 40, 200),
+    "Cyclist": (40, 190, 40),
+}
 _CLASS_WEIGHTS = (0.4, 0.15, 0.1, 0.05, 0.2, 0.1)
 _SUN = (0.3, 0.5, 0.81)
 _LIGHT = np.array(_SUN, np.float32) / np.linalg.norm(_SUN)
@@ -94,12 +116,18 @@ def random_appearance(rng: np.random.Generator, scene: Scene, colour_jitter: flo
         colour = np.clip((base + rng.uniform(-colour_jitter, colour_jitter, 3)) * rng.uniform(0.75, 1.2), 0, 255)
         colours.append((float(colour[0]), float(colour[1]), float(colour[2])))
     return Appearance(
-        light=light, ambient=float(rng.uniform(0.2, 0.5)), ground_grey=float(rng.uniform(60, 150)),
-        checker_contrast=float(rng.uniform(0, 60)), noise_contrast=float(rng.uniform(10, 60)),
-        checker_size=float(rng.uniform(0.5, 4.0)), ground_tint=tuple(float(v) for v in rng.uniform(-20, 20, 3)),  # type: ignore[arg-type]
+        light=light,
+        ambient=float(rng.uniform(0.2, 0.5)),
+        ground_grey=float(rng.uniform(60, 150)),
+        checker_contrast=float(rng.uniform(0, 60)),
+        noise_contrast=float(rng.uniform(10, 60)),
+        checker_size=float(rng.uniform(0.5, 4.0)),
+        ground_tint=tuple(float(v) for v in rng.uniform(-20, 20, 3)),  # type: ignore[arg-type]
         sky_horizon=tuple(float(v) for v in np.clip(_SKY_HORIZON + rng.uniform(-40, 30, 3), 0, 255)),  # type: ignore[arg-type]
         sky_zenith=tuple(float(v) for v in np.clip(_SKY_ZENITH + rng.uniform(-40, 40, 3), 0, 255)),  # type: ignore[arg-type]
-        haze_distance=float(rng.uniform(50, 200)), object_colours=tuple(colours))
+        haze_distance=float(rng.uniform(50, 200)),
+        object_colours=tuple(colours),
+    )
 
 
 def random_scene(
@@ -117,7 +145,9 @@ def random_scene(
     """
     lo, hi = num_objects
     if not 0 <= lo <= hi or not 0 < min_range < max_range:
-        raise ValueError(f"num_objects/min_range/max_range: expected 0 <= {lo} <= {hi} and 0 < {min_range} < {max_range}")
+        raise ValueError(
+            f"num_objects/min_range/max_range: expected 0 <= {lo} <= {hi} and 0 < {min_range} < {max_range}"
+        )
     if not 0 <= size_jitter < 1:
         raise ValueError(f"size_jitter: expected a fraction in [0, 1), got {size_jitter}")
     wanted = int(rng.integers(lo, hi + 1))
@@ -205,7 +235,9 @@ class Renderer:
             self._draw_box(o, d, box, (0.0, 0.0, 0.0), colour, depth)
         return depth
 
-    def _background(self, o: np.ndarray, d: np.ndarray, ground_z: float, look: Appearance) -> tuple[np.ndarray, np.ndarray]:
+    def _background(
+        self, o: np.ndarray, d: np.ndarray, ground_z: float, look: Appearance
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Sky gradient everywhere, then the textured ground where rays fall towards it; colour is (3, N)."""
         up = np.clip(d[2], 0, 1)
         horizon, zenith = np.asarray(look.sky_horizon, np.float32), np.asarray(look.sky_zenith, np.float32)
@@ -219,7 +251,11 @@ class Renderer:
         size = np.float32(look.checker_size)
         checker = (np.floor(px / size).astype(np.int64) + np.floor(py / size).astype(np.int64)) & 1
         noise = _hash01(np.floor(px * 4), np.floor(py * 4), self.texture_seed) - 0.5
-        grey = np.float32(look.ground_grey) + np.float32(look.checker_contrast) * checker + np.float32(look.noise_contrast) * noise
+        grey = (
+            np.float32(look.ground_grey)
+            + np.float32(look.checker_contrast) * checker
+            + np.float32(look.noise_contrast) * noise
+        )
         fog = np.exp(-np.hypot(px - o[0], py - o[1]) / np.float32(look.haze_distance))
         for ch, tint in enumerate(np.asarray(look.ground_tint, np.float32)):
             colour[ch, down] = (grey + tint) * fog + _HAZE[ch] * (1 - fog)
@@ -227,8 +263,16 @@ class Renderer:
         return colour, depth
 
     @staticmethod
-    def _draw_box(o: np.ndarray, d: np.ndarray, box: np.ndarray, bgr: Sequence[float], colour: np.ndarray, depth: np.ndarray,
-                  light: np.ndarray = _LIGHT, ambient: float = 0.35) -> None:
+    def _draw_box(
+        o: np.ndarray,
+        d: np.ndarray,
+        box: np.ndarray,
+        bgr: Sequence[float],
+        colour: np.ndarray,
+        depth: np.ndarray,
+        light: np.ndarray = _LIGHT,
+        ambient: float = 0.35,
+    ) -> None:
         """Slab test against one oriented box, in place: nearer hits overwrite colour and depth.
 
         Only rays passing within the box's bounding sphere are tested.
@@ -307,12 +351,16 @@ def synthesize(
         rng = np.random.default_rng([seed, i])
         frame_id = f"{first_frame + 5 * i:08d}"
         heading = (seed * 37.0 + 2.0 * i) % 360.0 - 180.0
-        lidar = CarlaPose(x=100.0 + 4.0 * i, y=-50.0 + 0.5 * i, z=float(_q(ground_height, 1 / 256)), pitch=0.0, yaw=heading, roll=0.0)
+        lidar = CarlaPose(
+            x=100.0 + 4.0 * i, y=-50.0 + 0.5 * i, z=float(_q(ground_height, 1 / 256)), pitch=0.0, yaw=heading, roll=0.0
+        )
         scene = random_scene(rng, num_objects, ground_z=-ground_height)
         frame_rig = writer.write_poses(frame_id, rig, lidar)
         writer.write_images(frame_id, renderer.render(frame_rig, scene))
         writer.write_labels(frame_id, scene.boxes, scene.labels)
-        written.append(SynthFrame(f"{scene_name}.{writer.vehicle}.{frame_id}", frame_id, frame_rig, scene.boxes, scene.labels))
+        written.append(
+            SynthFrame(f"{scene_name}.{writer.vehicle}.{frame_id}", frame_id, frame_rig, scene.boxes, scene.labels)
+        )
     writer.close()
     return written
 
@@ -333,12 +381,22 @@ def resized_rig(rig: Rig, scale: float) -> Rig:
             raise RigError(f"camera '{cam.name}': only OCam and pinhole models can be resized, got {m.type}")
         width, height = round(m.width * scale), round(m.height * scale)
         if width < 1 or height < 1 or abs(width / m.width - height / m.height) > 1e-9:
-            raise ValueError(f"scale: {scale} does not give a whole image with the same aspect ({m.width}x{m.height} -> {width}x{height})")
+            raise ValueError(
+                f"scale: {scale} does not give a whole image with the same aspect ({m.width}x{m.height} -> {width}x{height})"
+            )
         s = width / m.width
         size = {"width": width, "height": height}
         resized: OCamModel | Pinhole
         if isinstance(m, Pinhole):
-            resized = m.model_copy(update={"fx": m.fx * s, "fy": m.fy * s, "cx": (m.cx + 0.5) * s - 0.5, "cy": (m.cy + 0.5) * s - 0.5, **size})
+            resized = m.model_copy(
+                update={
+                    "fx": m.fx * s,
+                    "fy": m.fy * s,
+                    "cx": (m.cx + 0.5) * s - 0.5,
+                    "cy": (m.cy + 0.5) * s - 0.5,
+                    **size,
+                }
+            )
         else:
             resized = m.model_copy(
                 update={

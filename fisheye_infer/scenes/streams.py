@@ -50,13 +50,22 @@ class Sample:
 class SyntheticFrames:
     """Seeded synthetic frames of one split for a rig, with the scene and look randomised per frame.
 
-        train = SyntheticFrames(rig, "train", seed=0, bev_range=(-48, -48, 48, 48))
-        sample = train[123]      # the same pictures and records every time
+    train = SyntheticFrames(rig, "train", seed=0, bev_range=(-48, -48, 48, 48))
+    sample = train[123]      # the same pictures and records every time
     """
 
-    def __init__(self, rig: Rig, split: str = "train", seed: int = 0, *, bev_range: Sequence[float] = (-48.0, -48.0, 48.0, 48.0),
-                 num_objects: tuple[int, int] = (4, 16), max_range: float = 40.0, size_jitter: float = 0.2,
-                 colour_jitter: float = 45.0) -> None:
+    def __init__(
+        self,
+        rig: Rig,
+        split: str = "train",
+        seed: int = 0,
+        *,
+        bev_range: Sequence[float] = (-48.0, -48.0, 48.0, 48.0),
+        num_objects: tuple[int, int] = (4, 16),
+        max_range: float = 40.0,
+        size_jitter: float = 0.2,
+        colour_jitter: float = 45.0,
+    ) -> None:
         if split not in SPLITS:
             raise ValueError(f"split: expected one of {', '.join(SPLITS)}, got {split!r}")
         if len(bev_range) != 4 or not (bev_range[0] < bev_range[2] and bev_range[1] < bev_range[3]):
@@ -74,10 +83,15 @@ class SyntheticFrames:
         if index < 0:
             raise IndexError(f"frame index must be non-negative, got {index}")
         rng = self.rng(index)
-        scene = random_scene(rng, self.num_objects, ground_z=-float(rng.uniform(1.7, 2.3)), max_range=self.max_range,
-                             size_jitter=self.size_jitter)
+        scene = random_scene(
+            rng,
+            self.num_objects,
+            ground_z=-float(rng.uniform(1.7, 2.3)),
+            max_range=self.max_range,
+            size_jitter=self.size_jitter,
+        )
         look = random_appearance(rng, scene, self.colour_jitter)
-        self.renderer.texture_seed = int(rng.integers(0, 2 ** 31))
+        self.renderer.texture_seed = int(rng.integers(0, 2**31))
         pictures = self.renderer.render(self.rig, scene, look)
         images = np.stack([pictures[name] for name in self.rig.names])
         x0, y0, x1, y1 = self.bev_range
@@ -88,8 +102,9 @@ class SyntheticFrames:
         return Sample(int(index), images, records, boxes, labels, scene)
 
 
-
-def write_split(frames: SyntheticFrames, root: str | Path, indices: Iterable[int], split: str | None = None) -> list[str]:
+def write_split(
+    frames: SyntheticFrames, root: str | Path, indices: Iterable[int], split: str | None = None
+) -> list[str]:
     """Write frames ``indices`` of a stream under ``root`` in the Fisheye3DOD layout; returns their tokens.
 
     One sequence per stream and seed (``synth-Town00-Randomised<split>-seed<seed>/ego0``), frame id

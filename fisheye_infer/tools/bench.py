@@ -73,19 +73,45 @@ def _e2e(detector: Any, frames: list[dict[str, bytes]], repeat: int, warmup: int
     return out
 
 
-def _graph_stages(time_stages: StageTimer, path: Path, frame: dict[str, bytes], detector: Any, threads: int, repeat: int,
-                  providers: list[Provider]) -> dict[str, Any]:
+def _graph_stages(
+    time_stages: StageTimer,
+    path: Path,
+    frame: dict[str, bytes],
+    detector: Any,
+    threads: int,
+    repeat: int,
+    providers: list[Provider],
+) -> dict[str, Any]:
     from fisheye_infer.runtime.preprocess import load_frame, stack_frames
     from fisheye_infer.runtime.session import session_options
 
-    images, valid = stack_frames([load_frame(frame, detector.info.cameras, detector.info.image_size)], detector.info.image_size)
-    times = time_stages(path, {"images": images, "camera_valid": valid}, lambda: session_options(threads), repeat=repeat, providers=providers)
+    images, valid = stack_frames(
+        [load_frame(frame, detector.info.cameras, detector.info.image_size)], detector.info.image_size
+    )
+    times = time_stages(
+        path,
+        {"images": images, "camera_valid": valid},
+        lambda: session_options(threads),
+        repeat=repeat,
+        providers=providers,
+    )
     return {k: stats(v) for k, v in times.items()}
 
 
-def peak_rss_mb(model_path: str | Path, threads: int, runs: int = 3, providers: Sequence[Provider] = ("CPUExecutionProvider",)) -> float:
+def peak_rss_mb(
+    model_path: str | Path, threads: int, runs: int = 3, providers: Sequence[Provider] = ("CPUExecutionProvider",)
+) -> float:
     """Peak RSS (MB, host memory) of a fresh process that loads a Detector and runs ``runs`` frames."""
-    cmd = [sys.executable, "-m", "fisheye_infer.tools.bench", "--rss-child", str(model_path), str(threads), str(runs), json.dumps(list(providers))]
+    cmd = [
+        sys.executable,
+        "-m",
+        "fisheye_infer.tools.bench",
+        "--rss-child",
+        str(model_path),
+        str(threads),
+        str(runs),
+        json.dumps(list(providers)),
+    ]
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"peak RSS measurement failed: {done.stderr.strip()[-500:]}")
@@ -96,7 +122,9 @@ def _rss_child(model_path: str, threads: int, runs: int, providers: str) -> None
     from fisheye_infer.runtime.detector import Detector
 
     frame = png_frame(model_path)
-    detector = Detector(model_path, threads=threads, providers=[p if isinstance(p, str) else tuple(p) for p in json.loads(providers)])
+    detector = Detector(
+        model_path, threads=threads, providers=[p if isinstance(p, str) else tuple(p) for p in json.loads(providers)]
+    )
     for _ in range(runs):
         detector.detect(frame)
     print(_own_peak_rss_mb())
@@ -119,23 +147,45 @@ def machine() -> dict[str, Any]:
     import onnxruntime as ort
 
     cpu = cpu_info()
-    return {"cpu": cpu.label, "cpu_count": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-            "onnxruntime": ort.__version__, "avx512": cpu.avx512, "vnni": cpu.vnni, "avx2": cpu.avx2, "gpus": _nvidia_gpus()}
+    return {
+        "cpu": cpu.label,
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "onnxruntime": ort.__version__,
+        "avx512": cpu.avx512,
+        "vnni": cpu.vnni,
+        "avx2": cpu.avx2,
+        "gpus": _nvidia_gpus(),
+    }
 
 
 def _nvidia_gpus() -> list[str]:
     """The NVIDIA GPUs' names and drivers as ``nvidia-smi`` lists them; none without it."""
     try:
-        done = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"], capture_output=True, text=True,
-                              timeout=10, check=False)
+        done = subprocess.run(
+            ["nvidia-smi", "--query-gpu=name,driver_version", "--format=csv,noheader"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=False,
+        )
     except (OSError, subprocess.TimeoutExpired):
         return []
     return [line.strip() for line in done.stdout.splitlines() if line.strip()] if done.returncode == 0 else []
 
 
-def bench_model(path: str | Path, threads: Sequence[int] = (1, 2), batches: Sequence[int] = (1, 2, 4), repeat: int = 10,
-                warmup: int = 2, stages: StageTimer | None = None, rss: bool = True, progress: Any = print,
-                providers: str | Sequence[Provider] | None = None) -> dict[str, Any]:
+def bench_model(
+    path: str | Path,
+    threads: Sequence[int] = (1, 2),
+    batches: Sequence[int] = (1, 2, 4),
+    repeat: int = 10,
+    warmup: int = 2,
+    stages: StageTimer | None = None,
+    rss: bool = True,
+    progress: Any = print,
+    providers: str | Sequence[Provider] | None = None,
+) -> dict[str, Any]:
     """Everything ``fisheye-infer bench`` measures for one model, as a JSON-ready dict.
 
     ``providers`` as ``Detector`` takes them (``None``: CPU; ``"auto"``); the result names the
@@ -146,8 +196,16 @@ def bench_model(path: str | Path, threads: Sequence[int] = (1, 2), batches: Sequ
     path = Path(path)
     frame = png_frame(path)
     asked = resolve_providers(providers)
-    result: dict[str, Any] = {"model": str(path), "machine": machine(), "providers": [provider_name(p) for p in asked], "repeat": repeat,
-                              "warmup": warmup, "runs": [], "stages": {}, "peak_rss_mb": {}}
+    result: dict[str, Any] = {
+        "model": str(path),
+        "machine": machine(),
+        "providers": [provider_name(p) for p in asked],
+        "repeat": repeat,
+        "warmup": warmup,
+        "runs": [],
+        "stages": {},
+        "peak_rss_mb": {},
+    }
     for t in threads:
         detector = Detector(path, threads=t, providers=providers)
         result["providers"] = list(detector.info.providers)
@@ -169,12 +227,16 @@ def bench_model(path: str | Path, threads: Sequence[int] = (1, 2), batches: Sequ
 
 def format_table(result: dict[str, Any]) -> str:
     """One line per (threads, batch): medians and p90 in ms, throughput; then the graph stages."""
-    lines = [f"{result['model']} ({result.get('architecture')}, {result.get('quantization')}; {', '.join(result.get('providers', ['CPUExecutionProvider']))})",
-             "threads batch | total med/p90 ms | decode | preprocess | inference | postprocess | frames/s"]
+    lines = [
+        f"{result['model']} ({result.get('architecture')}, {result.get('quantization')}; {', '.join(result.get('providers', ['CPUExecutionProvider']))})",
+        "threads batch | total med/p90 ms | decode | preprocess | inference | postprocess | frames/s",
+    ]
     for r in result["runs"]:
-        lines.append(f"{r['threads']:>7} {r['batch']:>5} | {r['total']['median']:8.1f} / {r['total']['p90']:7.1f} | "
-                     f"{r['decode']['median']:6.1f} | {r['preprocess']['median']:10.1f} | {r['inference']['median']:9.1f} | "
-                     f"{r['postprocess']['median']:11.2f} | {r['fps']:8.2f}")
+        lines.append(
+            f"{r['threads']:>7} {r['batch']:>5} | {r['total']['median']:8.1f} / {r['total']['p90']:7.1f} | "
+            f"{r['decode']['median']:6.1f} | {r['preprocess']['median']:10.1f} | {r['inference']['median']:9.1f} | "
+            f"{r['postprocess']['median']:11.2f} | {r['fps']:8.2f}"
+        )
     for t, st in result["stages"].items():
         parts = ", ".join(f"{k} {v['median']:.1f} (p90 {v['p90']:.1f})" for k, v in st.items())
         lines.append(f"graph stages at {t} thread(s), batch 1, ms: {parts}")

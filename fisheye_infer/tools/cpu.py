@@ -66,8 +66,12 @@ def cpu_info(cpuinfo: Path = Path("/proc/cpuinfo")) -> CpuInfo:
             if colon:
                 fields.setdefault(key.strip(), value.strip())
     # Arm lists "Features", not "flags" (and 64-bit Arm no "model name")
-    return CpuInfo(fields.get("model name") or platform.processor() or "unknown", frozenset(fields.get("flags", "").split()),
-                   fields.get("cpu family", ""), fields.get("model", ""))
+    return CpuInfo(
+        fields.get("model name") or platform.processor() or "unknown",
+        frozenset(fields.get("flags", "").split()),
+        fields.get("cpu family", ""),
+        fields.get("model", ""),
+    )
 
 
 def int8_saturation_warning(meta: ArtifactMeta, providers: Iterable[str], cpu: CpuInfo) -> str | None:
@@ -82,6 +86,8 @@ def int8_saturation_warning(meta: ArtifactMeta, providers: Iterable[str], cpu: C
         return None
     if "CPUExecutionProvider" not in list(providers)[:1] or not cpu.avx2 or cpu.vnni:
         return None
-    return (f"model {meta.model_id}: int8 with {q.weight_bits or 8}-bit weights on a CPU without VNNI ({cpu.name}): ONNX Runtime adds "
-            "u8 x s8 products in saturating int16 pairs here, so boxes can differ from the verified ones; export the int8 file "
-            "again (fisheye-infer export --int8 writes 7-bit weights, which never saturate)")
+    return (
+        f"model {meta.model_id}: int8 with {q.weight_bits or 8}-bit weights on a CPU without VNNI ({cpu.name}): ONNX Runtime adds "
+        "u8 x s8 products in saturating int16 pairs here, so boxes can differ from the verified ones; export the int8 file "
+        "again (fisheye-infer export --int8 writes 7-bit weights, which never saturate)"
+    )

@@ -32,7 +32,9 @@ def camera_colours(n: int) -> list[tuple[int, int, int]]:
     return [_PALETTE[i % len(_PALETTE)][::-1] for i in range(n)]
 
 
-def _text(img: np.ndarray, text: str, org: tuple[int, int], colour: tuple[int, int, int] = (30, 30, 30), scale: float = 0.5) -> None:
+def _text(
+    img: np.ndarray, text: str, org: tuple[int, int], colour: tuple[int, int, int] = (30, 30, 30), scale: float = 0.5
+) -> None:
     cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
 
 
@@ -74,7 +76,9 @@ def draw_rig(rig: Rig, size: int = 800, extent_m: float = 6.0) -> np.ndarray:
     return img
 
 
-def draw_sampling_grid(camera: OCamModel, grid: np.ndarray, image: np.ndarray | None = None, every: int = 1) -> np.ndarray:
+def draw_sampling_grid(
+    camera: OCamModel, grid: np.ndarray, image: np.ndarray | None = None, every: int = 1
+) -> np.ndarray:
     """The fisheye image (or its valid area) with the pixel each grid cell samples.
 
     ``grid`` is a normalised (H, W, 2) table as ``grid_sample`` receives it; cells outside the
@@ -144,7 +148,9 @@ def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, ri
     return img
 
 
-def draw_detections(detections: Detections, rig: Rig, images: Mapping[str, np.ndarray | None] | None = None, tile: int = 400) -> np.ndarray:
+def draw_detections(
+    detections: Detections, rig: Rig, images: Mapping[str, np.ndarray | None] | None = None, tile: int = 400
+) -> np.ndarray:
     """The fisheye images with the boxes projected through the rig's camera models, beside the BEV.
 
     Cameras without an image are drawn on black. Returns one BGR picture: a 2-column grid of
@@ -157,7 +163,9 @@ def draw_detections(detections: Detections, rig: Rig, images: Mapping[str, np.nd
     for cam in rig.cameras:
         model = cam.model
         image = None if images is None else images.get(cam.name)
-        canvas = np.zeros((model.height, model.width, 3), np.uint8) if image is None else np.ascontiguousarray(image.copy())
+        canvas = (
+            np.zeros((model.height, model.width, 3), np.uint8) if image is None else np.ascontiguousarray(image.copy())
+        )
         thickness = max(1, model.width // 400)
         for polylines, name, score in zip(lines[cam.name], detections.names, detections.scores):
             colour = _class_colour(name)

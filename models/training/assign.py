@@ -74,7 +74,9 @@ def iou_3d(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     ra = np.hypot(a[:, 3], a[:, 4]) / 2
     rb = np.hypot(b[:, 3], b[:, 4]) / 2
     dist = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
-    dz = np.minimum(a[:, None, 2] + a[:, None, 5], b[None, :, 2] + b[None, :, 5]) - np.maximum(a[:, None, 2], b[None, :, 2])
+    dz = np.minimum(a[:, None, 2] + a[:, None, 5], b[None, :, 2] + b[None, :, 5]) - np.maximum(
+        a[:, None, 2], b[None, :, 2]
+    )
     vol_a, vol_b = a[:, 3] * a[:, 4] * a[:, 5], b[:, 3] * b[:, 4] * b[:, 5]
     for i, j in zip(*np.nonzero((dist < ra[:, None] + rb[None, :]) & (dz > 0))):
         inter = _bev_area(a[i], b[j]) * dz[i, j]
@@ -86,12 +88,14 @@ def iou_3d(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
 def focal_cost(logits: np.ndarray, gt_labels: np.ndarray, gamma: float = 2.0, alpha: float = 0.25) -> np.ndarray:
     """(P, K) class logits, (G,) labels -> (P, G) mmdet ``FocalLossCost`` (unweighted)."""
     s = 1.0 / (1.0 + np.exp(-np.asarray(logits, np.float64)))
-    neg = -np.log(1 - s + _EPS) * (1 - alpha) * s ** gamma
+    neg = -np.log(1 - s + _EPS) * (1 - alpha) * s**gamma
     pos = -np.log(s + _EPS) * alpha * (1 - s) ** gamma
     return pos[:, gt_labels] - neg[:, gt_labels]
 
 
-def bev_l1_cost(pred_xy: np.ndarray, gt_xy: np.ndarray, pc_start: tuple[float, float], pc_span: tuple[float, float]) -> np.ndarray:
+def bev_l1_cost(
+    pred_xy: np.ndarray, gt_xy: np.ndarray, pc_start: tuple[float, float], pc_span: tuple[float, float]
+) -> np.ndarray:
     """(P, 2), (G, 2) BEV centres (m) -> (P, G) L1 distance in units of the point-cloud range (unweighted)."""
     start, span = np.asarray(pc_start, np.float64), np.asarray(pc_span, np.float64)
     p = (np.asarray(pred_xy, np.float64) - start) / span
@@ -99,9 +103,15 @@ def bev_l1_cost(pred_xy: np.ndarray, gt_xy: np.ndarray, pc_start: tuple[float, f
     return np.abs(p[:, None, :] - g[None, :, :]).sum(-1)
 
 
-def hungarian_assign(pred_boxes: np.ndarray, pred_logits: np.ndarray, gt_boxes: np.ndarray, gt_labels: np.ndarray,
-                     pc_start: tuple[float, float], pc_span: tuple[float, float],
-                     config: AssignerConfig = AssignerConfig()) -> Assignment:
+def hungarian_assign(
+    pred_boxes: np.ndarray,
+    pred_logits: np.ndarray,
+    gt_boxes: np.ndarray,
+    gt_labels: np.ndarray,
+    pc_start: tuple[float, float],
+    pc_span: tuple[float, float],
+    config: AssignerConfig = AssignerConfig(),
+) -> Assignment:
     """Decoded proposals (P, 7) with class logits (P, K), ground truth (G, 7) and labels (G,) -> one-to-one assignment."""
     from scipy.optimize import linear_sum_assignment
 
@@ -118,11 +128,15 @@ def hungarian_assign(pred_boxes: np.ndarray, pred_logits: np.ndarray, gt_boxes: 
     if not len(gt_boxes) or not len(pred_boxes):
         return Assignment(index, overlap)
     if gt_labels.min() < 0 or gt_labels.max() >= logits.shape[1]:
-        raise ValueError(f"gt_labels: expected class ids in [0, {logits.shape[1]}), got {sorted(set(gt_labels.tolist()))}")
+        raise ValueError(
+            f"gt_labels: expected class ids in [0, {logits.shape[1]}), got {sorted(set(gt_labels.tolist()))}"
+        )
     iou = iou_3d(pred_boxes, gt_boxes)
-    cost = (config.cls_weight * focal_cost(logits, gt_labels, config.gamma, config.alpha)
-            + config.reg_weight * bev_l1_cost(pred_boxes[:, :2], gt_boxes[:, :2], pc_start, pc_span)
-            - config.iou_weight * iou)
+    cost = (
+        config.cls_weight * focal_cost(logits, gt_labels, config.gamma, config.alpha)
+        + config.reg_weight * bev_l1_cost(pred_boxes[:, :2], gt_boxes[:, :2], pc_start, pc_span)
+        - config.iou_weight * iou
+    )
     rows, cols = linear_sum_assignment(cost)
     index[rows] = cols
     overlap[rows] = iou[rows, cols]

@@ -43,10 +43,15 @@ def step_loader(batches: StepBatches, start: int, stop: int, workers: int) -> to
     """The batches of steps ``start`` .. ``stop - 1``, in order, rendered ahead by ``workers`` processes
     (0: rendered in the loop)."""
     workers = workers if stop > start else 0  # nothing left to render: no processes to start
-    ahead: dict[str, Any] = {"multiprocessing_context": "spawn", "prefetch_factor": 4, "worker_init_fn": _one_thread_worker} if workers else {}
+    ahead: dict[str, Any] = (
+        {"multiprocessing_context": "spawn", "prefetch_factor": 4, "worker_init_fn": _one_thread_worker}
+        if workers
+        else {}
+    )
     # batch_size=None: collate_fn gets one item, not the list torch's annotation has it take
-    return torch.utils.data.DataLoader(batches, batch_size=None, sampler=range(start, stop), num_workers=workers,
-                                       collate_fn=_as_is, **ahead)  # type: ignore[arg-type]
+    return torch.utils.data.DataLoader(
+        batches, batch_size=None, sampler=range(start, stop), num_workers=workers, collate_fn=_as_is, **ahead
+    )  # type: ignore[arg-type]
 
 
 def _as_is(batch: Batch) -> Batch:

@@ -21,19 +21,45 @@ from typing import Any
 from fisheye_infer.cameras.rig import Rig, default_rig
 from fisheye_infer.scenes.render import resized_rig
 
-__all__ = ["COMPACT_SCALE", "COMPACT_SECTIONS", "compact_bevdet_config", "compact_rig", "mmdet3d_config_source", "write_config"]
+__all__ = [
+    "COMPACT_SCALE",
+    "COMPACT_SECTIONS",
+    "compact_bevdet_config",
+    "compact_rig",
+    "mmdet3d_config_source",
+    "write_config",
+]
 
 #: Image scale of the compact model's rig (800 x 800 -> 320 x 320).
 COMPACT_SCALE = 0.4
 COMPACT_SECTIONS: dict[str, dict[str, Any]] = {
     "image": {"height": 320, "width": 320},
     "backbone": {"base_channels": 32, "neck_in_channels": (128, 256), "neck_out_channels": 64},
-    "view_transform": {"in_channels": 64, "out_channels": 48, "feature_size": (10, 40), "dbound": (0.5, 48.5, 1.0),
-                       "xbound": (-48.0, 48.0, 0.6), "ybound": (-48.0, 48.0, 0.6)},
-    "bev_encoder": {"in_channels": 48, "out_channels": (64, 128), "layer_nums": (2, 2), "fpn_in_channels": (64, 128),
-                    "fpn_out_channels": (64, 64)},
-    "head": {"in_channels": 128, "hidden_channel": 64, "num_heads": 4, "ffn_channels": 128, "head_conv": 32,
-             "num_proposals": 100, "grid_size": (640, 640, 40), "voxel_size": (0.15, 0.15)},
+    "view_transform": {
+        "in_channels": 64,
+        "out_channels": 48,
+        "feature_size": (10, 40),
+        "dbound": (0.5, 48.5, 1.0),
+        "xbound": (-48.0, 48.0, 0.6),
+        "ybound": (-48.0, 48.0, 0.6),
+    },
+    "bev_encoder": {
+        "in_channels": 48,
+        "out_channels": (64, 128),
+        "layer_nums": (2, 2),
+        "fpn_in_channels": (64, 128),
+        "fpn_out_channels": (64, 64),
+    },
+    "head": {
+        "in_channels": 128,
+        "hidden_channel": 64,
+        "num_heads": 4,
+        "ffn_channels": 128,
+        "head_conv": 32,
+        "num_proposals": 100,
+        "grid_size": (640, 640, 40),
+        "voxel_size": (0.15, 0.15),
+    },
 }
 
 
@@ -55,39 +81,93 @@ def mmdet3d_config_source(cfg: Any) -> str:
     model = dict(
         type="FisheyeBEVDet",
         data_preprocessor=dict(mean=list(img.mean), std=list(img.std), bgr_to_rgb=img.bgr_to_rgb),
-        img_backbone=dict(type="mmdet.ResNet", depth=bb.depth, base_channels=bb.base_channels, strides=list(bb.strides), dilations=list(bb.dilations),
-                          out_indices=list(bb.out_indices)),
-        img_neck=dict(type="mmdet.FPN", in_channels=list(bb.neck_in_channels), out_channels=bb.neck_out_channels,
-                      num_outs=bb.neck_num_outs),
-        view_transform=dict(type="FisheyeLSSTransform", in_channels=vt.in_channels, out_channels=vt.out_channels,
-                            image_size=[img.height, img.width], feature_size=list(vt.feature_size),
-                            azimuth_range=list(vt.azimuth_range), elevation_range=list(vt.elevation_range),
-                            xbound=list(vt.xbound), ybound=list(vt.ybound), zbound=list(vt.zbound), dbound=list(vt.dbound),
-                            ocam_fov=vt.ocam_fov, downsample=1),
-        pts_backbone=dict(type="SECOND", in_channels=enc.in_channels, out_channels=list(enc.out_channels),
-                          layer_nums=list(enc.layer_nums), layer_strides=list(enc.layer_strides),
-                          norm_cfg=dict(type="BN", eps=enc.bn_eps, momentum=0.01)),
-        pts_neck=dict(type="SECONDFPN", in_channels=list(enc.fpn_in_channels), out_channels=list(enc.fpn_out_channels),
-                      upsample_strides=list(enc.upsample_strides), use_conv_for_no_stride=enc.use_conv_for_no_stride,
-                      norm_cfg=dict(type="BN", eps=enc.bn_eps, momentum=0.01)),
+        img_backbone=dict(
+            type="mmdet.ResNet",
+            depth=bb.depth,
+            base_channels=bb.base_channels,
+            strides=list(bb.strides),
+            dilations=list(bb.dilations),
+            out_indices=list(bb.out_indices),
+        ),
+        img_neck=dict(
+            type="mmdet.FPN",
+            in_channels=list(bb.neck_in_channels),
+            out_channels=bb.neck_out_channels,
+            num_outs=bb.neck_num_outs,
+        ),
+        view_transform=dict(
+            type="FisheyeLSSTransform",
+            in_channels=vt.in_channels,
+            out_channels=vt.out_channels,
+            image_size=[img.height, img.width],
+            feature_size=list(vt.feature_size),
+            azimuth_range=list(vt.azimuth_range),
+            elevation_range=list(vt.elevation_range),
+            xbound=list(vt.xbound),
+            ybound=list(vt.ybound),
+            zbound=list(vt.zbound),
+            dbound=list(vt.dbound),
+            ocam_fov=vt.ocam_fov,
+            downsample=1,
+        ),
+        pts_backbone=dict(
+            type="SECOND",
+            in_channels=enc.in_channels,
+            out_channels=list(enc.out_channels),
+            layer_nums=list(enc.layer_nums),
+            layer_strides=list(enc.layer_strides),
+            norm_cfg=dict(type="BN", eps=enc.bn_eps, momentum=0.01),
+        ),
+        pts_neck=dict(
+            type="SECONDFPN",
+            in_channels=list(enc.fpn_in_channels),
+            out_channels=list(enc.fpn_out_channels),
+            upsample_strides=list(enc.upsample_strides),
+            use_conv_for_no_stride=enc.use_conv_for_no_stride,
+            norm_cfg=dict(type="BN", eps=enc.bn_eps, momentum=0.01),
+        ),
         bbox_head=dict(
-            type="TransFusionHead", num_proposals=hd.num_proposals, in_channels=hd.in_channels,
-            hidden_channel=hd.hidden_channel, num_classes=hd.num_classes, nms_kernel_size=hd.nms_kernel_size,
+            type="TransFusionHead",
+            num_proposals=hd.num_proposals,
+            in_channels=hd.in_channels,
+            hidden_channel=hd.hidden_channel,
+            num_classes=hd.num_classes,
+            nms_kernel_size=hd.nms_kernel_size,
             num_decoder_layers=hd.num_decoder_layers,
-            decoder_layer=dict(self_attn_cfg=dict(embed_dims=hd.hidden_channel, num_heads=hd.num_heads),
-                               ffn_cfg=dict(embed_dims=hd.hidden_channel, feedforward_channels=hd.ffn_channels)),
-            common_heads={name: list(spec) for name, spec in hd.common_heads}, head_conv=hd.head_conv,
-            bbox_coder=dict(type="TransFusionBBoxCoder", pc_range=list(hd.pc_range), post_center_range=list(hd.post_center_range),
-                            score_threshold=hd.score_threshold, out_size_factor=hd.out_size_factor,
-                            voxel_size=list(hd.voxel_size), code_size=8)),
-        test_cfg=dict(pts=dict(dataset=hd.dataset, grid_size=list(hd.grid_size), out_size_factor=hd.out_size_factor,
-                               voxel_size=list(hd.voxel_size), pc_range=list(hd.pc_range), nms_type=hd.nms_type)),
+            decoder_layer=dict(
+                self_attn_cfg=dict(embed_dims=hd.hidden_channel, num_heads=hd.num_heads),
+                ffn_cfg=dict(embed_dims=hd.hidden_channel, feedforward_channels=hd.ffn_channels),
+            ),
+            common_heads={name: list(spec) for name, spec in hd.common_heads},
+            head_conv=hd.head_conv,
+            bbox_coder=dict(
+                type="TransFusionBBoxCoder",
+                pc_range=list(hd.pc_range),
+                post_center_range=list(hd.post_center_range),
+                score_threshold=hd.score_threshold,
+                out_size_factor=hd.out_size_factor,
+                voxel_size=list(hd.voxel_size),
+                code_size=8,
+            ),
+        ),
+        test_cfg=dict(
+            pts=dict(
+                dataset=hd.dataset,
+                grid_size=list(hd.grid_size),
+                out_size_factor=hd.out_size_factor,
+                voxel_size=list(hd.voxel_size),
+                pc_range=list(hd.pc_range),
+                nms_type=hd.nms_type,
+            )
+        ),
     )
     pipeline = [dict(type="LoadFisheye3DODMultiViewImageFromFiles", load_cam_names=list(img.camera_names))]
-    return ("# FisheyeBEVDet configuration written by fisheye-infer train (an mmdet3d-style config: read, never executed)\n"
-            f"classes = {list(cfg.class_names)!r}\n"
-            f"test_pipeline = {pipeline!r}\n"
-            f"model = {model!r}\n")
+    return (
+        "# FisheyeBEVDet configuration written by fisheye-infer train (an mmdet3d-style config: read, never executed)\n"
+        f"classes = {list(cfg.class_names)!r}\n"
+        f"test_pipeline = {pipeline!r}\n"
+        f"model = {model!r}\n"
+    )
 
 
 def write_config(cfg: Any, path: str | Path) -> Path:

@@ -31,8 +31,8 @@ __all__ = ["DepthTargets", "depth_loss"]
 class DepthTargets:
     """Per-frame depth-bin targets (N, H, W) int64 for one model's lift geometry.
 
-        targets = DepthTargets(model.view_transform.geometry, config.view_transform)
-        bins = targets(sample.scene)        # -1 where there is no target
+    targets = DepthTargets(model.view_transform.geometry, config.view_transform)
+    bins = targets(sample.scene)        # -1 where there is no target
     """
 
     def __init__(self, geometry: LSSGeometry, vt: ViewTransformConfig, samples: int = 4) -> None:

@@ -107,11 +107,19 @@ def _atomic_save(obj: Any, path: Path) -> None:
 class Trainer:
     """Trains a FisheyeBEVDet of ``config`` for ``rig`` in the run folder ``out``.
 
-        Trainer(compact_bevdet_config(), compact_rig(), "runs/compact", TrainOptions()).run()
+    Trainer(compact_bevdet_config(), compact_rig(), "runs/compact", TrainOptions()).run()
     """
 
-    def __init__(self, config: Any, rig: Rig, out: str | Path, options: TrainOptions = TrainOptions(),  # noqa: B008
-                 loss: LossConfig = LossConfig(), device: str = "cpu", workers: int = 0) -> None:  # noqa: B008 (frozen dataclasses)
+    def __init__(
+        self,
+        config: Any,
+        rig: Rig,
+        out: str | Path,
+        options: TrainOptions = TrainOptions(),  # noqa: B008
+        loss: LossConfig = LossConfig(),  # noqa: B008
+        device: str = "cpu",
+        workers: int = 0,
+    ) -> None:  # noqa: B008 (frozen dataclasses)
         """``device``: where the model trains (``cpu``, ``cuda``, ``cuda:1``); ``workers``: processes
         that render the next steps' frames while this one trains (0: rendered in the loop). Neither
         changes what a step trains on."""
@@ -146,16 +154,25 @@ class Trainer:
     # -- checkpoints ------------------------------------------------------------------------
 
     def _meta(self) -> dict[str, Any]:
-        return {"arch": ARCH, "synthetic": False, "step": self.step, "config": self.config.to_dict(),
-                "train_options": dataclasses.asdict(self.options), "rig": self.rig.name, "rig_hash": self.rig.hash}
+        return {
+            "arch": ARCH,
+            "synthetic": False,
+            "step": self.step,
+            "config": self.config.to_dict(),
+            "train_options": dataclasses.asdict(self.options),
+            "rig": self.rig.name,
+            "rig_hash": self.rig.hash,
+        }
 
     def save(self) -> Path:
         """Write ``model.pth`` (official format) and ``checkpoint.pth`` (plus optimiser state) for the current step."""
         state = {k: v.detach().cpu().contiguous() for k, v in self.model.official_state_dict().items()}
         meta = self._meta()
         fake_quant = self.fake_quant.state() if self.fake_quant is not None else {}
-        _atomic_save({"state_dict": state, "meta": meta, "optimizer": self.optimizer.state_dict(), "fake_quant": fake_quant},
-                     self.out / "checkpoint.pth")
+        _atomic_save(
+            {"state_dict": state, "meta": meta, "optimizer": self.optimizer.state_dict(), "fake_quant": fake_quant},
+            self.out / "checkpoint.pth",
+        )
         _atomic_save({"state_dict": state, "meta": meta}, self.out / "model.pth")
         return self.out / "model.pth"
 
@@ -171,8 +188,11 @@ class Trainer:
         self._check_origin(meta, f"--resume: {path}", recorded=True)
         saved = {"init": "", "qat": 0.0, **meta.get("train_options", {})}  # runs before fine-tuning and int8 simulation
         mine = dataclasses.asdict(self.options)
-        differ = [f"{k}: saved {saved.get(k)!r}, given {v!r}" for k, v in mine.items()
-                  if k not in ("steps", "init") and saved.get(k) != v]
+        differ = [
+            f"{k}: saved {saved.get(k)!r}, given {v!r}"
+            for k, v in mine.items()
+            if k not in ("steps", "init") and saved.get(k) != v
+        ]
         if differ:
             raise CheckpointError(f"--resume: {path} was made with other options ({'; '.join(differ)})")
         self.options = dataclasses.replace(self.options, init=saved["init"])  # the weights come from checkpoint.pth
@@ -203,10 +223,14 @@ class Trainer:
         if (recorded or "config" in meta) and meta.get("config") != mine:
             theirs = meta.get("config") or {}
             sections = sorted(k for k in {*mine, *theirs} if mine.get(k) != theirs.get(k))
-            raise CheckpointError(f"{what} was trained with another model configuration (differs in: {', '.join(sections)})")
+            raise CheckpointError(
+                f"{what} was trained with another model configuration (differs in: {', '.join(sections)})"
+            )
         if (recorded or "rig_hash" in meta) and meta.get("rig_hash") != self.rig.hash:
-            raise CheckpointError(f"{what} was trained for rig {meta.get('rig')!r} ({meta.get('rig_hash')}), "
-                                  f"not {self.rig.name!r} ({self.rig.hash})")
+            raise CheckpointError(
+                f"{what} was trained for rig {meta.get('rig')!r} ({meta.get('rig_hash')}), "
+                f"not {self.rig.name!r} ({self.rig.hash})"
+            )
 
     # -- training ---------------------------------------------------------------------------
 
@@ -222,7 +246,9 @@ class Trainer:
 
     def int8_step(self, step: int) -> bool:
         """Whether step ``step``'s forward simulates the int8 file (a seeded draw at rate ``options.qat``)."""
-        return self.fake_quant is not None and bool(np.random.default_rng([self.options.seed, step]).random() < self.options.qat)
+        return self.fake_quant is not None and bool(
+            np.random.default_rng([self.options.seed, step]).random() < self.options.qat
+        )
 
     def train_step(self, batch: Batch | None = None) -> dict[str, float]:
         """One optimiser step on the next step's frames (``batch``, or rendered here); returns the loss
@@ -242,8 +268,14 @@ class Trainer:
         self.optimizer.step()
         self.step += 1
         row = {k: float(terms[k].detach()) for k in TERMS}
-        row.update(step=self.step, lr=self.optimizer.param_groups[0]["lr"], grad_norm=float(grad_norm), int8=int8,
-                   seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu)
+        row.update(
+            step=self.step,
+            lr=self.optimizer.param_groups[0]["lr"],
+            grad_norm=float(grad_norm),
+            int8=int8,
+            seconds=time.perf_counter() - start,
+            cpu_seconds=time.process_time() - cpu,
+        )
         return row
 
     @torch.no_grad()
@@ -259,7 +291,9 @@ class Trainer:
                 sums[k] += float(terms[k]) / self.options.val_frames
         return sums
 
-    def run(self, resume: bool = False, until: int | None = None, progress: Callable[[str], None] | None = None) -> Path:
+    def run(
+        self, resume: bool = False, until: int | None = None, progress: Callable[[str], None] | None = None
+    ) -> Path:
         """Train up to ``options.steps`` (or stop after step ``until``, to go on later with ``resume``),
         checkpointing every ``checkpoint_every`` steps and where it stops; returns ``model.pth``."""
         self.out.mkdir(parents=True, exist_ok=True)
@@ -283,7 +317,9 @@ class Trainer:
                     if self.options.val_frames:
                         val = {"step": self.step, "split": "val", **self.validate()}
                         log.write(json.dumps(val) + "\n")
-                        bar.note(f"step {self.step}: validation loss {val['loss']:.3f} (matched IoU {val['matched_iou']:.2f})")
+                        bar.note(
+                            f"step {self.step}: validation loss {val['loss']:.3f} (matched IoU {val['matched_iou']:.2f})"
+                        )
                     bar.note(f"step {self.step}: wrote {self.save()}")
         bar.close()
         if self.fake_quant is not None:
@@ -315,10 +351,12 @@ class ProgressBar:
         self.seconds = row["seconds"] if self.seconds is None else 0.9 * self.seconds + 0.1 * row["seconds"]
         filled = int(self.WIDTH * self.done / self.total)
         left = (self.total - self.done) * self.seconds
-        self.write(f"\r{self.done}/{self.total} [{'#' * filled}{'.' * (self.WIDTH - filled)}] loss {self.mean['loss']:.3f} "
-                   f"(heatmap {self.mean['loss_heatmap']:.3f} cls {self.mean['loss_cls']:.3f} bbox {self.mean['loss_bbox']:.3f} "
-                   f"depth {self.mean['loss_depth']:.3f}, "
-                   f"IoU {self.mean['matched_iou']:.2f}) {self.seconds:.1f} s/step, {left / 60:.0f} min left ")
+        self.write(
+            f"\r{self.done}/{self.total} [{'#' * filled}{'.' * (self.WIDTH - filled)}] loss {self.mean['loss']:.3f} "
+            f"(heatmap {self.mean['loss_heatmap']:.3f} cls {self.mean['loss_cls']:.3f} bbox {self.mean['loss_bbox']:.3f} "
+            f"depth {self.mean['loss_depth']:.3f}, "
+            f"IoU {self.mean['matched_iou']:.2f}) {self.seconds:.1f} s/step, {left / 60:.0f} min left "
+        )
 
     def note(self, text: str) -> None:
         self.write(f"\n{text}\n")

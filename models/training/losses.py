@@ -43,7 +43,9 @@ class LossConfig:
     assigner: AssignerConfig = field(default_factory=AssignerConfig)
 
 
-def gaussian_focal_loss(logits: torch.Tensor, target: torch.Tensor, alpha: float = 2.0, gamma: float = 4.0) -> torch.Tensor:
+def gaussian_focal_loss(
+    logits: torch.Tensor, target: torch.Tensor, alpha: float = 2.0, gamma: float = 4.0
+) -> torch.Tensor:
     """Summed mmdet GaussianFocalLoss of ``clip_sigmoid(logits)`` against a Gaussian ``target`` (same shape), not yet averaged."""
     pred = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
     pos = target.eq(1).to(pred.dtype)
@@ -53,7 +55,9 @@ def gaussian_focal_loss(logits: torch.Tensor, target: torch.Tensor, alpha: float
     return (pos_loss + neg_loss).sum()
 
 
-def sigmoid_focal_loss(logits: torch.Tensor, labels: torch.Tensor, gamma: float = 2.0, alpha: float = 0.25) -> torch.Tensor:
+def sigmoid_focal_loss(
+    logits: torch.Tensor, labels: torch.Tensor, gamma: float = 2.0, alpha: float = 0.25
+) -> torch.Tensor:
     """Summed mmdet sigmoid FocalLoss: ``logits`` (N, K), ``labels`` (N,) with K meaning background."""
     k = logits.shape[1]
     target = F.one_hot(labels.clamp(max=k), k + 1)[:, :k].to(logits.dtype)
@@ -66,21 +70,25 @@ def sigmoid_focal_loss(logits: torch.Tensor, labels: torch.Tensor, gamma: float 
 class TransFusionLoss:
     """Targets, assignment and the three losses for a batch of raw head outputs.
 
-        loss = TransFusionLoss(model.bbox_head, HeadGrid.from_head(cfg.head))
-        terms = loss(model.forward_raw(images), gt_boxes, gt_labels)   # terms["loss"].backward()
+    loss = TransFusionLoss(model.bbox_head, HeadGrid.from_head(cfg.head))
+    terms = loss(model.forward_raw(images), gt_boxes, gt_labels)   # terms["loss"].backward()
     """
 
     def __init__(self, head: TransFusionHead, grid: HeadGrid, config: LossConfig = LossConfig()) -> None:
         self.head, self.grid, self.config = head, grid, config
         self.num_classes = head.num_classes
 
-    def targets(self, raw: Mapping[str, torch.Tensor], gt_boxes: Sequence[np.ndarray],
-                gt_labels: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
+    def targets(
+        self, raw: Mapping[str, torch.Tensor], gt_boxes: Sequence[np.ndarray], gt_labels: Sequence[np.ndarray]
+    ) -> dict[str, torch.Tensor]:
         """Heatmap (B x K x X x Y), class labels (B x P, K = none), box codes and weights (B x P x 8), match IoUs."""
         cfg, k = self.config, self.num_classes
         with torch.no_grad():
-            decoded = self.head.decode({n: raw[n].detach() for n in ("center", "height", "dim", "rot", "heatmap")},
-                                       raw["peak"].detach(), raw["query_labels"])
+            decoded = self.head.decode(
+                {n: raw[n].detach() for n in ("center", "height", "dim", "rot", "heatmap")},
+                raw["peak"].detach(),
+                raw["query_labels"],
+            )
         boxes = decoded["boxes"].cpu().numpy()
         logits = raw["heatmap"].detach().transpose(1, 2).cpu().numpy()  # B x P x K
         b, p = boxes.shape[0], boxes.shape[1]
@@ -101,27 +109,48 @@ class TransFusionLoss:
             weights[i, pos] = np.asarray(cfg.code_weights, np.float32)
             ious.extend(match.iou[pos].tolist())
         t = torch.from_numpy
-        return {"heatmap": t(heat), "labels": t(labels), "codes": t(codes), "weights": t(weights),
-                "num_pos": torch.tensor(float((labels < k).sum())),
-                "matched_iou": torch.tensor(float(np.mean(ious)) if ious else 0.0)}
+        return {
+            "heatmap": t(heat),
+            "labels": t(labels),
+            "codes": t(codes),
+            "weights": t(weights),
+            "num_pos": torch.tensor(float((labels < k).sum())),
+            "matched_iou": torch.tensor(float(np.mean(ious)) if ious else 0.0),
+        }
 
-    def __call__(self, raw: Mapping[str, torch.Tensor], gt_boxes: Sequence[np.ndarray],
-                 gt_labels: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
+    def __call__(
+        self, raw: Mapping[str, torch.Tensor], gt_boxes: Sequence[np.ndarray], gt_labels: Sequence[np.ndarray]
+    ) -> dict[str, torch.Tensor]:
         """Raw head outputs and per-frame ground truth -> ``loss`` (the sum to minimise) and its terms."""
         if len(gt_boxes) != raw["center"].shape[0] or len(gt_labels) != len(gt_boxes):
-            raise ValueError(f"ground truth for {len(gt_boxes)} frames ({len(gt_labels)} label sets); "
-                             f"the batch has {raw['center'].shape[0]}")
+            raise ValueError(
+                f"ground truth for {len(gt_boxes)} frames ({len(gt_labels)} label sets); "
+                f"the batch has {raw['center'].shape[0]}"
+            )
         cfg, k = self.config, self.num_classes
         tg = self.targets(raw, gt_boxes, gt_labels)
         dense = raw["dense_heatmap"]
         peaks = max(float(tg["heatmap"].eq(1).sum()), 1.0)
-        loss_heatmap = cfg.heatmap_weight * gaussian_focal_loss(dense, tg["heatmap"].to(dense.device)) / (peaks + _AVG_EPS)
+        loss_heatmap = (
+            cfg.heatmap_weight * gaussian_focal_loss(dense, tg["heatmap"].to(dense.device)) / (peaks + _AVG_EPS)
+        )
         num_pos = max(float(tg["num_pos"]), 1.0)
         cls_logits = raw["heatmap"].permute(0, 2, 1).reshape(-1, k)
-        loss_cls = cfg.cls_weight * sigmoid_focal_loss(cls_logits, tg["labels"].reshape(-1).to(cls_logits.device),
-                                                       cfg.focal_gamma, cfg.focal_alpha) / (num_pos + _AVG_EPS)
+        loss_cls = (
+            cfg.cls_weight
+            * sigmoid_focal_loss(
+                cls_logits, tg["labels"].reshape(-1).to(cls_logits.device), cfg.focal_gamma, cfg.focal_alpha
+            )
+            / (num_pos + _AVG_EPS)
+        )
         preds = torch.cat([raw["center"], raw["height"], raw["dim"], raw["rot"]], dim=1).permute(0, 2, 1)  # B x P x 8
         l1 = (preds - tg["codes"].to(preds.device)).abs() * tg["weights"].to(preds.device)
         loss_bbox = cfg.bbox_weight * l1.sum() / (num_pos + _AVG_EPS)
-        return {"loss": loss_heatmap + loss_cls + loss_bbox, "loss_heatmap": loss_heatmap, "loss_cls": loss_cls,
-                "loss_bbox": loss_bbox, "matched_iou": tg["matched_iou"], "num_pos": tg["num_pos"]}
+        return {
+            "loss": loss_heatmap + loss_cls + loss_bbox,
+            "loss_heatmap": loss_heatmap,
+            "loss_cls": loss_cls,
+            "loss_bbox": loss_bbox,
+            "matched_iou": tg["matched_iou"],
+            "num_pos": tg["num_pos"],
+        }

@@ -57,7 +57,9 @@ class TrainOptions:
         if not 0 <= self.qat <= 1:
             raise ConfigError(f"--qat: expected a share of steps in [0, 1], got {self.qat}")
         if self.val_frames < 0 or self.warmup_steps < 0:
-            raise ConfigError(f"--val-frames / warm-up steps: expected 0 or more, got {self.val_frames} / {self.warmup_steps}")
+            raise ConfigError(
+                f"--val-frames / warm-up steps: expected 0 or more, got {self.val_frames} / {self.warmup_steps}"
+            )
 
 
 def lr_factor(step: int, total: int, warmup: int, start: float = 1 / 3, floor: float = 2e-4) -> float:
@@ -74,7 +76,9 @@ def training_device(name: str) -> torch.device:
     except RuntimeError as exc:
         raise ConfigError(f"--device {name!r}: not a torch device ({exc})") from None
     if device.type == "cuda" and (not torch.cuda.is_available() or (device.index or 0) >= torch.cuda.device_count()):
-        raise ConfigError(f"--device {name}: no such CUDA device here (torch {torch.__version__} sees {torch.cuda.device_count()} GPU(s))")
+        raise ConfigError(
+            f"--device {name}: no such CUDA device here (torch {torch.__version__} sees {torch.cuda.device_count()} GPU(s))"
+        )
     if device.type not in ("cpu", "cuda"):
         raise ConfigError(f"--device {name}: expected cpu or cuda[:N]")
     return device

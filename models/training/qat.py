@@ -83,8 +83,13 @@ def _conv(m: nn.Conv2d, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 
 def _rewritten_as_depth_to_space(m: nn.ConvTranspose2d) -> bool:
     """Whether the export turns ``m`` into a 1x1 Conv + DepthToSpace (``int8_rewrites.upsample_as_depth_to_space``)."""
-    return (m.kernel_size == m.stride and m.groups == 1 and m.padding == (0, 0) and m.dilation == (1, 1)
-            and m.output_padding == (0, 0))
+    return (
+        m.kernel_size == m.stride
+        and m.groups == 1
+        and m.padding == (0, 0)
+        and m.dilation == (1, 1)
+        and m.output_padding == (0, 0)
+    )
 
 
 def _conv_transpose(m: nn.ConvTranspose2d, x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
@@ -120,8 +125,10 @@ class FakeQuant:
             if not any(under_module(name, prefix) for name in names):
                 raise ValueError(f"FakeQuant: keep float {prefix!r}: no module of the model has that name")
         self.layers: dict[str, _Weighted] = {
-            name: m for name, m in model.named_modules()
-            if isinstance(m, _Weighted) and type(m) in _FORWARDS and not any(under_module(name, p) for p in keep_float)}
+            name: m
+            for name, m in model.named_modules()
+            if isinstance(m, _Weighted) and type(m) in _FORWARDS and not any(under_module(name, p) for p in keep_float)
+        }
         if not self.layers:
             raise ValueError("FakeQuant: no Conv2d, ConvTranspose2d or Linear layer outside the float modules")
         self.ranges: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
@@ -161,8 +168,10 @@ class FakeQuant:
         return {name: [float(low), float(high)] for name, (low, high) in self.ranges.items()}
 
     def load_state(self, state: dict[str, list[float]], device: torch.device) -> None:
-        self.ranges = {name: (torch.tensor(low, device=device), torch.tensor(high, device=device))
-                       for name, (low, high) in state.items()}
+        self.ranges = {
+            name: (torch.tensor(low, device=device), torch.tensor(high, device=device))
+            for name, (low, high) in state.items()
+        }
 
     def remove(self) -> None:
         """Give every layer its own ``forward`` back."""

@@ -50,14 +50,14 @@ def gaussian_radius(size: tuple[float, float], min_overlap: float) -> float:
     height, width = size
     b1 = height + width
     c1 = width * height * (1 - min_overlap) / (1 + min_overlap)
-    r1 = (b1 + math.sqrt(b1 ** 2 - 4 * c1)) / 2
+    r1 = (b1 + math.sqrt(b1**2 - 4 * c1)) / 2
     b2 = 2 * (height + width)
     c2 = (1 - min_overlap) * width * height
-    r2 = (b2 + math.sqrt(b2 ** 2 - 16 * c2)) / 2
+    r2 = (b2 + math.sqrt(b2**2 - 16 * c2)) / 2
     a3 = 4 * min_overlap
     b3 = -2 * min_overlap * (height + width)
     c3 = (min_overlap - 1) * width * height
-    r3 = (b3 + math.sqrt(b3 ** 2 - 4 * a3 * c3)) / 2
+    r3 = (b3 + math.sqrt(b3**2 - 4 * a3 * c3)) / 2
     return min(r1, r2, r3)
 
 
@@ -65,7 +65,7 @@ def gaussian_2d(radius: int) -> np.ndarray:
     """(2r+1, 2r+1) Gaussian with sigma = (2r+1)/6, peak 1, values below eps * peak set to 0."""
     d = 2 * radius + 1
     sigma = d / 6
-    y, x = np.ogrid[-radius:radius + 1, -radius:radius + 1]
+    y, x = np.ogrid[-radius : radius + 1, -radius : radius + 1]
     g = np.exp(-(x * x + y * y) / (2 * sigma * sigma))
     g[g < np.finfo(g.dtype).eps * g.max()] = 0
     return g
@@ -81,12 +81,18 @@ def draw_gaussian(heatmap: np.ndarray, row: int, col: int, radius: int) -> None:
     g = gaussian_2d(radius)
     top, bottom = min(row, radius), min(rows - row, radius + 1)
     left, right = min(col, radius), min(cols - col, radius + 1)
-    patch = heatmap[row - top:row + bottom, col - left:col + right]
-    np.maximum(patch, g[radius - top:radius + bottom, radius - left:radius + right], out=patch)
+    patch = heatmap[row - top : row + bottom, col - left : col + right]
+    np.maximum(patch, g[radius - top : radius + bottom, radius - left : radius + right], out=patch)
 
 
-def heatmap_target(boxes: np.ndarray, labels: np.ndarray, grid: HeadGrid, num_classes: int,
-                   gaussian_overlap: float = 0.1, min_radius: int = 2) -> np.ndarray:
+def heatmap_target(
+    boxes: np.ndarray,
+    labels: np.ndarray,
+    grid: HeadGrid,
+    num_classes: int,
+    gaussian_overlap: float = 0.1,
+    min_radius: int = 2,
+) -> np.ndarray:
     """Runtime boxes (M, 7) and class ids (M,) -> float32 K x X x Y target heatmap.
 
     A box whose centre lies outside the grid draws nothing (the official pipeline's

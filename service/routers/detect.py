@@ -38,13 +38,22 @@ router = APIRouter(tags=["detect"], dependencies=[Depends(require_api_key)])
 
 CLIENT_CLOSED = 499  # nginx's convention: the client left before the answer
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    400: {"model": ErrorOut, "description": "malformed multipart or JSON body, or both Content-Length and Transfer-Encoding"},
+    400: {
+        "model": ErrorOut,
+        "description": "malformed multipart or JSON body, or both Content-Length and Transfer-Encoding",
+    },
     401: {"model": ErrorOut, "description": "X-API-Key missing or wrong"},
-    408: {"model": ErrorOut, "description": "the headers or body did not arrive within header_timeout_s / body_timeout_s"},
+    408: {
+        "model": ErrorOut,
+        "description": "the headers or body did not arrive within header_timeout_s / body_timeout_s",
+    },
     413: {"model": ErrorOut, "description": "body larger than max_body_bytes"},
     415: {"model": ErrorOut, "description": "not multipart/JSON, a Content-Encoding, or an image that is not JPEG/PNG"},
-    422: {"model": ErrorOut, "description": "unknown, missing or repeated camera, bad option, wrong image size (read from the header), "
-                                            "too many JPEG scans, corrupt image"},
+    422: {
+        "model": ErrorOut,
+        "description": "unknown, missing or repeated camera, bad option, wrong image size (read from the header), "
+        "too many JPEG scans, corrupt image",
+    },
     503: {"model": ErrorOut, "description": "queue full, draining or loading; see Retry-After"},
     504: {"model": ErrorOut, "description": "no result within request_timeout_s"},
 }
@@ -80,7 +89,9 @@ async def _serve(request: Request, service: Service, batch: bool) -> list[dict[s
         try:
             frames, options = await asyncio.wait_for(read_request(request, service.spec, batch), timeout)
         except asyncio.TimeoutError:
-            raise RequestTimeout(f"body: not received within body_timeout_s={timeout:g} s; the connection is closed", field="body") from None
+            raise RequestTimeout(
+                f"body: not received within body_timeout_s={timeout:g} s; the connection is closed", field="body"
+            ) from None
         except ClientDisconnect:
             return None
         return await _unless_client_leaves(request, run_frames(service, frames, options))
@@ -94,7 +105,12 @@ async def detect(request: Request, service: ServiceDep) -> Any:
     return {"model_id": service.model_id, **documents[0]}
 
 
-@router.post("/detect/batch", response_model=BatchResponse, responses=ERROR_RESPONSES, summary="detect objects in several frames, run as one batch")
+@router.post(
+    "/detect/batch",
+    response_model=BatchResponse,
+    responses=ERROR_RESPONSES,
+    summary="detect objects in several frames, run as one batch",
+)
 async def detect_batch(request: Request, service: ServiceDep) -> Any:
     documents = await _serve(request, service, batch=True)
     if documents is None:

@@ -26,8 +26,12 @@ async def healthz() -> Health:
     return Health()
 
 
-@router.get("/readyz", response_model=Ready, summary="the model is loaded and warmed, and the service is not draining",
-            responses={503: {"model": Ready, "description": "loading or draining"}})
+@router.get(
+    "/readyz",
+    response_model=Ready,
+    summary="the model is loaded and warmed, and the service is not draining",
+    responses={503: {"model": Ready, "description": "loading or draining"}},
+)
 async def readyz(service: ServiceDep) -> JSONResponse | Ready:
     model_id = service.detector.info.model_id if service.detector else None
     if service.ready:
@@ -41,15 +45,26 @@ def _metrics_access(request: Request, service: ServiceDep) -> None:
         check_api_key(service.settings, request.headers.get("x-api-key"))
 
 
-@router.get("/metrics", summary="Prometheus text format", response_class=Response, dependencies=[Depends(_metrics_access)],
-            responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "metrics"},
-                       401: {"model": ErrorOut}})
+@router.get(
+    "/metrics",
+    summary="Prometheus text format",
+    response_class=Response,
+    dependencies=[Depends(_metrics_access)],
+    responses={
+        200: {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "metrics"},
+        401: {"model": ErrorOut},
+    },
+)
 async def metrics(service: ServiceDep) -> Response:
     return Response(service.metrics.render(), media_type=CONTENT_TYPE)
 
 
-@router.get("/model", response_model=ModelInfo, summary="what to send: cameras, image size, classes, limits",
-            responses={401: {"model": ErrorOut}, 503: {"model": ErrorOut}})
+@router.get(
+    "/model",
+    response_model=ModelInfo,
+    summary="what to send: cameras, image size, classes, limits",
+    responses={401: {"model": ErrorOut}, 503: {"model": ErrorOut}},
+)
 async def model(detector: DetectorDep, service: ServiceDep, _: ApiKeyDep) -> ModelInfo:
     info, s = detector.info, service.settings
     return ModelInfo(
@@ -63,7 +78,14 @@ async def model(detector: DetectorDep, service: ServiceDep, _: ApiKeyDep) -> Mod
         rig_name=info.rig.name,
         rig_hash=info.meta.rig_hash,
         providers=list(info.providers),
-        limits=Limits(max_body_bytes=s.max_body_bytes, max_batch_frames=s.max_batch_frames, queue_size=s.queue_size,
-                      microbatch_max_size=s.microbatch_max_size, microbatch_max_wait_ms=s.microbatch_max_wait_ms,
-                      body_timeout_s=s.body_timeout_s, max_jpeg_scans=MAX_JPEG_SCANS, stream_protocol_version=VERSION),
+        limits=Limits(
+            max_body_bytes=s.max_body_bytes,
+            max_batch_frames=s.max_batch_frames,
+            queue_size=s.queue_size,
+            microbatch_max_size=s.microbatch_max_size,
+            microbatch_max_wait_ms=s.microbatch_max_wait_ms,
+            body_timeout_s=s.body_timeout_s,
+            max_jpeg_scans=MAX_JPEG_SCANS,
+            stream_protocol_version=VERSION,
+        ),
     )

@@ -38,7 +38,14 @@ from fisheye_infer._version import __version__
 from fisheye_infer.deploy.triton.repository import KSERVE_DTYPES, TritonOptions, model_config, model_name
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS
 from fisheye_infer.service.deps import DetectorDep, ServiceDep, require_api_key
-from fisheye_infer.service.errors import BadRequest, InferenceTimeout, RequestInvalid, RequestTimeout, ServiceError, Unavailable
+from fisheye_infer.service.errors import (
+    BadRequest,
+    InferenceTimeout,
+    RequestInvalid,
+    RequestTimeout,
+    ServiceError,
+    Unavailable,
+)
 from fisheye_infer.service.state import Service
 
 __all__ = ["router", "ModelNotFound", "HEADER_LENGTH"]
@@ -46,7 +53,15 @@ __all__ = ["router", "ModelNotFound", "HEADER_LENGTH"]
 HEADER_LENGTH = "Inference-Header-Content-Length"
 VERSION = "1"
 _HEADER_ROOM = 16 * 1024  # room for the JSON header of a binary request
-_NUMPY = {"UINT8": np.uint8, "BOOL": np.bool_, "FP32": np.float32, "INT64": np.int64, "INT32": np.int32, "FP16": np.float16, "FP64": np.float64}
+_NUMPY = {
+    "UINT8": np.uint8,
+    "BOOL": np.bool_,
+    "FP32": np.float32,
+    "INT64": np.int64,
+    "INT32": np.int32,
+    "FP16": np.float16,
+    "FP64": np.float64,
+}
 _KSERVE = {np.dtype(v): k for k, v in _NUMPY.items()}
 
 router = APIRouter(prefix="/v2", tags=["kserve"], include_in_schema=False)
@@ -85,18 +100,27 @@ def _check_model(service: Service, name: str, version: str | None) -> None:
     if name != served:
         raise ModelNotFound(f"model '{name}': not served here (models: {served})", field="name")
     if version not in (None, "", VERSION):
-        raise ModelNotFound(f"model '{name}': version '{version}' not served here (versions: {VERSION})", field="version")
+        raise ModelNotFound(
+            f"model '{name}': version '{version}' not served here (versions: {VERSION})", field="version"
+        )
 
 
 def _io(config: dict[str, Any], key: str) -> list[dict[str, Any]]:
     """Tensors as KServe metadata lists them: the batch axis, if batched, as -1 in front of the dims."""
     batch = [-1] if config["max_batch_size"] > 0 else []
-    return [{"name": t["name"], "datatype": KSERVE_DTYPES[t["data_type"]], "shape": [*batch, *t["dims"]]} for t in config[key]]
+    return [
+        {"name": t["name"], "datatype": KSERVE_DTYPES[t["data_type"]], "shape": [*batch, *t["dims"]]}
+        for t in config[key]
+    ]
 
 
 @router.get("")
 async def server_metadata() -> dict[str, Any]:
-    return {"name": "fisheye-infer", "version": __version__, "extensions": ["binary_tensor_data", "model_configuration"]}
+    return {
+        "name": "fisheye-infer",
+        "version": __version__,
+        "extensions": ["binary_tensor_data", "model_configuration"],
+    }
 
 
 @router.get("/health/live")
@@ -111,10 +135,18 @@ async def ready(service: ServiceDep) -> JSONResponse:
 
 @router.get("/models/{name}", dependencies=_keyed)
 @router.get("/models/{name}/versions/{version}", dependencies=_keyed)
-async def model_metadata(name: str, request: Request, service: ServiceDep, _: DetectorDep, version: str | None = None) -> dict[str, Any]:
+async def model_metadata(
+    name: str, request: Request, service: ServiceDep, _: DetectorDep, version: str | None = None
+) -> dict[str, Any]:
     _check_model(service, name, version)
     config = await _config(request, service)
-    return {"name": name, "versions": [VERSION], "platform": "onnxruntime_onnx", "inputs": _io(config, "input"), "outputs": _io(config, "output")}
+    return {
+        "name": name,
+        "versions": [VERSION],
+        "platform": "onnxruntime_onnx",
+        "inputs": _io(config, "input"),
+        "outputs": _io(config, "output"),
+    }
 
 
 @router.get("/models/{name}/ready", dependencies=_keyed)
@@ -126,7 +158,9 @@ async def model_ready(name: str, service: ServiceDep, version: str | None = None
 
 @router.get("/models/{name}/config", dependencies=_keyed)
 @router.get("/models/{name}/versions/{version}/config", dependencies=_keyed)
-async def model_configuration(name: str, request: Request, service: ServiceDep, _: DetectorDep, version: str | None = None) -> dict[str, Any]:
+async def model_configuration(
+    name: str, request: Request, service: ServiceDep, _: DetectorDep, version: str | None = None
+) -> dict[str, Any]:
     _check_model(service, name, version)
     config = await _config(request, service)
     return {**config, "name": name}
@@ -139,7 +173,9 @@ def _split_body(body: bytes, header_length: str | None) -> tuple[dict[str, Any],
     if header_length is None:
         size = len(body)
     elif not header_length.isdigit() or int(header_length) > len(body):
-        raise BadRequest(f"{HEADER_LENGTH}: {header_length!r} is not a length within the {len(body)}-byte body", field=HEADER_LENGTH)
+        raise BadRequest(
+            f"{HEADER_LENGTH}: {header_length!r} is not a length within the {len(body)}-byte body", field=HEADER_LENGTH
+        )
     else:
         size = int(header_length)
     try:
@@ -157,20 +193,29 @@ def _shape(item: dict[str, Any], expected: dict[str, Any]) -> list[int]:
     if item.get("datatype") != want:
         raise RequestInvalid(f"input '{name}': datatype {item.get('datatype')!r}, expected {want}", field=name)
     shape = item.get("shape")
-    if not (isinstance(shape, list) and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in shape)
-            and len(shape) == len(dims) + 1 and all(d == -1 or d == s for d, s in zip(dims, shape[1:]))):
+    if not (
+        isinstance(shape, list)
+        and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in shape)
+        and len(shape) == len(dims) + 1
+        and all(d == -1 or d == s for d, s in zip(dims, shape[1:]))
+    ):
         raise RequestInvalid(f"input '{name}': shape {shape!r}, expected [B, {', '.join(map(str, dims))}]", field=name)
     return shape
 
 
-def _data(item: dict[str, Any], shape: list[int], dtype: np.dtype, binary: memoryview, offset: int) -> tuple[np.ndarray, int]:
+def _data(
+    item: dict[str, Any], shape: list[int], dtype: np.dtype, binary: memoryview, offset: int
+) -> tuple[np.ndarray, int]:
     """An input's values: from the binary part (binary tensor extension) or from its JSON ``data``."""
     name, count = item["name"], int(np.prod(shape))
     size = (item.get("parameters") or {}).get("binary_data_size")
     if size is not None:
         if not isinstance(size, int) or size != count * dtype.itemsize or offset + size > len(binary):
-            raise RequestInvalid(f"input '{name}': binary_data_size {size!r} does not fit shape {shape} "
-                                 f"({count * dtype.itemsize} bytes) in the {len(binary) - offset} bytes left", field=name)
+            raise RequestInvalid(
+                f"input '{name}': binary_data_size {size!r} does not fit shape {shape} "
+                f"({count * dtype.itemsize} bytes) in the {len(binary) - offset} bytes left",
+                field=name,
+            )
         return np.frombuffer(binary[offset : offset + size], dtype).reshape(shape), offset + size
     try:
         data = np.asarray(item.get("data"), dtype).reshape(-1)
@@ -181,7 +226,9 @@ def _data(item: dict[str, Any], shape: list[int], dtype: np.dtype, binary: memor
     return data.reshape(shape), offset
 
 
-def _inputs(doc: dict[str, Any], binary: bytes, config: dict[str, Any], max_frames: int) -> tuple[np.ndarray, np.ndarray]:
+def _inputs(
+    doc: dict[str, Any], binary: bytes, config: dict[str, Any], max_frames: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Names, datatypes, shapes and the frame count first (cheap), then the values."""
     expected = {t["name"]: t for t in config["input"]}
     given = {item.get("name"): item for item in doc["inputs"] if isinstance(item, dict)}
@@ -191,11 +238,17 @@ def _inputs(doc: dict[str, Any], binary: bytes, config: dict[str, Any], max_fram
     shapes = {name: _shape(item, expected[name]) for name, item in given.items()}
     frames = {shape[0] for shape in shapes.values()}
     if len(frames) != 1 or 0 in frames:
-        raise RequestInvalid(f"inputs: {INPUT_IMAGES} has {shapes[INPUT_IMAGES][0]} frames, {INPUT_CAMERA_VALID} {shapes[INPUT_CAMERA_VALID][0]}; "
-                             "expected the same, at least 1", field="inputs")
+        raise RequestInvalid(
+            f"inputs: {INPUT_IMAGES} has {shapes[INPUT_IMAGES][0]} frames, {INPUT_CAMERA_VALID} {shapes[INPUT_CAMERA_VALID][0]}; "
+            "expected the same, at least 1",
+            field="inputs",
+        )
     if frames.pop() > max_frames:
-        raise RequestInvalid(f"inputs: {shapes[INPUT_IMAGES][0]} frames, at most max_batch_size={max_frames} per request "
-                             "(max_batch_frames, and what fits in max_body_bytes)", field="inputs")
+        raise RequestInvalid(
+            f"inputs: {shapes[INPUT_IMAGES][0]} frames, at most max_batch_size={max_frames} per request "
+            "(max_batch_frames, and what fits in max_body_bytes)",
+            field="inputs",
+        )
     view, offset, arrays = memoryview(binary), 0, {}
     for item in doc["inputs"]:  # binary data follows the header in the order of the inputs
         dtype = np.dtype(_NUMPY[item["datatype"]])
@@ -210,7 +263,9 @@ def _wanted(doc: dict[str, Any]) -> list[tuple[str, bool]]:
     if asked is None:
         return [(name, default_binary) for name in OUTPUTS]
     if not isinstance(asked, list) or not all(isinstance(o, dict) and o.get("name") in OUTPUTS for o in asked):
-        raise RequestInvalid(f"outputs: expected a list of {{'name': one of {', '.join(OUTPUTS)}}}, got {asked!r}", field="outputs")
+        raise RequestInvalid(
+            f"outputs: expected a list of {{'name': one of {', '.join(OUTPUTS)}}}, got {asked!r}", field="outputs"
+        )
     return [(o["name"], bool((o.get("parameters") or {}).get("binary_data", default_binary))) for o in asked]
 
 
@@ -231,7 +286,9 @@ def _answer(name: str, doc: dict[str, Any], outputs: dict[str, np.ndarray], want
     header = json.dumps(body).encode()
     if not blobs:
         return Response(header, media_type="application/json")
-    return Response(header + b"".join(blobs), media_type="application/octet-stream", headers={HEADER_LENGTH: str(len(header))})
+    return Response(
+        header + b"".join(blobs), media_type="application/octet-stream", headers={HEADER_LENGTH: str(len(header))}
+    )
 
 
 def _limiter(request: Request, workers: int) -> anyio.CapacityLimiter:
@@ -253,17 +310,25 @@ async def infer(name: str, request: Request, service: ServiceDep, version: str |
         try:
             body = await asyncio.wait_for(request.body(), settings.request_timeout_s)
         except asyncio.TimeoutError:
-            raise RequestTimeout(f"body: not received within request_timeout_s={settings.request_timeout_s:g} s", field="body") from None
+            raise RequestTimeout(
+                f"body: not received within request_timeout_s={settings.request_timeout_s:g} s", field="body"
+            ) from None
         doc, binary = _split_body(body, request.headers.get(HEADER_LENGTH))
         config = await _config(request, service)
         images, valid = _inputs(doc, binary, config, config["max_batch_size"])
         wanted = _wanted(doc)
         try:
             with anyio.fail_after(settings.request_timeout_s):
-                arrays = await anyio.to_thread.run_sync(partial(detector.run_arrays, images, valid), limiter=_limiter(request, settings.workers),
-                                                        abandon_on_cancel=True)
+                arrays = await anyio.to_thread.run_sync(
+                    partial(detector.run_arrays, images, valid),
+                    limiter=_limiter(request, settings.workers),
+                    abandon_on_cancel=True,
+                )
         except TimeoutError:
-            raise InferenceTimeout(f"result: not ready within request_timeout_s={settings.request_timeout_s:g} s", field="request_timeout_s") from None
+            raise InferenceTimeout(
+                f"result: not ready within request_timeout_s={settings.request_timeout_s:g} s",
+                field="request_timeout_s",
+            ) from None
         return _answer(name, doc, dict(zip(OUTPUTS, arrays)), wanted)
     finally:
         ticket.release()

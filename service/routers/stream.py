@@ -124,14 +124,19 @@ class StreamSession:
             data = message.get("bytes")
             try:
                 if data is None:
-                    raise StreamProtocolError("message: got a text message, frames are binary messages (see the protocol)", field="message")
+                    raise StreamProtocolError(
+                        "message: got a text message, frames are binary messages (see the protocol)", field="message"
+                    )
                 frame_id = peek_frame_id(data)
             except StreamProtocolError as exc:
                 await self._refuse(exc, None)
                 await self._close(1003 if data is None else 1002, str(exc)[:120])
                 return
             if len(data) > limit:
-                await self._refuse(PayloadTooLarge(f"message: {len(data)} bytes, at most max_body_bytes={limit}", field="message"), frame_id)
+                await self._refuse(
+                    PayloadTooLarge(f"message: {len(data)} bytes, at most max_body_bytes={limit}", field="message"),
+                    frame_id,
+                )
                 continue
             if self.pending is not None:
                 self.dropped.append(self.pending[0])
@@ -172,14 +177,29 @@ class StreamSession:
             await self._refuse(exc, frame_id)
             return
         service.metrics.stream_frames.labels("answered").inc()
-        await self._send({"kind": "result", "frame_id": frame_id, "model_id": service.model_id, **documents[0], "dropped": self._take_dropped()})
+        await self._send(
+            {
+                "kind": "result",
+                "frame_id": frame_id,
+                "model_id": service.model_id,
+                **documents[0],
+                "dropped": self._take_dropped(),
+            }
+        )
 
     async def _drain(self) -> None:
         """Shutting down: the pending frame is refused by name, then the socket closes (1001)."""
         if self.pending is not None:
             frame_id, self.pending = self.pending[0], None
             self.service.metrics.stream_pending.dec()
-            await self._refuse(Unavailable("service: shutting down; frame not run", field="service", retry_after=self.service.settings.retry_after_s), frame_id)
+            await self._refuse(
+                Unavailable(
+                    "service: shutting down; frame not run",
+                    field="service",
+                    retry_after=self.service.settings.retry_after_s,
+                ),
+                frame_id,
+            )
         await self._close(1001, "server shutting down")
 
 
@@ -193,7 +213,13 @@ async def stream(websocket: WebSocket) -> None:
         await _deny(websocket, exc, 1008)
         return
     if not service.ready or service.spec is None:
-        await _deny(websocket, Unavailable("service: not ready or shutting down", field="service", retry_after=service.settings.retry_after_s), 1013)
+        await _deny(
+            websocket,
+            Unavailable(
+                "service: not ready or shutting down", field="service", retry_after=service.settings.retry_after_s
+            ),
+            1013,
+        )
         return
     try:
         options = parse_options(dict(websocket.query_params), service.spec)

@@ -23,9 +23,22 @@ import harness
 import report
 import run_all
 
-HOST = {"cpu": "Test CPU 9000 (family 6, model 143)", "cpu_count": 2, "platform": "Linux-test", "python": "3.11.7",
-        "onnxruntime": "1.20.0", "avx512": True, "vnni": True, "avx2": True, "gpus": [], "cpu_name": "Test CPU 9000",
-        "cpu_family": "6", "cpu_model": "143", "cpu_flags": ["avx2", "avx512f"], "numpy": "2.0.0"}
+HOST = {
+    "cpu": "Test CPU 9000 (family 6, model 143)",
+    "cpu_count": 2,
+    "platform": "Linux-test",
+    "python": "3.11.7",
+    "onnxruntime": "1.20.0",
+    "avx512": True,
+    "vnni": True,
+    "avx2": True,
+    "gpus": [],
+    "cpu_name": "Test CPU 9000",
+    "cpu_family": "6",
+    "cpu_model": "143",
+    "cpu_flags": ["avx2", "avx512f"],
+    "numpy": "2.0.0",
+}
 HOST = {**HOST, "slug": harness.machine_slug(HOST)}
 WHEN = datetime(2025, 1, 2, 3, 4, 5, tzinfo=timezone.utc)
 DOC = "Speed of the thing, measured.\n\n    python benchmarks/thing.py\n\nMore words."
@@ -57,8 +70,13 @@ def bench_for(tmp_path: Path, name: str = "thing") -> harness.Benchmark:
     return bench
 
 
-def saved(tmp_path: Path, tables: dict[str, list[dict[str, Any]]], argv: list[str] | None = None,
-          when: datetime = WHEN, name: str = "thing") -> Path:
+def saved(
+    tmp_path: Path,
+    tables: dict[str, list[dict[str, Any]]],
+    argv: list[str] | None = None,
+    when: datetime = WHEN,
+    name: str = "thing",
+) -> Path:
     bench = bench_for(tmp_path, name)
     args = bench.parse([*(argv or []), "--out-dir", str(tmp_path / "results")])
     return bench.save(args, tables, host=HOST, when=when, echo=False)
@@ -99,8 +117,9 @@ def test_alternate_samples_and_statistics_with_a_fake_clock() -> None:
 
 def test_measure_and_sync() -> None:
     clock_calls: list[str] = []
-    timing = harness.measure(lambda: clock_calls.append("call"), repeat=3, warmup=2,
-                             sync=lambda: clock_calls.append("sync"))
+    timing = harness.measure(
+        lambda: clock_calls.append("call"), repeat=3, warmup=2, sync=lambda: clock_calls.append("sync")
+    )
     assert len(timing.values) == 3
     assert clock_calls == ["call", "call", "sync"] + ["call", "sync"] * 3
 
@@ -115,14 +134,32 @@ def test_machine_describes_this_machine() -> None:
     assert host["slug"] == harness.machine_slug(host)
 
 
-@pytest.mark.parametrize("host, slug", [
-    ({"cpu_name": "Intel(R) Xeon(R) Platinum 8480C CPU @ 2.00GHz", "cpu_family": "6", "cpu_model": "143",
-      "cpu_count": 8, "gpus": []},
-     "intel-xeon-platinum-8480c-f6-m143-8cpu"),
-    ({"cpu_name": "AMD EPYC", "cpu_family": "25", "cpu_model": "17", "cpu_count": 2, "gpus": ["NVIDIA H200, 570.1"]},
-     "amd-epyc-f25-m17-2cpu-h200"),
-    ({"cpu": "arm64", "cpu_count": 10, "gpus": ["NVIDIA A10G, 1", "NVIDIA A10G, 1"]}, "arm64-10cpu-2x-a10g"),
-])
+@pytest.mark.parametrize(
+    "host, slug",
+    [
+        (
+            {
+                "cpu_name": "Intel(R) Xeon(R) Platinum 8480C CPU @ 2.00GHz",
+                "cpu_family": "6",
+                "cpu_model": "143",
+                "cpu_count": 8,
+                "gpus": [],
+            },
+            "intel-xeon-platinum-8480c-f6-m143-8cpu",
+        ),
+        (
+            {
+                "cpu_name": "AMD EPYC",
+                "cpu_family": "25",
+                "cpu_model": "17",
+                "cpu_count": 2,
+                "gpus": ["NVIDIA H200, 570.1"],
+            },
+            "amd-epyc-f25-m17-2cpu-h200",
+        ),
+        ({"cpu": "arm64", "cpu_count": 10, "gpus": ["NVIDIA A10G, 1", "NVIDIA A10G, 1"]}, "arm64-10cpu-2x-a10g"),
+    ],
+)
 def test_machine_slug(host: dict[str, Any], slug: str) -> None:
     assert harness.machine_slug(host) == slug
 
@@ -143,8 +180,9 @@ def test_result_is_written_and_read_back(tmp_path: Path) -> None:
     assert result["machine"] == HOST
     assert result["date"] == "2025-01-02T03:04:05Z"
     assert result["parameters"] == {"quick": True, "frames": 5}
-    assert result["measurements"] == {"Metric time": [{"step": "metric", "median ms": 123.457, "n": 3},
-                                                      {"step": "records", "median ms": 0.5}]}
+    assert result["measurements"] == {
+        "Metric time": [{"step": "metric", "median ms": 123.457, "n": 3}, {"step": "records", "median ms": 0.5}]
+    }
 
 
 def test_command_is_relative_to_the_repository() -> None:
@@ -164,11 +202,25 @@ def test_read_results_names_a_file_that_is_not_a_result(tmp_path: Path) -> None:
 # -- tables and the report ---------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("value, text", [
-    (1234.5, "1,234"), (123.44, "123"), (12.34, "12.3"), (1.234, "1.23"), (0.01234, "0.0123"), (0.0, "0"),
-    (3, "3"), (12000, "12,000"), (True, "yes"), (None, "-"), (float("nan"), "-"), (["a", 1.5], "a, 1.50"), ([], "-"),
-    ("x", "x"),
-])
+@pytest.mark.parametrize(
+    "value, text",
+    [
+        (1234.5, "1,234"),
+        (123.44, "123"),
+        (12.34, "12.3"),
+        (1.234, "1.23"),
+        (0.01234, "0.0123"),
+        (0.0, "0"),
+        (3, "3"),
+        (12000, "12,000"),
+        (True, "yes"),
+        (None, "-"),
+        (float("nan"), "-"),
+        (["a", 1.5], "a, 1.50"),
+        ([], "-"),
+        ("x", "x"),
+    ],
+)
 def test_format_value(value: Any, text: str) -> None:
     assert harness.format_value(value) == text
 
@@ -186,7 +238,7 @@ def test_report_tables_carry_the_figures_command_machine_and_date(tmp_path: Path
     page = pages[f"{HOST['slug']}.md"]
     assert report.NOTICE in page and report.NOTICE in pages["index.md"]
     assert f"({HOST['slug']}.md)" in pages["index.md"]
-    section = page[page.index("### Latency"):]
+    section = page[page.index("### Latency") :]
     head = section.splitlines()[2]
     assert f"`python {tmp_path / 'thing.py'} --quick --out-dir {tmp_path / 'results'}`" in head
     assert "Test CPU 9000 (family 6, model 143), 2 cores" in head and "onnxruntime 1.20.0" in head
@@ -239,8 +291,11 @@ def test_run_all_runs_every_benchmark() -> None:
 @pytest.mark.parametrize("name", sorted(_scripts()))
 def test_every_benchmark_is_built_on_the_harness(name: str) -> None:
     tree = ast.parse((ROOT / "benchmarks" / f"{name}.py").read_text())
-    calls = [n for n in ast.walk(tree)
-             if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "Benchmark"]
+    calls = [
+        n
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "Benchmark"
+    ]
     assert calls, f"benchmarks/{name}.py does not build a harness.Benchmark"
 
 

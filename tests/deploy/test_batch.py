@@ -32,7 +32,9 @@ def _same_records(got: list[dict], want: list[dict]) -> None:
     np.testing.assert_allclose([r["detection_score"] for r in got], [r["detection_score"] for r in want], atol=1e-6)
 
 
-def test_ray_data_equals_a_plain_loop_and_names_the_failed_frame(ray_local, small_export, synth_root: Path, tmp_path: Path) -> None:
+def test_ray_data_equals_a_plain_loop_and_names_the_failed_frame(
+    ray_local, small_export, synth_root: Path, tmp_path: Path
+) -> None:
     dataset = Fisheye3DOD(synth_root, "val")
     frames = dataset_frames(dataset)
     bad_token = frames[2][0]
@@ -40,7 +42,12 @@ def test_ray_data_equals_a_plain_loop_and_names_the_failed_frame(ray_local, smal
     junk.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)  # a PNG signature and nothing usable
     frames[2] = (bad_token, {**frames[2][1], "fisheye_camera_front": junk})
     seen: list[int] = []
-    result = detect_frames(small_export.onnx, frames, BatchOptions(batch_size=2, concurrency=2), progress=lambda done, total: seen.append(done))
+    result = detect_frames(
+        small_export.onnx,
+        frames,
+        BatchOptions(batch_size=2, concurrency=2),
+        progress=lambda done, total: seen.append(done),
+    )
     assert list(result.failed) == [bad_token]
     assert "camera 'fisheye_camera_front'" in result.failed[bad_token]
     assert list(result.results) == [t for t, _ in frames if t != bad_token]  # input order, nothing skipped silently
@@ -52,13 +59,33 @@ def test_ray_data_equals_a_plain_loop_and_names_the_failed_frame(ray_local, smal
     assert sum(len(r) for r in result.results.values()) > 0
 
 
-def test_detect_ray_writes_one_results_file_that_eval_reads(ray_local, small_export, synth_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_detect_ray_writes_one_results_file_that_eval_reads(
+    ray_local, small_export, synth_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     pred = tmp_path / "pred.json"
-    assert main(["detect", str(small_export.onnx), "--ray", "--data", str(synth_root), "--out", str(pred), "--batch-size", "3"]) == 0
+    assert (
+        main(
+            [
+                "detect",
+                str(small_export.onnx),
+                "--ray",
+                "--data",
+                str(synth_root),
+                "--out",
+                str(pred),
+                "--batch-size",
+                "3",
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err
     assert "5/5 frames" in err  # progress shown
     doc = json.loads(pred.read_text())
-    assert doc["meta"]["failed"] == {} and doc["meta"]["model_id"] == Detector(small_export.onnx, warmup=False).info.model_id
+    assert (
+        doc["meta"]["failed"] == {}
+        and doc["meta"]["model_id"] == Detector(small_export.onnx, warmup=False).info.model_id
+    )
     assert list(load_results(pred)) == Fisheye3DOD(synth_root, "val").tokens
     gt = save_results(tmp_path / "gt.json", Fisheye3DOD(synth_root, "val").ground_truth())
     report = tmp_path / "report.json"
@@ -70,14 +97,31 @@ def test_detect_ray_writes_one_results_file_that_eval_reads(ray_local, small_exp
     "extra, message",
     [
         (["--viz", "x.png"], "--viz cannot be combined"),  # pictures need the plain command
-        (["--score-threshold", "0.3"], "--score-threshold cannot be combined"),  # evaluation wants the unthresholded output
+        (
+            ["--score-threshold", "0.3"],
+            "--score-threshold cannot be combined",
+        ),  # evaluation wants the unthresholded output
         (["--batch-size", "0"], "batch_size: expected at least 1"),
         (["--concurrency", "0"], "concurrency: expected at least 1"),
-        (["--providers", "CPUExecutionProvider"], "--providers: the --ray actors run on CPU"),  # Ray reserves no GPU for them
+        (
+            ["--providers", "CPUExecutionProvider"],
+            "--providers: the --ray actors run on CPU",
+        ),  # Ray reserves no GPU for them
     ],
 )
-def test_detect_ray_refuses_bad_options_before_starting_ray(small_export, synth_root: Path, tmp_path: Path, extra: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["detect", str(small_export.onnx), "--ray", "--data", str(synth_root), "--out", str(tmp_path / "p.json"), *extra]
+def test_detect_ray_refuses_bad_options_before_starting_ray(
+    small_export, synth_root: Path, tmp_path: Path, extra: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = [
+        "detect",
+        str(small_export.onnx),
+        "--ray",
+        "--data",
+        str(synth_root),
+        "--out",
+        str(tmp_path / "p.json"),
+        *extra,
+    ]
     assert main(argv) == 1
     assert message in capsys.readouterr().err
 
@@ -91,7 +135,9 @@ def test_duplicate_tokens_are_refused(small_export, synth_root: Path) -> None:
 def test_detect_ray_over_a_folder_of_camera_folders(ray_local, small_export, synth_root: Path, tmp_path: Path) -> None:
     """--images DIR with one sub-folder per camera: frames named by their file stems, the same records as --data."""
     dataset = Fisheye3DOD(synth_root, "val")
-    folder = dataset.image_paths(0)["fisheye_camera_front"].parent.parent  # <scene>/<vehicle>/ holds one folder per sensor
+    folder = dataset.image_paths(0)[
+        "fisheye_camera_front"
+    ].parent.parent  # <scene>/<vehicle>/ holds one folder per sensor
     pred = tmp_path / "pred.json"
     assert main(["detect", str(small_export.onnx), "--ray", "--images", str(folder), "--out", str(pred)]) == 0
     results = load_results(pred)

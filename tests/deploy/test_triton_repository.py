@@ -8,7 +8,13 @@ from pathlib import Path
 import pytest
 
 from fisheye_infer.cli import main
-from fisheye_infer.deploy.triton.repository import TritonOptions, model_config, model_name, render_pbtxt, write_repository
+from fisheye_infer.deploy.triton.repository import (
+    TritonOptions,
+    model_config,
+    model_name,
+    render_pbtxt,
+    write_repository,
+)
 from fisheye_infer.errors import ArtifactError, ExportError
 from fisheye_infer.runtime.artifact import METADATA_KEY, read_meta
 
@@ -22,7 +28,11 @@ def _parse(path: Path) -> model_config_pb2.ModelConfig:
 
 
 def test_repository_layout_and_config_parse_into_triton_modelconfig(small_export, tmp_path: Path) -> None:
-    target = write_repository(small_export.onnx, tmp_path / "repo", TritonOptions(max_batch_size=4, preferred_batch_sizes=(2, 4), instances=2, kind="cpu", threads=1))
+    target = write_repository(
+        small_export.onnx,
+        tmp_path / "repo",
+        TritonOptions(max_batch_size=4, preferred_batch_sizes=(2, 4), instances=2, kind="cpu", threads=1),
+    )
     assert target == tmp_path / "repo" / model_name(small_export.onnx)
     assert (target / "1" / "model.onnx").read_bytes() == Path(small_export.onnx).read_bytes()
     config = _parse(target / "config.pbtxt")
@@ -31,8 +41,16 @@ def test_repository_layout_and_config_parse_into_triton_modelconfig(small_export
     assert inputs == {"images": ("TYPE_UINT8", [4, 160, 160, 3]), "camera_valid": ("TYPE_BOOL", [4])}
     outputs = {o.name: (model_config_pb2.DataType.Name(o.data_type), list(o.dims)) for o in config.output}
     k = read_meta(small_export.onnx).num_boxes
-    assert outputs == {"boxes": ("TYPE_FP32", [k, 7]), "scores": ("TYPE_FP32", [k]), "labels": ("TYPE_INT64", [k]), "valid": ("TYPE_BOOL", [k])}
-    assert list(config.dynamic_batching.preferred_batch_size) == [2, 4] and config.dynamic_batching.max_queue_delay_microseconds == 5000
+    assert outputs == {
+        "boxes": ("TYPE_FP32", [k, 7]),
+        "scores": ("TYPE_FP32", [k]),
+        "labels": ("TYPE_INT64", [k]),
+        "valid": ("TYPE_BOOL", [k]),
+    }
+    assert (
+        list(config.dynamic_batching.preferred_batch_size) == [2, 4]
+        and config.dynamic_batching.max_queue_delay_microseconds == 5000
+    )
     (group,) = config.instance_group
     assert group.count == 2 and group.kind == model_config_pb2.ModelInstanceGroup.KIND_CPU
     assert config.parameters["intra_op_thread_count"].string_value == "1"
@@ -42,17 +60,26 @@ def test_repository_layout_and_config_parse_into_triton_modelconfig(small_export
 
 def test_text_and_json_forms_are_the_same_modelconfig(small_export) -> None:
     """The dict the KServe stand-in answers with and the text Triton reads describe one config."""
-    config = model_config(small_export.onnx, TritonOptions(kind="gpu", gpus=(0, 1), tensorrt=True, tensorrt_cache="/cache"))
+    config = model_config(
+        small_export.onnx, TritonOptions(kind="gpu", gpus=(0, 1), tensorrt=True, tensorrt_cache="/cache")
+    )
     from_text = text_format.Parse(render_pbtxt(config), model_config_pb2.ModelConfig())
     assert from_text == json_format.ParseDict(config, model_config_pb2.ModelConfig())
     (accelerator,) = from_text.optimization.execution_accelerators.gpu_execution_accelerator
     assert accelerator.name == "tensorrt"
-    assert dict(accelerator.parameters) == {"precision_mode": "FP16", "max_workspace_size_bytes": str(1 << 30), "trt_engine_cache_enable": "1", "trt_engine_cache_path": "/cache"}
+    assert dict(accelerator.parameters) == {
+        "precision_mode": "FP16",
+        "max_workspace_size_bytes": str(1 << 30),
+        "trt_engine_cache_enable": "1",
+        "trt_engine_cache_path": "/cache",
+    }
     assert list(from_text.instance_group[0].gpus) == [0, 1]
 
 
 def test_without_batching_the_batch_axis_is_in_the_dims(small_export) -> None:
-    config = text_format.Parse(render_pbtxt(model_config(small_export.onnx, TritonOptions(max_batch_size=0))), model_config_pb2.ModelConfig())
+    config = text_format.Parse(
+        render_pbtxt(model_config(small_export.onnx, TritonOptions(max_batch_size=0))), model_config_pb2.ModelConfig()
+    )
     assert config.max_batch_size == 0 and not config.HasField("dynamic_batching")
     assert list(config.input[0].dims) == [-1, 4, 160, 160, 3]
 
@@ -93,7 +120,23 @@ def test_a_file_without_metadata_is_refused(tmp_path: Path) -> None:
 
 
 def test_command(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["triton", str(small_export.onnx), "--out", str(tmp_path), "--name", "fisheye", "--instances", "2", "--kind", "cpu"]) == 0
+    assert (
+        main(
+            [
+                "triton",
+                str(small_export.onnx),
+                "--out",
+                str(tmp_path),
+                "--name",
+                "fisheye",
+                "--instances",
+                "2",
+                "--kind",
+                "cpu",
+            ]
+        )
+        == 0
+    )
     assert _parse(tmp_path / "fisheye" / "config.pbtxt").instance_group[0].count == 2
     assert "tritonserver --model-repository=/models" in capsys.readouterr().out
     assert main(["triton", str(small_export.onnx), "--out", str(tmp_path), "--tensorrt"]) == 1

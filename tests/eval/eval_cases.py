@@ -11,10 +11,25 @@ from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.runtime.records import CLASSES, boxes_to_records
 from fisheye_infer.scenes.render import SynthFrame
 
-SIZES = {"Car": (4.0, 2.0, 1.5), "Van": (5.0, 2.0, 2.0), "Truck": (8.0, 2.5, 3.0), "Bus": (11.0, 3.0, 3.3), "Pedestrian": (0.7, 0.7, 1.8), "Cyclist": (1.8, 0.7, 1.7)}
+SIZES = {
+    "Car": (4.0, 2.0, 1.5),
+    "Van": (5.0, 2.0, 2.0),
+    "Truck": (8.0, 2.5, 3.0),
+    "Bus": (11.0, 3.0, 3.3),
+    "Pedestrian": (0.7, 0.7, 1.8),
+    "Cyclist": (1.8, 0.7, 1.7),
+}
 
 
-def record(x: float, y: float, cls: str = "Car", yaw: float = 0.0, score: float | None = None, size: tuple[float, float, float] | None = None, z: float = 0.0) -> dict:
+def record(
+    x: float,
+    y: float,
+    cls: str = "Car",
+    yaw: float = 0.0,
+    score: float | None = None,
+    size: tuple[float, float, float] | None = None,
+    z: float = 0.0,
+) -> dict:
     """One evaluation record for a box with its bottom at ``z``; ``score=None`` makes it ground truth."""
     length, width, height = size or SIZES[cls]
     boxes = np.array([[x, y, z, length, width, height, yaw]])

@@ -9,7 +9,18 @@ import numpy as np
 import pytest
 from eval_cases import record
 
-from fisheye_infer.eval.algo import accumulate, angle_diff, calc_ap, calc_tp, center_distance, cummean, match, match_reference, scale_iou, yaw_diff
+from fisheye_infer.eval.algo import (
+    accumulate,
+    angle_diff,
+    calc_ap,
+    calc_tp,
+    center_distance,
+    cummean,
+    match,
+    match_reference,
+    scale_iou,
+    yaw_diff,
+)
 from fisheye_infer.eval.eval_boxes import EvalBoxes
 from fisheye_infer.eval.metrics import MetricData
 from fisheye_infer.eval.random_boxes import synthetic_boxes
@@ -113,7 +124,10 @@ def test_no_predictions_gives_zero_ap_and_unit_errors() -> None:
 
 
 def test_accumulate_selects_the_class() -> None:
-    gt, pred = _boxes([record(10, 0), record(0, 10, "Pedestrian")], [record(10, 0, score=0.9), record(20, 20, "Pedestrian", score=0.9)])
+    gt, pred = _boxes(
+        [record(10, 0), record(0, 10, "Pedestrian")],
+        [record(10, 0, score=0.9), record(20, 20, "Pedestrian", score=0.9)],
+    )
     assert calc_ap(accumulate(gt, pred, 1.0, class_id=0), 0.1, 0.1) == pytest.approx(1.0)
     assert calc_ap(accumulate(gt, pred, 1.0, class_id=4), 0.1, 0.1) == 0.0
 

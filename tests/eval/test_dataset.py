@@ -37,7 +37,9 @@ def test_limit_and_scene_filter(synth_set: SynthSet) -> None:
 
 def test_frame_rig_is_the_sensor_metadata_rig_of_that_frame(synth_set: SynthSet) -> None:
     frame = Fisheye3DOD(synth_set.root)[1]
-    expected = Rig.from_sensor_metadata(synth_set.root / frame.scene / frame.vehicle, synth_set.root / "calib_results.txt", frame_id=frame.frame_id)
+    expected = Rig.from_sensor_metadata(
+        synth_set.root / frame.scene / frame.vehicle, synth_set.root / "calib_results.txt", frame_id=frame.frame_id
+    )
     assert frame.rig == expected
 
 
@@ -71,7 +73,9 @@ def test_pinhole_cameras_when_asked(synth_set: SynthSet, tmp_path: Path) -> None
             (folder / name).mkdir(exist_ok=True)
             with open(folder / name / "sensor_metadata.txt", "a") as f:
                 f.write(format_record("Image", entry.frame_id, pose, 0.0))
-            (folder / name / f"{entry.frame_id}.png").write_bytes((folder / "fisheye_camera_front" / f"{entry.frame_id}.png").read_bytes())
+            (folder / name / f"{entry.frame_id}.png").write_bytes(
+                (folder / "fisheye_camera_front" / f"{entry.frame_id}.png").read_bytes()
+            )
     frame = Fisheye3DOD(root, pinhole=True)[0]
     assert list(frame.image_paths)[4:] == list(PINHOLE_CAMERAS)
     assert frame.pinhole_rig is not None and frame.pinhole_rig.names == list(PINHOLE_CAMERAS)
@@ -89,39 +93,112 @@ def _drop_frame_from(path: Path, frame_id: str) -> None:
 
 BREAKS: list[tuple[str, Callable[[Path, str, str], None], dict, str]] = [
     ("no root", lambda root, seq, fid: shutil.rmtree(root), {}, r"dataset root .*: folder not found"),
-    ("no split", lambda root, seq, fid: None, {"split": "test"}, r"split 'test': .*test.json not found \(splits here: val\)"),
-    ("no calibration", lambda root, seq, fid: (root / "calib_results.txt").unlink(), {}, r"calib_results.txt not found"),
-    ("broken calibration", lambda root, seq, fid: (root / "calib_results.txt").write_text("1 2 3\n"), {}, r"expected 5 data rows"),
-    ("split not a list", lambda root, seq, fid: _edit_json(root / "ImageSets-2hz" / "val.json", lambda d: {"a": d}), {}, r"must hold a list"),
-    ("split entry", lambda root, seq, fid: _edit_json(root / "ImageSets-2hz" / "val.json", lambda d: [{"scene_name": "x"}]), {}, r"entry 0 must be an object"),
-    ("unknown scene filter", lambda root, seq, fid: None, {"scenes": ["nowhere"]}, r"scenes: not in split 'val': nowhere"),
+    (
+        "no split",
+        lambda root, seq, fid: None,
+        {"split": "test"},
+        r"split 'test': .*test.json not found \(splits here: val\)",
+    ),
+    (
+        "no calibration",
+        lambda root, seq, fid: (root / "calib_results.txt").unlink(),
+        {},
+        r"calib_results.txt not found",
+    ),
+    (
+        "broken calibration",
+        lambda root, seq, fid: (root / "calib_results.txt").write_text("1 2 3\n"),
+        {},
+        r"expected 5 data rows",
+    ),
+    (
+        "split not a list",
+        lambda root, seq, fid: _edit_json(root / "ImageSets-2hz" / "val.json", lambda d: {"a": d}),
+        {},
+        r"must hold a list",
+    ),
+    (
+        "split entry",
+        lambda root, seq, fid: _edit_json(root / "ImageSets-2hz" / "val.json", lambda d: [{"scene_name": "x"}]),
+        {},
+        r"entry 0 must be an object",
+    ),
+    (
+        "unknown scene filter",
+        lambda root, seq, fid: None,
+        {"scenes": ["nowhere"]},
+        r"scenes: not in split 'val': nowhere",
+    ),
     ("unknown camera", lambda root, seq, fid: None, {"cameras": ["top"]}, r"cameras: expected a non-empty subset"),
     ("negative limit", lambda root, seq, fid: None, {"limit": -1}, r"limit: expected a non-negative count"),
     ("no scene folder", lambda root, seq, fid: shutil.rmtree(root / seq), {}, r"scene .*/ego0: folder .* not found"),
-    ("no camera folder", lambda root, seq, fid: shutil.rmtree(root / seq / "ego0" / "fisheye_camera_left"), {}, r"camera 'fisheye_camera_left': folder .* not found"),
-    ("no lidar folder", lambda root, seq, fid: shutil.rmtree(root / seq / "ego0" / "lidar"), {}, r"lidar: folder .* not found"),
-    ("no image", lambda root, seq, fid: (root / seq / "ego0" / "fisheye_camera_rear" / f"{fid}.png").unlink(), {}, r"camera 'fisheye_camera_rear': image .* not found"),
-    ("no labels", lambda root, seq, fid: (root / seq / "ego0" / "label_3d" / f"{fid}.json").unlink(), {}, r"labels .*: file not found"),
+    (
+        "no camera folder",
+        lambda root, seq, fid: shutil.rmtree(root / seq / "ego0" / "fisheye_camera_left"),
+        {},
+        r"camera 'fisheye_camera_left': folder .* not found",
+    ),
+    (
+        "no lidar folder",
+        lambda root, seq, fid: shutil.rmtree(root / seq / "ego0" / "lidar"),
+        {},
+        r"lidar: folder .* not found",
+    ),
+    (
+        "no image",
+        lambda root, seq, fid: (root / seq / "ego0" / "fisheye_camera_rear" / f"{fid}.png").unlink(),
+        {},
+        r"camera 'fisheye_camera_rear': image .* not found",
+    ),
+    (
+        "no labels",
+        lambda root, seq, fid: (root / seq / "ego0" / "label_3d" / f"{fid}.json").unlink(),
+        {},
+        r"labels .*: file not found",
+    ),
     (
         "unknown class",
-        lambda root, seq, fid: _edit_json(root / seq / "ego0" / "label_3d" / f"{fid}.json", lambda d: [{**d[0], "class": "Tram"}]),
+        lambda root, seq, fid: _edit_json(
+            root / seq / "ego0" / "label_3d" / f"{fid}.json", lambda d: [{**d[0], "class": "Tram"}]
+        ),
         {},
         r"object 0: 'class' 'Tram' is not one of Car",
     ),
     (
         "short box",
-        lambda root, seq, fid: _edit_json(root / seq / "ego0" / "label_3d" / f"{fid}.json", lambda d: [{**d[0], "bounding_box": [1, 2, 3]}]),
+        lambda root, seq, fid: _edit_json(
+            root / seq / "ego0" / "label_3d" / f"{fid}.json", lambda d: [{**d[0], "bounding_box": [1, 2, 3]}]
+        ),
         {},
         r"object 0: 'bounding_box' must be 7 finite numbers",
     ),
-    ("no camera pose", lambda root, seq, fid: _drop_frame_from(root / seq / "ego0" / "fisheye_camera_front" / "sensor_metadata.txt", fid), {}, r"camera 'fisheye_camera_front': no pose for frame"),
-    ("no lidar pose", lambda root, seq, fid: _drop_frame_from(root / seq / "ego0" / "lidar" / "sensor_metadata.txt", fid), {}, r"no lidar pose for frame"),
-    ("pinhole not recorded", lambda root, seq, fid: None, {"pinhole": True}, r"camera 'nu_rgb_camera_front': folder .* not found"),
+    (
+        "no camera pose",
+        lambda root, seq, fid: _drop_frame_from(
+            root / seq / "ego0" / "fisheye_camera_front" / "sensor_metadata.txt", fid
+        ),
+        {},
+        r"camera 'fisheye_camera_front': no pose for frame",
+    ),
+    (
+        "no lidar pose",
+        lambda root, seq, fid: _drop_frame_from(root / seq / "ego0" / "lidar" / "sensor_metadata.txt", fid),
+        {},
+        r"no lidar pose for frame",
+    ),
+    (
+        "pinhole not recorded",
+        lambda root, seq, fid: None,
+        {"pinhole": True},
+        r"camera 'nu_rgb_camera_front': folder .* not found",
+    ),
 ]
 
 
 @pytest.mark.parametrize(("name", "breakage", "kwargs", "message"), BREAKS, ids=[b[0] for b in BREAKS])
-def test_reader_errors_name_what_is_missing(synth_set: SynthSet, tmp_path: Path, name: str, breakage: Callable, kwargs: dict, message: str) -> None:
+def test_reader_errors_name_what_is_missing(
+    synth_set: SynthSet, tmp_path: Path, name: str, breakage: Callable, kwargs: dict, message: str
+) -> None:
     root = shutil.copytree(synth_set.root, tmp_path / "data")
     first = synth_set.frames[0]
     breakage(root, first.token.split(".")[0], first.frame_id)

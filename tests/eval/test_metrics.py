@@ -163,7 +163,12 @@ def test_max_boxes_cut_is_off_unless_asked() -> None:
     [
         ({"a": []}, {"a": [], "b": []}, False, r"1 sample token\(s\) have no ground truth, e.g. b"),
         ({"a": [], "b": []}, {"a": []}, False, r"1 of 2 ground-truth samples have no entry, e.g. b"),
-        ({"a": [record(1, 1)]}, {"a": [{"translation": [0, 0, 0]}]}, False, r"sample a, record 0: missing field 'size'"),
+        (
+            {"a": [record(1, 1)]},
+            {"a": [{"translation": [0, 0, 0]}]},
+            False,
+            r"sample a, record 0: missing field 'size'",
+        ),
         ({"a": [record(1, 1)]}, [], False, r"predictions: expected an object"),
     ],
 )
@@ -183,7 +188,9 @@ def test_ground_truth_score_is_ignored_and_may_be_absent() -> None:
 
 
 def test_missing_samples_can_count_as_empty() -> None:
-    report = evaluate_results({"a": [record(10, 0)], "b": [record(10, 0)]}, {"a": [record(10, 0, score=0.9)]}, allow_missing=True)
+    report = evaluate_results(
+        {"a": [record(10, 0)], "b": [record(10, 0)]}, {"a": [record(10, 0, score=0.9)]}, allow_missing=True
+    )
     assert report.num_samples == 2 and report.main.classes["Car"].ap == pytest.approx(40 / 90)
 
 
@@ -220,14 +227,21 @@ def test_report_round_trips_and_renders() -> None:
 
 def test_arrays_and_records_evaluate_identically() -> None:
     rng = np.random.default_rng(5)
-    boxes = np.column_stack([rng.uniform(-30, 30, (40, 2)), np.full(40, -1.8), rng.uniform(0.5, 5, (40, 3)), rng.uniform(-3, 3, 40)])
+    boxes = np.column_stack(
+        [rng.uniform(-30, 30, (40, 2)), np.full(40, -1.8), rng.uniform(0.5, 5, (40, 3)), rng.uniform(-3, 3, 40)]
+    )
     labels, scores = rng.integers(0, 6, 40), rng.random(40)
     jitter = boxes + rng.normal(0, 0.3, boxes.shape) * [1, 1, 0, 0, 0, 0, 1]
     tokens = ["a", "b"]
     gt = EvalBoxes.from_arrays(tokens, [boxes[:20], boxes[20:]], [None, None], [labels[:20], labels[20:]])
-    pred = EvalBoxes.from_arrays(tokens, [jitter[:20], jitter[20:]], [scores[:20], scores[20:]], [labels[:20], labels[20:]])
+    pred = EvalBoxes.from_arrays(
+        tokens, [jitter[:20], jitter[20:]], [scores[:20], scores[20:]], [labels[:20], labels[20:]]
+    )
     by_records = evaluate_results(
         {"a": boxes_to_records(boxes[:20], None, labels[:20]), "b": boxes_to_records(boxes[20:], None, labels[20:])},
-        {"a": boxes_to_records(jitter[:20], scores[:20], labels[:20]), "b": boxes_to_records(jitter[20:], scores[20:], labels[20:])},
+        {
+            "a": boxes_to_records(jitter[:20], scores[:20], labels[:20]),
+            "b": boxes_to_records(jitter[20:], scores[20:], labels[20:]),
+        },
     )
     assert evaluate(gt, pred).details() == pytest.approx(by_records.details(), abs=1e-12)

@@ -22,7 +22,9 @@ from fisheye_infer.runtime.records import (
 
 
 def test_record_layout_is_gravity_centre_wlh_and_z_quaternion() -> None:
-    (rec,) = boxes_to_records(np.array([[10.0, -2.0, -1.8, 4.5, 1.9, 1.6, math.pi / 2]]), np.array([0.8]), np.array([3]))
+    (rec,) = boxes_to_records(
+        np.array([[10.0, -2.0, -1.8, 4.5, 1.9, 1.6, math.pi / 2]]), np.array([0.8]), np.array([3])
+    )
     assert rec["translation"] == pytest.approx([10.0, -2.0, -1.0])  # z_bottom + h / 2
     assert rec["size"] == [1.9, 4.5, 1.6]  # w, l, h
     assert rec["rotation"] == pytest.approx([math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)])
@@ -61,12 +63,27 @@ def test_yaw_of_a_tilted_quaternion_is_the_heading_of_its_x_axis() -> None:
     qx = np.array([math.cos(0.1), math.sin(0.1), 0, 0])
     w1, x1, y1, z1 = qz
     w2, x2, y2, z2 = qx
-    q = np.array([[w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]])
+    q = np.array(
+        [
+            [
+                w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+            ]
+        ]
+    )
     assert quaternion_to_yaw(2.0 * q)[0] == pytest.approx(math.pi / 2)  # scale does not matter
 
 
 def _good() -> dict:
-    return {"translation": [1.0, 2.0, 0.5], "size": [2.0, 4.0, 1.5], "rotation": [1.0, 0.0, 0.0, 0.0], "detection_name": "Car", "detection_score": 0.5}
+    return {
+        "translation": [1.0, 2.0, 0.5],
+        "size": [2.0, 4.0, 1.5],
+        "rotation": [1.0, 0.0, 0.0, 0.0],
+        "detection_name": "Car",
+        "detection_score": 0.5,
+    }
 
 
 def _with(**changes: object) -> dict:
@@ -87,14 +104,29 @@ def _with(**changes: object) -> dict:
         ({**_good(), "detection_score": 1}, does_not_raise()),  # an integer score is a number
         ("Car", pytest.raises(FrameError, match=r"record 1: expected an object")),
         (_with(size=None), pytest.raises(FrameError, match=r"record 1: missing field 'size'")),
-        (_with(translation=[1.0, 2.0]), pytest.raises(FrameError, match=r"record 1: 'translation' must be 3 finite numbers")),
-        (_with(translation=[1.0, float("nan"), 0.0]), pytest.raises(FrameError, match=r"record 1: 'translation' must be 3 finite")),
+        (
+            _with(translation=[1.0, 2.0]),
+            pytest.raises(FrameError, match=r"record 1: 'translation' must be 3 finite numbers"),
+        ),
+        (
+            _with(translation=[1.0, float("nan"), 0.0]),
+            pytest.raises(FrameError, match=r"record 1: 'translation' must be 3 finite"),
+        ),
         (_with(size=[2.0, -4.0, 1.5]), pytest.raises(FrameError, match=r"record 1: 'size' must be positive")),
         (_with(rotation=[0, 0, 0, 0]), pytest.raises(FrameError, match=r"record 1: 'rotation' is the zero quaternion")),
         (_with(rotation=[1, 0, 0]), pytest.raises(FrameError, match=r"record 1: 'rotation' must be 4 finite numbers")),
-        (_with(detection_name="car"), pytest.raises(FrameError, match=r"record 1: 'detection_name' 'car' is not one of Car")),
-        (_with(detection_score="0.5"), pytest.raises(FrameError, match=r"record 1: 'detection_score' must be a finite number")),
-        (_with(detection_score=True), pytest.raises(FrameError, match=r"record 1: 'detection_score' must be a finite number")),
+        (
+            _with(detection_name="car"),
+            pytest.raises(FrameError, match=r"record 1: 'detection_name' 'car' is not one of Car"),
+        ),
+        (
+            _with(detection_score="0.5"),
+            pytest.raises(FrameError, match=r"record 1: 'detection_score' must be a finite number"),
+        ),
+        (
+            _with(detection_score=True),
+            pytest.raises(FrameError, match=r"record 1: 'detection_score' must be a finite number"),
+        ),
     ],
 )
 def test_malformed_record_is_named(bad: object, expectation) -> None:
@@ -120,7 +152,9 @@ def test_error_names_the_source() -> None:
         (np.full((1, 7), np.nan), None, np.array([0]), r"NaN"),
     ],
 )
-def test_boxes_to_records_refuses_bad_arrays(boxes: np.ndarray, scores: np.ndarray | None, labels: np.ndarray, message: str) -> None:
+def test_boxes_to_records_refuses_bad_arrays(
+    boxes: np.ndarray, scores: np.ndarray | None, labels: np.ndarray, message: str
+) -> None:
     with pytest.raises(ValueError, match=message):
         boxes_to_records(boxes, scores, labels, CLASSES)
 

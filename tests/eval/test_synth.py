@@ -51,7 +51,9 @@ def test_split_file_links_neighbouring_frames(synth_set: SynthSet) -> None:
 
 
 def test_same_seed_writes_the_same_bytes(small_rig: Rig, tmp_path: Path) -> None:
-    a, b, c = (synthesize(small_rig, tmp_path / name, frames=1, seed=seed) for name, seed in (("a", 3), ("b", 3), ("c", 4)))
+    a, b, c = (
+        synthesize(small_rig, tmp_path / name, frames=1, seed=seed) for name, seed in (("a", 3), ("b", 3), ("c", 4))
+    )
     files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
     assert files and all((tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes() for f in files)
     assert not np.array_equal(a[0].boxes, c[0].boxes)
@@ -75,13 +77,23 @@ def test_boxes_are_visible_where_they_project(ring_scene: Scene) -> None:
     empty = renderer.render(rig, Scene(np.zeros((0, 7)), np.zeros(0, np.int64), ring_scene.ground_z))
     seen = 0
     for cam in rig.cameras:
-        centres = np.column_stack([ring_scene.boxes[:, :2], ring_scene.boxes[:, 2] + ring_scene.boxes[:, 5] / 2, np.ones(len(ring_scene.boxes))])
+        centres = np.column_stack(
+            [
+                ring_scene.boxes[:, :2],
+                ring_scene.boxes[:, 2] + ring_scene.boxes[:, 5] / 2,
+                np.ones(len(ring_scene.boxes)),
+            ]
+        )
         in_camera = (np.linalg.inv(cam.matrix) @ centres.T).T[:, :3]
         uv, valid = cam.model.project(in_camera)
         for (u, v), ok in zip(np.round(uv).astype(int), valid):
             if ok:
                 seen += 1
-                assert np.abs(with_boxes[cam.name][v, u].astype(int) - empty[cam.name][v, u]).max() > 20, (cam.name, u, v)
+                assert np.abs(with_boxes[cam.name][v, u].astype(int) - empty[cam.name][v, u]).max() > 20, (
+                    cam.name,
+                    u,
+                    v,
+                )
     assert seen >= len(CLASSES)  # every box is in at least one camera
     for cam in rig.cameras:
         image = empty[cam.name]
@@ -94,7 +106,9 @@ def test_box_pixels_carry_the_class_colour(ring_scene: Scene) -> None:
     rig = resized_rig(default_rig(), 0.25)
     images = Renderer().render(rig, ring_scene)
     cam = rig.camera("fisheye_camera_front")
-    centre = np.array([*ring_scene.boxes[0, :2], ring_scene.boxes[0, 2] + ring_scene.boxes[0, 5] / 2, 1.0])  # the Car, ahead-left
+    centre = np.array(
+        [*ring_scene.boxes[0, :2], ring_scene.boxes[0, 2] + ring_scene.boxes[0, 5] / 2, 1.0]
+    )  # the Car, ahead-left
     uv, valid = cam.model.project((np.linalg.inv(cam.matrix) @ centre)[None, :3])
     assert valid[0]
     pixel = images[cam.name][int(round(uv[0, 1])), int(round(uv[0, 0]))].astype(float)
@@ -135,7 +149,11 @@ def test_resized_model_projects_to_the_scaled_pixels() -> None:
 @pytest.mark.parametrize("convention", ["compat", "exact"])
 @pytest.mark.parametrize(
     "lidar",
-    [CarlaPose(0, 0, 2.4, 0, 0, 0), CarlaPose(150.0, -30.0, 2.0, 0.0, 123.0, 0.0), CarlaPose(10.0, 5.0, 2.0, 4.0, -60.0, -2.0)],
+    [
+        CarlaPose(0, 0, 2.4, 0, 0, 0),
+        CarlaPose(150.0, -30.0, 2.0, 0.0, 123.0, 0.0),
+        CarlaPose(10.0, 5.0, 2.0, 4.0, -60.0, -2.0),
+    ],
     ids=["origin", "driving", "on a slope"],
 )
 def test_camera_poses_invert_the_conversion_for_tilted_cameras(convention: str, lidar: CarlaPose) -> None:
@@ -145,7 +163,9 @@ def test_camera_poses_invert_the_conversion_for_tilted_cameras(convention: str, 
     tilt[:3, :3] = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]]) @ np.array(
         [[math.cos(b), -math.sin(b), 0], [math.sin(b), math.cos(b), 0], [0, 0, 1]]
     )
-    tilted = Rig.from_cameras({c.name: c.model for c in rig.cameras}, {c.name: c.matrix @ tilt for c in rig.cameras}, rig.names)
+    tilted = Rig.from_cameras(
+        {c.name: c.model for c in rig.cameras}, {c.name: c.matrix @ tilt for c in rig.cameras}, rig.names
+    )
     poses = camera_poses(tilted, lidar, convention)  # type: ignore[arg-type]
     for cam in tilted.cameras:
         np.testing.assert_allclose(cam2lidar_from_poses(poses[cam.name], lidar, convention), cam.matrix, atol=1e-12)  # type: ignore[arg-type]
@@ -161,7 +181,9 @@ def test_images_are_png_bgr_as_training_reads_them(synth_set: SynthSet) -> None:
 def test_writing_a_frame_again_replaces_it(small_rig: Rig, tmp_path: Path) -> None:
     synthesize(small_rig, tmp_path, frames=2, seed=5)
     (again,) = synthesize(small_rig, tmp_path, frames=1, seed=6, scene_name="synth-Town00-ClearNoon-seed5")
-    metadata = (tmp_path / "synth-Town00-ClearNoon-seed5" / "ego0" / "lidar" / "sensor_metadata.txt").read_text().splitlines()
+    metadata = (
+        (tmp_path / "synth-Town00-ClearNoon-seed5" / "ego0" / "lidar" / "sensor_metadata.txt").read_text().splitlines()
+    )
     assert len(metadata) == 2
     data = Fisheye3DOD(tmp_path)
     assert len(data) == 2 and data[0].rig == again.rig

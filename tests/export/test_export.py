@@ -18,7 +18,17 @@ from fisheye_infer.errors import ArtifactError, CheckpointError, ExportError, Pa
 from fisheye_infer.export import exporter as exporter_module
 from fisheye_infer.export.exporter import export, infer_architecture, verification_frames
 from fisheye_infer.export.graph import get_metadata
-from fisheye_infer.export.verify import FLOOR_BOX_M, FLOOR_SCORE, PROBE, SLACK, Reference, checked_graph, compare_run, run_onnx, verify
+from fisheye_infer.export.verify import (
+    FLOOR_BOX_M,
+    FLOOR_SCORE,
+    PROBE,
+    SLACK,
+    Reference,
+    checked_graph,
+    compare_run,
+    run_onnx,
+    verify,
+)
 from fisheye_infer.models import load_model
 from fisheye_infer.runtime.artifact import METADATA_KEY, OUTPUTS, read_meta
 from fisheye_infer.scenes.render import resized_rig
@@ -87,11 +97,15 @@ def test_loads_in_onnxruntime_without_warnings(exported) -> None:
 def test_export_self_check_passed_on_the_kit_checkpoint(exported) -> None:
     """The kit's realistic activations tie heatmap cells; the self-check still passes, and says how."""
     p = exported.result.parity
-    assert p.passed and p.reference == "pytorch-float64" and p.threads == (1, 2) and p.frames == 3  # two rendered + --verify-images
+    assert (
+        p.passed and p.reference == "pytorch-float64" and p.threads == (1, 2) and p.frames == 3
+    )  # two rendered + --verify-images
     assert p.selection_valid and p.labels_equal and p.valid_equal and p.unmatched == 0 and p.written_equals_checked
     assert p.max_rank_score_abs_diff <= p.tolerance_rank_score and p.max_box_abs_diff_m <= p.tolerance_box_m
     dense, box, _ = p.pytorch_float32  # the tolerances are set by float32's own drift, nothing else
-    assert p.tolerance_box_m == max(FLOOR_BOX_M, SLACK * box) and p.tolerance_rank_score == max(FLOOR_SCORE, SLACK * dense)
+    assert p.tolerance_box_m == max(FLOOR_BOX_M, SLACK * box) and p.tolerance_rank_score == max(
+        FLOOR_SCORE, SLACK * dense
+    )
     assert "PASSED" in exported.result.summary() and "top-k choice" in exported.result.summary()
 
 
@@ -152,7 +166,9 @@ def test_self_check_fails_on_a_perturbed_weight(bevdet_export, rig: Rig, tmp_pat
     assert report.max_rank_score_abs_diff > report.tolerance_rank_score or report.unmatched > 0
 
 
-def test_self_check_fails_on_the_interleaved_sine_layout(petr_export, rig: Rig, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_self_check_fails_on_the_interleaved_sine_layout(
+    petr_export, rig: Rig, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A FisheyePETR file whose key position embedding was built with interleaved sin/cos (the layout
     the official code does not use) is refused, though everything else in it is right."""
     from fisheye_infer.export.rebake import rebake
@@ -178,7 +194,9 @@ def test_degraded_mode_matches_pytorch(bevdet_export, rig: Rig) -> None:
     report = verify(bevdet_export.onnx, model, frames, valid, threads=(2,))
     assert report.passed, report
     full = run_onnx(bevdet_export.onnx, frames, np.ones_like(valid), 2)
-    assert not np.allclose(run_onnx(bevdet_export.onnx, frames, valid, 2)["scores"], full["scores"])  # the missing cameras changed the answer
+    assert not np.allclose(
+        run_onnx(bevdet_export.onnx, frames, valid, 2)["scores"], full["scores"]
+    )  # the missing cameras changed the answer
 
 
 def test_architecture_is_inferred_from_keys(bevdet_export, petr_export) -> None:
@@ -222,7 +240,9 @@ def _broken_trace(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(exporter_module, "trace_to_onnx", broken)
 
 
-def test_a_graph_that_disagrees_with_pytorch_is_refused(small_ckpt: Path, small_bevdet_config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_graph_that_disagrees_with_pytorch_is_refused(
+    small_ckpt: Path, small_bevdet_config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     _broken_trace(monkeypatch)
     out = tmp_path / "small.onnx"
     with pytest.raises(ParityError, match="no file written") as info:
@@ -250,9 +270,13 @@ def test_checkpoint_missing_a_key_is_named(small_ckpt: Path, small_bevdet_config
         export(bad, tmp_path / "x.onnx", config=small_bevdet_config, rig=SMALL_RIG, progress=lambda _: None)
 
 
-def test_config_that_does_not_fit_the_checkpoint_is_named(small_ckpt: Path, small_bevdet_config, tmp_path: Path) -> None:
+def test_config_that_does_not_fit_the_checkpoint_is_named(
+    small_ckpt: Path, small_bevdet_config, tmp_path: Path
+) -> None:
     wider = small_bevdet_config.replace(head={"hidden_channel": 48})
-    with pytest.raises(CheckpointError, match=r"shape mismatches(.|\n)*model \[48(.|\n)*the config the checkpoint was trained with"):
+    with pytest.raises(
+        CheckpointError, match=r"shape mismatches(.|\n)*model \[48(.|\n)*the config the checkpoint was trained with"
+    ):
         export(small_ckpt, tmp_path / "x.onnx", config=wider, rig=SMALL_RIG, progress=lambda _: None)
 
 

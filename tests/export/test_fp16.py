@@ -15,7 +15,14 @@ pytest.importorskip("torch")
 
 from fisheye_infer.commands import export as export_command
 from fisheye_infer.errors import ExportError
-from fisheye_infer.export.exporter import Fp16Result, export, export_fp16, export_int8, fp16_path_for, verification_frames
+from fisheye_infer.export.exporter import (
+    Fp16Result,
+    export,
+    export_fp16,
+    export_int8,
+    fp16_path_for,
+    verification_frames,
+)
 from fisheye_infer.export.fp16 import to_float16
 from fisheye_infer.export.fp16_parity import evaluated_with, fp16_parity
 from fisheye_infer.export.options import Comparison, Int8Options
@@ -39,23 +46,47 @@ def _toy() -> onnx.ModelProto:
         helper.make_node("Floor", ["q"], ["qf"], name="floor"),
         helper.make_node("Cast", ["qf"], ["label"], name="to_int", to=I64),
     ]
-    inputs = [helper.make_tensor_value_info("img", TensorProto.UINT8, ["batch", 4]), helper.make_tensor_value_info("index", I64, ["batch"])]
-    outputs = [helper.make_tensor_value_info("scores", F, ["batch"]), helper.make_tensor_value_info("label", I64, ["batch"])]
-    inits = [numpy_helper.from_array(np.full(4, 0.5, np.float32), "w"), numpy_helper.from_array(np.array([0.1, 0.2, 0.3, 0.4], np.float32), "geom.offset"),
-             numpy_helper.from_array(np.array(3.0, np.float32), "three"), numpy_helper.from_array(np.array([1], np.int64), "axis1")]
-    return helper.make_model(helper.make_graph(nodes, "toy", inputs, outputs, inits), opset_imports=[helper.make_opsetid("", 18)], ir_version=10)
+    inputs = [
+        helper.make_tensor_value_info("img", TensorProto.UINT8, ["batch", 4]),
+        helper.make_tensor_value_info("index", I64, ["batch"]),
+    ]
+    outputs = [
+        helper.make_tensor_value_info("scores", F, ["batch"]),
+        helper.make_tensor_value_info("label", I64, ["batch"]),
+    ]
+    inits = [
+        numpy_helper.from_array(np.full(4, 0.5, np.float32), "w"),
+        numpy_helper.from_array(np.array([0.1, 0.2, 0.3, 0.4], np.float32), "geom.offset"),
+        numpy_helper.from_array(np.array(3.0, np.float32), "three"),
+        numpy_helper.from_array(np.array([1], np.int64), "axis1"),
+    ]
+    return helper.make_model(
+        helper.make_graph(nodes, "toy", inputs, outputs, inits),
+        opset_imports=[helper.make_opsetid("", 18)],
+        ir_version=10,
+    )
 
 
 def test_to_float16_keeps_interface_geometry_and_index_arithmetic_float32() -> None:
     half, plan = to_float16(_toy())
     inits = {i.name: i.data_type for i in half.graph.initializer}
-    assert inits == {"w": H, "geom.offset": F, "three": F, "axis1": I64}  # the weight halves; the geometry table and the index divisor do not
-    assert [(v.name, v.type.tensor_type.elem_type) for v in half.graph.input] == [("img", TensorProto.UINT8), ("index", I64)]
+    assert inits == {
+        "w": H,
+        "geom.offset": F,
+        "three": F,
+        "axis1": I64,
+    }  # the weight halves; the geometry table and the index divisor do not
+    assert [(v.name, v.type.tensor_type.elem_type) for v in half.graph.input] == [
+        ("img", TensorProto.UINT8),
+        ("index", I64),
+    ]
     assert [(v.name, v.type.tensor_type.elem_type) for v in half.graph.output] == [("scores", F), ("label", I64)]
     assert plan.index_nodes == 4 and plan.geometry_tables == 1
     img = np.array([[0, 1, 2, 255]], np.uint8)
     index = np.array([2047 * 3 + 2], np.int64)  # beyond float16's exact integers once multiplied; exact in float32
-    scores, label = ort.InferenceSession(half.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, {"img": img, "index": index})
+    scores, label = ort.InferenceSession(half.SerializeToString(), providers=["CPUExecutionProvider"]).run(
+        None, {"img": img, "index": index}
+    )
     assert scores.dtype == np.float32 and abs(float(scores[0]) - 127.9) < 0.1
     assert label.tolist() == [2047]
 
@@ -95,7 +126,9 @@ def test_fp16_file_is_float16_inside_with_the_fp32_interface_and_tables(petr_exp
     tables = {i.name: i for i in full.graph.initializer if i.name.startswith("geom.")}
     for init in half.graph.initializer:
         if init.name in tables:
-            assert init.data_type == tables[init.name].data_type and init.raw_data == tables[init.name].raw_data, init.name
+            assert init.data_type == tables[init.name].data_type and init.raw_data == tables[init.name].raw_data, (
+                init.name
+            )
     weights = [i for i in half.graph.initializer if not i.name.startswith("geom.") and i.data_type in (F, H)]
     assert sum(i.data_type == H for i in weights) > 0.9 * len(weights)
     assert petr_fp16.path.stat().st_size < 0.7 * petr_export.onnx.stat().st_size
@@ -105,19 +138,34 @@ def test_reduced_precision_files_are_not_converted_again(petr_fp16: Fp16Result, 
     with pytest.raises(ExportError, match="already a reduced-precision file"):
         export_fp16(petr_fp16.path, tmp_path / "again.onnx", progress=lambda _: None)
     with pytest.raises(ExportError, match="already quantized"):
-        export_int8(petr_fp16.path, tmp_path / "again.int8.onnx", options=Int8Options(calib_frames=1), progress=lambda _: None)
+        export_int8(
+            petr_fp16.path, tmp_path / "again.int8.onnx", options=Int8Options(calib_frames=1), progress=lambda _: None
+        )
 
 
 def test_export_with_fp16_writes_both_files(small_export, small_bevdet_config, tmp_path: Path) -> None:
     """``export(fp16=True)`` (``--fp16``): the verified fp32 file at ``out``, the fp16 file next to it, both in the summary."""
     out = tmp_path / "m.onnx"
-    result = export(small_export.ckpt, out, config=small_bevdet_config, rig=read_meta(small_export.onnx).rig, frames=1, threads=(1,), fp16=True, force=True,
-                    progress=lambda _: None)
+    result = export(
+        small_export.ckpt,
+        out,
+        config=small_bevdet_config,
+        rig=read_meta(small_export.onnx).rig,
+        frames=1,
+        threads=(1,),
+        fp16=True,
+        force=True,
+        progress=lambda _: None,
+    )
     assert read_meta(out).quantization is None and read_meta(out).tensorrt is not None
     assert result.fp16 is not None and result.fp16.path == tmp_path / "m.fp16.onnx"
     assert read_meta(result.fp16.path).quantization.mode == "fp16"
     summary = result.summary()
-    assert "parity vs PyTorch" in summary and "fp16 vs the fp32 ONNX file" in summary and summary.count("TensorRT ONNX parser") == 2
+    assert (
+        "parity vs PyTorch" in summary
+        and "fp16 vs the fp32 ONNX file" in summary
+        and summary.count("TensorRT ONNX parser") == 2
+    )
 
 
 def test_cli_takes_fp16() -> None:
@@ -131,8 +179,19 @@ def test_parity_runs_the_candidate_where_it_is_asked_to(small_export) -> None:
     reference on the CPU; the report names where. The fp32 file against itself is exact; a provider this onnxruntime
     lacks is refused by name."""
     frames = verification_frames(read_meta(small_export.onnx).rig, 1)
-    same = fp16_parity(small_export.onnx, small_export.onnx, frames, threads=1, candidate_providers=[("CPUExecutionProvider", {})])
-    assert same.evaluated_with == "onnxruntime-cpu" and same.top_matched_fraction == 1.0 and same.max_box_abs_diff_m == 0.0 and same.passed
+    same = fp16_parity(
+        small_export.onnx, small_export.onnx, frames, threads=1, candidate_providers=[("CPUExecutionProvider", {})]
+    )
+    assert (
+        same.evaluated_with == "onnxruntime-cpu"
+        and same.top_matched_fraction == 1.0
+        and same.max_box_abs_diff_m == 0.0
+        and same.passed
+    )
     assert evaluated_with(["CUDAExecutionProvider", "CPUExecutionProvider"]) == "onnxruntime-cuda"
-    with pytest.raises(ExportError, match=r"fp16: ONNX Runtime \(onnxruntime-nosuch\) cannot run .*NoSuchExecutionProvider"):
-        fp16_parity(small_export.onnx, small_export.onnx, frames, threads=1, candidate_providers=["NoSuchExecutionProvider"])
+    with pytest.raises(
+        ExportError, match=r"fp16: ONNX Runtime \(onnxruntime-nosuch\) cannot run .*NoSuchExecutionProvider"
+    ):
+        fp16_parity(
+            small_export.onnx, small_export.onnx, frames, threads=1, candidate_providers=["NoSuchExecutionProvider"]
+        )

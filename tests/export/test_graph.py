@@ -14,17 +14,30 @@ STD = np.array([58.395, 57.12, 57.375], np.float32)
 MEAN = np.array([123.675, 116.28, 103.53], np.float32)
 
 
-def _model(*, five_d: bool = False, second_reader: bool = False, group: int = 1, scale: np.ndarray = STD,
-           reshape_to: tuple[int, ...] = (2, 3, 8, 8), scaled_out: bool = False) -> onnx.ModelProto:
+def _model(
+    *,
+    five_d: bool = False,
+    second_reader: bool = False,
+    group: int = 1,
+    scale: np.ndarray = STD,
+    reshape_to: tuple[int, ...] = (2, 3, 8, 8),
+    scaled_out: bool = False,
+) -> onnx.ModelProto:
     """images -> Sub(mean) -> Div(std) [-> Reshape] -> Conv(3x3, pad 1) -> y; five_d: (1, 2, 3, 8, 8) images."""
     lead = (1, 2) if five_d else (2,)
     shape_c = (*[1] * len(lead), 3, 1, 1)
     w = np.random.default_rng(0).normal(size=(4, 3 // group, 3, 3)).astype(np.float32)
-    inits = [numpy_helper.from_array(MEAN.reshape(shape_c), "mean"),
-             numpy_helper.from_array(scale.astype(np.float32).reshape((*[1] * len(lead), scale.size, 1, 1)), "std"),
-             numpy_helper.from_array(w, "w"), numpy_helper.from_array(np.arange(4, dtype=np.float32), "b"),
-             numpy_helper.from_array(np.array(reshape_to, np.int64), "shape")]
-    nodes = [helper.make_node("Sub", ["x", "mean"], ["centred"]), helper.make_node("Div", ["centred", "std"], ["scaled"])]
+    inits = [
+        numpy_helper.from_array(MEAN.reshape(shape_c), "mean"),
+        numpy_helper.from_array(scale.astype(np.float32).reshape((*[1] * len(lead), scale.size, 1, 1)), "std"),
+        numpy_helper.from_array(w, "w"),
+        numpy_helper.from_array(np.arange(4, dtype=np.float32), "b"),
+        numpy_helper.from_array(np.array(reshape_to, np.int64), "shape"),
+    ]
+    nodes = [
+        helper.make_node("Sub", ["x", "mean"], ["centred"]),
+        helper.make_node("Div", ["centred", "std"], ["scaled"]),
+    ]
     conv_in = "scaled"
     if five_d:
         nodes.append(helper.make_node("Reshape", ["scaled", "shape"], ["flat"]))
@@ -57,14 +70,18 @@ def test_division_folds_into_the_first_convolution(five_d: bool) -> None:
     np.testing.assert_allclose(_run(model, x), before, rtol=1e-5, atol=1e-4)  # the border too: padding stays 0
 
 
-@pytest.mark.parametrize("case", ["second reader", "graph output", "grouped", "not per channel", "negative", "reshape moves channels"])
+@pytest.mark.parametrize(
+    "case", ["second reader", "graph output", "grouped", "not per channel", "negative", "reshape moves channels"]
+)
 def test_division_stays_where_folding_would_change_the_result(case: str) -> None:
-    model = {"second reader": lambda: _model(second_reader=True),
-             "graph output": lambda: _model(scaled_out=True),
-             "grouped": lambda: _model(group=3),
-             "not per channel": lambda: _model(scale=np.array([2.0], np.float32)),
-             "negative": lambda: _model(scale=np.array([1.0, -1.0, 2.0], np.float32)),
-             "reshape moves channels": lambda: _model(five_d=True, reshape_to=(2, 3, 4, 16))}[case]()
+    model = {
+        "second reader": lambda: _model(second_reader=True),
+        "graph output": lambda: _model(scaled_out=True),
+        "grouped": lambda: _model(group=3),
+        "not per channel": lambda: _model(scale=np.array([2.0], np.float32)),
+        "negative": lambda: _model(scale=np.array([1.0, -1.0, 2.0], np.float32)),
+        "reshape moves channels": lambda: _model(five_d=True, reshape_to=(2, 3, 4, 16)),
+    }[case]()
     nodes = [n.op_type for n in model.graph.node]
     assert fold_input_scale(model) == []
     assert [n.op_type for n in model.graph.node] == nodes

@@ -21,11 +21,16 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _geometry(path: Path) -> dict[str, np.ndarray]:
-    return {i.name: numpy_helper.to_array(i) for i in onnx.load(str(path)).graph.initializer if i.name.startswith("geom.")}
+    return {
+        i.name: numpy_helper.to_array(i) for i in onnx.load(str(path)).graph.initializer if i.name.startswith("geom.")
+    }
 
 
 def _nodes(graph: onnx.GraphProto) -> list[tuple]:
-    return [(n.op_type, n.domain, tuple(n.input), tuple(n.output), tuple(a.SerializeToString() for a in n.attribute)) for n in graph.node]
+    return [
+        (n.op_type, n.domain, tuple(n.input), tuple(n.output), tuple(a.SerializeToString() for a in n.attribute))
+        for n in graph.node
+    ]
 
 
 def _initializers(graph: onnx.GraphProto) -> dict[str, np.ndarray]:
@@ -38,7 +43,15 @@ def test_rebaked_file_equals_a_fresh_export(exported, moved_rig: Rig, tmp_path: 
 
     rebaked = tmp_path / "rebaked.onnx"
     meta = rebake(exported.onnx, moved_rig, rebaked)
-    fresh = export(exported.ckpt, tmp_path / "fresh.onnx", rig=moved_rig, geometry="rig", frames=1, threads=(2,), progress=lambda _: None)
+    fresh = export(
+        exported.ckpt,
+        tmp_path / "fresh.onnx",
+        rig=moved_rig,
+        geometry="rig",
+        frames=1,
+        threads=(2,),
+        progress=lambda _: None,
+    )
     mine, theirs = onnx.load(str(rebaked)).graph, onnx.load(str(fresh.path)).graph
     assert _nodes(mine) == _nodes(theirs)  # the same graph ...
     a, b = _initializers(mine), _initializers(theirs)
@@ -82,7 +95,12 @@ BLOCK_TORCH = (
 def test_rebake_command_runs_without_torch(petr_export, moved_rig: Rig, tmp_path: Path) -> None:
     rig_file = moved_rig.save(tmp_path / "moved.yaml")
     out = tmp_path / "rebaked.onnx"
-    result = subprocess.run([sys.executable, "-c", BLOCK_TORCH, "rebake", str(petr_export.onnx), "--rig", str(rig_file), "--out", str(out)], capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [sys.executable, "-c", BLOCK_TORCH, "rebake", str(petr_export.onnx), "--rig", str(rig_file), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr
     assert "geometry tables recomputed" in result.stdout
     assert read_meta(out).rig_hash == moved_rig.hash

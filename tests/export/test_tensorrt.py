@@ -15,8 +15,13 @@ from fisheye_infer.runtime.artifact import TensorRTReport, parse_meta, read_meta
 F, I64 = TensorProto.FLOAT, TensorProto.INT64
 
 
-def _model(nodes: list[onnx.NodeProto], inputs: list[onnx.ValueInfoProto], outputs: list[onnx.ValueInfoProto],
-           initializers: list[onnx.TensorProto] = (), opset: int = 18) -> onnx.ModelProto:
+def _model(
+    nodes: list[onnx.NodeProto],
+    inputs: list[onnx.ValueInfoProto],
+    outputs: list[onnx.ValueInfoProto],
+    initializers: list[onnx.TensorProto] = (),
+    opset: int = 18,
+) -> onnx.ModelProto:
     graph = helper.make_graph(nodes, "g", inputs, outputs, list(initializers))
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)], ir_version=10)
 
@@ -37,8 +42,16 @@ def _errors(report: TensorRTReport) -> list:
 
 def test_clean_graph_is_compatible() -> None:
     weight = numpy_helper.from_array(np.ones((8, 3, 3, 3), np.float32), "w")
-    nodes = [helper.make_node("Conv", ["x", "w"], ["c"], name="conv", pads=[1, 1, 1, 1]), helper.make_node("Relu", ["c"], ["y"], name="relu")]
-    model = _model(nodes, [helper.make_tensor_value_info("x", F, ["batch", 3, 32, 32])], [helper.make_tensor_value_info("y", F, None)], [weight])
+    nodes = [
+        helper.make_node("Conv", ["x", "w"], ["c"], name="conv", pads=[1, 1, 1, 1]),
+        helper.make_node("Relu", ["c"], ["y"], name="relu"),
+    ]
+    model = _model(
+        nodes,
+        [helper.make_tensor_value_info("x", F, ["batch", 3, 32, 32])],
+        [helper.make_tensor_value_info("y", F, None)],
+        [weight],
+    )
     report = check_tensorrt(model)
     assert report.compatible and report.findings == ()
     assert report.summary().endswith("compatible (0 note(s))")
@@ -46,7 +59,11 @@ def test_clean_graph_is_compatible() -> None:
 
 def test_unsupported_op_is_refused_by_name() -> None:
     node = helper.make_node("Det", ["x"], ["y"], name="the_det")
-    report = check_tensorrt(_model([node], [helper.make_tensor_value_info("x", F, [1, 3, 3])], [helper.make_tensor_value_info("y", F, None)]))
+    report = check_tensorrt(
+        _model(
+            [node], [helper.make_tensor_value_info("x", F, [1, 3, 3])], [helper.make_tensor_value_info("y", F, None)]
+        )
+    )
     assert not report.compatible
     (error,) = _errors(report)
     assert (error.node, error.op_type) == ("the_det", "Det") and "not supported" in error.message
@@ -55,7 +72,9 @@ def test_unsupported_op_is_refused_by_name() -> None:
 
 def test_custom_domain_op_needs_a_plugin() -> None:
     node = helper.make_node("Inverse", ["x"], ["y"], name="inv", domain="com.microsoft")
-    model = _model([node], [helper.make_tensor_value_info("x", F, [1, 3, 3])], [helper.make_tensor_value_info("y", F, None)])
+    model = _model(
+        [node], [helper.make_tensor_value_info("x", F, [1, 3, 3])], [helper.make_tensor_value_info("y", F, None)]
+    )
     model.opset_import.append(helper.make_opsetid("com.microsoft", 1))
     (error,) = _errors(check_tensorrt(model))
     assert error.node == "inv" and "plugin" in error.message
@@ -65,7 +84,12 @@ def test_topk_beyond_3840_is_refused() -> None:
     report = check_tensorrt(_topk(5000))
     assert not report.compatible
     (error,) = _errors(report)
-    assert error.node == "rank" and error.op_type == "TopK" and "K=5000" in error.message and str(MAX_TOPK_K) in error.message
+    assert (
+        error.node == "rank"
+        and error.op_type == "TopK"
+        and "K=5000" in error.message
+        and str(MAX_TOPK_K) in error.message
+    )
 
 
 @pytest.mark.parametrize("k", [100, MAX_TOPK_K])
@@ -74,8 +98,10 @@ def test_topk_within_3840_is_fine(k: int) -> None:
 
 
 def test_topk_with_a_run_time_k_is_a_note() -> None:
-    nodes = [helper.make_node("Shape", ["x"], ["s"], name="shape", start=1),
-             helper.make_node("TopK", ["x", "s"], ["values", "indices"], name="rank", axis=1)]
+    nodes = [
+        helper.make_node("Shape", ["x"], ["s"], name="shape", start=1),
+        helper.make_node("TopK", ["x", "s"], ["values", "indices"], name="rank", axis=1),
+    ]
     outs = [helper.make_tensor_value_info("values", F, None), helper.make_tensor_value_info("indices", I64, None)]
     report = check_tensorrt(_model(nodes, [_scores()], outs))
     assert report.compatible and any(f.node == "rank" and "run time" in f.message for f in report.findings)
@@ -84,8 +110,10 @@ def test_topk_with_a_run_time_k_is_a_note() -> None:
 def _grid_sample(input_rank: int, opset: int = 18, **attrs: object) -> onnx.ModelProto:
     spatial = [8] * (input_rank - 2)
     node = helper.make_node("GridSample", ["x", "grid"], ["y"], name="warp", **attrs)
-    inputs = [helper.make_tensor_value_info("x", F, ["batch", 16, *spatial]),
-              helper.make_tensor_value_info("grid", F, ["batch", *spatial, input_rank - 2])]
+    inputs = [
+        helper.make_tensor_value_info("x", F, ["batch", 16, *spatial]),
+        helper.make_tensor_value_info("grid", F, ["batch", *spatial, input_rank - 2]),
+    ]
     return _model([node], inputs, [helper.make_tensor_value_info("y", F, None)], opset=opset)
 
 
@@ -107,43 +135,71 @@ def test_grid_sample_opset_20_mode_names_are_refused() -> None:
 
 def test_scatter_nd_with_reduction_is_refused() -> None:
     node = helper.make_node("ScatterND", ["x", "idx", "upd"], ["y"], name="pool", reduction="add")
-    inputs = [helper.make_tensor_value_info("x", F, [10, 4]), helper.make_tensor_value_info("idx", I64, [6, 1]), helper.make_tensor_value_info("upd", F, [6, 4])]
+    inputs = [
+        helper.make_tensor_value_info("x", F, [10, 4]),
+        helper.make_tensor_value_info("idx", I64, [6, 1]),
+        helper.make_tensor_value_info("upd", F, [6, 4]),
+    ]
     (error,) = _errors(check_tensorrt(_model([node], inputs, [helper.make_tensor_value_info("y", F, None)])))
     assert error.node == "pool" and "reduction" in error.message
 
 
 def test_dynamic_spatial_input_dimension_is_a_finding() -> None:
     node = helper.make_node("Relu", ["x"], ["y"], name="relu")
-    model = _model([node], [helper.make_tensor_value_info("x", F, ["batch", 3, "height", 32])], [helper.make_tensor_value_info("y", F, None)])
+    model = _model(
+        [node],
+        [helper.make_tensor_value_info("x", F, ["batch", 3, "height", 32])],
+        [helper.make_tensor_value_info("y", F, None)],
+    )
     report = check_tensorrt(model)
     (finding,) = report.findings
-    assert finding.severity == "note" and "'x'" in finding.message and "[2]" in finding.message and "optimization profile" in finding.message
+    assert (
+        finding.severity == "note"
+        and "'x'" in finding.message
+        and "[2]" in finding.message
+        and "optimization profile" in finding.message
+    )
     assert report.compatible  # TensorRT builds it for a profile; it is worth knowing, not refused
 
 
 def test_input_without_rank_is_refused() -> None:
     node = helper.make_node("Relu", ["x"], ["y"], name="relu")
-    report = check_tensorrt(_model([node], [helper.make_tensor_value_info("x", F, None)], [helper.make_tensor_value_info("y", F, None)]))
+    report = check_tensorrt(
+        _model([node], [helper.make_tensor_value_info("x", F, None)], [helper.make_tensor_value_info("y", F, None)])
+    )
     assert not report.compatible and "no known rank" in _errors(report)[0].message
 
 
 def test_axes_computed_at_run_time_are_refused() -> None:
-    nodes = [helper.make_node("Shape", ["x"], ["s"], name="shape", start=0, end=1),
-             helper.make_node("Sub", ["s", "one"], ["axes"], name="minus_one"),
-             helper.make_node("Unsqueeze", ["x", "axes"], ["y"], name="unsqueeze")]
-    model = _model(nodes, [helper.make_tensor_value_info("x", F, [1, 4])], [helper.make_tensor_value_info("y", F, None)],
-                   [numpy_helper.from_array(np.array([1], np.int64), "one")])
+    nodes = [
+        helper.make_node("Shape", ["x"], ["s"], name="shape", start=0, end=1),
+        helper.make_node("Sub", ["s", "one"], ["axes"], name="minus_one"),
+        helper.make_node("Unsqueeze", ["x", "axes"], ["y"], name="unsqueeze"),
+    ]
+    model = _model(
+        nodes,
+        [helper.make_tensor_value_info("x", F, [1, 4])],
+        [helper.make_tensor_value_info("y", F, None)],
+        [numpy_helper.from_array(np.array([1], np.int64), "one")],
+    )
     (error,) = _errors(check_tensorrt(model))
     assert error.node == "unsqueeze" and "initializer" in error.message
 
 
 def test_uint8_inside_the_network_is_refused_but_at_its_input_is_fine() -> None:
     cast = helper.make_node("Cast", ["img"], ["f"], name="to_float", to=F)
-    ok = _model([cast], [helper.make_tensor_value_info("img", TensorProto.UINT8, ["batch", 8, 8, 3])], [helper.make_tensor_value_info("f", F, None)])
+    ok = _model(
+        [cast],
+        [helper.make_tensor_value_info("img", TensorProto.UINT8, ["batch", 8, 8, 3])],
+        [helper.make_tensor_value_info("f", F, None)],
+    )
     assert check_tensorrt(ok).compatible
     transpose = helper.make_node("Transpose", ["img"], ["t"], name="hwc_to_chw", perm=[0, 3, 1, 2])
-    bad = _model([transpose, helper.make_node("Cast", ["t"], ["f"], name="to_float", to=F)],
-                 [helper.make_tensor_value_info("img", TensorProto.UINT8, ["batch", 8, 8, 3])], [helper.make_tensor_value_info("f", F, None)])
+    bad = _model(
+        [transpose, helper.make_node("Cast", ["t"], ["f"], name="to_float", to=F)],
+        [helper.make_tensor_value_info("img", TensorProto.UINT8, ["batch", 8, 8, 3])],
+        [helper.make_tensor_value_info("f", F, None)],
+    )
     errors = _errors(check_tensorrt(bad))
     assert errors and all(e.node == "hwc_to_chw" for e in errors) and "UINT8" in errors[0].message
 
@@ -151,7 +207,14 @@ def test_uint8_inside_the_network_is_refused_but_at_its_input_is_fine() -> None:
 def test_int64_index_tables_are_a_note() -> None:
     node = helper.make_node("Gather", ["x", "table"], ["y"], name="pool", axis=0)
     table = numpy_helper.from_array(np.array([0, 3, 3_000_000_000], np.int64), "table")
-    report = check_tensorrt(_model([node], [helper.make_tensor_value_info("x", F, [4, 2])], [helper.make_tensor_value_info("y", F, None)], [table]))
+    report = check_tensorrt(
+        _model(
+            [node],
+            [helper.make_tensor_value_info("x", F, [4, 2])],
+            [helper.make_tensor_value_info("y", F, None)],
+            [table],
+        )
+    )
     assert report.compatible
     (note,) = [f for f in report.findings if "initializer" in f.message]
     assert note.severity == "note" and "table (3,)" in note.message and "do NOT fit in INT32" in note.message
@@ -159,8 +222,12 @@ def test_int64_index_tables_are_a_note() -> None:
 
 def test_shape_constants_are_not_reported_as_int64_data() -> None:
     node = helper.make_node("Reshape", ["x", "shape"], ["y"], name="flatten")
-    model = _model([node], [helper.make_tensor_value_info("x", F, [4, 2])], [helper.make_tensor_value_info("y", F, None)],
-                   [numpy_helper.from_array(np.array([8], np.int64), "shape")])
+    model = _model(
+        [node],
+        [helper.make_tensor_value_info("x", F, [4, 2])],
+        [helper.make_tensor_value_info("y", F, None)],
+        [numpy_helper.from_array(np.array([8], np.int64), "shape")],
+    )
     assert check_tensorrt(model).findings == ()
 
 
@@ -200,13 +267,29 @@ def test_int8_file_is_for_onnx_runtime_not_tensorrt(small_export, tmp_path) -> N
     from fisheye_infer.export.exporter import export_int8
     from fisheye_infer.export.options import Comparison, Int8Options
 
-    result = export_int8(small_export.onnx, tmp_path / "small.int8.onnx", options=Int8Options(calib_frames=1), comparison=Comparison(frames=1),
-                         force=True, progress=lambda _: None)
+    result = export_int8(
+        small_export.onnx,
+        tmp_path / "small.int8.onnx",
+        options=Int8Options(calib_frames=1),
+        comparison=Comparison(frames=1),
+        force=True,
+        progress=lambda _: None,
+    )
     report = read_meta(result.path).tensorrt
     assert report is not None and not report.compatible
     errors = _errors(report)
     assert {"QuantizeLinear", "DequantizeLinear"} <= {e.op_type for e in errors}
-    assert {e.op_type for e in errors} <= {"QuantizeLinear", "DequantizeLinear", "Reshape", "Transpose", "DepthToSpace", "Split", "Concat"}
+    assert {e.op_type for e in errors} <= {
+        "QuantizeLinear",
+        "DequantizeLinear",
+        "Reshape",
+        "Transpose",
+        "DepthToSpace",
+        "Split",
+        "Concat",
+    }
     assert any("zero point" in e.message for e in errors) and any("INT32" in e.message for e in errors)
-    assert all("UINT8" in e.message for e in errors if e.op_type in ("Reshape", "Transpose", "DepthToSpace", "Split", "Concat"))
+    assert all(
+        "UINT8" in e.message for e in errors if e.op_type in ("Reshape", "Transpose", "DepthToSpace", "Split", "Concat")
+    )
     assert "int8 file: TensorRT ONNX parser" in result.summary() and "NOT compatible" in result.summary()

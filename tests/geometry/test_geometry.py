@@ -58,7 +58,9 @@ class TestSphericalGrid:
         assert set(map(tuple, np.argwhere(differs)[:, 1:].tolist())) <= {(12, 0), (12, 99)}
         assert not grid3d[..., 2].any()
 
-    @pytest.mark.parametrize(("h", "w", "expected"), [(12, 0, (-1.0260, -0.0024)), (0, 0, (-0.6615, -0.7036)), (24, 99, (0.6566, 0.6985))])
+    @pytest.mark.parametrize(
+        ("h", "w", "expected"), [(12, 0, (-1.0260, -0.0024)), (0, 0, (-0.6615, -0.7036)), (24, 99, (0.6566, 0.6985))]
+    )
     def test_cells_quoted_by_the_spec(self, ocam800: OCamModel, h: int, w: int, expected) -> None:
         np.testing.assert_allclose(spherical_grid(ocam800)[h, w], expected, atol=1e-4)
 
@@ -101,7 +103,9 @@ class TestMasks:
         np.testing.assert_allclose(mask, ref, atol=1e-4)
 
     def test_bevdet_valid_fov_mask(self, ocam800: OCamModel, official) -> None:
-        np.testing.assert_array_equal(1 - invalid_mask(ocam800, official[BEV + "sphere_grid_2d"]), official[BEV + "valid_fov_mask"][0, 0])
+        np.testing.assert_array_equal(
+            1 - invalid_mask(ocam800, official[BEV + "sphere_grid_2d"]), official[BEV + "valid_fov_mask"][0, 0]
+        )
 
     def test_sample_bilinear_by_hand(self) -> None:
         image = np.arange(12, dtype=np.float32).reshape(3, 4)
@@ -128,7 +132,9 @@ class TestFrustum:
 
     def test_depth_is_range_along_the_ray(self) -> None:
         frustum = spherical_frustum(depth_bins())
-        np.testing.assert_allclose(np.linalg.norm(frustum, axis=-1), np.broadcast_to(depth_bins()[:, None, None], (96, 25, 100)), rtol=1e-6)
+        np.testing.assert_allclose(
+            np.linalg.norm(frustum, axis=-1), np.broadcast_to(depth_bins()[:, None, None], (96, 25, 100)), rtol=1e-6
+        )
         assert frustum[0, 0, 50, 1] < 0  # row 0 looks up: y (down) negative
 
     def test_cylindrical_depth_is_horizontal_radius(self) -> None:
@@ -169,7 +175,17 @@ class TestPoolingPlan:
 
     def test_trunc_keeps_points_just_below_each_lower_bound(self) -> None:
         grid = BevGrid()
-        points = np.array([[-48.1, 0.0, 0.0], [-48.4, 0.0, 0.0], [0.0, 0.0, -14.0], [0.0, 0.0, -15.5], [47.99, 47.99, 4.9], [48.0, 0.0, 0.0]], np.float32)
+        points = np.array(
+            [
+                [-48.1, 0.0, 0.0],
+                [-48.4, 0.0, 0.0],
+                [0.0, 0.0, -14.0],
+                [0.0, 0.0, -15.5],
+                [47.99, 47.99, 4.9],
+                [48.0, 0.0, 0.0],
+            ],
+            np.float32,
+        )
         cells, kept = voxelise(points, grid)
         assert kept.tolist() == [True, False, True, False, True, False]
         assert cells[0] == 0 * 320 + 160 and cells[4] == 319 * 320 + 319
@@ -221,7 +237,12 @@ class TestPoolingPlan:
         rng = np.random.default_rng(1)
         depth = rng.random((2, 96, 25, 100)).astype(np.float32)
         ctx = rng.normal(size=(2, 25, 100, 4)).astype(np.float32)
-        np.testing.assert_allclose(pool_bev(depth, ctx, plan), pool_bev_reference(depth, ctx, lidar_points[:2], BevGrid()), atol=1e-6, rtol=1e-5)
+        np.testing.assert_allclose(
+            pool_bev(depth, ctx, plan),
+            pool_bev_reference(depth, ctx, lidar_points[:2], BevGrid()),
+            atol=1e-6,
+            rtol=1e-5,
+        )
         with pytest.raises(ValueError, match="more than the largest bucket"):
             build_pooling_plan(lidar_points, BevGrid(), bucket_sizes=(1, 2, 4))
 

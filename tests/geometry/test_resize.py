@@ -69,8 +69,9 @@ def reference(image: np.ndarray, width: int, height: int, rows: tuple[int, int] 
     return resize_reference(image, width, height, rows, horizontal_first=first)
 
 
-def float32_resize(image: np.ndarray, width: int, height: int, rows: tuple[int, int] | None = None,
-                   trim: bool = False) -> np.ndarray:
+def float32_resize(
+    image: np.ndarray, width: int, height: int, rows: tuple[int, int] | None = None, trim: bool = False
+) -> np.ndarray:
     first, count = rows if rows is not None else (0, height)
     horizontal = pil_bicubic_taps(image.shape[1], width)
     vertical = pil_bicubic_taps(image.shape[0], height, first, count)
@@ -90,7 +91,9 @@ def test_camera_downscale_taps_fit_float32() -> None:
     assert pil_bicubic_taps(HEIGHT, OUT_HEIGHT).taps == 9
 
 
-@pytest.mark.parametrize("in_size, out_size, first, count", [(1280, 800, 0, None), (720, 450, 50, 400), (7, 23, 0, None), (5, 1, 0, None)])
+@pytest.mark.parametrize(
+    "in_size, out_size, first, count", [(1280, 800, 0, None), (720, 450, 50, 400), (7, 23, 0, None), (5, 1, 0, None)]
+)
 def test_taps_split_and_indices(in_size: int, out_size: int, first: int, count: int | None) -> None:
     taps = pil_bicubic_taps(in_size, out_size, first, count)
     assert taps.index.dtype == np.int64 and taps.coefficients.dtype == np.int64
@@ -117,7 +120,9 @@ def test_trimmed_drops_only_empty_taps() -> None:
     np.testing.assert_array_equal(trimmed.coefficients.sum(axis=0), taps.coefficients.sum(axis=0))
 
 
-@pytest.mark.parametrize("in_size, out_size, first, count", [(0, 5, 0, None), (5, 0, 0, None), (10, 5, 3, 3), (10, 5, -1, 2)])
+@pytest.mark.parametrize(
+    "in_size, out_size, first, count", [(0, 5, 0, None), (5, 0, 0, None), (10, 5, 3, 3), (10, 5, -1, 2)]
+)
 def test_taps_refuse_bad_sizes(in_size: int, out_size: int, first: int, count: int | None) -> None:
     with pytest.raises(ValueError):
         pil_bicubic_taps(in_size, out_size, first, count)
@@ -133,7 +138,9 @@ def test_reference_equals_pillow(camera_image: np.ndarray) -> None:
 
 def test_default_filter_is_bicubic(camera_image: np.ndarray) -> None:
     """The official pipelines call ``resize((800, 450))`` without a filter."""
-    np.testing.assert_array_equal(pillow(camera_image, OUT_WIDTH, OUT_HEIGHT, default_filter=True), pillow(camera_image, OUT_WIDTH, OUT_HEIGHT))
+    np.testing.assert_array_equal(
+        pillow(camera_image, OUT_WIDTH, OUT_HEIGHT, default_filter=True), pillow(camera_image, OUT_WIDTH, OUT_HEIGHT)
+    )
 
 
 def test_reference_crop_equals_pillow_rows(camera_image: np.ndarray) -> None:
@@ -194,14 +201,18 @@ def test_float32_equals_reference(camera_image: np.ndarray) -> None:
     result = float32_resize(camera_image, OUT_WIDTH, OUT_HEIGHT)
     assert result.dtype == np.float32
     np.testing.assert_array_equal(result, expected)
-    np.testing.assert_array_equal(float32_resize(camera_image, OUT_WIDTH, OUT_HEIGHT, CROP, trim=True), expected[50:450])
+    np.testing.assert_array_equal(
+        float32_resize(camera_image, OUT_WIDTH, OUT_HEIGHT, CROP, trim=True), expected[50:450]
+    )
 
 
 @pytest.mark.parametrize("in_w, in_h, out_w, out_h", SIZES)
 def test_float32_equals_reference_other_sizes(in_w: int, in_h: int, out_w: int, out_h: int) -> None:
     for kind, make in IMAGES.items():
         image = make(in_h, in_w)
-        np.testing.assert_array_equal(float32_resize(image, out_w, out_h), resize_reference(image, out_w, out_h), err_msg=kind)
+        np.testing.assert_array_equal(
+            float32_resize(image, out_w, out_h), resize_reference(image, out_w, out_h), err_msg=kind
+        )
 
 
 def test_float32_refuses_inexact_tables() -> None:
@@ -219,7 +230,9 @@ def _camera_batch() -> np.ndarray:
 
 
 def _expected(batch: np.ndarray) -> np.ndarray:
-    return np.stack([resize_reference(image, OUT_WIDTH, OUT_HEIGHT, CROP) for image in batch[0]])[None].astype(np.float32)
+    return np.stack([resize_reference(image, OUT_WIDTH, OUT_HEIGHT, CROP) for image in batch[0]])[None].astype(
+        np.float32
+    )
 
 
 def _module(trim: bool) -> Any:
@@ -265,10 +278,22 @@ def test_torch_resize_axis_any_dim() -> None:
     taps = pil_bicubic_taps(61, 23)
     channels_first = torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1)).astype(np.float32))
     result = resize_axis(channels_first, *(torch.from_numpy(a) for a in (taps.index, taps.high, taps.low)), dim=-1)
-    np.testing.assert_array_equal(result.numpy().transpose(1, 2, 0), apply_taps_float32(image.astype(np.float32), taps, 1))
+    np.testing.assert_array_equal(
+        result.numpy().transpose(1, 2, 0), apply_taps_float32(image.astype(np.float32), taps, 1)
+    )
 
 
-ALLOWED_OPS = {"Gather", "Mul", "Add", "Div", "Floor", "Clip", "Constant", "Transpose", "Reshape"}  # Transpose: the columns-first pass
+ALLOWED_OPS = {
+    "Gather",
+    "Mul",
+    "Add",
+    "Div",
+    "Floor",
+    "Clip",
+    "Constant",
+    "Transpose",
+    "Reshape",
+}  # Transpose: the columns-first pass
 
 
 @pytest.mark.filterwarnings("ignore:You are using the legacy TorchScript-based ONNX export:DeprecationWarning")
@@ -280,7 +305,15 @@ def test_onnx_graph_equals_reference(camera_batch: tuple[np.ndarray, np.ndarray]
     batch, expected = camera_batch
     path = tmp_path / "resize.onnx"
     images = torch.from_numpy(batch.astype(np.float32))
-    torch.onnx.export(_module(trim=True), (images,), str(path), opset_version=17, dynamo=False, input_names=["images"], output_names=["resized"])
+    torch.onnx.export(
+        _module(trim=True),
+        (images,),
+        str(path),
+        opset_version=17,
+        dynamo=False,
+        input_names=["images"],
+        output_names=["resized"],
+    )
 
     graph = onnx.load(str(path)).graph
     assert {node.op_type for node in graph.node} <= ALLOWED_OPS

@@ -13,9 +13,23 @@ import torch
 
 from fisheye_infer.cameras.rig import default_rig
 from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
-from fisheye_infer.geometry import BevGrid, build_pooling_plan, frustum_to_lidar, pool_bev_reference, spherical_directions
+from fisheye_infer.geometry import (
+    BevGrid,
+    build_pooling_plan,
+    frustum_to_lidar,
+    pool_bev_reference,
+    spherical_directions,
+)
 from fisheye_infer.geometry.lss import LSSGeometry, LSSParams
-from fisheye_infer.models import BEVDetConfig, create_model, list_models, load_checkpoint, load_model, make_checkpoint, read_mmdet3d_config
+from fisheye_infer.models import (
+    BEVDetConfig,
+    create_model,
+    list_models,
+    load_checkpoint,
+    load_model,
+    make_checkpoint,
+    read_mmdet3d_config,
+)
 from fisheye_infer.models.bevdet_config import ViewTransformConfig
 from fisheye_infer.models.fisheye_bevdet import GEOMETRY_KEYS, checkpoint_filter_fn
 from fisheye_infer.models.seeded_checkpoint import init_weights, manifest_specs, synthetic_images
@@ -66,8 +80,14 @@ def test_missing_unexpected_and_misshaped_keys_are_all_named(small_config, small
     with pytest.raises(CheckpointError) as err:
         load_model("fisheye-bevdet", sd, config=small_config)
     msg = str(err.value)
-    for part in ("bbox_head.shared_conv.bias", VT + "frustum", "bbox_head.extra_conv.weight",
-                 VT + "depthnet.bias: checkpoint [5], model [56]", "2 missing keys", "1 unexpected keys"):
+    for part in (
+        "bbox_head.shared_conv.bias",
+        VT + "frustum",
+        "bbox_head.extra_conv.weight",
+        VT + "depthnet.bias: checkpoint [5], model [56]",
+        "2 missing keys",
+        "1 unexpected keys",
+    ):
         assert part in msg
 
 
@@ -211,7 +231,11 @@ def _peaks(head: TransFusionHead, dense: torch.Tensor) -> torch.Tensor:
 def test_full_size_forward(full_model) -> None:
     model, _ = full_model
     tables = model.view_transform.tables()
-    assert tuple(tables["geom.warp.index"].shape) == (25 * 100 * 4,) and tuple(tables["geom.warp.weight"].shape) == (25 * 100, 1, 4)
+    assert tuple(tables["geom.warp.index"].shape) == (25 * 100 * 4,) and tuple(tables["geom.warp.weight"].shape) == (
+        25 * 100,
+        1,
+        4,
+    )
     images = synthetic_images(42, 1, 4, 800, 800)
     with torch.no_grad():
         out = model(images, return_extras=True)
@@ -285,7 +309,9 @@ def test_grid_uses_width_divisor_and_align_corners(small_model, small_config) ->
     expected = (uv * 2.0 / np.array([camera.width, camera.height]) - 1.0).reshape(*vt.feature_size, 2)
     grid = small_model.view_transform.geometry.grid
     assert np.allclose(grid, expected, atol=1e-6)
-    assert not np.allclose(grid, (uv * 2.0 / (np.array([camera.width, camera.height]) - 1) - 1.0).reshape(grid.shape), atol=1e-4)
+    assert not np.allclose(
+        grid, (uv * 2.0 / (np.array([camera.width, camera.height]) - 1) - 1.0).reshape(grid.shape), atol=1e-4
+    )
     # align_corners=True: a column ramp f(x) = x is sampled at (gx + 1) / 2 * (Wf - 1)
     wf = 10
     ramp = torch.arange(wf, dtype=torch.float32).expand(1, 1, wf, wf).contiguous()
@@ -298,21 +324,46 @@ def test_grid_uses_width_divisor_and_align_corners(small_model, small_config) ->
 
 
 def test_trunc_voxelisation_through_the_plan() -> None:
-    cfg = ViewTransformConfig(in_channels=8, out_channels=2, feature_size=(1, 6), xbound=(-1.5, 1.5, 1.0),
-                              ybound=(-1.5, 1.5, 1.0), zbound=(-5.0, 5.0, 10.0), dbound=(0.5, 1.0, 0.5))
-    points = np.array([[-1.9, 0.2, 0.0],    # x in (-1, 0) cells below: trunc keeps it in row 0
-                       [-1.2, 0.2, -12.0],  # z = -12 < -5 but v_z = -0.7: kept
-                       [0.1, 0.2, -15.5],   # v_z = -1.05: dropped
-                       [1.5, 0.2, 0.0],     # v_x = 3 = n: dropped
-                       [1.4, -1.6, 4.9],    # v_y = -0.1: kept in column 0
-                       [-2.6, 0.0, 0.0]],   # v_x = -1.1: dropped
-                      dtype=np.float32).reshape(1, 1, 1, 6, 3)
+    cfg = ViewTransformConfig(
+        in_channels=8,
+        out_channels=2,
+        feature_size=(1, 6),
+        xbound=(-1.5, 1.5, 1.0),
+        ybound=(-1.5, 1.5, 1.0),
+        zbound=(-5.0, 5.0, 10.0),
+        dbound=(0.5, 1.0, 0.5),
+    )
+    points = np.array(
+        [
+            [-1.9, 0.2, 0.0],  # x in (-1, 0) cells below: trunc keeps it in row 0
+            [-1.2, 0.2, -12.0],  # z = -12 < -5 but v_z = -0.7: kept
+            [0.1, 0.2, -15.5],  # v_z = -1.05: dropped
+            [1.5, 0.2, 0.0],  # v_x = 3 = n: dropped
+            [1.4, -1.6, 4.9],  # v_y = -0.1: kept in column 0
+            [-2.6, 0.0, 0.0],
+        ],  # v_x = -1.1: dropped
+        dtype=np.float32,
+    ).reshape(1, 1, 1, 6, 3)
     bev_grid = BevGrid(cfg.xbound, cfg.ybound, cfg.zbound)
     plan = build_pooling_plan(points, bev_grid)
-    params = LSSParams(feature_size=cfg.feature_size, azimuth_range=cfg.azimuth_range, elevation_range=cfg.elevation_range,
-                       source_size=(2, 2), dbound=cfg.dbound, xbound=cfg.xbound, ybound=cfg.ybound, zbound=cfg.zbound)
-    geometry = LSSGeometry(params=params, grid=np.zeros((1, 6, 2), np.float32), frustum=points[0], cam2lidar=np.eye(4)[None],
-                           plan=plan, valid_fov_mask=np.ones((1, 1, 1, 6), np.float32))
+    params = LSSParams(
+        feature_size=cfg.feature_size,
+        azimuth_range=cfg.azimuth_range,
+        elevation_range=cfg.elevation_range,
+        source_size=(2, 2),
+        dbound=cfg.dbound,
+        xbound=cfg.xbound,
+        ybound=cfg.ybound,
+        zbound=cfg.zbound,
+    )
+    geometry = LSSGeometry(
+        params=params,
+        grid=np.zeros((1, 6, 2), np.float32),
+        frustum=points[0],
+        cam2lidar=np.eye(4)[None],
+        plan=plan,
+        valid_fov_mask=np.ones((1, 1, 1, 6), np.float32),
+    )
     lss = FisheyeLSS(cfg, geometry)
     depth = torch.arange(1.0, 7.0).reshape(1, 1, 1, 1, 6)
     ctx = torch.tensor([[1.0, -1.0], [3.0, 5.0], [7.0, 7.0], [9.0, 9.0], [2.0, 4.0], [8.0, 8.0]]).reshape(1, 1, 1, 6, 2)
@@ -370,7 +421,9 @@ def test_camera_valid_zeroes_context_with_full_rig_counts(small_model) -> None:
 
 
 def _tiny_head(**kwargs) -> TransFusionHead:
-    args = dict(in_channels=8, hidden_channel=8, num_heads=2, ffn_channels=8, head_conv=4, num_proposals=5, bev_size=(6, 6))
+    args = dict(
+        in_channels=8, hidden_channel=8, num_heads=2, ffn_channels=8, head_conv=4, num_proposals=5, bev_size=(6, 6)
+    )
     args.update(kwargs)
     return TransFusionHead(**args).eval()
 
@@ -389,7 +442,7 @@ def test_heatmap_nms_border_and_unsuppressed_classes() -> None:
                 if c in (4, 5):
                     keep = True
                 elif 1 <= i <= 4 and 1 <= j <= 4:
-                    keep = bool(h == heat[0, c, i - 1:i + 2, j - 1:j + 2].max())
+                    keep = bool(h == heat[0, c, i - 1 : i + 2, j - 1 : j + 2].max())
                 else:
                     keep = False  # the zero-padded border is never a local max
                 assert out[c, i, j] == (h if keep else 0.0), (c, i, j)
@@ -470,25 +523,30 @@ def test_from_mmdet3d_config_matches_official_defaults() -> None:
 
 def test_config_variant_is_mapped(tmp_path: Path) -> None:
     text = (DATA / "fisheye_bevdet.py").read_text()
-    text = text.replace("num_proposals=200", "num_proposals=100").replace("dbound=[0.5, 48.5, 0.5]", "dbound=[1.0, 49.0, 1.0]")
+    text = text.replace("num_proposals=200", "num_proposals=100").replace(
+        "dbound=[0.5, 48.5, 0.5]", "dbound=[1.0, 49.0, 1.0]"
+    )
     path = tmp_path / "variant.py"
     path.write_text(text)
     cfg = BEVDetConfig.from_mmdet3d_config(path)
     assert cfg.head.num_proposals == 100 and cfg.view_transform.num_depth_bins == 48
 
 
-@pytest.mark.parametrize("line, construct", [
-    ("import os", "import of module 'os'"),
-    ("x = open('/etc/passwd')", "function call"),
-    ("y = __import__('os').system('true')", "function call"),
-    ("z = math.sys", "attribute access"),
-    ("u = math.floor(2.5)", "function call"),
-    ("w = [i for i in range(3)]", "ListComp"),
-    ("v = undefined_name + 1", "name 'undefined_name'"),
-    ("def f():\n    pass", "FunctionDef"),
-    ("f = lambda: 0", "Lambda"),
-    ("g = ((10 ** 64) ** 64) ** 64", "an integer of more than 4096 bits"),
-])
+@pytest.mark.parametrize(
+    "line, construct",
+    [
+        ("import os", "import of module 'os'"),
+        ("x = open('/etc/passwd')", "function call"),
+        ("y = __import__('os').system('true')", "function call"),
+        ("z = math.sys", "attribute access"),
+        ("u = math.floor(2.5)", "function call"),
+        ("w = [i for i in range(3)]", "ListComp"),
+        ("v = undefined_name + 1", "name 'undefined_name'"),
+        ("def f():\n    pass", "FunctionDef"),
+        ("f = lambda: 0", "Lambda"),
+        ("g = ((10 ** 64) ** 64) ** 64", "an integer of more than 4096 bits"),
+    ],
+)
 def test_config_refuses_code(tmp_path: Path, line: str, construct: str) -> None:
     text = (DATA / "fisheye_bevdet.py").read_text()
     path = tmp_path / "evil.py"

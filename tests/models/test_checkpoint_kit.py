@@ -48,5 +48,8 @@ def test_real_shape_mismatches_are_still_named(kit_bevdet: dict[str, torch.Tenso
     bad = dict(kit_bevdet)
     bad["img_backbone.bn1.num_batches_tracked"] = torch.tensor([4, 4])
     bad["img_backbone.bn1.running_mean"] = bad["img_backbone.bn1.running_mean"][:1]
-    with pytest.raises(CheckpointError, match=r"running_mean: checkpoint \[1\], model \[64\](.|\n)*img_backbone\.bn1\.num_batches_tracked: checkpoint \[2\], model \[\]"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"running_mean: checkpoint \[1\], model \[64\](.|\n)*img_backbone\.bn1\.num_batches_tracked: checkpoint \[2\], model \[\]",
+    ):
         load_model("fisheye-bevdet", bad)

@@ -33,15 +33,27 @@ from fisheye_infer.scenes.render import Renderer, random_scene
 DATA = Path(__file__).parent / "data"
 BEVDET, PETR = "fisheye-bevdet-cyl", "fisheye-petr-cyl"
 TAN45 = 1.6197752  # tan(45 rad): the released vertical range taken as radians
-CORRECTED = {"azimuth_range": (-math.radians(110), math.radians(110)),
-             "elevation_range": (-math.radians(45), math.radians(45))}
+CORRECTED = {
+    "azimuth_range": (-math.radians(110), math.radians(110)),
+    "elevation_range": (-math.radians(45), math.radians(45)),
+}
 
 SMALL_BEVDET = BEVDetCylConfig().replace(
     cylinder={"height": 48, "width": 96},
     **dict(SMALL_BEV_SECTIONS, view_transform={**SMALL_BEV_SECTIONS["view_transform"], "feature_size": (3, 6)}),
 )
-SMALL_PETR = CylPETRConfig().replace(cylinder={"height": 48, "width": 96}, head={
-    "feature_size": (3, 6), "num_query": 40, "max_num": 30, "embed_dims": 64, "num_heads": 4, "ffn_dims": 128, "num_layers": 2})
+SMALL_PETR = CylPETRConfig().replace(
+    cylinder={"height": 48, "width": 96},
+    head={
+        "feature_size": (3, 6),
+        "num_query": 40,
+        "max_num": 30,
+        "embed_dims": 64,
+        "num_heads": 4,
+        "ffn_dims": 128,
+        "num_layers": 2,
+    },
+)
 
 
 def _images(seed: int, batch: int = 1) -> torch.Tensor:
@@ -58,8 +70,12 @@ def _moved_rig(rig: Rig, dx: float) -> Rig:
     """The same cameras, every one moved ``dx`` metres forward: other pooling tables, other bucket sizes."""
     shift = np.zeros((4, 4))
     shift[0, 3] = dx
-    return Rig.from_cameras({c.name: c.model for c in rig.cameras}, {c.name: c.matrix + shift for c in rig.cameras},
-                            order=rig.names, name="moved")
+    return Rig.from_cameras(
+        {c.name: c.model for c in rig.cameras},
+        {c.name: c.matrix + shift for c in rig.cameras},
+        order=rig.names,
+        name="moved",
+    )
 
 
 @pytest.fixture(scope="module")
@@ -74,14 +90,18 @@ def full_petr() -> torch.nn.Module:
 
 @pytest.fixture(scope="module")
 def small_ckpts() -> dict[str, dict[str, torch.Tensor]]:
-    return {BEVDET: make_checkpoint(BEVDET, 1, config=SMALL_BEVDET)["state_dict"],
-            PETR: make_checkpoint(PETR, 1, config=SMALL_PETR)["state_dict"]}
+    return {
+        BEVDET: make_checkpoint(BEVDET, 1, config=SMALL_BEVDET)["state_dict"],
+        PETR: make_checkpoint(PETR, 1, config=SMALL_PETR)["state_dict"],
+    }
 
 
 @pytest.fixture(scope="module")
 def small_models(small_ckpts) -> dict[str, torch.nn.Module]:  # noqa: ANN001
-    return {BEVDET: load_model(BEVDET, small_ckpts[BEVDET], config=SMALL_BEVDET)[0],
-            PETR: load_model(PETR, small_ckpts[PETR], config=SMALL_PETR)[0]}
+    return {
+        BEVDET: load_model(BEVDET, small_ckpts[BEVDET], config=SMALL_BEVDET)[0],
+        PETR: load_model(PETR, small_ckpts[PETR], config=SMALL_PETR)[0],
+    }
 
 
 @pytest.fixture(scope="module")
@@ -113,9 +133,19 @@ def test_remap_grid_reproduces_cv2_remap(rig: Rig, fisheye_frame: np.ndarray, ra
         out = F.grid_sample(x, torch.from_numpy(grid)[None], mode="bilinear", padding_mode="zeros", align_corners=True)
         return out[0].permute(1, 2, 0).numpy()
 
-    grid = cyl_image_grid(rig, CylLSSParams(
-        feature_size=(25, 50), azimuth_range=az, elevation_range=el, image_size=(400, 800),
-        dbound=(0.5, 48.5, 0.5), xbound=(-48, 48, 0.3), ybound=(-48, 48, 0.3), zbound=(-5, 5, 10)))
+    grid = cyl_image_grid(
+        rig,
+        CylLSSParams(
+            feature_size=(25, 50),
+            azimuth_range=az,
+            elevation_range=el,
+            image_size=(400, 800),
+            dbound=(0.5, 48.5, 0.5),
+            xbound=(-48, 48, 0.3),
+            ybound=(-48, 48, 0.3),
+            zbound=(-5, 5, 10),
+        ),
+    )
     taps = remap_taps(grid, 800, 800)
     rows = image.reshape(-1, 3)
     ours = np.einsum("pk,pkc->pc", taps.weight[:, 0], rows[taps.index.reshape(-1, 4)]).reshape(400, 800, 3)
@@ -146,10 +176,15 @@ def test_model_rectifies_before_normalising(small_models, rig: Rig, fisheye_fram
     model = small_models[BEVDET]
     camera = rig.shared_model()
     vt = SMALL_BEVDET.view_transform
-    map_x, map_y = cylindrical_remap(camera, (48, 96), vt.azimuth_range,
-                                     (math.tan(vt.elevation_range[0]), math.tan(vt.elevation_range[1])))
-    raw = cv2.remap(fisheye_frame.astype(np.float32), *cv2.convertMaps(map_x, map_y, cv2.CV_16SC2), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT)
+    map_x, map_y = cylindrical_remap(
+        camera, (48, 96), vt.azimuth_range, (math.tan(vt.elevation_range[0]), math.tan(vt.elevation_range[1]))
+    )
+    raw = cv2.remap(
+        fisheye_frame.astype(np.float32),
+        *cv2.convertMaps(map_x, map_y, cv2.CV_16SC2),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+    )
     mean, std = np.array(SMALL_BEVDET.image.mean, np.float32), np.array(SMALL_BEVDET.image.std, np.float32)
     frames = torch.from_numpy(np.broadcast_to(fisheye_frame, (1, 4, 800, 800, 3)).copy())
     with torch.no_grad():
@@ -175,21 +210,28 @@ def test_released_configs_are_read_as_written() -> None:
     assert CylPETRConfig.from_dict(petr.to_dict()) == petr
 
 
-@pytest.mark.parametrize("name, reader", [("fisheye_to_cyl_bevdet.py", BEVDetCylConfig),
-                                          ("fisheye_to_cyl_petr.py", CylPETRConfig)])
+@pytest.mark.parametrize(
+    "name, reader", [("fisheye_to_cyl_bevdet.py", BEVDetCylConfig), ("fisheye_to_cyl_petr.py", CylPETRConfig)]
+)
 def test_radians_in_the_config_give_the_corrected_geometry(tmp_path: Path, name: str, reader: type) -> None:
     text = (DATA / name).read_text()
-    fixed = text.replace("[-110, 110]", "[-math.radians(110), math.radians(110)]").replace(
-        "(-110, 110)", "(-math.radians(110), math.radians(110))").replace(
-        "[-45, 45]", "[-math.radians(45), math.radians(45)]").replace("(-45, 45)", "(-math.radians(45), math.radians(45))")
+    fixed = (
+        text.replace("[-110, 110]", "[-math.radians(110), math.radians(110)]")
+        .replace("(-110, 110)", "(-math.radians(110), math.radians(110))")
+        .replace("[-45, 45]", "[-math.radians(45), math.radians(45)]")
+        .replace("(-45, 45)", "(-math.radians(45), math.radians(45))")
+    )
     (tmp_path / name).write_text("import math\n" + fixed)
     cfg = reader.from_mmdet3d_config(tmp_path / name)
     section = cfg.view_transform if reader is BEVDetCylConfig else cfg.head
     assert section.azimuth_range == pytest.approx(CORRECTED["azimuth_range"])
     assert section.elevation_range == pytest.approx(CORRECTED["elevation_range"])
     # Only the model's copy corrected: images and rays would disagree, which is refused.
-    model_only = text.replace("vertical_range=[-45, 45]),\n    pts_backbone", "vertical_range=[-0.7, 0.7]),\n    pts_backbone") \
-        if reader is BEVDetCylConfig else text.replace("vertical_range=(-45, 45)", "vertical_range=(-0.7, 0.7)")
+    model_only = (
+        text.replace("vertical_range=[-45, 45]),\n    pts_backbone", "vertical_range=[-0.7, 0.7]),\n    pts_backbone")
+        if reader is BEVDetCylConfig
+        else text.replace("vertical_range=(-45, 45)", "vertical_range=(-0.7, 0.7)")
+    )
     assert model_only != text
     (tmp_path / name).write_text(model_only)
     with pytest.raises(ConfigError, match="vertical_range"):
@@ -219,7 +261,9 @@ def test_released_frustum(full_bevdet) -> None:  # noqa: ANN001
     frustum = full_bevdet.view_transform.geometry.frustum
     assert frustum.shape == (96, 25, 50, 3)
     d = np.linspace(0.5, 48.5, 96)
-    np.testing.assert_allclose(np.hypot(frustum[..., 0], frustum[..., 2]), np.broadcast_to(d[:, None, None], (96, 25, 50)), rtol=1e-6)
+    np.testing.assert_allclose(
+        np.hypot(frustum[..., 0], frustum[..., 2]), np.broadcast_to(d[:, None, None], (96, 25, 50)), rtol=1e-6
+    )
     np.testing.assert_allclose(frustum[:, 0, :, 1] / d[:, None], -TAN45, rtol=1e-6)
     phi = np.arctan2(frustum[1, 0, :, 0], frustum[1, 0, :, 2])
     np.testing.assert_allclose(np.remainder(phi - np.linspace(-110, 110, 50) + np.pi, 2 * np.pi) - np.pi, 0, atol=1e-5)
@@ -230,7 +274,9 @@ def test_released_frustum(full_bevdet) -> None:  # noqa: ANN001
 def test_official_float32_frustum_is_within_tolerance(full_bevdet) -> None:  # noqa: ANN001
     """The official frustum is torch float32 arithmetic on +-110 rad: 'verify' must accept it, with margin."""
     ds = torch.linspace(0.5, 48.5, 96).view(96, 1, 1)
-    phi, y = torch.meshgrid(torch.linspace(-110, 110, 50), torch.linspace(math.tan(-45), math.tan(45), 25), indexing="xy")
+    phi, y = torch.meshgrid(
+        torch.linspace(-110, 110, 50), torch.linspace(math.tan(-45), math.tan(45), 25), indexing="xy"
+    )
     official = torch.stack([ds * torch.sin(phi), ds * y, ds * torch.cos(phi)], dim=-1).numpy()
     diff = np.abs(official - full_bevdet.view_transform.geometry.frustum).max()
     assert 0 < diff < FRUSTUM_ATOL / 4
@@ -257,8 +303,9 @@ def test_petr_rays_are_unpacked_swapped(full_petr) -> None:  # noqa: ANN001
     depths = lid_depths(params.depth_num, params.depth_start, params.position_range[3])
     cam2lidar = full_petr.pts_bbox_head.geometry.cam2lidar
     swapped = position_coords(cam2lidar, (25, 50), depths=depths, position_range=params.position_range, directions=rays)
-    unswapped = position_coords(cam2lidar, (25, 50), depths=depths, position_range=params.position_range,
-                                directions=image_order)
+    unswapped = position_coords(
+        cam2lidar, (25, 50), depths=depths, position_range=params.position_range, directions=image_order
+    )
     np.testing.assert_array_equal(coords, swapped)
     assert np.abs(coords - unswapped).max() > 1.0
 
@@ -298,13 +345,16 @@ def test_strict_load_of_synthetic_checkpoint(arch: str, small_ckpts, small_model
     assert report.source == ("checkpoint" if arch == BEVDET else "rig") and all(c.agrees for c in report.checks)
 
 
-@pytest.mark.parametrize("arch, key, kind", [
-    (BEVDET, "view_transform.frustum", "missing"),
-    (BEVDET, "bbox_head.shared_conv.bias", "missing"),
-    (BEVDET, "view_transform.sphere_grid_2d", "unexpected"),   # a fisheye geometry key
-    (PETR, "pts_bbox_head.query_embedding.0.weight", "missing"),
-    (PETR, "pts_bbox_head.unvalid_area", "unexpected"),
-])
+@pytest.mark.parametrize(
+    "arch, key, kind",
+    [
+        (BEVDET, "view_transform.frustum", "missing"),
+        (BEVDET, "bbox_head.shared_conv.bias", "missing"),
+        (BEVDET, "view_transform.sphere_grid_2d", "unexpected"),  # a fisheye geometry key
+        (PETR, "pts_bbox_head.query_embedding.0.weight", "missing"),
+        (PETR, "pts_bbox_head.unvalid_area", "unexpected"),
+    ],
+)
 def test_bad_key_is_named(arch: str, key: str, kind: str, small_ckpts) -> None:  # noqa: ANN001
     sd = dict(small_ckpts[arch])
     if kind == "missing":
@@ -350,12 +400,17 @@ def test_geometry_table_names(full_bevdet, full_petr) -> None:  # noqa: ANN001
     lss = full_bevdet.geometry_tables()
     buckets = len(DEFAULT_BUCKET_SIZES)
     assert set(lss) == {"geom.rectify.index", "geom.rectify.weight", "geom.pool.counts", "geom.pool.cell_rows"} | {
-        f"geom.pool.{kind}.{b}" for kind in ("points", "pixels") for b in range(buckets)}
+        f"geom.pool.{kind}.{b}" for kind in ("points", "pixels") for b in range(buckets)
+    }
     assert lss["geom.rectify.index"].shape == (400 * 800 * 4,) and lss["geom.rectify.weight"].shape == (400 * 800, 1, 4)
     assert [lss[f"geom.pool.points.{b}"].shape[1] for b in range(buckets)] == list(DEFAULT_BUCKET_SIZES)
     petr = full_petr.geometry_tables()
     assert {k: tuple(v.shape) for k, v in petr.items()} == {
-        "geom.rectify.index": (400 * 800 * 4,), "geom.rectify.weight": (400 * 800, 1, 4), "geom.petr.key_pos": (1, 5000, 256), "geom.petr.key_mask": (1, 5000)}
+        "geom.rectify.index": (400 * 800 * 4,),
+        "geom.rectify.weight": (400 * 800, 1, 4),
+        "geom.petr.key_pos": (1, 5000, 256),
+        "geom.petr.key_mask": (1, 5000),
+    }
     assert petr["geom.petr.key_mask"].dtype == torch.bool
 
 

@@ -42,7 +42,10 @@ def test_entry_describes_the_architecture(built) -> None:  # noqa: ANN001
     assert type(model) is entry.builder and type(model.config) is entry.config_cls
     assert entry.signature_keys and entry.score_semantics and entry.manifest.endswith(".json")
     pre = model.config.preprocess
-    assert pre.cameras == tuple(rig.names) and pre.image_size == (rig.cameras[0].model.width, rig.cameras[0].model.height)
+    assert pre.cameras == tuple(rig.names) and pre.image_size == (
+        rig.cameras[0].model.width,
+        rig.cameras[0].model.height,
+    )
     assert len(pre.classes) == model.config.num_classes and len(pre.mean) == len(pre.std) == 3
 
 
@@ -53,7 +56,9 @@ def test_strict_load_and_forward(built) -> None:  # noqa: ANN001
     model, report = load_model(arch, ckpt, config, rig)
     assert all(c.agrees for c in report.checks)
     w, h = model.config.preprocess.image_size
-    images = torch.randint(0, 256, (1, model.config.num_cameras, h, w, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(0))
+    images = torch.randint(
+        0, 256, (1, model.config.num_cameras, h, w, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(0)
+    )
     with torch.no_grad():
         out = model(images, torch.ones(1, model.config.num_cameras, dtype=torch.bool))
     k = model.config.num_boxes
@@ -67,12 +72,17 @@ def test_strict_load_and_forward(built) -> None:  # noqa: ANN001
 
 def test_export_is_verified_and_described(built, tmp_path: Path) -> None:  # noqa: ANN001
     arch, ckpt, config, rig = built
-    result = export(ckpt, tmp_path / f"{arch}.onnx", config=config, rig=rig, frames=1, threads=(1,), progress=lambda _: None)
+    result = export(
+        ckpt, tmp_path / f"{arch}.onnx", config=config, rig=rig, frames=1, threads=(1,), progress=lambda _: None
+    )
     assert result.parity.passed and result.path is not None
     meta = read_meta(result.path)
     model = create_model(arch, config, rig)
     pre = model.config.preprocess
     assert meta.architecture == arch and meta.score_semantics == get_model_entry(arch).score_semantics
     assert meta.classes == pre.classes and meta.cameras == pre.cameras and meta.image_size == pre.image_size
-    assert (meta.normalisation.mean, meta.normalisation.std) == (pre.mean, pre.std) and meta.num_boxes == model.config.num_boxes
+    assert (meta.normalisation.mean, meta.normalisation.std) == (
+        pre.mean,
+        pre.std,
+    ) and meta.num_boxes == model.config.num_boxes
     assert meta.geometry == model.geometry_params() and set(meta.geometry_initializers) == set(model.geometry_tables())

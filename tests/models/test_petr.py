@@ -28,7 +28,9 @@ from fisheye_infer.models.ranking import TopK
 from fisheye_infer.models.registry import create_model, list_models, read_manifest
 from fisheye_infer.models.seeded_checkpoint import make_checkpoint, synthetic_images
 
-SMALL = PETRConfig().replace(image={"height": 64, "width": 64}, head={"feature_size": (5, 21), "num_query": 40, "max_num": 30})
+SMALL = PETRConfig().replace(
+    image={"height": 64, "width": 64}, head={"feature_size": (5, 21), "num_query": 40, "max_num": 30}
+)
 LOGIT_MAX = math.log(1 / 1e-5)  # 11.5129
 
 
@@ -65,6 +67,7 @@ def _run(model: FisheyePETR, images: torch.Tensor, **kw: object) -> dict[str, to
 
 # -- checkpoint layout --------------------------------------------------------------------------
 
+
 def test_registered() -> None:
     assert "fisheye-petr" in list_models()
     model = create_model("fisheye-petr", SMALL)
@@ -84,8 +87,9 @@ def test_official_keys_match_manifest() -> None:
     assert set(model.state_dict()) == set(keys) - set(GEOMETRY_KEYS)
 
 
-def test_strict_load_of_synthetic_checkpoint(full_ckpt: dict[str, torch.Tensor],
-                                            full_petr: tuple[FisheyePETR, GeometryReport]) -> None:
+def test_strict_load_of_synthetic_checkpoint(
+    full_ckpt: dict[str, torch.Tensor], full_petr: tuple[FisheyePETR, GeometryReport]
+) -> None:
     model, report = full_petr
     assert report.source == "checkpoint"
     weights = model.state_dict()
@@ -94,12 +98,15 @@ def test_strict_load_of_synthetic_checkpoint(full_ckpt: dict[str, torch.Tensor],
     assert torch.equal(torch.from_numpy(model.pts_bbox_head.geometry.grid), full_ckpt["pts_bbox_head.sphere_grid_2d"])
 
 
-@pytest.mark.parametrize("edit, named", [
-    ("drop", "pts_bbox_head.transformer.decoder.layers.3.norms.1.bias"),   # missing weight
-    ("drop", "pts_bbox_head.unvalid_area"),                                # missing geometry table
-    ("drop", "img_neck.fpn_convs.1.conv.weight"),                          # dead at inference, still required
-    ("add", "pts_bbox_head.extra_branch.weight"),                          # unexpected key
-])
+@pytest.mark.parametrize(
+    "edit, named",
+    [
+        ("drop", "pts_bbox_head.transformer.decoder.layers.3.norms.1.bias"),  # missing weight
+        ("drop", "pts_bbox_head.unvalid_area"),  # missing geometry table
+        ("drop", "img_neck.fpn_convs.1.conv.weight"),  # dead at inference, still required
+        ("add", "pts_bbox_head.extra_branch.weight"),  # unexpected key
+    ],
+)
 def test_bad_key_is_named(small_ckpt: dict[str, torch.Tensor], edit: str, named: str) -> None:
     sd = dict(small_ckpt)
     if edit == "drop":
@@ -128,12 +135,14 @@ def test_differing_branch_copy_is_refused(small_ckpt: dict[str, torch.Tensor]) -
 
 def test_rename_official_keys() -> None:
     t = torch.zeros(1)
-    old = {"state_dict": {
-        "module.pts_bbox_head.transformer.decoder.layers.0.self_attn.attn.in_proj_weight": t,
-        "module.pts_bbox_head.transformer.decoder.layers.0.multihead_attn.attn.in_proj_bias": t,
-        "module.pts_bbox_head.transformer.decoder.norm.weight": t,
-        "module.img_neck.fpn_convs.0.conv.bias": t,
-    }}
+    old = {
+        "state_dict": {
+            "module.pts_bbox_head.transformer.decoder.layers.0.self_attn.attn.in_proj_weight": t,
+            "module.pts_bbox_head.transformer.decoder.layers.0.multihead_attn.attn.in_proj_bias": t,
+            "module.pts_bbox_head.transformer.decoder.norm.weight": t,
+            "module.img_neck.fpn_convs.0.conv.bias": t,
+        }
+    }
     assert list(rename_official_keys(old)) == [
         "pts_bbox_head.transformer.decoder.layers.0.attentions.0.attn.in_proj_weight",
         "pts_bbox_head.transformer.decoder.layers.0.attentions.1.attn.in_proj_bias",
@@ -147,8 +156,12 @@ def test_geometry_policy(small_ckpt: dict[str, torch.Tensor]) -> None:
     shifted = sd["pts_bbox_head.sphere_grid_2d"] + 1e-3
     sd["pts_bbox_head.sphere_grid_2d"] = shifted
     sd["pts_bbox_head.sphere_grid_3d"] = torch.cat(
-        [shifted.expand(sd["pts_bbox_head.sphere_grid_3d"].shape[0], -1, -1, -1),
-         sd["pts_bbox_head.sphere_grid_3d"][..., 2:]], dim=-1)
+        [
+            shifted.expand(sd["pts_bbox_head.sphere_grid_3d"].shape[0], -1, -1, -1),
+            sd["pts_bbox_head.sphere_grid_3d"][..., 2:],
+        ],
+        dim=-1,
+    )
     with pytest.raises(CheckpointError, match="sphere_grid_2d"):
         load_official_state_dict(FisheyePETR(SMALL), sd)
     model = FisheyePETR(SMALL)
@@ -188,6 +201,7 @@ def test_official_tables_are_accepted(full_ckpt: dict[str, torch.Tensor], offici
 
 
 # -- forward ------------------------------------------------------------------------------------
+
 
 def test_full_size_forward(full_petr: tuple[FisheyePETR, GeometryReport]) -> None:
     model = full_petr[0]
@@ -296,6 +310,7 @@ def test_wrong_image_shape_is_refused(small_petr: FisheyePETR) -> None:
 
 # -- transformer --------------------------------------------------------------------------------
 
+
 def test_attention_matches_torch_multihead_attention() -> None:
     torch.manual_seed(0)
     mine = MultiheadAttention(64, 8).eval()
@@ -310,7 +325,9 @@ def test_attention_matches_torch_multihead_attention() -> None:
     # one bias row for the whole batch (the static key mask of the rig)
     shared = mask[:1].expand(2, -1)
     expected = ref(q.transpose(0, 1), k.transpose(0, 1), v.transpose(0, 1), key_padding_mask=shared)[0]
-    torch.testing.assert_close(mine(q, k, v, key_padding_bias(mask[:1])), expected.transpose(0, 1), rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(
+        mine(q, k, v, key_padding_bias(mask[:1])), expected.transpose(0, 1), rtol=1e-5, atol=1e-6
+    )
     # every key ignored (all cameras invalid): uniform attention, finite, where torch gives NaN
     everything = torch.ones(1, 11, dtype=torch.bool)
     v_proj = torch.nn.functional.linear(v, mine.in_proj_weight[128:], mine.in_proj_bias[128:])
@@ -318,13 +335,17 @@ def test_attention_matches_torch_multihead_attention() -> None:
     torch.testing.assert_close(mine(q, k, v, key_padding_bias(everything)), uniform, rtol=1e-5, atol=1e-6)
 
 
-def _reference_layer(layer: torch.nn.Module, t: torch.Tensor, mem: torch.Tensor, qp: torch.Tensor,
-                     kp: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+def _reference_layer(
+    layer: torch.nn.Module, t: torch.Tensor, mem: torch.Tensor, qp: torch.Tensor, kp: torch.Tensor, mask: torch.Tensor
+) -> torch.Tensor:
     """mmcv BaseTransformerLayer, post-norm order, with torch's MultiheadAttention (sequence-first)."""
+
     def mha(block: torch.nn.Module, q, k, v, kpm=None):  # noqa: ANN001, ANN202
         ref = torch.nn.MultiheadAttention(q.shape[-1], block.attn.num_heads)
         ref.load_state_dict(block.attn.state_dict())
-        return ref.eval()(q.transpose(0, 1), k.transpose(0, 1), v.transpose(0, 1), key_padding_mask=kpm)[0].transpose(0, 1)
+        return ref.eval()(q.transpose(0, 1), k.transpose(0, 1), v.transpose(0, 1), key_padding_mask=kpm)[0].transpose(
+            0, 1
+        )
 
     t = t + mha(layer.attentions[0], t + qp, t + qp, t)
     t = layer.norms[0](t)
@@ -351,13 +372,15 @@ def test_decoder_post_norm_only_on_outputs() -> None:
         for i, layer in enumerate(dec.layers):
             t = _reference_layer(layer, t, mem, qp, kp, mask)  # carried tensor is NOT post-normed
             torch.testing.assert_close(outs[i], dec.post_norm(t), rtol=1e-5, atol=1e-5)
-        wrong = _reference_layer(dec.layers[1], dec.post_norm(_reference_layer(dec.layers[0], t0, mem, qp, kp, mask)),
-                                 mem, qp, kp, mask)
+        wrong = _reference_layer(
+            dec.layers[1], dec.post_norm(_reference_layer(dec.layers[0], t0, mem, qp, kp, mask)), mem, qp, kp, mask
+        )
     torch.testing.assert_close(last, outs[-1])
     assert not torch.allclose(outs[1], dec.post_norm(wrong), atol=1e-3)
 
 
 # -- quirks pinned by hand ----------------------------------------------------------------------
+
 
 def test_lid_depths() -> None:
     d = lid_depths(64, 0.5, 60.0)
@@ -480,8 +503,14 @@ def test_sine_encoding_hand_mask() -> None:
 def test_pos2posemb3d_order_is_y_x_z() -> None:
     emb = pos2posemb3d(torch.tensor([[0.1, 0.2, 0.3]]))[0]
     two_pi = 2 * math.pi
-    expected = {0: math.sin(two_pi * 0.2), 1: math.cos(two_pi * 0.2), 2: math.sin(two_pi * 0.2 / 10000 ** (2 / 128)),
-                128: math.sin(two_pi * 0.1), 129: math.cos(two_pi * 0.1), 256: math.sin(two_pi * 0.3)}
+    expected = {
+        0: math.sin(two_pi * 0.2),
+        1: math.cos(two_pi * 0.2),
+        2: math.sin(two_pi * 0.2 / 10000 ** (2 / 128)),
+        128: math.sin(two_pi * 0.1),
+        129: math.cos(two_pi * 0.1),
+        256: math.sin(two_pi * 0.3),
+    }
     for k, v in expected.items():
         assert abs(float(emb[k]) - v) < 1e-6, k
 
@@ -500,8 +529,11 @@ def test_reference_points_raw_for_queries_clamped_for_boxes(small_ckpt: dict[str
         o = torch.randn(1, SMALL.head.num_query, 256, generator=torch.Generator().manual_seed(2))
         _, preds = head.predict(o)
         reg = head.reg_branches[0](o)[0, 0]
-    expected = [torch.sigmoid(reg[0] + LOGIT_MAX) * 96 - 48, torch.sigmoid(reg[1] - LOGIT_MAX) * 96 - 48,
-                torch.sigmoid(reg[4] + 0.0) * 10 - 5]
+    expected = [
+        torch.sigmoid(reg[0] + LOGIT_MAX) * 96 - 48,
+        torch.sigmoid(reg[1] - LOGIT_MAX) * 96 - 48,
+        torch.sigmoid(reg[4] + 0.0) * 10 - 5,
+    ]
     torch.testing.assert_close(preds[0, 0, [0, 1, 4]], torch.stack(expected), rtol=1e-5, atol=1e-4)
     torch.testing.assert_close(preds[0, 0, [2, 3, 5, 6, 7]], reg[[2, 3, 5, 6, 7]])
 
@@ -512,21 +544,32 @@ def _pred(x: float, y: float, z: float, dims: tuple[float, float, float], yaw: f
 
 
 def test_decode_boxes_by_hand() -> None:
-    preds = torch.tensor([[_pred(1.0, 2.0, 0.5, (4.0, 2.0, 1.5), 0.3),
-                           _pred(-70.0, 5.0, -1.0, (1.0, 0.5, 1.8), -2.0),   # outside post_center_range
-                           _pred(10.0, -3.0, 2.0, (12.0, 3.0, 3.5), 3.0)]])
+    preds = torch.tensor(
+        [
+            [
+                _pred(1.0, 2.0, 0.5, (4.0, 2.0, 1.5), 0.3),
+                _pred(-70.0, 5.0, -1.0, (1.0, 0.5, 1.8), -2.0),  # outside post_center_range
+                _pred(10.0, -3.0, 2.0, (12.0, 3.0, 3.5), 3.0),
+            ]
+        ]
+    )
     cls = torch.full((1, 3, 6), -9.0)
     cls[0, 2, 4], cls[0, 0, 1], cls[0, 2, 0] = 3.0, 2.0, 1.0
     out = decode_predictions(cls, preds, TopK(3))
     assert out["labels"].tolist() == [[4, 1, 0]]  # idx % 6
     torch.testing.assert_close(out["scores"], torch.sigmoid(torch.tensor([[3.0, 2.0, 1.0]])))
-    expected = torch.tensor([[10.0, -3.0, 2.0 - 3.5 / 2, 12.0, 3.0, 3.5, 3.0],   # query 2 = idx // 6
-                             [1.0, 2.0, 0.5 - 1.5 / 2, 4.0, 2.0, 1.5, 0.3],
-                             [10.0, -3.0, 2.0 - 3.5 / 2, 12.0, 3.0, 3.5, 3.0]])
+    expected = torch.tensor(
+        [
+            [10.0, -3.0, 2.0 - 3.5 / 2, 12.0, 3.0, 3.5, 3.0],  # query 2 = idx // 6
+            [1.0, 2.0, 0.5 - 1.5 / 2, 4.0, 2.0, 1.5, 0.3],
+            [10.0, -3.0, 2.0 - 3.5 / 2, 12.0, 3.0, 3.5, 3.0],
+        ]
+    )
     torch.testing.assert_close(out["boxes"][0], expected, rtol=1e-5, atol=1e-5)
     assert out["valid"].tolist() == [[True, True, True]]
-    flagged = decode_predictions(torch.where(torch.arange(3)[None, :, None] == 1, 5.0, -9.0).expand(1, 3, 6),
-                                 preds, TopK(2))
+    flagged = decode_predictions(
+        torch.where(torch.arange(3)[None, :, None] == 1, 5.0, -9.0).expand(1, 3, 6), preds, TopK(2)
+    )
     assert flagged["valid"].tolist() == [[False, False]]
 
 
@@ -540,6 +583,7 @@ def test_yaw_from_sin_cos(yaw: float) -> None:
 
 
 # -- configuration ------------------------------------------------------------------------------
+
 
 def test_config_defaults_are_official() -> None:
     c = PETRConfig()
@@ -603,4 +647,6 @@ def test_unsupported_settings_are_refused() -> None:
         PETRConfig().replace(head={"lid": False})
     with pytest.raises(ConfigError, match="max_num"):
         PETRConfig().replace(head={"num_query": 10, "max_num": 300})
-    assert PETRConfig().replace(head={"num_query": 50, "max_num": 300}).head.max_num == 300  # 50 * 6 = 300 candidates is enough
+    assert (
+        PETRConfig().replace(head={"num_query": 50, "max_num": 300}).head.max_num == 300
+    )  # 50 * 6 = 300 candidates is enough

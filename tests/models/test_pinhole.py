@@ -50,8 +50,12 @@ DATA = Path(__file__).parent / "data"
 PINHOLE, PERSP = "pinhole-bevdet", "fisheye-bevdet-persp"
 PINHOLE_PETR, PERSP_PETR = "pinhole-petr", "fisheye-petr-persp"
 #: The released config file of each architecture.
-CONFIGS = {PINHOLE: "nusc_bevdet.py", PERSP: "fisheye_to_pinhole_bevdet.py", PINHOLE_PETR: "nusc_petr.py",
-           PERSP_PETR: "fisheye_to_pinhole_petr.py"}
+CONFIGS = {
+    PINHOLE: "nusc_bevdet.py",
+    PERSP: "fisheye_to_pinhole_bevdet.py",
+    PINHOLE_PETR: "nusc_petr.py",
+    PERSP_PETR: "fisheye_to_pinhole_petr.py",
+}
 REDUCED = small_configs()
 
 
@@ -73,7 +77,9 @@ def test_released_configs_are_the_defaults() -> None:
     assert nusc.view_transform.image_size == (400, 800) and nusc.view_transform.feature_size == (25, 50)
     assert persp.perspective.size == (400, 400) and persp.perspective.fov == 110 and persp.perspective.yaws == (-55, 55)
     assert persp.perspective.truncate and persp.view_transform.feature_size == (25, 25)
-    assert PinholeBEVDetConfig.from_dict(nusc.to_dict()) == nusc and PerspBEVDetConfig.from_dict(persp.to_dict()) == persp
+    assert (
+        PinholeBEVDetConfig.from_dict(nusc.to_dict()) == nusc and PerspBEVDetConfig.from_dict(persp.to_dict()) == persp
+    )
 
 
 def test_released_petr_configs_are_the_defaults() -> None:
@@ -88,21 +94,26 @@ def test_released_petr_configs_are_the_defaults() -> None:
     assert PinholePETRConfig.from_dict(nusc.to_dict()) == nusc and PerspPETRConfig.from_dict(persp.to_dict()) == persp
 
 
-@pytest.mark.parametrize(("reader", "config", "message"), [
-    (PinholeBEVDetConfig, "fisheye_to_pinhole_bevdet.py", "fisheye-bevdet-persp configuration"),
-    (PerspBEVDetConfig, "nusc_bevdet.py", "no MultiViewFisheyePerspectiveProjection step"),
-    (PinholeBEVDetConfig, "fisheye_to_cyl_bevdet.py", "'CylindricalLSSTransform', expected 'LSSTransform'"),
-    (PinholePETRConfig, "fisheye_to_pinhole_petr.py", "fisheye-petr-persp configuration"),
-    (PerspPETRConfig, "nusc_petr.py", "no MultiViewFisheyePerspectiveProjection step"),
-    (PinholePETRConfig, "fisheye_to_cyl_petr.py", "no ResizeCropFlipImage step"),
-])
+@pytest.mark.parametrize(
+    ("reader", "config", "message"),
+    [
+        (PinholeBEVDetConfig, "fisheye_to_pinhole_bevdet.py", "fisheye-bevdet-persp configuration"),
+        (PerspBEVDetConfig, "nusc_bevdet.py", "no MultiViewFisheyePerspectiveProjection step"),
+        (PinholeBEVDetConfig, "fisheye_to_cyl_bevdet.py", "'CylindricalLSSTransform', expected 'LSSTransform'"),
+        (PinholePETRConfig, "fisheye_to_pinhole_petr.py", "fisheye-petr-persp configuration"),
+        (PerspPETRConfig, "nusc_petr.py", "no MultiViewFisheyePerspectiveProjection step"),
+        (PinholePETRConfig, "fisheye_to_cyl_petr.py", "no ResizeCropFlipImage step"),
+    ],
+)
 def test_each_reader_refuses_the_other_configs(reader: type, config: str, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         reader.from_mmdet3d_config(DATA / config)
 
 
 def test_a_crop_outside_the_resized_image_is_refused() -> None:
-    with pytest.raises(ConfigError, match=r"image_aug: a 800x400 crop at \(left, top\)=\(0, 60\) does not fit the 800x450 image"):
+    with pytest.raises(
+        ConfigError, match=r"image_aug: a 800x400 crop at \(left, top\)=\(0, 60\) does not fit the 800x450 image"
+    ):
         PinholeBEVDetConfig().replace(image_aug={"crop": (0, 60)})
 
 
@@ -117,15 +128,29 @@ def test_the_pinhole_rig_file_is_read(pinhole_rig: Rig) -> None:
         assert (m.type, m.width, m.height, m.fx, m.fy, m.cx, m.cy) == ("pinhole", 1280, 720, 640.0, 640.0, 640.0, 360.0)
         np.testing.assert_allclose(cam.matrix @ np.array(entry["lidar2cam"]), np.eye(4), atol=1e-12)
         np.testing.assert_allclose(cam.position, entry["position_lidar"], atol=1e-12)
-        assert math.degrees(cam.heading) == pytest.approx(entry["heading_deg"] if entry["heading_deg"] != 180 else 180.0, abs=1e-9) \
+        assert (
+            math.degrees(cam.heading)
+            == pytest.approx(entry["heading_deg"] if entry["heading_deg"] != 180 else 180.0, abs=1e-9)
             or abs(abs(math.degrees(cam.heading)) - 180) < 1e-9
+        )
 
 
-@pytest.mark.parametrize(("field", "value", "message"), [
-    ("distortion", "plumb_bob", r"camera 'nu_rgb_camera_front_left' \(distortion\): 'plumb_bob' is not supported"),
-    ("K", [[640.0, 1.0, 640.0], [0.0, 640.0, 360.0], [0.0, 0.0, 1.0]], r"camera 'nu_rgb_camera_front_left' \(K\): expected \[\[fx, 0, cx\]"),
-    ("lidar2cam", [[1.0, 0.0], [0.0, 1.0]], r"camera 'nu_rgb_camera_front_left' \(lidar2cam\): expected a finite 4x4 matrix"),
-])
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("distortion", "plumb_bob", r"camera 'nu_rgb_camera_front_left' \(distortion\): 'plumb_bob' is not supported"),
+        (
+            "K",
+            [[640.0, 1.0, 640.0], [0.0, 640.0, 360.0], [0.0, 0.0, 1.0]],
+            r"camera 'nu_rgb_camera_front_left' \(K\): expected \[\[fx, 0, cx\]",
+        ),
+        (
+            "lidar2cam",
+            [[1.0, 0.0], [0.0, 1.0]],
+            r"camera 'nu_rgb_camera_front_left' \(lidar2cam\): expected a finite 4x4 matrix",
+        ),
+    ],
+)
 def test_a_pinhole_rig_file_names_the_bad_camera(tmp_path: Path, field: str, value: object, message: str) -> None:
     doc = json.loads(PINHOLE_RIG.read_text())
     doc["cameras"][1][field] = value
@@ -176,7 +201,11 @@ def test_points_follow_the_official_float32_arithmetic(arch: str, most_moved: in
     """The pooling plan's cells are the official model's, but for points on a cell border that float32 rounding moves."""
     with np.load(Path(__file__).parents[1] / "data" / "checkpoints" / arch / "geometry.npz") as npz:
         frustum = npz["view_transform.frustum"]
-    views = views_of(pinhole_rig, ResizeCrop(scale=0.625, crop=(0, 50))) if arch == PINHOLE else views_of(rig, Perspective())
+    views = (
+        views_of(pinhole_rig, ResizeCrop(scale=0.625, crop=(0, 50)))
+        if arch == PINHOLE
+        else views_of(rig, Perspective())
+    )
     ours, official = view_points(frustum, views), _official_points(frustum, views)
     np.testing.assert_allclose(ours, official, rtol=0, atol=5e-5)
     grid = BevGrid()
@@ -213,7 +242,14 @@ def test_pinhole_lidar2img_is_the_official_cam2img_update(pinhole_rig: Rig) -> N
 
 def _official_coords(lidar2img: np.ndarray, pad_hw: tuple[int, int], feature_hw: tuple[int, int]) -> np.ndarray:
     """The official ``PETRHead.position_embeding`` up to the position encoder, in float32 torch (LID, 64 depths)."""
-    eps, (pad_h, pad_w), (h, w), depth_num, start, rng = 1e-5, pad_hw, feature_hw, 64, 0.5, (-60, -60, -10.0, 60, 60, 10.0)
+    eps, (pad_h, pad_w), (h, w), depth_num, start, rng = (
+        1e-5,
+        pad_hw,
+        feature_hw,
+        64,
+        0.5,
+        (-60, -60, -10.0, 60, 60, 10.0),
+    )
     coords_h = torch.arange(h).float() * pad_h / h
     coords_w = torch.arange(w).float() * pad_w / w
     index = torch.arange(start=0, end=depth_num, step=1).float()
@@ -273,11 +309,18 @@ def test_perspective_views_are_cv2s_remap_truncated(rig: Rig, fisheye_frames: np
         for yaw in (-55, 55):
             uv = camera.world2cam((rays @ rotation.from_euler("y", yaw, degrees=True).as_matrix().T).reshape(-1, 3))
             mx, my = (uv[:, i].reshape(h, w).astype(np.float32) for i in (0, 1))
-            view = cv2.remap(frame.astype(np.float32), *cv2.convertMaps(mx, my, cv2.CV_16SC2), cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            view = cv2.remap(
+                frame.astype(np.float32),
+                *cv2.convertMaps(mx, my, cv2.CV_16SC2),
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
+            )
             expected.append(view)
     expected = np.stack(expected)  # camera by camera, yaw by yaw
     tables = model.geometry_tables()
-    views = rectify(torch.from_numpy(fisheye_frames[None]), tables[RECTIFY + "index"], tables[RECTIFY + "weight"], (2 * h, w))
+    views = rectify(
+        torch.from_numpy(fisheye_frames[None]), tables[RECTIFY + "index"], tables[RECTIFY + "weight"], (2 * h, w)
+    )
     views = views[0].reshape(4, 3, 2, h, w).permute(0, 2, 3, 4, 1).reshape(8, h, w, 3).numpy()
     np.testing.assert_array_equal(views, expected)
     with torch.no_grad():
@@ -289,7 +332,9 @@ def test_perspective_views_are_cv2s_remap_truncated(rig: Rig, fisheye_frames: np
     with torch.no_grad():  # PETR's pipeline normalises the float views
         petr = create_model(PERSP_PETR, petr_config, rig)
         y = petr.normalise(torch.from_numpy(fisheye_frames[None]))
-        with pytest.warns(DeprecationWarning, match="normalize is deprecated"):  # the old name keeps its (B, V, ...) shape
+        with pytest.warns(
+            DeprecationWarning, match="normalize is deprecated"
+        ):  # the old name keeps its (B, V, ...) shape
             torch.testing.assert_close(petr.normalize(torch.from_numpy(fisheye_frames[None])), y[None], rtol=0, atol=0)
     np.testing.assert_allclose(y.permute(0, 2, 3, 1).numpy(), (expected - mean) / std, rtol=0, atol=1e-5)
 
@@ -300,7 +345,9 @@ def test_pinhole_views_are_pils_resize_and_crop(pinhole_rig: Rig) -> None:
     model = create_model(PINHOLE, rig=pinhole_rig)
     frames = Renderer().render(pinhole_rig, random_scene(np.random.default_rng(6)))
     images = np.stack([frames[n] for n in pinhole_rig.names])
-    expected = np.stack([np.asarray(image_module.fromarray(im, "RGB").resize((800, 450)).crop((0, 50, 800, 450))) for im in images])
+    expected = np.stack(
+        [np.asarray(image_module.fromarray(im, "RGB").resize((800, 450)).crop((0, 50, 800, 450))) for im in images]
+    )
     with torch.no_grad():
         x = model.normalise(torch.from_numpy(images[None])).permute(0, 2, 3, 1).numpy()
     mean, std = np.array(model.config.image.mean, np.float32), np.array(model.config.image.std, np.float32)
@@ -338,7 +385,11 @@ def test_the_config_tells_the_two_apart(tmp_path: Path) -> None:
     with pytest.raises(Exception, match="fits none of them"):
         infer_architecture(state_dict, DATA / "fisheye_bevdet.py")
     petr, _ = load_checkpoint(kit_checkpoint(PINHOLE_PETR, tmp_path / "petr.pth"))
-    assert set(matching_architectures(petr)) == {"fisheye-petr-cyl", PINHOLE_PETR, PERSP_PETR}  # no stored table tells them apart
+    assert set(matching_architectures(petr)) == {
+        "fisheye-petr-cyl",
+        PINHOLE_PETR,
+        PERSP_PETR,
+    }  # no stored table tells them apart
     for arch in (PINHOLE_PETR, PERSP_PETR):
         assert infer_architecture(petr, DATA / CONFIGS[arch]) == arch
     assert infer_architecture(petr, DATA / "fisheye_to_cyl_petr.py") == "fisheye-petr-cyl"
@@ -353,8 +404,14 @@ def kit_export(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPath
     folder = tmp_path_factory.mktemp(arch)
     config = DATA / CONFIGS[arch]
     the_rig = pinhole_rig if arch.startswith("pinhole") else rig
-    result = export(kit_checkpoint(arch, folder / "kit.pth"), folder / "kit.onnx", config=config, rig=the_rig, frames=1,
-                    progress=lambda _: None)
+    result = export(
+        kit_checkpoint(arch, folder / "kit.pth"),
+        folder / "kit.onnx",
+        config=config,
+        rig=the_rig,
+        frames=1,
+        progress=lambda _: None,
+    )
     return arch, result, the_rig
 
 
@@ -364,7 +421,9 @@ def test_kit_checkpoint_exports_with_a_passing_self_check(kit_export) -> None:  
     assert result.parity.passed and result.parity.threads == (1, 2)
     meta = read_meta(result.path)
     assert meta.architecture == arch and meta.cameras == tuple(the_rig.names)
-    assert meta.geometry_source == ("checkpoint" if arch.endswith("bevdet") or arch == PERSP else "rig")  # PETR stores no table
+    assert meta.geometry_source == (
+        "checkpoint" if arch.endswith("bevdet") or arch == PERSP else "rig"
+    )  # PETR stores no table
     assert meta.image_size == ((1280, 720) if arch.startswith("pinhole") else (800, 800))
     assert meta.tensorrt.compatible
 
@@ -393,4 +452,8 @@ def test_rebake_recomputes_the_baseline_tables(kit_export, tmp_path: Path) -> No
     meta = rebake(result.path, moved, tmp_path / "moved.onnx")
     assert meta.rig_hash == moved.hash and meta.geometry == read_meta(result.path).geometry
     with pytest.raises(RigError):
-        rebake(result.path, default_rig() if arch.startswith("pinhole") else resolve_rig(PINHOLE_RIG), tmp_path / "wrong.onnx")
+        rebake(
+            result.path,
+            default_rig() if arch.startswith("pinhole") else resolve_rig(PINHOLE_RIG),
+            tmp_path / "wrong.onnx",
+        )

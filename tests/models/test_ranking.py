@@ -30,14 +30,17 @@ def test_plain_top_k_outside_a_replay() -> None:
     assert torch.equal(dense, SCORES) and indices[0, 0] == 0 and values[0, 1] == 1.0
 
 
-@pytest.mark.parametrize(("indices", "problem"), [
-    ([0, 2, 1], ""),  # ties at 0.5 broken otherwise: a top-k all the same
-    ([0, 4, 2], ""),
-    ([0, 3, 1], "a score left out beats a chosen one"),
-    ([1, 0, 2], "not in descending order"),
-    ([0, 1, 1], "chosen twice"),
-    ([0, 1, 7], "out of range"),
-])
+@pytest.mark.parametrize(
+    ("indices", "problem"),
+    [
+        ([0, 2, 1], ""),  # ties at 0.5 broken otherwise: a top-k all the same
+        ([0, 4, 2], ""),
+        ([0, 3, 1], "a score left out beats a chosen one"),
+        ([1, 0, 2], "not in descending order"),
+        ([0, 1, 1], "chosen twice"),
+        ([0, 1, 7], "out of range"),
+    ],
+)
 def test_replay_judges_the_indices_on_the_replayed_scores(indices: list[int], problem: str) -> None:
     head = _Head(3)
     own = torch.zeros_like(SCORES)  # the head's own scores would rank otherwise
@@ -55,7 +58,10 @@ def test_replay_refuses_the_wrong_shapes() -> None:
     head = _Head(3)
     with replay_ranking(head, SCORES, torch.tensor([[0, 1]])), pytest.raises(ValueError, match=r"expected \(1, 3\)"):
         head(SCORES)
-    with replay_ranking(head, torch.zeros(1, 4), torch.tensor([[0, 1, 2]])), pytest.raises(ValueError, match="replayed scores"):
+    with (
+        replay_ranking(head, torch.zeros(1, 4), torch.tensor([[0, 1, 2]])),
+        pytest.raises(ValueError, match="replayed scores"),
+    ):
         head(SCORES)
     with pytest.raises(ValueError, match="exactly one"), replay_ranking(nn.Linear(2, 2), SCORES, torch.tensor([[0]])):
         pass

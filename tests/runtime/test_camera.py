@@ -31,14 +31,18 @@ class TestOCamVectors:
         np.testing.assert_allclose(ocam1600.world2cam(np.array([[0.0, 0.0, 2.0]])), [[798.1757, 794.3087]], atol=1e-3)
 
     def test_behind_on_axis_maps_to_centre_without_fov_test(self) -> None:
-        cam = OCamModel.from_file(__import__("pathlib").Path(__file__).parents[1] / "data" / "ocam_sample_1600.txt", fov=185)
+        cam = OCamModel.from_file(
+            __import__("pathlib").Path(__file__).parents[1] / "data" / "ocam_sample_1600.txt", fov=185
+        )
         np.testing.assert_allclose(cam.world2cam(np.array([[0.0, 0.0, -1.0]])), [[cam.center_col, cam.center_row]])
 
     def test_origin_is_sentinel(self, ocam1600: OCamModel) -> None:
         np.testing.assert_array_equal(ocam1600.world2cam(np.zeros((1, 3))), [[-1.0, -1.0]])
 
     def test_cam2world_doctest_pixel(self, ocam1600: OCamModel) -> None:
-        np.testing.assert_allclose(ocam1600.cam2world(np.array([[502.0, 900.0]])), [[-0.5776824, 0.2059931, 0.7898417]], atol=1e-6)
+        np.testing.assert_allclose(
+            ocam1600.cam2world(np.array([[502.0, 900.0]])), [[-0.5776824, 0.2059931, 0.7898417]], atol=1e-6
+        )
 
     @pytest.mark.parametrize(("alpha", "u"), [(0, 798.1757), (30, 1046.2791), (60, 1305.5427), (90, 1570.5812)])
     def test_incidence_sweep(self, ocam1600: OCamModel, alpha: float, u: float) -> None:
@@ -88,7 +92,11 @@ class TestOCamFile:
         ],
     )
     def test_malformed_files_name_the_field(self, data_dir, mutate, message: str) -> None:
-        rows = [r.strip() for r in (data_dir / "ocam_sample_1600.txt").read_text().splitlines() if r.strip() and not r.startswith("#")]
+        rows = [
+            r.strip()
+            for r in (data_dir / "ocam_sample_1600.txt").read_text().splitlines()
+            if r.strip() and not r.startswith("#")
+        ]
         with pytest.raises(CameraModelError, match=message.replace("(", r"\(").replace(")", r"\)").replace("*", r"\*")):
             OCamModel.parse("\n".join(mutate(rows)))
 
@@ -113,7 +121,9 @@ class TestValidArea:
         assert (inside[-1] - inside[0] + 1) / 2 == pytest.approx(794.447, abs=1.0)
 
 
-KB = KannalaBrandt(fx=300.0, fy=310.0, cx=401.0, cy=396.0, k=(0.1, -0.02, 0.003, -0.0004), width=800, height=800, fov=200.0)
+KB = KannalaBrandt(
+    fx=300.0, fy=310.0, cx=401.0, cy=396.0, k=(0.1, -0.02, 0.003, -0.0004), width=800, height=800, fov=200.0
+)
 
 
 class TestKannalaBrandt:
@@ -160,7 +170,10 @@ pixel = st.tuples(st.floats(0.0, 1.0), st.floats(0.0, 1.0))
     [
         pytest.param(lambda rig: rig.shared_model(), id="ocam"),
         pytest.param(lambda rig: KB, id="kannala-brandt"),
-        pytest.param(lambda rig: Equidistant(fx=230.0, fy=230.0, cx=400.0, cy=400.0, width=800, height=800, fov=220.0), id="equidistant"),
+        pytest.param(
+            lambda rig: Equidistant(fx=230.0, fy=230.0, cx=400.0, cy=400.0, width=800, height=800, fov=220.0),
+            id="equidistant",
+        ),
         pytest.param(lambda rig: Pinhole(fx=500.0, fy=480.0, cx=320.0, cy=240.0, width=640, height=480), id="pinhole"),
     ],
 )
@@ -174,7 +187,9 @@ def test_project_unproject_round_trip(camera, rig, p) -> None:
         tolerance = 0.05  # pol and invpol are separate fits; the spec measures ~0.003 px
         if cam.valid_area()[int(round(uv[0, 1])), int(round(uv[0, 0]))] == 0:
             return
-        if not (tolerance <= uv[0, 0] <= cam.width - 1 - tolerance and tolerance <= uv[0, 1] <= cam.height - 1 - tolerance):
+        if not (
+            tolerance <= uv[0, 0] <= cam.width - 1 - tolerance and tolerance <= uv[0, 1] <= cam.height - 1 - tolerance
+        ):
             return  # on the image's edge the round trip's error can step outside it (measured: u = -0.001 at u = 0)
     else:
         tolerance = 1e-6
@@ -186,7 +201,9 @@ def test_project_unproject_round_trip(camera, rig, p) -> None:
 
 
 class TestKbToOcamFit:
-    @pytest.mark.parametrize("kb", [KB, Equidistant(fx=230.0, fy=240.0, cx=400.0, cy=410.0, width=800, height=800, fov=220.0)])
+    @pytest.mark.parametrize(
+        "kb", [KB, Equidistant(fx=230.0, fy=240.0, cx=400.0, cy=410.0, width=800, height=800, fov=220.0)]
+    )
     def test_fit_reprojects_within_a_hundredth_of_a_pixel(self, kb: KannalaBrandt) -> None:
         fit = fit_ocam_from_kb(kb)
         assert fit.max_reprojection_error_px < 0.01

@@ -48,7 +48,9 @@ def test_rig_convert_then_show(tmp_path: Path, data_dir: Path, rig: Rig) -> None
 def test_bad_rig_is_a_clear_error_not_a_traceback(tmp_path: Path) -> None:
     bad = tmp_path / "rig.json"
     bad.write_text('{"cameras": []}')
-    result = subprocess.run([sys.executable, "-m", "fisheye_infer", "rig", "show", str(bad)], capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        [sys.executable, "-m", "fisheye_infer", "rig", "show", str(bad)], capture_output=True, text=True, timeout=60
+    )
     assert result.returncode == 1
     assert "error: rig file" in result.stderr and "Traceback" not in result.stderr
 
@@ -59,7 +61,10 @@ def test_demo_runs_on_defaults(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "554,668 of 960,000 frustum points" in out
     assert (tmp_path / "rig.png").is_file() and (tmp_path / "sampling_grid.png").is_file()
     # The shipped trained model finds 8 of the held-out frame's 11 objects with 2 other boxes (score >= 0.15)
-    found, total, extra = (int(v) for v in re.search(r"(\d+) of (\d+) labelled objects found .*?; (\d+) box\(es\) on no object", out).groups())
+    found, total, extra = (
+        int(v)
+        for v in re.search(r"(\d+) of (\d+) labelled objects found .*?; (\d+) box\(es\) on no object", out).groups()
+    )
     assert total == 11 and found >= 5 and extra <= 4, out[-400:]
     assert (tmp_path / "result.png").is_file()
 
@@ -78,8 +83,25 @@ def test_detect_writes_results_and_picture_then_redraws_them(small_export, tmp_p
     for name, image in Renderer().render(rig, random_scene(np.random.default_rng(1))).items():
         cv2.imwrite(str(frame_dir / f"{name.removeprefix('fisheye_camera_')}.png"), image)
     out, viz = tmp_path / "result.json", tmp_path / "result.png"
-    assert main(["detect", str(small_export.onnx), "--images", str(frame_dir), "--out", str(out), "--viz", str(viz), "--score-threshold", "0.05",
-                 "--providers", "CPUExecutionProvider"]) == 0
+    assert (
+        main(
+            [
+                "detect",
+                str(small_export.onnx),
+                "--images",
+                str(frame_dir),
+                "--out",
+                str(out),
+                "--viz",
+                str(viz),
+                "--score-threshold",
+                "0.05",
+                "--providers",
+                "CPUExecutionProvider",
+            ]
+        )
+        == 0
+    )
     doc = json.loads(out.read_text())
     assert doc["model_id"] == read_meta(small_export.onnx).model_id and len(doc["frames"]) == 1
     frame = doc["frames"][0]
@@ -95,7 +117,10 @@ def test_detect_names_what_a_saved_result_lacks(tmp_path: Path, capsys: pytest.C
     bad = tmp_path / "other.json"
     bad.write_text('{"results": {}}')
     assert main(["detect", "--result", str(bad), "--viz", str(tmp_path / "x.png")]) == 1
-    assert "missing rig, classes, frames; expected a file written by 'fisheye-infer detect --out'" in capsys.readouterr().err
+    assert (
+        "missing rig, classes, frames; expected a file written by 'fisheye-infer detect --out'"
+        in capsys.readouterr().err
+    )
     assert not (tmp_path / "x.png").exists()
 
 
@@ -112,7 +137,9 @@ def test_detect_names_an_unknown_class(small_export, tmp_path: Path, capsys: pyt
 
     frame_dir = tmp_path / "frame"
     frame_dir.mkdir()
-    for name, image in Renderer().render(read_meta(small_export.onnx).rig, random_scene(np.random.default_rng(1))).items():
+    for name, image in (
+        Renderer().render(read_meta(small_export.onnx).rig, random_scene(np.random.default_rng(1))).items()
+    ):
         cv2.imwrite(str(frame_dir / f"{name}.png"), image)
     assert main(["detect", str(small_export.onnx), "--images", str(frame_dir), "--classes", "Car,Tram"]) == 1
     assert "--classes: unknown ['Tram']; the model's classes are Car" in capsys.readouterr().err

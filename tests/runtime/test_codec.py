@@ -38,7 +38,9 @@ def header_then_noise(picture: np.ndarray) -> bytes:
 def test_clean_jpeg_decodes_as_opencv_does(picture: np.ndarray) -> None:
     for params in ([], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1]):
         data = cv2.imencode(".jpg", picture, params)[1].tobytes()
-        np.testing.assert_array_equal(decode_image(data, "front", (128, 96)), cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
+        np.testing.assert_array_equal(
+            decode_image(data, "front", (128, 96)), cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+        )
 
 
 def test_scans_are_counted(picture: np.ndarray) -> None:
@@ -55,10 +57,13 @@ def test_thousands_of_scans_are_refused_before_decoding(picture: np.ndarray) -> 
     assert time.perf_counter() - started < 5  # refused by the count, not decoded
 
 
-@pytest.mark.parametrize("make, opencv_accepts", [
-    (header_then_noise, True),  # OpenCV only logs "Corrupt JPEG data" and returns a picture
-    (lambda p: cv2.imencode(".jpg", p)[1].tobytes()[:-400], False),  # cut short
-])
+@pytest.mark.parametrize(
+    "make, opencv_accepts",
+    [
+        (header_then_noise, True),  # OpenCV only logs "Corrupt JPEG data" and returns a picture
+        (lambda p: cv2.imencode(".jpg", p)[1].tobytes()[:-400], False),  # cut short
+    ],
+)
 def test_corrupt_jpeg_is_refused(picture: np.ndarray, make, opencv_accepts: bool) -> None:
     data = make(picture)
     assert (cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) is not None) is opencv_accepts

@@ -29,12 +29,15 @@ CPU implementer\t: 0x41
 """
 
 
-@pytest.mark.parametrize(("extra", "avx512", "vnni"), [
-    ("", False, False),                                    # AVX2 only (Skylake client, Zen 2/3)
-    ("avx512f avx512bw avx512vl", True, False),            # AVX-512 before VNNI (Skylake-SP)
-    ("avx512f avx512bw avx512_vnni", True, True),          # Cascade Lake and later, Zen 4
-    ("avx_vnni", False, True),                             # AVX-VNNI on an AVX2 core (Alder Lake)
-])
+@pytest.mark.parametrize(
+    ("extra", "avx512", "vnni"),
+    [
+        ("", False, False),  # AVX2 only (Skylake client, Zen 2/3)
+        ("avx512f avx512bw avx512vl", True, False),  # AVX-512 before VNNI (Skylake-SP)
+        ("avx512f avx512bw avx512_vnni", True, True),  # Cascade Lake and later, Zen 4
+        ("avx_vnni", False, True),  # AVX-VNNI on an AVX2 core (Alder Lake)
+    ],
+)
 def test_cpu_info_reads_the_flags_line(tmp_path: Path, extra: str, avx512: bool, vnni: bool) -> None:
     path = tmp_path / "cpuinfo"
     path.write_text(X86.format(extra=extra))

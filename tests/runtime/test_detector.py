@@ -64,7 +64,10 @@ def test_every_input_form_gives_the_same_result(detector: Detector, frame, tmp_p
         np.testing.assert_array_equal(got.boxes, reference.boxes)
         np.testing.assert_array_equal(got.scores, reference.scores)
     # the Detector's map_images (which load_frames uses when several images need decoding) runs on its own threads
-    assert all(name.startswith("fisheye-decode") for name in detector.map_images(lambda _: threading.current_thread().name, range(8)))
+    assert all(
+        name.startswith("fisheye-decode")
+        for name in detector.map_images(lambda _: threading.current_thread().name, range(8))
+    )
 
 
 def test_degraded_mode_reports_cameras_used(detector: Detector, frame) -> None:
@@ -114,8 +117,14 @@ def test_options_threshold_classes_and_nms(detector: Detector, frame) -> None:
 @pytest.mark.parametrize(
     ("frame_", "message"),
     [
-        ({"fisheye_camera_roof": np.zeros((800, 800, 3), np.uint8)}, "camera 'fisheye_camera_roof': not a camera of this model"),
-        ({"fisheye_camera_front": np.zeros((600, 800, 3), np.uint8)}, "camera 'fisheye_camera_front': image is 800x600, model expects 800x800"),
+        (
+            {"fisheye_camera_roof": np.zeros((800, 800, 3), np.uint8)},
+            "camera 'fisheye_camera_roof': not a camera of this model",
+        ),
+        (
+            {"fisheye_camera_front": np.zeros((600, 800, 3), np.uint8)},
+            "camera 'fisheye_camera_front': image is 800x600, model expects 800x800",
+        ),
         ({"fisheye_camera_left": b"\x89PNG garbage"}, "camera 'fisheye_camera_left': the bytes are not a decodable"),
         ([np.zeros((800, 800, 3), np.uint8)] * 2, "got 2 images, expected 4"),
     ],
@@ -159,23 +168,35 @@ def test_providers_default_to_cpu_and_unknown_ones_are_named(small_export) -> No
     # with options, as ONNX Runtime takes them (CUDA's {"use_tf32": "0"} for fp32-exact results on a GPU)
     with_options = Detector(small_export.onnx, threads=1, providers=[("CPUExecutionProvider", {})], warmup=False)
     assert with_options.info.providers == ("CPUExecutionProvider",)
-    with pytest.raises(ValueError, match=r"providers: expected a provider name or a \(name, options dict\) pair, got \('CPUExecutionProvider',\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"providers: expected a provider name or a \(name, options dict\) pair, got \('CPUExecutionProvider',\)",
+    ):
         Detector(small_export.onnx, providers=[("CPUExecutionProvider",)])  # type: ignore[list-item]
     with pytest.raises(ValueError, match="providers: 'auto' stands alone"):
         Detector(small_export.onnx, providers=["auto", "CPUExecutionProvider"])
 
 
-def test_a_provider_that_does_not_start_is_an_error_not_a_cpu_fallback(small_export, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_provider_that_does_not_start_is_an_error_not_a_cpu_fallback(
+    small_export, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """This onnxruntime is told it has CUDA; ONNX Runtime then runs the session on the CPU (a CUDA provider
     without a GPU or its libraries does the same): asked for by name, that is refused."""
     import fisheye_infer.runtime.session as session
 
     monkeypatch.setattr(session, "available_providers", lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"])
-    with pytest.warns(UserWarning), pytest.raises(ConfigError, match="ONNX Runtime did not start CUDAExecutionProvider .*runs on CPUExecutionProvider"):
+    with (
+        pytest.warns(UserWarning),
+        pytest.raises(
+            ConfigError, match="ONNX Runtime did not start CUDAExecutionProvider .*runs on CPUExecutionProvider"
+        ),
+    ):
         Detector(small_export.onnx, threads=1, providers=["CUDAExecutionProvider", "CPUExecutionProvider"])
 
 
-def test_auto_drops_a_provider_that_fails_to_start(small_export, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+def test_auto_drops_a_provider_that_fails_to_start(
+    small_export, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
     """onnxruntime-gpu lists TensorRT without its libraries, and creating a session with it raises: 'auto' tries the
     next provider, a named list does not. No TensorRT here, so the session's creation fails as it does there."""
     import onnxruntime as ort
@@ -194,8 +215,13 @@ def test_auto_drops_a_provider_that_fails_to_start(small_export, monkeypatch: py
     with caplog.at_level("WARNING", logger="fisheye_infer"):
         auto = Detector(small_export.onnx, threads=1, providers="auto", warmup=False)
     assert auto.info.providers == ("CPUExecutionProvider",)
-    assert any("TensorrtExecutionProvider did not start" in r.getMessage() and "libnvinfer" in r.getMessage() for r in caplog.records)
-    with pytest.raises(ArtifactError, match="cannot load it with TensorrtExecutionProvider, CPUExecutionProvider .*libnvinfer"):
+    assert any(
+        "TensorrtExecutionProvider did not start" in r.getMessage() and "libnvinfer" in r.getMessage()
+        for r in caplog.records
+    )
+    with pytest.raises(
+        ArtifactError, match="cannot load it with TensorrtExecutionProvider, CPUExecutionProvider .*libnvinfer"
+    ):
         Detector(small_export.onnx, threads=1, providers=["TensorrtExecutionProvider", "CPUExecutionProvider"])
 
 

@@ -28,27 +28,54 @@ def frame() -> dict[str, np.ndarray]:
     return Renderer(texture_seed=2).render(resized_rig(default_rig(), 0.2), random_scene(np.random.default_rng(1)))
 
 
-@pytest.mark.parametrize("options, expectation", [
-    ({"score_threshold": 0.0}, DoesNotRaise()),
-    ({"score_threshold": np.float32(0.5)}, DoesNotRaise()),  # numpy scalars are numbers
-    ({"score_threshold": 1}, DoesNotRaise()),
-    ({"score_threshold": float("nan")}, pytest.raises(OptionError, match=r"score_threshold: expected a number in \[0, 1\], got nan")),
-    ({"score_threshold": 2.0}, pytest.raises(OptionError, match="got 2.0")),  # silently no boxes before
-    ({"score_threshold": -0.1}, pytest.raises(OptionError, match="got -0.1")),
-    ({"score_threshold": "abc"}, pytest.raises(OptionError, match="got str 'abc'")),  # numpy's UFuncTypeError before
-    ({"score_threshold": True}, pytest.raises(OptionError, match="got bool")),
-    ({"nms": "rotated"}, DoesNotRaise()),  # a kind's name stands for its defaults
-    ({"nms": NmsConfig(kind="circle")}, DoesNotRaise()),
-    ({"nms": "square"}, pytest.raises(OptionError, match="nms: expected an NmsConfig or one of 'rotated', 'circle', got str 'square'")),
-    ({"nms": 0.5}, pytest.raises(OptionError, match="nms: .* got float 0.5")),
-    ({"classes": ["Car"]}, DoesNotRaise()),
-    ({"classes": ("Car", "Bus")}, DoesNotRaise()),
-    ({"classes": "Car"}, pytest.raises(OptionError, match=r"classes: got the single string 'Car'; pass a list of class names, e.g. \['Car'\]")),
-    ({"classes": [3]}, pytest.raises(OptionError, match="classes: expected class names")),
-    ({"classes": ["Dragon"]}, pytest.raises(OptionError, match="classes: unknown 'Dragon'; the model's classes are Car")),
-    ({"classes": [f"c{i}" for i in range(1000)]}, pytest.raises(OptionError, match="and 980 more")),  # the message stays short
-])
-def test_detect_options_are_checked_at_the_boundary(detector: Detector, frame, options: dict[str, Any], expectation) -> None:
+@pytest.mark.parametrize(
+    "options, expectation",
+    [
+        ({"score_threshold": 0.0}, DoesNotRaise()),
+        ({"score_threshold": np.float32(0.5)}, DoesNotRaise()),  # numpy scalars are numbers
+        ({"score_threshold": 1}, DoesNotRaise()),
+        (
+            {"score_threshold": float("nan")},
+            pytest.raises(OptionError, match=r"score_threshold: expected a number in \[0, 1\], got nan"),
+        ),
+        ({"score_threshold": 2.0}, pytest.raises(OptionError, match="got 2.0")),  # silently no boxes before
+        ({"score_threshold": -0.1}, pytest.raises(OptionError, match="got -0.1")),
+        (
+            {"score_threshold": "abc"},
+            pytest.raises(OptionError, match="got str 'abc'"),
+        ),  # numpy's UFuncTypeError before
+        ({"score_threshold": True}, pytest.raises(OptionError, match="got bool")),
+        ({"nms": "rotated"}, DoesNotRaise()),  # a kind's name stands for its defaults
+        ({"nms": NmsConfig(kind="circle")}, DoesNotRaise()),
+        (
+            {"nms": "square"},
+            pytest.raises(
+                OptionError, match="nms: expected an NmsConfig or one of 'rotated', 'circle', got str 'square'"
+            ),
+        ),
+        ({"nms": 0.5}, pytest.raises(OptionError, match="nms: .* got float 0.5")),
+        ({"classes": ["Car"]}, DoesNotRaise()),
+        ({"classes": ("Car", "Bus")}, DoesNotRaise()),
+        (
+            {"classes": "Car"},
+            pytest.raises(
+                OptionError, match=r"classes: got the single string 'Car'; pass a list of class names, e.g. \['Car'\]"
+            ),
+        ),
+        ({"classes": [3]}, pytest.raises(OptionError, match="classes: expected class names")),
+        (
+            {"classes": ["Dragon"]},
+            pytest.raises(OptionError, match="classes: unknown 'Dragon'; the model's classes are Car"),
+        ),
+        (
+            {"classes": [f"c{i}" for i in range(1000)]},
+            pytest.raises(OptionError, match="and 980 more"),
+        ),  # the message stays short
+    ],
+)
+def test_detect_options_are_checked_at_the_boundary(
+    detector: Detector, frame, options: dict[str, Any], expectation
+) -> None:
     with expectation:
         detector.detect(frame, **options)
 
@@ -80,18 +107,25 @@ def _edited(source: Path, out: Path, **changes: Any) -> Path:
     return out
 
 
-@pytest.mark.parametrize("changes, words", [
-    ({"num_boxes": 5}, "num_boxes: metadata says 5, the graph's 'boxes' output has 50"),
-    ({"classes": ["Car"]}, "classes: metadata lists 1 (Car), the graph returned label"),
-])
-def test_metadata_contradicting_the_graph_is_refused_at_load(small_export, tmp_path: Path, changes: dict[str, Any], words: str) -> None:
+@pytest.mark.parametrize(
+    "changes, words",
+    [
+        ({"num_boxes": 5}, "num_boxes: metadata says 5, the graph's 'boxes' output has 50"),
+        ({"classes": ["Car"]}, "classes: metadata lists 1 (Car), the graph returned label"),
+    ],
+)
+def test_metadata_contradicting_the_graph_is_refused_at_load(
+    small_export, tmp_path: Path, changes: dict[str, Any], words: str
+) -> None:
     edited = _edited(small_export.onnx, tmp_path / "edited.onnx", **changes)
     with pytest.raises(ArtifactError) as err:
         Detector(edited, threads=1)
     assert words in str(err.value)
 
 
-def test_spin_false_reaches_the_session_and_changes_no_number(small_export, frame, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_spin_false_reaches_the_session_and_changes_no_number(
+    small_export, frame, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """``spin=False`` sets ONNX Runtime's ``session.intra_op.allow_spinning`` to 0 (its threads sleep after a call);
     the default leaves ONNX Runtime's own behaviour (spinning). Two threads, so that there is a pool to spin;
     the boxes are the same either way."""

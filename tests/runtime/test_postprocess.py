@@ -16,7 +16,9 @@ from fisheye_infer.runtime.nms import NmsConfig, apply_nms, bev_iou, circle_nms,
 CLASSES = ("Car", "Van", "Truck", "Bus", "Pedestrian", "Cyclist")
 
 
-def box(x: float, y: float, l: float = 4.0, w: float = 2.0, yaw: float = 0.0, z: float = -1.5, h: float = 1.5) -> list[float]:
+def box(
+    x: float, y: float, l: float = 4.0, w: float = 2.0, yaw: float = 0.0, z: float = -1.5, h: float = 1.5
+) -> list[float]:
     return [x, y, z, l, w, h, yaw]
 
 
@@ -44,7 +46,11 @@ class TestIou:
             (box(0, 0), box(0, 0), 1.0),
             (box(0, 0), box(2, 0), 4.0 / 12.0),  # half overlap along x: 2x2 of two 4x2
             (box(0, 0), box(10, 0), 0.0),
-            (box(0, 0, l=2, w=2), box(0, 0, l=2, w=2, yaw=math.pi / 4), (8 * (math.sqrt(2) - 1)) / (8 - 8 * (math.sqrt(2) - 1))),
+            (
+                box(0, 0, l=2, w=2),
+                box(0, 0, l=2, w=2, yaw=math.pi / 4),
+                (8 * (math.sqrt(2) - 1)) / (8 - 8 * (math.sqrt(2) - 1)),
+            ),
             # two 4x1 boxes at yaw +30 degrees, the second 2 m further along their common length axis:
             # half of each overlaps, IoU 1/3 only if yaw turns counter-clockwise as the boxes' layout says
             (box(0, 0, l=4, w=1, yaw=math.pi / 6), box(math.sqrt(3), 1.0, l=4, w=1, yaw=math.pi / 6), 1.0 / 3.0),
@@ -79,7 +85,9 @@ class TestNms:
         assert circle_nms(self.boxes, self.scores, self.labels, radius=0.1).tolist() == [4, 0, 1, 2, 3]
 
     def test_config_by_class_name(self) -> None:
-        keep = apply_nms(self.boxes, self.scores, self.labels, NmsConfig(kind="circle", radius=1.0, per_class={"Car": 0.1}), CLASSES)
+        keep = apply_nms(
+            self.boxes, self.scores, self.labels, NmsConfig(kind="circle", radius=1.0, per_class={"Car": 0.1}), CLASSES
+        )
         assert sorted(keep.tolist()) == [0, 1, 2, 3, 4]
         with pytest.raises(ValueError, match="unknown class"):
             apply_nms(self.boxes, self.scores, self.labels, NmsConfig(per_class={"Tram": 0.1}), CLASSES)

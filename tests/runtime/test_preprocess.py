@@ -71,7 +71,21 @@ def test_missing_camera_is_degraded_mode(arrays: list[np.ndarray]) -> None:
         ({}, "no camera image given"),
         ("front.png", "expected a mapping camera name -> image or a sequence"),
     ],
-    ids=["unknown-camera", "too-few", "dtype", "channels", "size", "size-from-header", "garbage", "bmp", "truncated", "missing-path", "wrong-type", "empty", "string"],
+    ids=[
+        "unknown-camera",
+        "too-few",
+        "dtype",
+        "channels",
+        "size",
+        "size-from-header",
+        "garbage",
+        "bmp",
+        "truncated",
+        "missing-path",
+        "wrong-type",
+        "empty",
+        "string",
+    ],
 )
 def test_bad_input_names_the_problem(frame, message: str) -> None:
     with pytest.raises(FrameError, match=message):
@@ -87,11 +101,17 @@ def test_batch_errors_name_the_frame(arrays: list[np.ndarray]) -> None:
 
 def test_parallel_decoding_gives_the_sequential_result_and_first_error(arrays: list[np.ndarray]) -> None:
     """A thread pool's map decodes the images; the arrays and the error reported are those of the plain loop."""
-    frames = [[png(a) for a in arrays], [png(a) for a in reversed(arrays)], {"front": arrays[0], "rear": png(arrays[1])}]
+    frames = [
+        [png(a) for a in arrays],
+        [png(a) for a in reversed(arrays)],
+        {"front": arrays[0], "rear": png(arrays[1])},
+    ]
     with ThreadPoolExecutor(4) as pool:
         parallel = load_frames(frames, CAMERAS, WH, pool.map)
         sequential = load_frames(frames, CAMERAS, WH)
-        assert [[None if a is None else a.tolist() for a in f] for f in parallel] == [[None if a is None else a.tolist() for a in f] for f in sequential]
+        assert [[None if a is None else a.tolist() for a in f] for f in parallel] == [
+            [None if a is None else a.tolist() for a in f] for f in sequential
+        ]
         assert np.array_equal(parallel[1][0], arrays[3]) and parallel[2][1] is None
         # frame 1 has two bad images: the first in camera order is the one named, whichever thread finishes first
         bad = [frames[0], [png(arrays[0]), b"not an image", png(np.zeros((96, 128, 3), np.uint8)), png(arrays[3])], {}]

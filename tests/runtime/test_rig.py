@@ -15,7 +15,12 @@ from fisheye_infer.errors import RigError
 
 def test_default_rig_positions_and_order(rig: Rig) -> None:
     assert rig.names == list(FISHEYE3DOD_CAMERAS)
-    expected = {"front": (1.403, 0, 0.002), "left": (-0.797, 1.600, 0.007), "right": (-0.797, -1.600, 0.004), "rear": (-2.997, 0, 0.009)}
+    expected = {
+        "front": (1.403, 0, 0.002),
+        "left": (-0.797, 1.600, 0.007),
+        "right": (-0.797, -1.600, 0.004),
+        "rear": (-2.997, 0, 0.009),
+    }
     for cam in rig.cameras:
         np.testing.assert_allclose(cam.position, expected[cam.name.removeprefix("fisheye_camera_")], atol=1e-3)
     headings = [round(np.degrees(c.heading)) % 360 for c in rig.cameras]
@@ -168,15 +173,24 @@ def test_compat_flips_relative_pitch_exact_does_not() -> None:
     assert cam2lidar_from_poses(cam, lidar, "exact")[2, 2] < -0.3
     assert cam2lidar_from_poses(cam, lidar, "compat")[2, 2] > 0.3
     level = CarlaPose(1.0, 0.0, 1.0, 0.0, 30.0, 0.0)
-    np.testing.assert_allclose(cam2lidar_from_poses(level, lidar, "exact"), cam2lidar_from_poses(level, lidar, "compat"), atol=1e-12)
+    np.testing.assert_allclose(
+        cam2lidar_from_poses(level, lidar, "exact"), cam2lidar_from_poses(level, lidar, "compat"), atol=1e-12
+    )
 
 
 def test_rig_from_sensor_metadata(tmp_path: Path, rig: Rig) -> None:
     vehicle = tmp_path / "train-Town01_Opt-ClearNoon-2024_09_23_11_44_45" / "ego0"
-    poses = {"fisheye_camera_front": (1.4, 0, 2.4, 0), "fisheye_camera_left": (-0.8, -1.6, 2.4, -90), "fisheye_camera_right": (-0.8, 1.6, 2.4, 90), "fisheye_camera_rear": (-3.0, 0, 2.4, 180)}
+    poses = {
+        "fisheye_camera_front": (1.4, 0, 2.4, 0),
+        "fisheye_camera_left": (-0.8, -1.6, 2.4, -90),
+        "fisheye_camera_right": (-0.8, 1.6, 2.4, 90),
+        "fisheye_camera_rear": (-3.0, 0, 2.4, 180),
+    }
     for name, (x, y, z, yaw) in poses.items():
         (vehicle / name).mkdir(parents=True)
-        (vehicle / name / "sensor_metadata.txt").write_text("\n".join(_camera_record(f, x, y, z, 0, yaw, 0) for f in (26981, 26991)) + "\n")
+        (vehicle / name / "sensor_metadata.txt").write_text(
+            "\n".join(_camera_record(f, x, y, z, 0, yaw, 0) for f in (26981, 26991)) + "\n"
+        )
     (vehicle / "lidar").mkdir()
     (vehicle / "lidar" / "sensor_metadata.txt").write_text(LIDAR.replace("z=2.400000", "z=2.400000") + "\n")
     calib = tmp_path / "calib_results.txt"

@@ -22,7 +22,10 @@ from fisheye_infer.scenes.render import Renderer, random_scene, resized_rig
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line("markers", "install: builds a fresh virtual environment and pip-installs the package (deselect with -m 'not install')")
+    config.addinivalue_line(
+        "markers",
+        "install: builds a fresh virtual environment and pip-installs the package (deselect with -m 'not install')",
+    )
 
 
 @pytest.fixture(scope="session")
@@ -60,8 +63,18 @@ def server(small_model, detector: Detector) -> Iterator[LiveServer]:
 @pytest.fixture(scope="session")
 def keyed_server(small_model, detector: Detector) -> Iterator[LiveServer]:
     """An API key, /metrics behind it, one CORS origin, and micro-batching of up to 4 frames within 300 ms."""
-    yield from serve(settings_for(small_model, api_key=API_KEY, metrics_public=False, queue_size=8, cors_origins=[ORIGIN],
-                                  microbatch_max_size=4, microbatch_max_wait_ms=300.0), detector)
+    yield from serve(
+        settings_for(
+            small_model,
+            api_key=API_KEY,
+            metrics_public=False,
+            queue_size=8,
+            cors_origins=[ORIGIN],
+            microbatch_max_size=4,
+            microbatch_max_wait_ms=300.0,
+        ),
+        detector,
+    )
 
 
 @pytest.fixture

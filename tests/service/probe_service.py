@@ -44,8 +44,12 @@ Outcome = str  # "200", "422", ..., "reset", "closed", "hang"
 
 def _stalled(port: int, path: str = "/detect") -> socket.socket:
     sock = socket.create_connection(("127.0.0.1", port), timeout=60)
-    sock.sendall(f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nX-API-Key: {KEY}\r\nContent-Length: 1000000\r\n"
-                 "Content-Type: multipart/form-data; boundary=bnd\r\n\r\n".encode() + b"--bnd\r\n" + b"x" * 93)
+    sock.sendall(
+        f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nX-API-Key: {KEY}\r\nContent-Length: 1000000\r\n"
+        "Content-Type: multipart/form-data; boundary=bnd\r\n\r\n".encode()
+        + b"--bnd\r\n"
+        + b"x" * 93
+    )
     return sock
 
 
@@ -94,9 +98,11 @@ def probes(url: str, port: int, pngs: dict[str, bytes], jpegs: dict[str, bytes])
             return "reset"
 
     def smuggled() -> Outcome:
-        data = (f"POST /detect HTTP/1.1\r\nHost: x\r\nX-API-Key: {KEY}\r\nContent-Type: application/json\r\n"
-                "Content-Length: 4\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n"
-                "GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n").encode()
+        data = (
+            f"POST /detect HTTP/1.1\r\nHost: x\r\nX-API-Key: {KEY}\r\nContent-Type: application/json\r\n"
+            "Content-Length: 4\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n"
+            "GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n"
+        ).encode()
         with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
             sock.sendall(data)
             seen = b""
@@ -125,40 +131,51 @@ def probes(url: str, port: int, pngs: dict[str, bytes], jpegs: dict[str, bytes])
     json_images = {c: base64.b64encode(b).decode() for c, b in pngs.items()}
     twice = [("0." + c, f) for c, f in files] + [("00." + front, files[0][1])]
     model_request = f"GET /model HTTP/1.1\r\nHost: x\r\nX-API-Key: {KEY}\r\n\r\n".encode()
-    detect_head = (f"POST /detect HTTP/1.1\r\nHost: x\r\nX-API-Key: {KEY}\r\n"
-                   f"Content-Type: {multipart['content-type']}\r\nContent-Length: {len(body)}\r\n\r\n").encode()
+    detect_head = (
+        f"POST /detect HTTP/1.1\r\nHost: x\r\nX-API-Key: {KEY}\r\n"
+        f"Content-Type: {multipart['content-type']}\r\nContent-Length: {len(body)}\r\n\r\n"
+    ).encode()
 
     def many_classes() -> Outcome:
-        answer = httpx.post(url + "/detect", json={"images": json_images, "classes": [f"c{i}" for i in range(100_000)]},
-                            headers=key, timeout=30)
+        answer = httpx.post(
+            url + "/detect",
+            json={"images": json_images, "classes": [f"c{i}" for i in range(100_000)]},
+            headers=key,
+            timeout=30,
+        )
         return f"{answer.status_code} ({len(answer.content)} bytes answered)"
 
     return {
         "stalled-queue: see latency below": lambda: "n/a",
         "many-scan progressive JPEG": lambda: post(files=with_front(_many_scan_jpeg(image, 3000)), headers=key),
         "corrupt JPEG data": lambda: post(files=with_front(corrupt), headers=key),
-        "non-ASCII digit part name": lambda: post("/detect/batch", files=[("\u00b2." + c, f) for c, f in files],
-                                                  headers=key),
+        "non-ASCII digit part name": lambda: post(
+            "/detect/batch", files=[("\u00b2." + c, f) for c, f in files], headers=key
+        ),
         "same camera twice (0. / 00.)": lambda: post("/detect/batch", files=twice, headers=key),
         "slow headers (1 byte/s)": lambda: trickle(b"", model_request),
         "Content-Length + Transfer-Encoding": smuggled,
         "40 MiB body, urllib": urllib_40mib,
         "/docs without the key": lambda: str(httpx.get(url + "/docs", timeout=10).status_code),
         "/openapi.json without the key": lambda: str(httpx.get(url + "/openapi.json", timeout=10).status_code),
-        "10 kB camera name": lambda: post(files=[*files, ("x" * 10000, ("a.png", pngs[front], "image/png"))],
-                                          headers=key),
+        "10 kB camera name": lambda: post(
+            files=[*files, ("x" * 10000, ("a.png", pngs[front], "image/png"))], headers=key
+        ),
         "gzip body": lambda: post(content=gzip.compress(body), headers={**multipart, "Content-Encoding": "gzip"}),
         "unterminated multipart": lambda: post(content=body[:-200], headers=multipart),
-        "5000-digit JSON integer": lambda: post(content=b'{"images": {}, "score_threshold": ' + b"9" * 5000 + b"}",
-                                                headers={"Content-Type": "application/json", **key}),
+        "5000-digit JSON integer": lambda: post(
+            content=b'{"images": {}, "score_threshold": ' + b"9" * 5000 + b"}",
+            headers={"Content-Type": "application/json", **key},
+        ),
         "100k unknown classes, JSON": many_classes,
         "slow body (1 byte/s)": lambda: trickle(detect_head, body),
         "base64 JSON, valid": lambda: post(json={"images": json_images}, headers=key),
     }
 
 
-def latency_with_stalled(url: str, port: int, pngs: dict[str, bytes], stalled: int = 9,
-                         requests: int = 20) -> dict[str, object]:
+def latency_with_stalled(
+    url: str, port: int, pngs: dict[str, bytes], stalled: int = 9, requests: int = 20
+) -> dict[str, object]:
     """Valid ``/detect`` requests timed while ``stalled`` uploads hold their connections open."""
     files = [(c, (f"{c}.png", b, "image/png")) for c, b in pngs.items()]
     with contextlib.ExitStack() as stack:
@@ -171,22 +188,30 @@ def latency_with_stalled(url: str, port: int, pngs: dict[str, bytes], stalled: i
                 t0 = time.perf_counter()
                 statuses.append(client.post("/detect", files=files).status_code)
                 times.append((time.perf_counter() - t0) * 1e3)
-    return {"stalled_uploads": stalled, "requests": requests, "statuses": sorted(set(statuses)),
-            "median_ms": round(statistics.median(times), 1), "max_ms": round(max(times), 1)}
+    return {
+        "stalled_uploads": stalled,
+        "requests": requests,
+        "statuses": sorted(set(statuses)),
+        "median_ms": round(statistics.median(times), 1),
+        "max_ms": round(max(times), 1),
+    }
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model")
-    parser.add_argument("--images", type=Path,
-                        help="folder with <camera>.png (default: black frames of the model's size)")
+    parser.add_argument(
+        "--images", type=Path, help="folder with <camera>.png (default: black frames of the model's size)"
+    )
     parser.add_argument("--json", type=Path, help="write the outcomes here")
     args = parser.parse_args()
 
     detector = Detector(args.model, threads=1)
     width, height = detector.info.image_size
-    frames = {c: cv2.imread(str(args.images / f"{c}.png")) if args.images else np.zeros((height, width, 3), np.uint8)
-              for c in detector.info.cameras}
+    frames = {
+        c: cv2.imread(str(args.images / f"{c}.png")) if args.images else np.zeros((height, width, 3), np.uint8)
+        for c in detector.info.cameras
+    }
     pngs = {c: cv2.imencode(".png", im)[1].tobytes() for c, im in frames.items()}
     jpegs = {c: cv2.imencode(".jpg", im)[1].tobytes() for c, im in frames.items()}
     live = LiveServer(ServiceSettings(model_path=args.model, threads=1, api_key=KEY, port=0), detector)
@@ -212,8 +237,10 @@ def main() -> int:
     for name, outcome in outcomes.items():
         print(f"{name:<{column}}  {outcome}")
     print("counts:", ", ".join(f"{k} {v}" for k, v in counts.items()))
-    print(f"valid /detect while {latency['stalled_uploads']} stalled uploads are held: statuses {latency['statuses']}, "
-          f"median {latency['median_ms']} ms, max {latency['max_ms']} ms over {latency['requests']} requests")
+    print(
+        f"valid /detect while {latency['stalled_uploads']} stalled uploads are held: statuses {latency['statuses']}, "
+        f"median {latency['median_ms']} ms, max {latency['max_ms']} ms over {latency['requests']} requests"
+    )
     if args.json:
         args.json.write_text(json.dumps({"outcomes": outcomes, "counts": counts, "latency": latency}, indent=2))
     return 0 if counts["5xx"] == counts["reset"] == counts["hang"] == counts["other"] == 0 else 1

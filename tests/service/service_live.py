@@ -35,7 +35,9 @@ class LiveServer:
         sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         sock.bind(("127.0.0.1", 0))
         self.port = sock.getsockname()[1]
-        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [sock]}, name=f"uvicorn-{self.port}", daemon=True)
+        self.thread = threading.Thread(
+            target=self.server.run, kwargs={"sockets": [sock]}, name=f"uvicorn-{self.port}", daemon=True
+        )
 
     @property
     def url(self) -> str:
@@ -88,11 +90,21 @@ def serve(settings: ServiceSettings, detector: Detector) -> Iterator[LiveServer]
         live.stop()
 
 
-def multipart(images: dict[str, bytes], prefix: str = "", content_type: str = "image/png") -> list[tuple[str, tuple[str, bytes, str]]]:
+def multipart(
+    images: dict[str, bytes], prefix: str = "", content_type: str = "image/png"
+) -> list[tuple[str, tuple[str, bytes, str]]]:
     return [(f"{prefix}{name}", (f"{name}.png", data, content_type)) for name, data in images.items()]
 
 
 def settings_for(model: Any, **overrides: Any) -> ServiceSettings:
-    base: dict[str, Any] = {"model_path": model, "threads": 1, "workers": 1, "queue_size": 2, "max_body_bytes": 1024 * 1024,
-                            "max_batch_frames": 8, "request_timeout_s": 20.0, "drain_timeout_s": 10.0}
+    base: dict[str, Any] = {
+        "model_path": model,
+        "threads": 1,
+        "workers": 1,
+        "queue_size": 2,
+        "max_body_bytes": 1024 * 1024,
+        "max_batch_frames": 8,
+        "request_timeout_s": 20.0,
+        "drain_timeout_s": 10.0,
+    }
     return ServiceSettings(**{**base, **overrides})

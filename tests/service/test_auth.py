@@ -32,7 +32,9 @@ from fisheye_infer.service.protocol import encode_frame
         ("GET", "/redoc", API_KEY, 404),  # not served behind a key
     ],
 )
-def test_key_is_required_except_for_health(keyed_server: LiveServer, method: str, path: str, key: str | None, status: int) -> None:
+def test_key_is_required_except_for_health(
+    keyed_server: LiveServer, method: str, path: str, key: str | None, status: int
+) -> None:
     headers = {} if key is None else {"X-API-Key": key}
     response = httpx.request(method, keyed_server.url + path, headers=headers, timeout=20)
     assert response.status_code == status, response.text
@@ -41,7 +43,9 @@ def test_key_is_required_except_for_health(keyed_server: LiveServer, method: str
 
 
 def test_detect_with_the_key(keyed_server: LiveServer, images: dict[str, bytes]) -> None:
-    response = httpx.post(keyed_server.url + "/detect", files=multipart(images), headers={"X-API-Key": API_KEY}, timeout=20)
+    response = httpx.post(
+        keyed_server.url + "/detect", files=multipart(images), headers={"X-API-Key": API_KEY}, timeout=20
+    )
     assert response.status_code == 200
 
 
@@ -57,7 +61,9 @@ def test_stream_needs_the_key(keyed_server: LiveServer, images: dict[str, bytes]
 
 
 @pytest.mark.parametrize("origin, allowed", [(ORIGIN, True), ("https://elsewhere.example", False)])
-def test_cors_preflight_allows_the_configured_origin_and_the_key_header(keyed_server: LiveServer, origin: str, allowed: bool) -> None:
+def test_cors_preflight_allows_the_configured_origin_and_the_key_header(
+    keyed_server: LiveServer, origin: str, allowed: bool
+) -> None:
     headers = {"Origin": origin, "Access-Control-Request-Method": "POST", "Access-Control-Request-Headers": "x-api-key"}
     response = httpx.options(keyed_server.url + "/detect", headers=headers, timeout=10)
     assert (response.status_code == 200) is allowed

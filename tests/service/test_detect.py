@@ -14,7 +14,9 @@ from fisheye_infer.runtime.detector import Detector
 STAGES = {"queue_wait", "decode", "preprocess", "inference", "postprocess"}
 
 
-def test_detect_multipart_gives_the_detectors_boxes(client: httpx.Client, images: dict[str, bytes], detector: Detector) -> None:
+def test_detect_multipart_gives_the_detectors_boxes(
+    client: httpx.Client, images: dict[str, bytes], detector: Detector
+) -> None:
     response = client.post("/detect", files=multipart(images))
     assert response.status_code == 200, response.text
     body = response.json()
@@ -40,7 +42,10 @@ def test_detect_json_base64_equals_multipart(client: httpx.Client, jpegs: dict[s
     "options, check",
     [
         ({"score_threshold": "0.3"}, lambda d: all(x["score"] >= 0.3 for x in d)),  # threshold keeps only high scores
-        ({"classes": "Car,Pedestrian"}, lambda d: {x["class_name"] for x in d} <= {"Car", "Pedestrian"}),  # class filter
+        (
+            {"classes": "Car,Pedestrian"},
+            lambda d: {x["class_name"] for x in d} <= {"Car", "Pedestrian"},
+        ),  # class filter
         ({"nms": "circle", "score_threshold": "0.05"}, lambda d: len(d) >= 1),  # NMS runs and keeps the best box
     ],
 )
@@ -59,12 +64,15 @@ def test_missing_camera_runs_degraded_when_allowed(client: httpx.Client, images:
     assert response.json()["cameras_used"] == list(three)
 
 
-def test_batch_multipart_runs_one_call_in_order(client: httpx.Client, images: dict[str, bytes], jpegs: dict[str, bytes], detector: Detector) -> None:
+def test_batch_multipart_runs_one_call_in_order(
+    client: httpx.Client, images: dict[str, bytes], jpegs: dict[str, bytes], detector: Detector
+) -> None:
     parts = multipart(images, "0.") + multipart(jpegs, "1.", "image/jpeg") + multipart(images, "2.")
     response = client.post("/detect/batch", files=parts)
     assert response.status_code == 200, response.text
     frames = response.json()["frames"]
     assert [f["batch_size"] for f in frames] == [3, 3, 3]
+
     def scores(i: int) -> list[float]:
         return [d["score"] for d in frames[i]["detections"]]
 
@@ -101,7 +109,16 @@ def test_health_ready_and_docs(client: httpx.Client) -> None:
     assert set(body) == {"multipart/form-data", "application/json"}
     multipart_schema = schema["components"]["schemas"]["DetectMultipart"]
     assert "fisheye_camera_front" in multipart_schema["required"]
-    for name in ("DetectResponse", "BatchResponse", "ModelInfo", "ErrorOut", "DetectJsonRequest", "BatchJsonRequest", "StreamResult", "StreamError"):
+    for name in (
+        "DetectResponse",
+        "BatchResponse",
+        "ModelInfo",
+        "ErrorOut",
+        "DetectJsonRequest",
+        "BatchJsonRequest",
+        "StreamResult",
+        "StreamError",
+    ):
         assert name in schema["components"]["schemas"]
 
 

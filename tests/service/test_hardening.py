@@ -28,15 +28,24 @@ HEADER_TIMEOUT_S, BODY_TIMEOUT_S, MAX_CONNECTIONS = 1.0, 1.5, 6
 @pytest.fixture(scope="module")
 def strict_server(small_model, detector: Detector) -> Iterator[LiveServer]:
     """Short deadlines for headers and bodies, and few connections."""
-    yield from serve(settings_for(small_model, header_timeout_s=HEADER_TIMEOUT_S, body_timeout_s=BODY_TIMEOUT_S,
-                                  max_connections=MAX_CONNECTIONS), detector)
+    yield from serve(
+        settings_for(
+            small_model,
+            header_timeout_s=HEADER_TIMEOUT_S,
+            body_timeout_s=BODY_TIMEOUT_S,
+            max_connections=MAX_CONNECTIONS,
+        ),
+        detector,
+    )
 
 
 def stalled_upload(port: int) -> socket.socket:
     """POST /detect announcing a 1 MB multipart body, of which ~100 bytes are sent; then nothing."""
     sock = socket.create_connection(("127.0.0.1", port), timeout=10)
-    sock.sendall(b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 1000000\r\n"
-                 b"Content-Type: multipart/form-data; boundary=bnd\r\n\r\n--bnd\r\n" + b"x" * 93)
+    sock.sendall(
+        b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 1000000\r\n"
+        b"Content-Type: multipart/form-data; boundary=bnd\r\n\r\n--bnd\r\n" + b"x" * 93
+    )
     return sock
 
 
@@ -82,15 +91,20 @@ def test_stalled_uploads_hold_no_queue_place(server: LiveServer, images: dict[st
         for sock in held:  # still open and unanswered: their body deadline (30 s) has not passed
             assert not select.select([sock], [], [], 0)[0]
     # the stalled clients left: each is counted once, as a client that closed (499)
-    assert server.wait_metric("fisheye_requests_total", lambda v: v >= gone_before + 9, endpoint="/detect", status="499") == gone_before + 9
+    assert (
+        server.wait_metric("fisheye_requests_total", lambda v: v >= gone_before + 9, endpoint="/detect", status="499")
+        == gone_before + 9
+    )
 
 
 def test_slow_body_gets_408_and_its_connection_closed(strict_server: LiveServer, images: dict[str, bytes]) -> None:
     request = httpx.Request("POST", strict_server.url, files=multipart(images))
     body = request.read()
     with socket.create_connection(("127.0.0.1", strict_server.port), timeout=10) as sock:
-        sock.sendall(f"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {len(body)}\r\n"
-                     f"Content-Type: {request.headers['content-type']}\r\n\r\n".encode())
+        sock.sendall(
+            f"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {len(body)}\r\n"
+            f"Content-Type: {request.headers['content-type']}\r\n\r\n".encode()
+        )
         started = time.monotonic()
         trickle(sock, body[:200])  # 5 bytes a second
         answer, error = read_answer(sock)
@@ -104,8 +118,12 @@ def test_slow_headers_get_408_and_the_connection_closed(strict_server: LiveServe
         started = time.monotonic()
         trickle(sock, b"GET /model HTTP/1.1\r\nHost: 127.0.0.1\r\nUser-Agent: " + b"s" * 60 + b"\r\n\r\n")
         answer, error = read_answer(sock)
-        assert answer.status == 408 and error == {"error": "headers: not received within header_timeout_s=1 s", "status": 408,
-                                                  "type": "RequestTimeout", "field": "headers"}
+        assert answer.status == 408 and error == {
+            "error": "headers: not received within header_timeout_s=1 s",
+            "status": 408,
+            "type": "RequestTimeout",
+            "field": "headers",
+        }
         assert time.monotonic() - started < HEADER_TIMEOUT_S + 5
         assert closed(sock)
 
@@ -138,8 +156,10 @@ def test_connections_are_bounded(small_model, detector: Detector, images: dict[s
 def test_content_length_with_transfer_encoding_is_refused_and_the_connection_closed(server: LiveServer) -> None:
     """The smuggled second request (hidden in the chunked body) is never answered."""
     with socket.create_connection(("127.0.0.1", server.port), timeout=10) as sock:
-        sock.sendall(b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nContent-Length: 4\r\n"
-                     b"Transfer-Encoding: chunked\r\n\r\n0\r\n\r\nGET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        sock.sendall(
+            b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nContent-Length: 4\r\n"
+            b"Transfer-Encoding: chunked\r\n\r\n0\r\n\r\nGET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+        )
         answer, error = read_answer(sock)
         assert answer.status == 400 and error["field"] == "Transfer-Encoding" and "RFC 9112" in error["error"]
         sock.settimeout(5)
@@ -152,7 +172,9 @@ def test_content_length_with_transfer_encoding_is_refused_and_the_connection_clo
 
 def test_over_limit_body_is_answered_to_a_client_that_writes_it_all(server: LiveServer) -> None:
     """urllib writes the whole 40 MiB before reading (and asks to close): it reads the 413, not a reset."""
-    request = urllib.request.Request(server.url + "/detect", data=bytes(40 << 20), headers={"Content-Type": "application/json"})
+    request = urllib.request.Request(
+        server.url + "/detect", data=bytes(40 << 20), headers={"Content-Type": "application/json"}
+    )
     with pytest.raises(urllib.error.HTTPError) as refused:
         urllib.request.urlopen(request, timeout=30)
     assert refused.value.code == 413
@@ -161,8 +183,10 @@ def test_over_limit_body_is_answered_to_a_client_that_writes_it_all(server: Live
 
 def test_over_limit_body_with_expect_100_continue_is_refused_before_it_is_sent(server: LiveServer) -> None:
     with socket.create_connection(("127.0.0.1", server.port), timeout=10) as sock:
-        sock.sendall(b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
-                     b"Content-Length: 41943040\r\nExpect: 100-continue\r\n\r\n")
+        sock.sendall(
+            b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+            b"Content-Length: 41943040\r\nExpect: 100-continue\r\n\r\n"
+        )
         answer, error = read_answer(sock)  # no "100 Continue" first: the client is told not to send
         assert answer.status == 413 and "41943040 bytes" in error["error"]
         assert closed(sock)

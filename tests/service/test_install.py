@@ -39,7 +39,9 @@ def test_dockerfile_is_torch_free_and_non_root() -> None:
     text = DOCKERFILE.read_text()
     assert re.search(r"^FROM python:3\.\d+-slim", text, re.M)
     assert re.search(r"^USER (?!root)\w+", text, re.M) and "/healthz" in text
-    assert "FISHEYE_MODEL_PATH=/models/model.onnx" in text and "[serve]" in text and "torch" not in dockerfile_steps()[1]
+    assert (
+        "FISHEYE_MODEL_PATH=/models/model.onnx" in text and "[serve]" in text and "torch" not in dockerfile_steps()[1]
+    )
 
 
 def _run(args: list[str], timeout: float, **kwargs) -> subprocess.CompletedProcess[str]:
@@ -63,7 +65,9 @@ def test_serve_extra_installs_without_torch_and_serves(tmp_path: Path, small_exp
     installed = _run([str(bin_ / "pip"), "install", "-q", spec.replace(".", str(src), 1)], 600, env=env)
     assert installed.returncode == 0, installed.stderr[-3000:]
 
-    no_torch = _run([str(bin_ / "python"), "-c", "import importlib.util as u; print(u.find_spec('torch'))"], 60, env=env)
+    no_torch = _run(
+        [str(bin_ / "python"), "-c", "import importlib.util as u; print(u.find_spec('torch'))"], 60, env=env
+    )
     assert no_torch.stdout.strip() == "None", no_torch.stdout
     help_ = _run([str(bin_ / "fisheye-infer"), "serve", "--help"], 60, env=env)
     assert help_.returncode == 0 and "--port" in help_.stdout, help_.stderr
@@ -71,15 +75,28 @@ def test_serve_extra_installs_without_torch_and_serves(tmp_path: Path, small_exp
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    server_env = {**env, "FISHEYE_MODEL_PATH": str(small_export.onnx), "FISHEYE_PORT": str(port), "FISHEYE_THREADS": "1"}
-    server = subprocess.Popen([str(bin_ / "fisheye-infer"), "serve"], env=server_env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    server_env = {
+        **env,
+        "FISHEYE_MODEL_PATH": str(small_export.onnx),
+        "FISHEYE_PORT": str(port),
+        "FISHEYE_THREADS": "1",
+    }
+    server = subprocess.Popen(
+        [str(bin_ / "fisheye-infer"), "serve"],
+        env=server_env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while True:
             probe = _run([str(bin_ / "python"), "-c", healthcheck], 10, env=server_env)
             if probe.returncode == 0:
                 break
-            assert server.poll() is None and time.monotonic() < deadline, server.stderr.read() if server.poll() is not None else "no answer"
+            assert server.poll() is None and time.monotonic() < deadline, (
+                server.stderr.read() if server.poll() is not None else "no answer"
+            )
             time.sleep(0.2)
     finally:
         server.terminate()

@@ -29,7 +29,9 @@ def _assert_same(a, b) -> None:
     np.testing.assert_allclose(a.scores, b.scores, atol=1e-6)
 
 
-def test_triton_detector_gives_the_detectors_answer(server: LiveServer, name: str, detector: Detector, images: dict[str, bytes], jpegs: dict[str, bytes]) -> None:
+def test_triton_detector_gives_the_detectors_answer(
+    server: LiveServer, name: str, detector: Detector, images: dict[str, bytes], jpegs: dict[str, bytes]
+) -> None:
     remote = TritonDetector(server.url, name)
     assert remote.info.model_id == detector.info.model_id and remote.info.cameras == detector.info.cameras
     got = remote.detect(images)
@@ -41,7 +43,9 @@ def test_triton_detector_gives_the_detectors_answer(server: LiveServer, name: st
     _assert_same(remote.detect(images, score_threshold=0.2, nms=None), detector.detect(images, score_threshold=0.2))
 
 
-def test_batches_larger_than_max_batch_size_are_split(server: LiveServer, name: str, detector: Detector, images: dict[str, bytes]) -> None:
+def test_batches_larger_than_max_batch_size_are_split(
+    server: LiveServer, name: str, detector: Detector, images: dict[str, bytes]
+) -> None:
     frames = [images] * (server.settings.max_batch_frames + 1)
     remote = TritonDetector(server.url, name)
     results = remote.detect_batch(frames)
@@ -57,7 +61,10 @@ def test_bad_frames_are_refused_before_the_network(server: LiveServer, name: str
 
 def test_metadata_ready_and_config(client: httpx.Client, name: str, detector: Detector) -> None:
     meta = client.get(f"/v2/models/{name}").json()
-    assert {i["name"]: (i["datatype"], i["shape"]) for i in meta["inputs"]} == {"images": ("UINT8", [-1, 4, 160, 160, 3]), "camera_valid": ("BOOL", [-1, 4])}
+    assert {i["name"]: (i["datatype"], i["shape"]) for i in meta["inputs"]} == {
+        "images": ("UINT8", [-1, 4, 160, 160, 3]),
+        "camera_valid": ("BOOL", [-1, 4]),
+    }
     assert [o["name"] for o in meta["outputs"]] == ["boxes", "scores", "labels", "valid"]
     assert client.get(f"/v2/models/{name}/ready").json() == {"name": name, "ready": True}
     assert client.get("/v2/health/ready").status_code == client.get("/v2/health/live").status_code == 200
@@ -66,11 +73,18 @@ def test_metadata_ready_and_config(client: httpx.Client, name: str, detector: De
 
 
 def test_json_tensors(client: httpx.Client, name: str, detector: Detector) -> None:
-    images = np.random.default_rng(0).integers(0, 10, (1, 4, 160, 160, 3), np.uint8)  # one digit per value: the JSON fits in 1 MiB
+    images = np.random.default_rng(0).integers(
+        0, 10, (1, 4, 160, 160, 3), np.uint8
+    )  # one digit per value: the JSON fits in 1 MiB
     valid = np.ones((1, 4), bool)
-    body = {"inputs": [{"name": "images", "datatype": "UINT8", "shape": list(images.shape), "data": images.reshape(-1).tolist()},
-                       {"name": "camera_valid", "datatype": "BOOL", "shape": [1, 4], "data": [True] * 4}],
-            "outputs": [{"name": "scores"}, {"name": "valid"}], "id": "req-7"}
+    body = {
+        "inputs": [
+            {"name": "images", "datatype": "UINT8", "shape": list(images.shape), "data": images.reshape(-1).tolist()},
+            {"name": "camera_valid", "datatype": "BOOL", "shape": [1, 4], "data": [True] * 4},
+        ],
+        "outputs": [{"name": "scores"}, {"name": "valid"}],
+        "id": "req-7",
+    }
     response = client.post(f"/v2/models/{name}/infer", json=body)
     assert response.status_code == 200, response.text
     doc = response.json()
@@ -92,24 +106,47 @@ GOOD_VALID = {"name": "camera_valid", "datatype": "BOOL", "shape": [1, 4], "data
     [
         ("/v2/models/other/infer", _infer_json([GOOD_VALID]), 404, "model 'other': not served here"),  # unknown model
         ("/v2/models/{name}/versions/7/infer", _infer_json([GOOD_VALID]), 404, "version '7'"),  # unknown version
-        ("/v2/models/{name}/infer", _infer_json([GOOD_VALID]), 422, "expected exactly ['camera_valid', 'images']"),  # an input missing
-        ("/v2/models/{name}/infer", _infer_json([{"name": "images", "datatype": "FP32", "shape": [1, 4, 160, 160, 3], "data": []}, GOOD_VALID]),
-         422, "input 'images': datatype 'FP32', expected UINT8"),
-        ("/v2/models/{name}/infer", _infer_json([{"name": "images", "datatype": "UINT8", "shape": [1, 4, 80, 80, 3], "data": []}, GOOD_VALID]),
-         422, "input 'images': shape [1, 4, 80, 80, 3], expected [B, 4, 160, 160, 3]"),
-        ("/v2/models/{name}/infer", _infer_json([{"name": "images", "datatype": "UINT8", "shape": [1, 4, 160, 160, 3], "data": [1, 2]}, GOOD_VALID]),
-         422, "2 values in data"),
+        (
+            "/v2/models/{name}/infer",
+            _infer_json([GOOD_VALID]),
+            422,
+            "expected exactly ['camera_valid', 'images']",
+        ),  # an input missing
+        (
+            "/v2/models/{name}/infer",
+            _infer_json([{"name": "images", "datatype": "FP32", "shape": [1, 4, 160, 160, 3], "data": []}, GOOD_VALID]),
+            422,
+            "input 'images': datatype 'FP32', expected UINT8",
+        ),
+        (
+            "/v2/models/{name}/infer",
+            _infer_json([{"name": "images", "datatype": "UINT8", "shape": [1, 4, 80, 80, 3], "data": []}, GOOD_VALID]),
+            422,
+            "input 'images': shape [1, 4, 80, 80, 3], expected [B, 4, 160, 160, 3]",
+        ),
+        (
+            "/v2/models/{name}/infer",
+            _infer_json(
+                [{"name": "images", "datatype": "UINT8", "shape": [1, 4, 160, 160, 3], "data": [1, 2]}, GOOD_VALID]
+            ),
+            422,
+            "2 values in data",
+        ),
         ("/v2/models/{name}/infer", {"inputs": "x"}, 422, "'inputs' list"),
     ],
 )
-def test_refusals_name_the_problem(client: httpx.Client, name: str, path: str, body: dict, status: int, message: str) -> None:
+def test_refusals_name_the_problem(
+    client: httpx.Client, name: str, path: str, body: dict, status: int, message: str
+) -> None:
     response = client.post(path.format(name=name), json=body)
     assert response.status_code == status, response.text
     assert message in response.json()["error"]
 
 
 def test_binary_header_length_is_checked(client: httpx.Client, name: str) -> None:
-    response = client.post(f"/v2/models/{name}/infer", content=b'{"inputs": []}', headers={"Inference-Header-Content-Length": "999"})
+    response = client.post(
+        f"/v2/models/{name}/infer", content=b'{"inputs": []}', headers={"Inference-Header-Content-Length": "999"}
+    )
     assert response.status_code == 400 and "Inference-Header-Content-Length" in response.json()["error"]
 
 
@@ -125,9 +162,20 @@ def test_config_max_batch_size_fits_the_body_limit(server: LiveServer, name: str
     remote = TritonDetector(server.url, name)
     assert remote.max_batch_size == (server.settings.max_body_bytes - 16 * 1024) // (4 * (160 * 160 * 3 + 1)) == 3
     frames = remote.max_batch_size + 1
-    response = httpx.post(f"{server.url}/v2/models/{name}/infer", json={"inputs": [
-        {"name": "images", "datatype": "UINT8", "shape": [frames, 4, 160, 160, 3], "parameters": {"binary_data_size": 1}},
-        {"name": "camera_valid", "datatype": "BOOL", "shape": [frames, 4], "data": [True] * 4 * frames}]})
+    response = httpx.post(
+        f"{server.url}/v2/models/{name}/infer",
+        json={
+            "inputs": [
+                {
+                    "name": "images",
+                    "datatype": "UINT8",
+                    "shape": [frames, 4, 160, 160, 3],
+                    "parameters": {"binary_data_size": 1},
+                },
+                {"name": "camera_valid", "datatype": "BOOL", "shape": [frames, 4], "data": [True] * 4 * frames},
+            ]
+        },
+    )
     assert response.status_code == 422 and f"{frames} frames, at most max_batch_size=3" in response.json()["error"]
 
 
@@ -141,5 +189,7 @@ def test_unknown_model_or_unreachable_server_is_an_artifact_error(server: LiveSe
 def test_api_key_applies(keyed_server: LiveServer, name: str, detector: Detector, images: dict[str, bytes]) -> None:
     with pytest.raises(ArtifactError, match="HTTP 401"):
         TritonDetector(keyed_server.url, name)
-    _assert_same(TritonDetector(keyed_server.url, name, headers={"X-API-Key": API_KEY}).detect(images), detector.detect(images))
+    _assert_same(
+        TritonDetector(keyed_server.url, name, headers={"X-API-Key": API_KEY}).detect(images), detector.detect(images)
+    )
     assert httpx.get(f"{keyed_server.url}/v2/health/live").status_code == 200  # health stays open

@@ -42,8 +42,10 @@ def test_full_queue_answers_503_with_retry_after_at_once(server: LiveServer, ima
 def _headers_only(port: int) -> socket.socket:
     """A POST /detect whose headers announce a 1 kB multipart body that is never sent."""
     sock = socket.create_connection(("127.0.0.1", port), timeout=20)
-    sock.sendall(b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary=b\r\n"
-                 b"Content-Length: 1000\r\n\r\n")
+    sock.sendall(
+        b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: multipart/form-data; boundary=b\r\n"
+        b"Content-Length: 1000\r\n\r\n"
+    )
     return sock
 
 
@@ -51,8 +53,13 @@ def test_full_queue_refuses_before_reading_the_body(server: LiveServer, images: 
     """503 at once: with the queue full of decoded work, a client gets its answer without having sent a byte of its body."""
     batch = [part for i in range(8) for part in multipart(images, f"{i}.")]  # each keeps the worker ~0.7 s
     with ThreadPoolExecutor(3) as pool:
-        busy = [pool.submit(httpx.post, f"{server.url}/detect/batch", files=batch, timeout=60) for _ in range(3)]  # one runs, two wait
-        assert server.wait_metric("fisheye_queue_depth", lambda v: v == server.settings.queue_size) == server.settings.queue_size
+        busy = [
+            pool.submit(httpx.post, f"{server.url}/detect/batch", files=batch, timeout=60) for _ in range(3)
+        ]  # one runs, two wait
+        assert (
+            server.wait_metric("fisheye_queue_depth", lambda v: v == server.settings.queue_size)
+            == server.settings.queue_size
+        )
         with _headers_only(server.port) as refused:
             answer = http.client.HTTPResponse(refused)
             answer.begin()
@@ -71,12 +78,18 @@ def test_client_leaving_mid_request_gives_its_place_back(server: LiveServer, ima
         holder = threading.Thread(target=lambda: busy.post("/detect/batch", files=batch))  # keeps the worker ~0.7 s
         holder.start()
         deadline = time.monotonic() + 10
-        while not (server.metric("fisheye_inflight") == 1 and server.metric("fisheye_queue_depth") == 0) and time.monotonic() < deadline:
+        while (
+            not (server.metric("fisheye_inflight") == 1 and server.metric("fisheye_queue_depth") == 0)
+            and time.monotonic() < deadline
+        ):
             time.sleep(0.01)  # until the batch is running
         with pytest.raises(httpx.ReadTimeout):  # queued behind the batch, then the client gives up
             httpx.post(f"{server.url}/detect", files=multipart(images), timeout=httpx.Timeout(5.0, read=0.1))
         holder.join()
-    assert server.wait_metric("fisheye_requests_total", lambda v: v == gone_before + 1, endpoint="/detect", status="499") == gone_before + 1
+    assert (
+        server.wait_metric("fisheye_requests_total", lambda v: v == gone_before + 1, endpoint="/detect", status="499")
+        == gone_before + 1
+    )
     assert server.wait_metric("fisheye_inflight", lambda v: v == 0) == 0
     assert server.metric("fisheye_queue_depth") == 0
 

@@ -29,7 +29,15 @@ def pinhole_model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, objec
     config, rig = small_configs()[ARCH]
     folder = tmp_path_factory.mktemp("pinhole")
     make_checkpoint(ARCH, seed=4, path=folder / "small.pth", config=config, rig=rig)
-    result = export(folder / "small.pth", folder / "small.onnx", config=config, rig=rig, frames=1, threads=(1,), progress=lambda _: None)
+    result = export(
+        folder / "small.pth",
+        folder / "small.onnx",
+        config=config,
+        rig=rig,
+        frames=1,
+        threads=(1,),
+        progress=lambda _: None,
+    )
     return result.path, rig
 
 
@@ -58,19 +66,25 @@ def test_model_names_six_pinhole_cameras(pinhole_client: httpx.Client) -> None:
     assert body["image_size"] == {"width": 160, "height": 90}
 
 
-def test_detect_takes_six_parts(pinhole_client: httpx.Client, pinhole_images: dict[str, bytes], pinhole_detector: Detector) -> None:
+def test_detect_takes_six_parts(
+    pinhole_client: httpx.Client, pinhole_images: dict[str, bytes], pinhole_detector: Detector
+) -> None:
     response = pinhole_client.post("/detect", files=multipart(pinhole_images))
     assert response.status_code == 200, response.text
     body = response.json()
     reference = pinhole_detector.detect(pinhole_images)
     assert body["cameras_used"] == list(PINHOLE_CAMERAS)
     np.testing.assert_allclose([d["score"] for d in body["detections"]], reference.scores, atol=1e-6)
-    batch = pinhole_client.post("/detect/batch", files=multipart(pinhole_images, "0.") + multipart(pinhole_images, "1."))
+    batch = pinhole_client.post(
+        "/detect/batch", files=multipart(pinhole_images, "0.") + multipart(pinhole_images, "1.")
+    )
     assert batch.status_code == 200, batch.text
     assert [f["batch_size"] for f in batch.json()["frames"]] == [2, 2]
 
 
-def test_a_missing_pinhole_camera_is_named_or_runs_degraded(pinhole_client: httpx.Client, pinhole_images: dict[str, bytes]) -> None:
+def test_a_missing_pinhole_camera_is_named_or_runs_degraded(
+    pinhole_client: httpx.Client, pinhole_images: dict[str, bytes]
+) -> None:
     five = {c: b for c, b in pinhole_images.items() if c != "nu_rgb_camera_rear"}
     refused = pinhole_client.post("/detect", files=multipart(five))
     assert refused.status_code == 422 and "nu_rgb_camera_rear" in refused.text

@@ -29,15 +29,43 @@ def test_layout_is_the_documented_one() -> None:
     "message, expectation, field",
     [
         (GOOD, DoesNotRaise(), None),  # well formed
-        (GOOD[:10], pytest.raises(StreamProtocolError, match="a frame header is 14"), "header"),  # cut inside the header
+        (
+            GOOD[:10],
+            pytest.raises(StreamProtocolError, match="a frame header is 14"),
+            "header",
+        ),  # cut inside the header
         (b"JFIF" + GOOD[4:], pytest.raises(StreamProtocolError, match="magic"), "magic"),  # another protocol
-        (MAGIC + b"\x02" + GOOD[5:], pytest.raises(StreamProtocolError, match="version: got 2"), "version"),  # future version
+        (
+            MAGIC + b"\x02" + GOOD[5:],
+            pytest.raises(StreamProtocolError, match="version: got 2"),
+            "version",
+        ),  # future version
         (GOOD[:-3], pytest.raises(StreamProtocolError, match="camera 'left': image of"), "left"),  # image cut short
-        (GOOD + b"\x00", pytest.raises(StreamProtocolError, match="1 bytes after the last image"), "message"),  # trailing bytes
-        (GOOD[:14] + struct.pack("!H", 500) + b"front", pytest.raises(StreamProtocolError, match="overrun"), "name"),  # name too long
-        (GOOD[:14] + b"\x00\x02\xff\xfe" + GOOD[20:], pytest.raises(StreamProtocolError, match="not UTF-8"), "name"),  # bad name bytes
-        (encode_frame(1, {"a": b"1"})[:13] + b"\x02" + encode_frame(1, {"a": b"1"})[14:] * 2, pytest.raises(StreamProtocolError, match="twice"), "a"),
-        (GOOD[:13] + b"\x03" + GOOD[14:], pytest.raises(StreamProtocolError, match="camera 2: message ends"), "name_length"),  # count too high
+        (
+            GOOD + b"\x00",
+            pytest.raises(StreamProtocolError, match="1 bytes after the last image"),
+            "message",
+        ),  # trailing bytes
+        (
+            GOOD[:14] + struct.pack("!H", 500) + b"front",
+            pytest.raises(StreamProtocolError, match="overrun"),
+            "name",
+        ),  # name too long
+        (
+            GOOD[:14] + b"\x00\x02\xff\xfe" + GOOD[20:],
+            pytest.raises(StreamProtocolError, match="not UTF-8"),
+            "name",
+        ),  # bad name bytes
+        (
+            encode_frame(1, {"a": b"1"})[:13] + b"\x02" + encode_frame(1, {"a": b"1"})[14:] * 2,
+            pytest.raises(StreamProtocolError, match="twice"),
+            "a",
+        ),
+        (
+            GOOD[:13] + b"\x03" + GOOD[14:],
+            pytest.raises(StreamProtocolError, match="camera 2: message ends"),
+            "name_length",
+        ),  # count too high
     ],
 )
 def test_decode(message: bytes, expectation, field: str | None) -> None:
@@ -57,7 +85,9 @@ def test_importable_without_the_web_stack() -> None:
     import subprocess
     import sys
 
-    code = ("import sys, fisheye_infer.service.protocol as p; p.decode_frame(p.encode_frame(1, {'a': b'x'}));"
-            "print(sorted(m for m in ('fastapi', 'starlette', 'uvicorn') if m in sys.modules))")
+    code = (
+        "import sys, fisheye_infer.service.protocol as p; p.decode_frame(p.encode_frame(1, {'a': b'x'}));"
+        "print(sorted(m for m in ('fastapi', 'starlette', 'uvicorn') if m in sys.modules))"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
     assert result.stdout.strip() == "[]"

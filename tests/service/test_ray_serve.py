@@ -23,7 +23,11 @@ def _free_port() -> int:
 
 
 def _metric(text: str, name: str) -> float:
-    return sum(float(line.split()[-1]) for line in text.splitlines() if line.startswith(name + " ") or line.startswith(name + "{"))
+    return sum(
+        float(line.split()[-1])
+        for line in text.splitlines()
+        if line.startswith(name + " ") or line.startswith(name + "{")
+    )
 
 
 @pytest.fixture(scope="module")
@@ -51,17 +55,25 @@ def test_four_images_give_the_detectors_answer(ray_url: str, images: dict[str, b
     assert body["model_id"] == detector.info.model_id and body["cameras_used"] == list(detector.info.cameras)
     assert len(body["detections"]) == len(reference) > 0
     np.testing.assert_allclose([d["score"] for d in body["detections"]], reference.scores, atol=1e-6)
-    np.testing.assert_allclose([[d[k] for k in ("x", "y", "z_bottom", "l", "w", "h", "yaw")] for d in body["detections"]], reference.boxes, atol=1e-5)
+    np.testing.assert_allclose(
+        [[d[k] for k in ("x", "y", "z_bottom", "l", "w", "h", "yaw")] for d in body["detections"]],
+        reference.boxes,
+        atol=1e-5,
+    )
 
 
-def test_concurrent_callers_are_batched(ray_url: str, images: dict[str, bytes], jpegs: dict[str, bytes], detector: Detector) -> None:
+def test_concurrent_callers_are_batched(
+    ray_url: str, images: dict[str, bytes], jpegs: dict[str, bytes], detector: Detector
+) -> None:
     before = httpx.get(f"{ray_url}/metrics").text
     frames = [images, jpegs, images, jpegs]
     with ThreadPoolExecutor(len(frames)) as pool:
         responses = list(pool.map(lambda f: httpx.post(f"{ray_url}/detect", files=multipart(f), timeout=60), frames))
     assert [r.status_code for r in responses] == [200] * 4
     for response, frame in zip(responses, frames):  # each caller gets its own frame's boxes back
-        np.testing.assert_allclose([d["score"] for d in response.json()["detections"]], detector.detect(frame).scores, atol=1e-6)
+        np.testing.assert_allclose(
+            [d["score"] for d in response.json()["detections"]], detector.detect(frame).scores, atol=1e-6
+        )
     after = httpx.get(f"{ray_url}/metrics").text
     runs = _metric(after, "fisheye_serve_batch_frames_count") - _metric(before, "fisheye_serve_batch_frames_count")
     batched = _metric(after, "fisheye_serve_batch_frames_sum") - _metric(before, "fisheye_serve_batch_frames_sum")
@@ -73,8 +85,13 @@ def test_health_and_the_plain_services_refusals(ray_url: str, images: dict[str, 
     assert httpx.get(f"{ray_url}/readyz").json()["status"] == "ready"
     wrong = {"fisheye_camera_top" if c.endswith("front") else c: b for c, b in images.items()}
     response = httpx.post(f"{ray_url}/detect", files=multipart(wrong), timeout=60)
-    assert response.status_code == 422 and "camera 'fisheye_camera_top': not a camera of this model" in response.json()["error"]
-    too_big = httpx.post(f"{ray_url}/detect", content=b"x" * (1024 * 1024 + 1), headers={"Content-Type": "application/json"}, timeout=60)
+    assert (
+        response.status_code == 422
+        and "camera 'fisheye_camera_top': not a camera of this model" in response.json()["error"]
+    )
+    too_big = httpx.post(
+        f"{ray_url}/detect", content=b"x" * (1024 * 1024 + 1), headers={"Content-Type": "application/json"}, timeout=60
+    )
     assert too_big.status_code == 413 and "max_body_bytes" in too_big.json()["error"]
 
 

@@ -8,10 +8,21 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, given, settings
 from schemathesis.checks import not_a_server_error
-from schemathesis.specs.openapi.checks import content_type_conformance, response_schema_conformance, status_code_conformance
+from schemathesis.specs.openapi.checks import (
+    content_type_conformance,
+    response_schema_conformance,
+    status_code_conformance,
+)
 from service_live import LiveServer
 
-OPERATIONS = [("POST", "/detect"), ("POST", "/detect/batch"), ("GET", "/model"), ("GET", "/healthz"), ("GET", "/readyz"), ("GET", "/metrics")]
+OPERATIONS = [
+    ("POST", "/detect"),
+    ("POST", "/detect/batch"),
+    ("GET", "/model"),
+    ("GET", "/healthz"),
+    ("GET", "/readyz"),
+    ("GET", "/metrics"),
+]
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance]
 
 
@@ -26,7 +37,9 @@ def test_schema_lists_every_operation(api_schema: schemathesis.BaseSchema) -> No
 
 
 @pytest.mark.parametrize("method, path", OPERATIONS)
-def test_no_server_errors_and_documented_answers(api_schema: schemathesis.BaseSchema, server: LiveServer, method: str, path: str) -> None:
+def test_no_server_errors_and_documented_answers(
+    api_schema: schemathesis.BaseSchema, server: LiveServer, method: str, path: str
+) -> None:
     operation = api_schema[path][method]
 
     @given(case=operation.as_strategy())

@@ -18,7 +18,9 @@ def test_defaults_listen_on_loopback_without_microbatching() -> None:
     assert s.spin  # ONNX Runtime's default
 
 
-def test_spin_off_from_the_environment_reaches_the_session_the_service_opens(small_export, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_spin_off_from_the_environment_reaches_the_session_the_service_opens(
+    small_export, monkeypatch: pytest.MonkeyPatch
+) -> None:
     import anyio
 
     import fisheye_infer.runtime.session as session
@@ -40,9 +42,19 @@ def test_spin_off_from_the_environment_reaches_the_session_the_service_opens(sma
     assert seen == ["0"]
 
 
-@pytest.mark.parametrize("value, providers", [("CPUExecutionProvider", ["CPUExecutionProvider"]), ("auto", "auto"), ('["auto"]', "auto"),
-                                              ('["CPUExecutionProvider"]', ["CPUExecutionProvider"]),
-                                              ('[["CPUExecutionProvider", {"use_arena": "1", "n": 2}]]', [("CPUExecutionProvider", {"use_arena": "1", "n": 2})])])
+@pytest.mark.parametrize(
+    "value, providers",
+    [
+        ("CPUExecutionProvider", ["CPUExecutionProvider"]),
+        ("auto", "auto"),
+        ('["auto"]', "auto"),
+        ('["CPUExecutionProvider"]', ["CPUExecutionProvider"]),
+        (
+            '[["CPUExecutionProvider", {"use_arena": "1", "n": 2}]]',
+            [("CPUExecutionProvider", {"use_arena": "1", "n": 2})],
+        ),
+    ],
+)
 def test_providers_from_the_environment(monkeypatch: pytest.MonkeyPatch, value: str, providers: object) -> None:
     monkeypatch.setenv("FISHEYE_PROVIDERS", value)
     assert ServiceSettings(model_path="m.onnx").session_providers == providers
@@ -65,14 +77,28 @@ def test_environment_with_prefix(monkeypatch: pytest.MonkeyPatch) -> None:
     [
         ({"microbatch_max_size": 4, "max_batch_frames": 8}, DoesNotRaise()),  # micro-batches fit a batch
         ({"api_key": "short"}, pytest.raises(ValidationError, match="api_key: expected at least 16 characters, got 5")),
-        ({"microbatch_max_size": 9}, pytest.raises(ValidationError, match="microbatch_max_size: 9 exceeds max_batch_frames 8")),
-        ({"cors_origins": ["*"], "api_key": "k" * 16}, pytest.raises(ValidationError, match="cors_origins")),  # any page could use the key
+        (
+            {"microbatch_max_size": 9},
+            pytest.raises(ValidationError, match="microbatch_max_size: 9 exceeds max_batch_frames 8"),
+        ),
+        (
+            {"cors_origins": ["*"], "api_key": "k" * 16},
+            pytest.raises(ValidationError, match="cors_origins"),
+        ),  # any page could use the key
         ({"queue_size": 0}, pytest.raises(ValidationError, match="queue_size")),
         ({"port": 70000}, pytest.raises(ValidationError, match="port")),
         # refused before the model loads, naming what the installed onnxruntime offers
-        ({"providers": "CUDAExecutionProviderX,CPUExecutionProvider"},
-         pytest.raises(ValidationError, match=r"providers: CUDAExecutionProviderX not offered by the installed onnxruntime \(available: .*CPUExecutionProvider")),
-        ({"providers": '[["CUDAExecutionProviderX", {"device_id": 1}]]'}, pytest.raises(ValidationError, match="CUDAExecutionProviderX not offered")),
+        (
+            {"providers": "CUDAExecutionProviderX,CPUExecutionProvider"},
+            pytest.raises(
+                ValidationError,
+                match=r"providers: CUDAExecutionProviderX not offered by the installed onnxruntime \(available: .*CPUExecutionProvider",
+            ),
+        ),
+        (
+            {"providers": '[["CUDAExecutionProviderX", {"device_id": 1}]]'},
+            pytest.raises(ValidationError, match="CUDAExecutionProviderX not offered"),
+        ),
         ({"providers": "auto,CPUExecutionProvider"}, pytest.raises(ValidationError, match="'auto' stands alone")),
     ],
 )

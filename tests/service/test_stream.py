@@ -64,7 +64,12 @@ def test_bad_frame_content_is_refused_and_the_stream_goes_on(server: LiveServer,
         ws.send(encode_frame(3, images))
         ok = receive(ws)
     StreamError.model_validate(refused)
-    assert (refused["kind"], refused["frame_id"], refused["status"], refused["field"]) == ("error", 1, 422, "fisheye_camera_roof")
+    assert (refused["kind"], refused["frame_id"], refused["status"], refused["field"]) == (
+        "error",
+        1,
+        422,
+        "fisheye_camera_roof",
+    )
     assert (unsupported["frame_id"], unsupported["status"], unsupported["field"]) == (2, 415, FRONT)
     assert ok["kind"] == "result" and ok["frame_id"] == 3
 
@@ -78,7 +83,9 @@ def test_bad_frame_content_is_refused_and_the_stream_goes_on(server: LiveServer,
         ("a text message", 1003, "binary"),
     ],
 )
-def test_unreadable_messages_close_with_a_reason(server: LiveServer, message: bytes | str, code: int, words: str) -> None:
+def test_unreadable_messages_close_with_a_reason(
+    server: LiveServer, message: bytes | str, code: int, words: str
+) -> None:
     with connect(server.ws_url) as ws:
         ws.send(message)
         answer = receive(ws)

@@ -41,7 +41,9 @@ def small_inputs(tmp_path_factory: pytest.TempPathFactory, small_bevdet_config) 
     return folder / "config.py", folder / "rig.json"
 
 
-def train(out: Path, inputs: tuple[Path, Path] | None, steps: int, resume: bool = False, until: int | None = None) -> Run:
+def train(
+    out: Path, inputs: tuple[Path, Path] | None, steps: int, resume: bool = False, until: int | None = None
+) -> Run:
     argv = ["train", "--out", str(out), "--steps", str(steps), *STEPS] + (["--until", str(until)] if until else [])
     argv += ["--resume"] if resume else ["--config", str(inputs[0]), "--rig", str(inputs[1])]  # type: ignore[index]
     assert main(argv) == 0

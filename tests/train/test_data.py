@@ -29,7 +29,9 @@ def test_validation_frames_differ_from_training_frames() -> None:
 
 def test_looks_are_randomised_per_frame() -> None:
     frames = SyntheticFrames(RIG, "train")
-    means = [frames[i].images[0, 60:, :, :].reshape(-1, 3).mean(axis=0) for i in range(4)]  # ground below the front camera
+    means = [
+        frames[i].images[0, 60:, :, :].reshape(-1, 3).mean(axis=0) for i in range(4)
+    ]  # ground below the front camera
     assert np.ptp(np.array(means), axis=0).max() > 10
 
 
@@ -42,10 +44,13 @@ def test_labels_are_ground_truth_records_inside_the_bev_range() -> None:
     assert (np.abs(sample.boxes[:, :2]) < 20).all() and len(sample.boxes) < 12  # objects up to 40 m away were dropped
 
 
-@pytest.mark.parametrize(("kwargs", "message"), [
-    ({"split": "test"}, "split: expected one of train, val"),
-    ({"bev_range": (0.0, 0.0, -1.0, 1.0)}, "bev_range"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"split": "test"}, "split: expected one of train, val"),
+        ({"bev_range": (0.0, 0.0, -1.0, 1.0)}, "bev_range"),
+    ],
+)
 def test_bad_options_are_named(kwargs: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         SyntheticFrames(RIG, **kwargs)

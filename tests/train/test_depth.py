@@ -55,7 +55,9 @@ def test_without_the_box_the_same_cell_has_no_target_or_the_ground(setup) -> Non
     changed = with_box != without
     assert changed.any() and (with_box[changed] >= 0).all()
     assert changed[rig.names.index("fisheye_camera_front")].any()
-    assert not changed[rig.names.index("fisheye_camera_rear")].any()  # the cube lies behind the rear camera's 220 degrees
+    assert not changed[
+        rig.names.index("fisheye_camera_rear")
+    ].any()  # the cube lies behind the rear camera's 220 degrees
     assert (without[with_box == -1] == -1).all()  # a box never removes a target
 
 
@@ -68,5 +70,7 @@ def test_depth_loss_is_small_for_the_right_bin_and_ignores_cells_without_target(
     assert float(depth_loss(right, target)) < 0.01 < 10 < float(depth_loss(wrong, target))
     assert float(depth_loss(right, torch.full((1, 1, 2), -1))) == 0.0
     probs = torch.softmax(torch.randn(1, 8, 1, 2), 1)
-    expected = -(torch.log(probs[0, 3, 0, 0]) + torch.log(1 - probs[0, :, 0, 0]).sum() - torch.log(1 - probs[0, 3, 0, 0]))
+    expected = -(
+        torch.log(probs[0, 3, 0, 0]) + torch.log(1 - probs[0, :, 0, 0]).sum() - torch.log(1 - probs[0, 3, 0, 0])
+    )
     assert math.isclose(float(depth_loss(probs, target)), float(expected), rel_tol=1e-5)

@@ -23,8 +23,25 @@ def fine_tuned(tmp_path_factory: pytest.TempPathFactory, straight_run: Run) -> P
     """One step from the straight run's weights at a learning rate too small to move them."""
     out = tmp_path_factory.mktemp("fine_tuned") / "run"
     folder = straight_run.folder
-    argv = ["train", "--out", str(out), "--init", str(folder / "model.pth"), "--config", str(folder / "config.py"),
-            "--rig", str(folder / "rig.json"), "--steps", "1", "--batch-size", "1", "--lr", "1e-12", "--val-frames", "0"]
+    argv = [
+        "train",
+        "--out",
+        str(out),
+        "--init",
+        str(folder / "model.pth"),
+        "--config",
+        str(folder / "config.py"),
+        "--rig",
+        str(folder / "rig.json"),
+        "--steps",
+        "1",
+        "--batch-size",
+        "1",
+        "--lr",
+        "1e-12",
+        "--val-frames",
+        "0",
+    ]
     assert main(argv) == 0
     return out
 
@@ -45,24 +62,53 @@ def test_init_starts_from_the_checkpoint_and_records_it(fine_tuned: Path, straig
 def test_a_fine_tuning_run_resumes_and_keeps_its_origin(fine_tuned: Path, tmp_path: Path, straight_run: Run) -> None:
     copy = tmp_path / "run"
     shutil.copytree(fine_tuned, copy)
-    assert main(["train", "--out", str(copy), "--resume", "--steps", "2", "--batch-size", "1", "--lr", "1e-12", "--val-frames", "0"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--out",
+                str(copy),
+                "--resume",
+                "--steps",
+                "2",
+                "--batch-size",
+                "1",
+                "--lr",
+                "1e-12",
+                "--val-frames",
+                "0",
+            ]
+        )
+        == 0
+    )
     _, meta = load_checkpoint(copy / "model.pth")
     assert meta["step"] == 2 and meta["train_options"]["init"] == str(straight_run.folder / "model.pth")
 
 
-@pytest.mark.parametrize(("extra", "message"), [
-    (["--init", "nowhere.pth"], "--init: nowhere.pth does not exist"),
-    (["--resume", "--init", "x.pth"], "leave out --init"),
-])
-def test_bad_init_options_are_named(extra: list[str], message: str, tmp_path: Path, straight_run: Run,
-                                    capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--init", "nowhere.pth"], "--init: nowhere.pth does not exist"),
+        (["--resume", "--init", "x.pth"], "leave out --init"),
+    ],
+)
+def test_bad_init_options_are_named(
+    extra: list[str], message: str, tmp_path: Path, straight_run: Run, capsys: pytest.CaptureFixture[str]
+) -> None:
     folder = straight_run.folder
     inputs = [] if "--resume" in extra else ["--config", str(folder / "config.py"), "--rig", str(folder / "rig.json")]
     assert main(["train", "--out", str(tmp_path / "run"), *inputs, "--steps", "1", *extra]) == 1
     assert message in capsys.readouterr().err
 
 
-def test_init_from_another_configuration_is_refused(tmp_path: Path, straight_run: Run, capsys: pytest.CaptureFixture[str]) -> None:
+def test_init_from_another_configuration_is_refused(
+    tmp_path: Path, straight_run: Run, capsys: pytest.CaptureFixture[str]
+) -> None:
     # the compact configuration (the default) from the small configuration's checkpoint
-    assert main(["train", "--out", str(tmp_path / "run"), "--init", str(straight_run.folder / "model.pth"), "--steps", "1"]) == 1
+    assert (
+        main(
+            ["train", "--out", str(tmp_path / "run"), "--init", str(straight_run.folder / "model.pth"), "--steps", "1"]
+        )
+        == 1
+    )
     assert "was trained with another model configuration" in capsys.readouterr().err

@@ -32,13 +32,17 @@ def test_weights_land_on_the_int8_files_grid_per_output_channel() -> None:
     scale = w.abs().amax(dim=(1, 2, 3), keepdim=True) / 64
     steps = q / scale
     torch.testing.assert_close(steps, steps.round(), rtol=0, atol=1e-4)
-    assert steps.abs().amax(dim=(1, 2, 3)).tolist() == pytest.approx([64.0] * 6, abs=1e-4)  # each channel uses the whole 7-bit range
+    assert steps.abs().amax(dim=(1, 2, 3)).tolist() == pytest.approx(
+        [64.0] * 6, abs=1e-4
+    )  # each channel uses the whole 7-bit range
     assert ((q - w).abs() <= scale / 2 + 1e-7).all()
 
 
 def test_a_transposed_convolution_the_export_rewrites_gets_a_scale_per_output_channel_and_kernel_position() -> None:
     torch.manual_seed(0)
-    up = nn.ConvTranspose2d(8, 4, 2, stride=2, bias=False)  # kernel = stride: a 1x1 Conv to 4 x 2 x 2 channels in the file
+    up = nn.ConvTranspose2d(
+        8, 4, 2, stride=2, bias=False
+    )  # kernel = stride: a 1x1 Conv to 4 x 2 x 2 channels in the file
     with torch.no_grad():
         up.weight[:, 0, 0, 0] *= 20  # one position of one channel much larger: it must not coarsen the others' grid
     fq = FakeQuant(up)
@@ -48,7 +52,9 @@ def test_a_transposed_convolution_the_export_rewrites_gets_a_scale_per_output_ch
     captured: list[torch.Tensor] = []
     original = torch.nn.functional.conv_transpose2d
     try:
-        torch.nn.functional.conv_transpose2d = lambda inp, w, *a, **k: (captured.append(w), original(inp, w, *a, **k))[1]  # type: ignore[assignment]
+        torch.nn.functional.conv_transpose2d = lambda inp, w, *a, **k: (captured.append(w), original(inp, w, *a, **k))[
+            1
+        ]  # type: ignore[assignment]
         up(x)
     finally:
         torch.nn.functional.conv_transpose2d = original
@@ -139,7 +145,12 @@ def test_the_detectors_simulated_layers_are_the_int8_files(small_bevdet_config: 
     chosen = set(int8_nodes(graph, "network", float_modules))
     int8_layers = {module_of(n, weights) for n in graph.graph.node if n.name in chosen and n.op_type in WEIGHTED_OPS}
     traced = {module_of(n, weights) for n in graph.graph.node}
-    assert {"img_backbone.conv1", "view_transform.depthnet", "bbox_head.shared_conv", "pts_neck.deblocks.0.0"} <= int8_layers
+    assert {
+        "img_backbone.conv1",
+        "view_transform.depthnet",
+        "bbox_head.shared_conv",
+        "pts_neck.deblocks.0.0",
+    } <= int8_layers
     assert names & traced == int8_layers  # a layer the trace never reached (an unused FPN level) rounds to no effect
     with pytest.raises(ValueError, match="no module of the model"):
         FakeQuant(model, ("bbox_head.nowhere",))
@@ -175,17 +186,55 @@ def qat_run(tmp_path_factory: pytest.TempPathFactory, straight_run: Run) -> Path
     """Two int8-simulating steps from the straight run's weights, frames rendered ahead by one worker process."""
     out = tmp_path_factory.mktemp("qat") / "run"
     folder = straight_run.folder
-    argv = ["train", "--out", str(out), "--init", str(folder / "model.pth"), "--config", str(folder / "config.py"),
-            "--rig", str(folder / "rig.json"), "--steps", "2", "--batch-size", "1", "--lr", "1e-4", "--val-frames", "1",
-            "--qat", "1", "--workers", "1"]
+    argv = [
+        "train",
+        "--out",
+        str(out),
+        "--init",
+        str(folder / "model.pth"),
+        "--config",
+        str(folder / "config.py"),
+        "--rig",
+        str(folder / "rig.json"),
+        "--steps",
+        "2",
+        "--batch-size",
+        "1",
+        "--lr",
+        "1e-4",
+        "--val-frames",
+        "1",
+        "--qat",
+        "1",
+        "--workers",
+        "1",
+    ]
     assert main(argv) == 0
     return out
 
 
 def test_a_resumed_qat_run_is_the_uninterrupted_one(straight_run: Run, tmp_path: Path) -> None:
     folder = straight_run.folder
-    argv = ["--init", str(folder / "model.pth"), "--config", str(folder / "config.py"), "--rig", str(folder / "rig.json"),
-            "--steps", "3", "--batch-size", "1", "--lr", "1e-4", "--val-frames", "0", "--qat", "1", "--checkpoint-every", "1"]
+    argv = [
+        "--init",
+        str(folder / "model.pth"),
+        "--config",
+        str(folder / "config.py"),
+        "--rig",
+        str(folder / "rig.json"),
+        "--steps",
+        "3",
+        "--batch-size",
+        "1",
+        "--lr",
+        "1e-4",
+        "--val-frames",
+        "0",
+        "--qat",
+        "1",
+        "--checkpoint-every",
+        "1",
+    ]
     assert main(["train", "--out", str(tmp_path / "straight"), *argv]) == 0
     assert main(["train", "--out", str(tmp_path / "parts"), *argv, "--until", "2"]) == 0
     resume = ["--resume", *argv[6:]]
@@ -223,9 +272,27 @@ def test_frames_rendered_by_workers_are_the_frames_of_the_loop(straight_run: Run
         assert np.array_equal(depth, inline_depth)
 
 
-def test_resuming_below_the_step_reached_is_refused(resumed_run: tuple[Run, Run], capsys: pytest.CaptureFixture[str]) -> None:
+def test_resuming_below_the_step_reached_is_refused(
+    resumed_run: tuple[Run, Run], capsys: pytest.CaptureFixture[str]
+) -> None:
     _, resumed = resumed_run
-    assert main(["train", "--out", str(resumed.folder), "--resume", "--steps", "3", *("--batch-size", "1", "--lr", "1e-3"),
-                 "--val-frames", "1", "--checkpoint-every", "2"]) == 1
+    assert (
+        main(
+            [
+                "train",
+                "--out",
+                str(resumed.folder),
+                "--resume",
+                "--steps",
+                "3",
+                *("--batch-size", "1", "--lr", "1e-3"),
+                "--val-frames",
+                "1",
+                "--checkpoint-every",
+                "2",
+            ]
+        )
+        == 1
+    )
     err = capsys.readouterr().err
     assert "--steps 3: the run" in err and "already at step 4" in err

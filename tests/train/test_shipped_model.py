@@ -33,7 +33,9 @@ def shipped_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from fisheye_infer.export.exporter import export
 
     out = tmp_path_factory.mktemp("shipped") / "compact.onnx"
-    result = export(COMPACT_BEVDET.checkpoint, out, config=COMPACT_BEVDET.config, rig=COMPACT_BEVDET.rig, progress=lambda _: None)
+    result = export(
+        COMPACT_BEVDET.checkpoint, out, config=COMPACT_BEVDET.config, rig=COMPACT_BEVDET.rig, progress=lambda _: None
+    )
     assert result.parity.passed
     return out
 
@@ -50,7 +52,11 @@ def test_the_shipped_files_are_complete_and_small() -> None:
 
     assert COMPACT_BEVDET.checkpoint.stat().st_size <= 20e6
     _, meta = load_checkpoint(COMPACT_BEVDET.checkpoint)
-    assert meta["arch"] == "fisheye-bevdet" and meta["synthetic"] is False and meta["step"] == meta["train_options"]["steps"]
+    assert (
+        meta["arch"] == "fisheye-bevdet"
+        and meta["synthetic"] is False
+        and meta["step"] == meta["train_options"]["steps"]
+    )
     config = BEVDetConfig.from_mmdet3d_config(COMPACT_BEVDET.config)
     assert Rig.load(COMPACT_BEVDET.rig).hash == meta["rig_hash"] and config.to_dict() == meta["config"]
     card = COMPACT_BEVDET.card.read_text()
@@ -71,10 +77,11 @@ def test_onnx_and_pytorch_give_the_same_metric(shipped_export: Path, heldout: Pa
 
     data = Fisheye3DOD(heldout, "val", limit=8)
     model = open_checkpoint(COMPACT_BEVDET.checkpoint, config=COMPACT_BEVDET.config, rig=COMPACT_BEVDET.rig).model
-    reports = [evaluate_results(*detect_dataset(detector, data, progress=False))
-               for detector in (Detector(shipped_export, threads=1), TorchDetector(model, shipped_export))]
+    reports = [
+        evaluate_results(*detect_dataset(detector, data, progress=False))
+        for detector in (Detector(shipped_export, threads=1), TorchDetector(model, shipped_export))
+    ]
     for label in ("0-30 m", "0-48 m"):
         onnx_side, torch_side = (r.distance[label] for r in reports)
         assert abs(onnx_side.FDS - torch_side.FDS) <= 1e-3 and abs(onnx_side.mAP - torch_side.mAP) <= 1e-3
     assert reports[0].main.num_pred > 0
-

@@ -7,7 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from fisheye_infer.models.training.targets import HeadGrid, draw_gaussian, encode_boxes, gaussian_2d, gaussian_radius, heatmap_target
+from fisheye_infer.models.training.targets import (
+    HeadGrid,
+    draw_gaussian,
+    encode_boxes,
+    gaussian_2d,
+    gaussian_radius,
+    heatmap_target,
+)
 
 #: 20 x 20 cells of 1 m from (-10, -10): cell (i, j) covers x in [i - 10, i - 9), y in [j - 10, j - 9).
 GRID = HeadGrid(bev_size=(20, 20), cell=(1.0, 1.0), pc_range=(-10.0, -10.0))
@@ -16,7 +23,7 @@ GRID = HeadGrid(bev_size=(20, 20), cell=(1.0, 1.0), pc_range=(-10.0, -10.0))
 def test_radius_of_a_square_is_the_smallest_of_the_three_cases() -> None:
     # for a 4 x 4 cell box at overlap 0.1 the third case (both corners inside) decides
     b3, c3 = -2 * 0.1 * 8, (0.1 - 1) * 16
-    expected = (b3 + math.sqrt(b3 ** 2 - 4 * 0.4 * c3)) / 2
+    expected = (b3 + math.sqrt(b3**2 - 4 * 0.4 * c3)) / 2
     assert gaussian_radius((4.0, 4.0), 0.1) == pytest.approx(expected)
     assert gaussian_radius((4.0, 4.0), 0.7) < gaussian_radius((4.0, 4.0), 0.1)  # more overlap, tighter peak
 
@@ -66,11 +73,27 @@ def test_box_code_decodes_back_through_the_head() -> None:
     torch = pytest.importorskip("torch")
     from fisheye_infer.models.transfusion import TransFusionHead
 
-    head = TransFusionHead(in_channels=8, hidden_channel=8, num_classes=2, num_proposals=2, num_heads=2, ffn_channels=8,
-                           head_conv=4, bev_size=(20, 20), out_size_factor=1, voxel_size=(1.0, 1.0), pc_range=(-10.0, -10.0))
+    head = TransFusionHead(
+        in_channels=8,
+        hidden_channel=8,
+        num_classes=2,
+        num_proposals=2,
+        num_heads=2,
+        ffn_channels=8,
+        head_conv=4,
+        bev_size=(20, 20),
+        out_size_factor=1,
+        voxel_size=(1.0, 1.0),
+        pc_range=(-10.0, -10.0),
+    )
     boxes = np.array([[0.5, -3.2, -1.9, 4.0, 2.0, 1.5, 0.3], [-7.25, 8.0, -2.0, 0.7, 0.6, 1.8, -2.8]])
     code = torch.from_numpy(encode_boxes(boxes, GRID)).T[None]  # 1 x 8 x 2
-    res = {"center": code[:, 0:2], "height": code[:, 2:3], "dim": code[:, 3:6], "rot": code[:, 6:8],
-           "heatmap": torch.zeros(1, 2, 2)}
+    res = {
+        "center": code[:, 0:2],
+        "height": code[:, 2:3],
+        "dim": code[:, 3:6],
+        "rot": code[:, 6:8],
+        "heatmap": torch.zeros(1, 2, 2),
+    }
     out = head.decode(res, torch.ones(1, 2, 2), torch.zeros(1, 2, dtype=torch.int64))
     np.testing.assert_allclose(out["boxes"][0].numpy(), boxes, atol=1e-5)

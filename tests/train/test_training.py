@@ -56,8 +56,19 @@ def test_checkpoint_is_official_format_for_its_config(straight_run: Run) -> None
 def test_trained_checkpoint_round_trips_through_export(straight_run: Run, capsys: pytest.CaptureFixture[str]) -> None:
     folder = straight_run.folder
     out = folder / "model.onnx"
-    argv = ["export", "--ckpt", str(folder / "model.pth"), "--config", str(folder / "config.py"),
-            "--rig", str(folder / "rig.json"), "--out", str(out), "--frames", "1"]
+    argv = [
+        "export",
+        "--ckpt",
+        str(folder / "model.pth"),
+        "--config",
+        str(folder / "config.py"),
+        "--rig",
+        str(folder / "rig.json"),
+        "--out",
+        str(out),
+        "--frames",
+        "1",
+    ]
     assert main(argv) == 0, capsys.readouterr().err
     meta = read_meta(out)
     assert meta.parity is not None and meta.parity.passed
@@ -77,14 +88,19 @@ def test_resume_continues_from_the_saved_step(resumed_run: tuple[Run, Run], stra
         torch.testing.assert_close(a[key], b[key], rtol=1e-4, atol=1e-5, msg=key)
 
 
-@pytest.mark.parametrize(("argv", "message"), [
-    (["--resume"], "has no config.py and rig.json"),
-    (["--rig", "x.json"], "--rig needs --config"),
-    (["--steps", "0"], "--steps: expected at least 1"),
-    (["--until", "0"], "--until: expected a step of at least 1"),
-    (["--threads", "0"], "--threads: expected at least 1"),
-])
-def test_bad_options_are_named(argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--resume"], "has no config.py and rig.json"),
+        (["--rig", "x.json"], "--rig needs --config"),
+        (["--steps", "0"], "--steps: expected at least 1"),
+        (["--until", "0"], "--until: expected a step of at least 1"),
+        (["--threads", "0"], "--threads: expected at least 1"),
+    ],
+)
+def test_bad_options_are_named(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["train", "--out", str(tmp_path / "run"), *argv]) == 1
     assert message in capsys.readouterr().err
 

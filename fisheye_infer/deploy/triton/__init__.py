@@ -17,8 +17,14 @@ from typing import Any
 
 __all__ = ["TritonDetector", "TritonOptions", "model_config", "render_pbtxt", "write_repository", "model_name"]
 
-_WHERE = {"TritonDetector": "client", "TritonOptions": "repository", "model_config": "repository", "render_pbtxt": "repository",
-          "write_repository": "repository", "model_name": "repository"}
+_WHERE = {
+    "TritonDetector": "client",
+    "TritonOptions": "repository",
+    "model_config": "repository",
+    "render_pbtxt": "repository",
+    "write_repository": "repository",
+    "model_name": "repository",
+}
 
 
 def __getattr__(name: str) -> Any:

@@ -81,7 +81,9 @@ class TritonDetector(FrameDetector):
         self._local = threading.local()
         where = f"model '{model}' at {self.url}"
         with _mapped(where, ArtifactError):
-            metadata = self._client().get_model_metadata(model, version, headers=self.headers)  # raises with the server's reason
+            metadata = self._client().get_model_metadata(
+                model, version, headers=self.headers
+            )  # raises with the server's reason
             config = self._client().get_model_config(model, version, headers=self.headers)
             if not self._client().is_model_ready(model, version, headers=self.headers):
                 raise ArtifactError(f"{where}: the server does not report it ready")
@@ -101,18 +103,25 @@ class TritonDetector(FrameDetector):
     def _client(self) -> Any:
         client = getattr(self._local, "client", None)
         if client is None:
-            client = self._http.InferenceServerClient(self.url, ssl=self.ssl, connection_timeout=self.timeout_s, network_timeout=self.timeout_s)
+            client = self._http.InferenceServerClient(
+                self.url, ssl=self.ssl, connection_timeout=self.timeout_s, network_timeout=self.timeout_s
+            )
             self._local.client = client
         return client
 
     def _infer(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
         http = self._http
-        inputs = [http.InferInput(INPUT_IMAGES, list(images.shape), "UINT8"), http.InferInput(INPUT_CAMERA_VALID, list(valid.shape), "BOOL")]
+        inputs = [
+            http.InferInput(INPUT_IMAGES, list(images.shape), "UINT8"),
+            http.InferInput(INPUT_CAMERA_VALID, list(valid.shape), "BOOL"),
+        ]
         inputs[0].set_data_from_numpy(np.ascontiguousarray(images, np.uint8), binary_data=True)
         inputs[1].set_data_from_numpy(np.ascontiguousarray(valid, bool), binary_data=True)
         outputs = [http.InferRequestedOutput(name, binary_data=True) for name in OUTPUTS]
         with _mapped(f"model '{self.model}' at {self.url}"):
-            result = self._client().infer(self.model, inputs, model_version=self.version, outputs=outputs, headers=self.headers)
+            result = self._client().infer(
+                self.model, inputs, model_version=self.version, outputs=outputs, headers=self.headers
+            )
             arrays = [result.as_numpy(name) for name in OUTPUTS]
         missing = [name for name, a in zip(OUTPUTS, arrays) if a is None]
         if missing:

@@ -29,11 +29,26 @@ from fisheye_infer.errors import ArtifactError, ExportError
 from fisheye_infer.runtime.artifact import METADATA_KEY, inspection_session, parse_meta
 from fisheye_infer.runtime.detector import check_interface
 
-__all__ = ["TritonOptions", "model_name", "model_config", "render_pbtxt", "write_repository", "TRITON_DTYPES", "KSERVE_DTYPES"]
+__all__ = [
+    "TritonOptions",
+    "model_name",
+    "model_config",
+    "render_pbtxt",
+    "write_repository",
+    "TRITON_DTYPES",
+    "KSERVE_DTYPES",
+]
 
 #: ONNX Runtime element types -> Triton config data types.
-TRITON_DTYPES = {"tensor(uint8)": "TYPE_UINT8", "tensor(bool)": "TYPE_BOOL", "tensor(float)": "TYPE_FP32", "tensor(int64)": "TYPE_INT64",
-                 "tensor(int32)": "TYPE_INT32", "tensor(float16)": "TYPE_FP16", "tensor(double)": "TYPE_FP64"}
+TRITON_DTYPES = {
+    "tensor(uint8)": "TYPE_UINT8",
+    "tensor(bool)": "TYPE_BOOL",
+    "tensor(float)": "TYPE_FP32",
+    "tensor(int64)": "TYPE_INT64",
+    "tensor(int32)": "TYPE_INT32",
+    "tensor(float16)": "TYPE_FP16",
+    "tensor(double)": "TYPE_FP64",
+}
 #: Triton config data types -> KServe v2 tensor data types (``TYPE_FP32`` -> ``FP32``).
 KSERVE_DTYPES = {v: v.removeprefix("TYPE_") for v in TRITON_DTYPES.values()}
 
@@ -76,7 +91,9 @@ class TritonOptions:
 
     def __post_init__(self) -> None:
         if self.name is not None and not _NAME.match(self.name):
-            raise ValueError(f"name: {self.name!r} is not a usable model name (letters, digits, '_', '.', '-'; not starting with '.' or '-')")
+            raise ValueError(
+                f"name: {self.name!r} is not a usable model name (letters, digits, '_', '.', '-'; not starting with '.' or '-')"
+            )
         if self.max_batch_size < 0:
             raise ValueError(f"max_batch_size: expected 0 (no batching) or more, got {self.max_batch_size}")
         if self.max_queue_delay_us < 0:
@@ -110,11 +127,15 @@ def _io(items: list[Any], batched: bool, source: str) -> list[dict[str, Any]]:
     out = []
     for item in items:
         if item.type not in TRITON_DTYPES:
-            raise ArtifactError(f"{source}: tensor '{item.name}' has type {item.type}, which this writer does not map to Triton")
+            raise ArtifactError(
+                f"{source}: tensor '{item.name}' has type {item.type}, which this writer does not map to Triton"
+            )
         shape = [d if isinstance(d, int) and d > 0 else -1 for d in item.shape]
         if batched:
             if shape[0] != -1:
-                raise ExportError(f"{source}: tensor '{item.name}' has a fixed batch of {shape[0]}; use max_batch_size=0")
+                raise ExportError(
+                    f"{source}: tensor '{item.name}' has a fixed batch of {shape[0]}; use max_batch_size=0"
+                )
             shape = shape[1:]
         out.append({"name": item.name, "data_type": TRITON_DTYPES[item.type], "dims": shape})
     return out
@@ -127,7 +148,9 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
     session = inspection_session(path)
     document = session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
     meta = parse_meta(document, source=f"model {path}")
-    check_interface({i.name: i.shape for i in session.get_inputs()}, [o.name for o in session.get_outputs()], meta, f"model {path}")
+    check_interface(
+        {i.name: i.shape for i in session.get_inputs()}, [o.name for o in session.get_outputs()], meta, f"model {path}"
+    )
     batched = options.max_batch_size > 0
     config: dict[str, Any] = {
         "name": options.name or model_name(path),
@@ -142,15 +165,23 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
         if options.preferred_batch_sizes:
             batching["preferred_batch_size"] = list(options.preferred_batch_sizes)
         config["dynamic_batching"] = batching
-    group: dict[str, Any] = {"count": options.instances, "kind": {"auto": "KIND_AUTO", "cpu": "KIND_CPU", "gpu": "KIND_GPU"}[options.kind]}
+    group: dict[str, Any] = {
+        "count": options.instances,
+        "kind": {"auto": "KIND_AUTO", "cpu": "KIND_CPU", "gpu": "KIND_GPU"}[options.kind],
+    }
     if options.gpus:
         group["gpus"] = list(options.gpus)
     config["instance_group"] = [group]
     if options.tensorrt:
-        trt = {"precision_mode": options.tensorrt_precision, "max_workspace_size_bytes": str(options.tensorrt_workspace_bytes)}
+        trt = {
+            "precision_mode": options.tensorrt_precision,
+            "max_workspace_size_bytes": str(options.tensorrt_workspace_bytes),
+        }
         if options.tensorrt_cache:
             trt |= {"trt_engine_cache_enable": "1", "trt_engine_cache_path": options.tensorrt_cache}
-        config["optimization"] = {"execution_accelerators": {"gpu_execution_accelerator": [{"name": "tensorrt", "parameters": trt}]}}
+        config["optimization"] = {
+            "execution_accelerators": {"gpu_execution_accelerator": [{"name": "tensorrt", "parameters": trt}]}
+        }
     # The runtime's own choice (session.py): no memory-pattern planning, which keeps peak RSS low.
     parameters = {"enable_mem_pattern": {"string_value": "0"}, METADATA_KEY: {"string_value": document}}
     if options.threads:
@@ -208,7 +239,9 @@ def render_pbtxt(config: dict[str, Any]) -> str:
     return "\n".join(_fields(config, 0)) + "\n"
 
 
-def write_repository(model_path: str | Path, out: str | Path, options: TritonOptions | None = None, *, force: bool = False) -> Path:
+def write_repository(
+    model_path: str | Path, out: str | Path, options: TritonOptions | None = None, *, force: bool = False
+) -> Path:
     """Write ``out/<name>/config.pbtxt`` and ``out/<name>/1/model.onnx``; returns ``out/<name>``.
 
     The model folder appears complete or not at all (it is built beside its place and renamed),
