@@ -75,7 +75,8 @@ def file_sha256(path: Path) -> str:
 
 
 def infer_architecture(state_dict: Mapping[str, object], config: str | Path | object | None = None) -> str:
-    """The registered architecture the checkpoint's keys (narrowed down by ``config``, where given) name; refuse ambiguity."""
+    """The registered architecture the checkpoint's keys (narrowed down by ``config``, where given) name;
+    refuse ambiguity."""
     from fisheye_infer.models import list_models, matching_architectures
 
     matches = matching_architectures(state_dict, config)
@@ -89,7 +90,8 @@ def infer_architecture(state_dict: Mapping[str, object], config: str | Path | ob
                 f"({config if isinstance(config, (str, Path)) else type(config).__name__}) fits none of them"
             )
         raise ExportError(
-            f"cannot tell the architecture from the checkpoint's keys (first keys: {sample}); pass --arch ({', '.join(list_models())})"
+            f"cannot tell the architecture from the checkpoint's keys (first keys: {sample}); pass --arch "
+            f"({', '.join(list_models())})"
         )
     raise ExportError(
         f"the checkpoint fits several architectures ({', '.join(matches)}); pass --config (the official config "
@@ -291,7 +293,8 @@ def export(
         set_metadata(proto, meta, extra)
         save_model(proto, pending.path)
         progress(
-            f"[4/5] verifying in ONNX Runtime against PyTorch ({frames} seeded frame(s){' + ' + str(verify_images) if verify_images else ''})"
+            f"[4/5] verifying in ONNX Runtime against PyTorch ({frames} seeded "
+            f"frame(s){' + ' + str(verify_images) if verify_images else ''})"
         )
         batch = verification_frames(the_rig, frames, images=verify_images)
         parity = verify(pending.path, model, batch, threads=threads)
@@ -314,16 +317,17 @@ def export(
     )
     if not parity.passed and not force:
         raise ParityError(
-            f"the ONNX graph disagrees with PyTorch beyond tolerance; no file written (use --force to keep it)\n{result.summary()}"
+            "the ONNX graph disagrees with PyTorch beyond tolerance; no file written "
+            f"(use --force to keep it)\n{result.summary()}"
         )
     if int8_options is not None and written is not None:
         quant = export_int8(written, options=int8_options, comparison=comparison, force=force, progress=progress)
         result = replace(result, seconds=time.perf_counter() - start, int8=quant)
         if not quant.parity.passed and not force:
             raise ParityError(
-                "the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written "
-                "(keep more layers float32 with --int8-float or --int8-scope trunk, calibrate on your own frames "
-                f"with --calib-images, accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}"
+                "the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written (keep more "
+                "layers float32 with --int8-float or --int8-scope trunk, calibrate on your own frames with "
+                f"--calib-images, accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}"
             )
     if fp16 and written is not None:
         half = export_fp16(written, comparison=comparison, force=force, progress=progress)

@@ -66,8 +66,9 @@ class Float16Plan:
         kept = f"; kept float32: {', '.join(self.kept_nodes)}" if self.kept_nodes else ""
         clipped = f"; {self.clipped_weights} weight value(s) clipped to +-65504" if self.clipped_weights else ""
         return (
-            f"float16 weights and compute in {self.half_nodes} of {self.nodes} nodes; float32: {self.geometry_tables} geometry tables (geom.*), "
-            f"{self.index_nodes} index-arithmetic node(s){kept}; {self.casts} Casts inserted{clipped}; uint8/bool inputs and float32 outputs as in fp32"
+            f"float16 weights and compute in {self.half_nodes} of {self.nodes} nodes; float32: {self.geometry_tables} "
+            f"geometry tables (geom.*), {self.index_nodes} index-arithmetic node(s){kept}; {self.casts} Casts "
+            f"inserted{clipped}; uint8/bool inputs and float32 outputs as in fp32"
         )
 
 

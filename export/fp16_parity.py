@@ -150,8 +150,8 @@ def fp16_parity(
     ties = _ties(full[_SCORES], k)
     problems = (
         (
-            f"the fp32 file's dense scores tie: up to {ties} of them equal the {k}-th largest, so which tied cells its top-{k} keeps "
-            "is not defined; the replayed comparison measures float16 alone",
+            f"the fp32 file's dense scores tie: up to {ties} of them equal the {k}-th largest, so which tied cells its "
+            f"top-{k} keeps is not defined; the replayed comparison measures float16 alone",
         )
         if ties > 1
         else ()

@@ -84,7 +84,8 @@ def replace_initializers(model: onnx.ModelProto, tables: Mapping[str, np.ndarray
         new = numpy_helper.from_array(np.ascontiguousarray(array), name)
         if new.data_type != old.data_type:
             raise ArtifactError(
-                f"initializer {name}: new table is {array.dtype}, the graph holds {onnx.TensorProto.DataType.Name(old.data_type)}"
+                f"initializer {name}: new table is {array.dtype}, the graph holds "
+                f"{onnx.TensorProto.DataType.Name(old.data_type)}"
             )
         old.CopyFrom(new)
 

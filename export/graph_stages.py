@@ -85,7 +85,8 @@ def image_region(model: onnx.ModelProto) -> list[str]:
             from_images.update(node.output)
     if not anchors:
         raise ArtifactError(
-            "no node samples the image features with a geometry table (geom.*); cannot locate the image backbone and neck"
+            "no node samples the image features with a geometry table (geom.*); cannot locate the image backbone and "
+            "neck"
         )
     region: set[str] = set()
     stack = [n for a in anchors for n in a.input if n in from_images]

@@ -114,7 +114,8 @@ class FrameReader(CalibrationDataReader):
     def __init__(self, frames: np.ndarray, valid: np.ndarray | None = None) -> None:
         if frames.ndim != 5 or frames.dtype != np.uint8 or len(frames) == 0:
             raise ExportError(
-                f"calibration frames: expected a non-empty (F, N, H, W, 3) uint8 array, got {frames.dtype} {frames.shape}"
+                f"calibration frames: expected a non-empty (F, N, H, W, 3) uint8 array, got {frames.dtype} "
+                f"{frames.shape}"
             )
         self.frames = frames
         self.valid = np.ones(frames.shape[:2], bool) if valid is None else valid
@@ -150,12 +151,12 @@ def image_region(model: onnx.ModelProto) -> list[str]:
 def int8_nodes(model: onnx.ModelProto, scope: str = "network", keep_float: Sequence[str] = ()) -> list[str]:
     """Names of the nodes the int8 file quantizes (every node named, see ``name_nodes``), in graph order.
 
-    ``trunk``: the image trunk's compute (``image_region``, ops of ``TRUNK_OPS``). ``network``: the trunk, plus each node of
-    ``WEIGHTED_OPS`` outside it whose weight (input 1) is an initializer, and the ``TRUNK_OPS``
-    nodes reading what those produce (a ReLU or residual Add after a convolution: without them ORT
-    would leave the convolution float, for want of a quantized output). No node reading a
-    ``geom.*`` table directly, and none of the modules named in ``keep_float`` (state-dict prefixes,
-    the architecture's ``int8_float``; see ``module_of``).
+    ``trunk``: the image trunk's compute (``image_region``, ops of ``TRUNK_OPS``). ``network``: the
+    trunk, plus each node of ``WEIGHTED_OPS`` outside it whose weight (input 1) is an initializer,
+    and the ``TRUNK_OPS`` nodes reading what those produce (a ReLU or residual Add after a
+    convolution: without them ORT would leave the convolution float, for want of a quantized
+    output). No node reading a ``geom.*`` table directly, and none of the modules named in
+    ``keep_float`` (state-dict prefixes, the architecture's ``int8_float``; see ``module_of``).
     """
     if scope not in SCOPES:
         raise ExportError(f"int8: scope {scope!r} is not one of {', '.join(SCOPES)}")
@@ -237,8 +238,8 @@ def quantized_scope(
             f"float32: {kept}geometry, pooling and heads"
         )
     return (
-        f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} beyond it; "
-        f"float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding"
+        f"network: {len(layers)} weighted layers, {in_trunk} in the image backbone+neck and {len(layers) - in_trunk} "
+        f"beyond it; float32: {kept}geometry, pooling, attention products, softmax, norms and box decoding"
     )
 
 
@@ -389,7 +390,8 @@ def check_weight_range(model: onnx.ModelProto, weight_bits: int = WEIGHT_BITS) -
         if values.size and (np.abs(values).max() > qmax or np.any(zero != 0)):
             raise ExportError(
                 f"int8: weight {node.input[0]} spans [{values.min()}, {values.max()}] with zero point "
-                f"{sorted(set(zero.ravel().tolist()))[:3]}; expected {weight_bits}-bit weights, [-{qmax}, {qmax}] around 0"
+                f"{sorted(set(zero.ravel().tolist()))[:3]}; expected {weight_bits}-bit weights, [-{qmax}, {qmax}] "
+                "around 0"
             )
 
 

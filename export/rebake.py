@@ -41,7 +41,8 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
     new_rig = rig if isinstance(rig, Rig) else resolve_rig(rig)
     if len(new_rig) != len(meta.cameras):
         raise RigError(
-            f"the rig has {len(new_rig)} cameras, the model was built for {len(meta.cameras)} ({', '.join(meta.cameras)})"
+            f"the rig has {len(new_rig)} cameras, the model was built for {len(meta.cameras)} "
+            f"({', '.join(meta.cameras)})"
         )
     new_rig.require(meta.cameras, meta.image_size)
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None

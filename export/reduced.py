@@ -66,7 +66,8 @@ def export_fp16(
     out = Path(out) if out is not None else fp16_path_for(src)
     meta = _fp32_meta(src, "fp16", "already a reduced-precision file")
     progress(
-        "fp16 [1/2] converting weights and compute to float16 (geometry tables, index arithmetic and the interface stay as in fp32)"
+        "fp16 [1/2] converting weights and compute to float16 (geometry tables, index arithmetic and the interface "
+        "stay as in fp32)"
     )
     proto, plan = to_float16(onnx.load(str(src)))
     with pending_file(out, "h") as pending:
@@ -103,14 +104,16 @@ def export_int8(
     out = Path(out) if out is not None else int8_path_for(src)
     meta = _fp32_meta(src, "int8", "already quantized")
     progress(
-        f"int8 [1/3] rendering {options.calib_frames} calibration frame(s){' + ' + str(options.calib_images) if options.calib_images else ''}"
+        f"int8 [1/3] rendering {options.calib_frames} calibration "
+        f"frame(s){' + ' + str(options.calib_images) if options.calib_images else ''}"
     )
     calibration = verification_frames(
         meta.rig, options.calib_frames, seed=CALIBRATION_SEED, images=options.calib_images
     )
     with pending_file(out, "q") as pending:
         progress(
-            f"int8 [2/3] static QDQ quantization, scope {options.scope} (U8 activations, S8 per-channel {options.weight_bits}-bit weights)"
+            f"int8 [2/3] static QDQ quantization, scope {options.scope} (U8 activations, S8 per-channel "
+            f"{options.weight_bits}-bit weights)"
         )
         chosen_by = "the architecture's int8_float" if options.keep_float is None else "asked for at export"
         keep_float = architecture_float(src) if options.keep_float is None else tuple(options.keep_float)
@@ -145,10 +148,12 @@ def _fp32_meta(src: Path, kind: str, already: str) -> ArtifactMeta:
 def _comparison_frames(
     meta: ArtifactMeta, comparison: Comparison, step: str, progress: Callable[[str], None]
 ) -> np.ndarray:
-    """The frames a reduced file is compared on: seeded renders (the first ones are the fp32 export's own), then the user's."""
+    """The frames a reduced file is compared on: seeded renders (the first ones are the fp32 export's own),
+    then the user's."""
     images = comparison.images
     progress(
-        f"{step} comparing with the fp32 file on {comparison.frames} seeded frame(s){' + ' + str(images) if images else ''}"
+        f"{step} comparing with the fp32 file on {comparison.frames} seeded "
+        f"frame(s){' + ' + str(images) if images else ''}"
     )
     return verification_frames(meta.rig, comparison.frames, images=images)
 

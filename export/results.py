@@ -38,9 +38,11 @@ class Int8Result(ReducedResult):
         )
         return "\n".join(
             [
-                f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {how})",
+                f"int8 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; "
+                f"{how})",
                 f"int8 vs the fp32 ONNX file on {p.frames} frames: {_kept(p)} of the top-50 boxes matched within "
-                f"{p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+                f"{p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}) -> "
+                f"{'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
                 *_by_score_lines(p),
                 *_tensorrt_lines(self.meta, "int8 file: "),
             ]
@@ -53,17 +55,20 @@ class Fp16Result(ReducedResult):
     def summary(self) -> str:
         p, q = self.parity, self.meta.quantization
         lines = [
-            f"fp16 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; {q.scope if q else 'not reduced'})",
-            f"fp16 vs the fp32 ONNX file on {p.frames} frames ({p.evaluated_with}): {_kept(p)} of the top-50 boxes matched within "
-            f"{p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}; matched max |box| {p.max_box_abs_diff_m:.3f} m, "
-            f"|score| {p.max_score_abs_diff:.4f}) -> {'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
+            f"fp16 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; "
+            f"{q.scope if q else 'not reduced'})",
+            f"fp16 vs the fp32 ONNX file on {p.frames} frames ({p.evaluated_with}): {_kept(p)} of the top-50 boxes "
+            f"matched within {p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}; matched max "
+            f"|box| {p.max_box_abs_diff_m:.3f} m, |score| {p.max_score_abs_diff:.4f}) -> "
+            f"{'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
             *_by_score_lines(p),
         ]
         if p.replayed is not None:
             r = p.replayed
             lines.append(
-                f"  at the fp16 file's own top-k choice: {r.top_matched_fraction:.1%} matched; position by position max |box| "
-                f"{r.max_box_abs_diff_m:.3f} m, |score| {r.max_score_abs_diff:.4f}; dense scores max |diff| {p.max_rank_score_abs_diff or 0.0:.4f}"
+                f"  at the fp16 file's own top-k choice: {r.top_matched_fraction:.1%} matched; position by position "
+                f"max |box| {r.max_box_abs_diff_m:.3f} m, |score| {r.max_score_abs_diff:.4f}; dense scores max |diff| "
+                f"{p.max_rank_score_abs_diff or 0.0:.4f}"
             )
         lines += [f"  {problem}" for problem in p.problems]
         return "\n".join(lines + _tensorrt_lines(self.meta, "fp16 file: "))
@@ -105,18 +110,22 @@ class ExportResult:
     def summary(self) -> str:
         p = self.parity
         lines = [
-            f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; initializers "
-            f"{self.initializer_bytes / 1e6:.1f} MB, of which geometry tables {self.geometry_bytes / 1e6:.1f} MB)",
+            f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; "
+            f"initializers {self.initializer_bytes / 1e6:.1f} MB, of which geometry tables "
+            f"{self.geometry_bytes / 1e6:.1f} MB)",
             f"model {self.meta.model_id}: {self.meta.architecture}, {len(self.meta.cameras)} cameras at "
-            f"{self.meta.image_size[0]}x{self.meta.image_size[1]}, {self.meta.num_boxes} boxes, rig {self.meta.rig_hash}",
+            f"{self.meta.image_size[0]}x{self.meta.image_size[1]}, {self.meta.num_boxes} boxes, rig "
+            f"{self.meta.rig_hash}",
             f"parity vs PyTorch float64 on {p.frames} frames at {', '.join(map(str, p.threads))} thread(s) "
             f"(PyTorch float32 itself: dense {_f32(p, 0)}, box {_f32(p, 1)} m, score {_f32(p, 2)}):",
-            f"  scores before ranking max |diff| {p.max_rank_score_abs_diff or 0.0:.2e} (tol {p.tolerance_rank_score or p.tolerance_score:.1e}); "
-            f"top-k choice: {_choice(p)}",
-            f"  at that choice max |box| {p.max_box_abs_diff_m:.2e} m (tol {p.tolerance_box_m:.1e}), max |score| {p.max_score_abs_diff:.2e} "
-            f"(tol {p.tolerance_score:.1e}), labels {'equal' if p.labels_equal else 'DIFFER'}, valid {'equal' if p.valid_equal else 'DIFFERS'}, "
-            f"{p.unmatched} box(es) off{'; the written file DIFFERS from the checked graph' if p.written_equals_checked is False else ''} "
-            f"-> {'PASSED' if p.passed else 'FAILED'}",
+            f"  scores before ranking max |diff| {p.max_rank_score_abs_diff or 0.0:.2e} (tol "
+            f"{p.tolerance_rank_score or p.tolerance_score:.1e}); top-k choice: {_choice(p)}",
+            f"  at that choice max |box| {p.max_box_abs_diff_m:.2e} m (tol {p.tolerance_box_m:.1e}), max |score| "
+            f"{p.max_score_abs_diff:.2e} (tol {p.tolerance_score:.1e}), labels "
+            f"{'equal' if p.labels_equal else 'DIFFER'}, valid {'equal' if p.valid_equal else 'DIFFERS'}, "
+            f"{p.unmatched} box(es) "
+            f"off{'; the written file DIFFERS from the checked graph' if p.written_equals_checked is False else ''} -> "
+            f"{'PASSED' if p.passed else 'FAILED'}",
             *(f"  {problem}" for problem in p.problems),
             *_tensorrt_lines(self.meta),
             f"took {self.seconds:.1f} s",
@@ -145,5 +154,8 @@ def _choice(p: ParityReport) -> str:
     if p.order_equal:
         return "PyTorch float32's own"
     if p.selection_valid:
-        return f"a top-k of its scores, ties broken otherwise than PyTorch float32 ({p.tie_substitutions} substitution(s), {p.tie_swaps} position(s))"
+        return (
+            "a top-k of its scores, ties broken otherwise than PyTorch float32 "
+            f"({p.tie_substitutions} substitution(s), {p.tie_swaps} position(s))"
+        )
     return "NOT a top-k of its own scores"

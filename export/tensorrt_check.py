@@ -123,8 +123,8 @@ def _check_inputs(g: GraphFacts, found: Findings) -> None:
         if dynamic:
             found.note(
                 None,
-                f"graph input '{value.name}' has dynamic dimension(s) {dynamic} beyond the batch axis "
-                f"({shape}): the engine needs an optimization profile whose min/opt/max cover them, and is tuned for that range",
+                f"graph input '{value.name}' has dynamic dimension(s) {dynamic} beyond the batch axis ({shape}): the "
+                "engine needs an optimization profile whose min/opt/max cover them, and is tuned for that range",
             )
 
 
@@ -133,7 +133,8 @@ def _check_op(node: onnx.NodeProto, found: Findings) -> bool:
     if node.domain not in ("", "ai.onnx"):
         found.error(
             node,
-            f"custom op {node.domain}::{node.op_type}: the parser has no importer for it and needs a TensorRT plugin registered under that name",
+            f"custom op {node.domain}::{node.op_type}: the parser has no importer for it and needs a TensorRT plugin "
+            "registered under that name",
         )
         return False
     if node.op_type in UNSUPPORTED_OPS:
@@ -187,7 +188,8 @@ def _check_node(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> None:
     elif op == "ScatterND" and any(a.name == "reduction" for a in node.attribute):
         found.error(
             node,
-            f"ScatterND with reduction='{attribute(node, 'reduction')}': the parser refuses the reduction attribute (even 'none')",
+            f"ScatterND with reduction='{attribute(node, 'reduction')}': the parser refuses the reduction attribute "
+            "(even 'none')",
         )
     elif op == "Clip" and g.type_name(node.input[0]) in FLOAT_TYPES:
         _require_weights(g, node, 1, "min", found)
@@ -224,7 +226,8 @@ def _require_weights(g: GraphFacts, node: onnx.NodeProto, index: int, what: str,
     if value in g.derived:
         found.note(
             node,
-            f"{node.op_type} {what} '{value}' is computed from constants: the parser needs it as an initializer; fold constants first",
+            f"{node.op_type} {what} '{value}' is computed from constants: the parser needs it as an initializer; fold "
+            "constants first",
         )
     else:
         found.error(
@@ -261,8 +264,8 @@ def _check_grid_sample(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> 
     if mode not in GRID_MODES:
         found.error(
             node,
-            f"GridSample mode='{mode}': the parser knows {', '.join(GRID_MODES)} and turns any other value into nearest "
-            f"without an error (opset 20 renamed them 'linear'/'cubic'; export at opset 16 to 19)",
+            f"GridSample mode='{mode}': the parser knows {', '.join(GRID_MODES)} and turns any other value into "
+            "nearest without an error (opset 20 renamed them 'linear'/'cubic'; export at opset 16 to 19)",
         )
     padding = attribute(node, "padding_mode", "zeros")
     if padding not in GRID_PADDING:
@@ -296,7 +299,8 @@ def _check_resize(node: onnx.NodeProto, found: Findings) -> None:
     ):
         found.error(
             node,
-            "Resize tf_half_pixel_for_nn with a nearest_mode other than round_prefer_floor: not supported by the parser",
+            "Resize tf_half_pixel_for_nn with a nearest_mode other than round_prefer_floor: not supported by the "
+            "parser",
         )
     if attribute(node, "antialias", 0):
         found.error(node, "Resize with antialias=1: the parser does not support antialiasing")
@@ -316,7 +320,8 @@ def _check_zero_point(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> N
     elif np.any(zero != 0):
         found.error(
             node,
-            f"{node.op_type} {what} is {zero.dtype} with non-zero values: TensorRT quantizes symmetrically (zero point 0) only",
+            f"{node.op_type} {what} is {zero.dtype} with non-zero values: TensorRT quantizes symmetrically "
+            "(zero point 0) only",
         )
 
 
@@ -325,8 +330,8 @@ def _note_doubles(g: GraphFacts, found: Findings) -> None:
     if doubles:
         found.note(
             None,
-            f"{len(doubles)} DOUBLE value(s) (e.g. {', '.join(doubles[:_EXAMPLES])}): the parser casts DOUBLE down to FLOAT, "
-            "clamping to +-FLT_MAX",
+            f"{len(doubles)} DOUBLE value(s) (e.g. {', '.join(doubles[:_EXAMPLES])}): the parser casts DOUBLE down to "
+            "FLOAT, clamping to +-FLT_MAX",
         )
 
 

@@ -6,9 +6,9 @@ the resulting graph contains no constant derived from a table's size, which is w
 ``rebake`` give the same graph any rig's tables. Afterwards the table inputs become named
 initializers, and the normalisation's per-channel division is folded into the first
 convolution's weights (``graph.fold_input_scale``; exact in real arithmetic, and the written file
-is checked against PyTorch like the rest). The tracer sees example buckets of at least two rows (a bucket may hold one row for
-a given rig, and torch.export specialises sizes 0 and 1): the extra rows repeat the bucket's last
-row, and no cell reads them.
+is checked against PyTorch like the rest). The tracer sees example buckets of at least two rows
+(a bucket may hold one row for a given rig, and torch.export specialises sizes 0 and 1): the extra
+rows repeat the bucket's last row, and no cell reads them.
 """
 
 from __future__ import annotations

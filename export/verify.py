@@ -4,9 +4,10 @@ Every export ends here. The reference is the PyTorch model evaluated in float64,
 must be about as close to it as PyTorch's own float32 evaluation is: for each compared quantity
 the graph's largest difference from float64 may be at most ``SLACK`` times PyTorch float32's on
 the same frames and at the same top-k choices, and never needs to be below the fixed floors
-(1e-4 for scores, 1e-3 m for boxes). With trained-like weights float32 itself drifts from the exact answer by more than such
-fixed floors; a tolerance scaled by the measured float32 drift holds on any CPU and any weights,
-while a wrong weight, table or operator is off by orders of magnitude more.
+(1e-4 for scores, 1e-3 m for boxes). With trained-like weights float32 itself drifts from the
+exact answer by more than such fixed floors; a tolerance scaled by the measured float32 drift
+holds on any CPU and any weights, while a wrong weight, table or operator is off by orders of
+magnitude more.
 
 What is compared is what is defined (see ``models.ranking``):
 

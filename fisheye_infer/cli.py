@@ -1,7 +1,8 @@
 """``fisheye-infer``: the table of subcommands, one module each under ``fisheye_infer.commands``.
 
 Each module's ``configure(parser)`` adds its flags and ``run`` (and an optional ``DESCRIPTION``
-for its ``--help``); its extras are imported when it runs. An error of the ``FisheyeInferError`` tree ends the command with its message and exit 1.
+for its ``--help``); its extras are imported when it runs. An error of the ``FisheyeInferError``
+tree ends the command with its message and exit 1.
 """
 
 from __future__ import annotations

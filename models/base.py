@@ -102,7 +102,8 @@ class FisheyeDetector(nn.Module):
         raise NotImplementedError
 
     def image_features(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """uint8 (B, N, H, W, 3) images -> (B, V, C, h, w) stride-16 features: FPN level 0, the only one either family reads."""
+        """uint8 (B, N, H, W, 3) images -> (B, V, C, h, w) stride-16 features: FPN level 0, the only one
+        either family reads."""
         b = images.shape[0]
         p3 = self.img_neck(self.img_backbone(self.normalise(images, tables)))[0]
         return p3.reshape(b, p3.shape[0] // b, *p3.shape[1:])

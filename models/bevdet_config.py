@@ -125,8 +125,8 @@ class BEVDetConfig(ModelConfig):
         checks = [
             (
                 tuple(bb.neck_in_channels) == stage_channels,
-                f"backbone.neck_in_channels={tuple(bb.neck_in_channels)} != the channels of ResNet stages {tuple(bb.out_indices)} "
-                f"with base_channels={bb.base_channels}: {stage_channels}",
+                f"backbone.neck_in_channels={tuple(bb.neck_in_channels)} != the channels of ResNet stages "
+                f"{tuple(bb.out_indices)} with base_channels={bb.base_channels}: {stage_channels}",
             ),
             (
                 bb.neck_out_channels == vt.in_channels,

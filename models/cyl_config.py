@@ -118,12 +118,14 @@ class BEVDetCylConfig(BEVDetConfig):
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
-        """The raw fisheye size is not in the file (Fisheye3DOD: 800 x 800; the model refuses a rig whose camera differs)."""
+        """The raw fisheye size is not in the file (Fisheye3DOD: 800 x 800; the model refuses a rig whose
+        camera differs)."""
         return d.image.height, d.image.width
 
     @classmethod
     def _read_view_transform(cls, vt: Section, cfg: Mapping[str, Any], d: BEVDetConfig) -> dict[str, Any]:
-        """``view_transform`` (a ``CylindricalLSSTransform``) and ``cylinder``; ranges are taken as radians exactly as written.
+        """``view_transform`` (a ``CylindricalLSSTransform``) and ``cylinder``; ranges are taken as
+        radians exactly as written.
 
         The pipeline's rectification and the view transform each carry the ranges and the image
         size; they must agree (the frustum has to describe the rays the images were resampled on).
@@ -248,8 +250,8 @@ def _agree_with_pipeline(
     for name, ours, theirs in (("horizontal_range", hr, p_hr), ("vertical_range", vr, p_vr)):
         if not all(math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12) for a, b in zip(ours, theirs)):
             raise ConfigError(
-                f"{step.source}: {step.where(name)}={theirs} differs from {model_section.where(name)}={ours}; the images "
-                "and the 3D rays would describe different cylinders"
+                f"{step.source}: {step.where(name)}={theirs} differs from {model_section.where(name)}={ours}; the "
+                "images and the 3D rays would describe different cylinders"
             )
     if "image_size" in step:
         w, h = step.numbers("image_size", 2, int)  # the pipeline writes (W, H)

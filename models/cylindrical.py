@@ -23,7 +23,8 @@ __all__ = ["rectify", "check_rig_image_size"]
 
 
 def rectify(images: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-    """uint8 (or float) B x N x H x W x 3 fisheye images -> B x N x 3 x Hc x Wc (``size``) raw pixels, in the weights' dtype.
+    """uint8 (or float) B x N x H x W x 3 fisheye images -> B x N x 3 x Hc x Wc (``size``) raw pixels,
+    in the weights' dtype.
 
     ``index`` / ``weight`` are the taps of the grid on an H x W image, shared by the cameras (one
     intrinsic model): each output pixel reads the same four pixels of every camera's three

@@ -47,7 +47,8 @@ __all__ = ["FisheyeBEVDetPersp"]
     predicate=has_image_plane_frustum,
 )
 class FisheyeBEVDetPersp(FrustumBEVDet):
-    """Perspective-view BEV detector: cv2.remap rectification (two views per fisheye), ResNet-18 + FPN, standard LSS, SECOND, TransFusion."""
+    """Perspective-view BEV detector: cv2.remap rectification (two views per fisheye), ResNet-18 + FPN,
+    standard LSS, SECOND, TransFusion."""
 
     config_cls = PerspBEVDetConfig
     config: PerspBEVDetConfig

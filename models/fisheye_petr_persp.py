@@ -47,7 +47,8 @@ __all__ = ["FisheyePETRPersp"]
     int8_float=INT8_FLOAT,
 )
 class FisheyePETRPersp(ResampledPETR):
-    """cv2.remap rectification (two views per fisheye) -> normalisation -> ResNet-18 -> FPN (P3 only) -> PETRHead -> NMS-free decoding."""
+    """cv2.remap rectification (two views per fisheye) -> normalisation -> ResNet-18 -> FPN (P3 only) ->
+    PETRHead -> NMS-free decoding."""
 
     config_cls = PerspPETRConfig
     config: PerspPETRConfig

@@ -45,7 +45,8 @@ def _computed(in_size: int, out_size: int, device: torch.device) -> Taps:
 def resized_views(
     images: torch.Tensor, tables: Mapping[str, torch.Tensor], source_hw: tuple[int, int], view_hw: tuple[int, int]
 ) -> torch.Tensor:
-    """uint8 B x N x H x W x 3 -> float32 B x N x h x w x 3 (uint8 values): PIL's resize and the crop, one view per camera."""
+    """uint8 B x N x H x W x 3 -> float32 B x N x h x w x 3 (uint8 values): PIL's resize and the crop, one
+    view per camera."""
     h, w = images.shape[2], images.shape[3]
     if (h, w) == tuple(source_hw):
         horizontal, vertical = _tables(tables, RESIZE_X), _tables(tables, RESIZE_Y)

@@ -60,7 +60,8 @@ def has_camera_frame_frustum(state_dict: Mapping[str, torch.Tensor]) -> bool:
 
 
 class FrustumBEVDet(FisheyeBEVDet):
-    """BEVDet with an image front end and no feature warp; subclasses define ``normalise`` (the front end) and the view transform.
+    """BEVDet with an image front end and no feature warp; subclasses define ``normalise`` (the front
+    end) and the view transform.
 
     ``FRUSTUM_ATOL`` is how far the checkpoint's stored frustum may lie from the recomputed one and
     still describe the same geometry (float32 rounding of the official constructor).

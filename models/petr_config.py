@@ -146,7 +146,8 @@ class PETRConfig(ModelConfig):
         classes = read_classes(cfg, d.class_names)
         if "num_classes" in head and int(head.get("num_classes")) != len(classes):
             raise ConfigError(
-                f"{source}: pts_bbox_head.num_classes={head.get('num_classes')} but {len(classes)} class names are listed"
+                f"{source}: pts_bbox_head.num_classes={head.get('num_classes')} but {len(classes)} class names are "
+                "listed"
             )
         sections = cls._read_head(head, cfg, d)
         return cls(

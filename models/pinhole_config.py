@@ -126,7 +126,8 @@ def _check_crop(image: ImageConfig, aug: ImageAugConfig, view_size: tuple[int, i
 
 
 def _test_mode_crop(scale: float, width: int, height: int, final: tuple[int, int], bot_pct: float) -> ImageAugConfig:
-    """The official test-mode crop: the bottom ``final`` rows above ``bot_pct`` of the resized height, centred columns."""
+    """The official test-mode crop: the bottom ``final`` rows above ``bot_pct`` of the resized height,
+    centred columns."""
     new_w, new_h = ResizeCrop(scale=scale).resized_size(width, height)
     fh, fw = final
     return ImageAugConfig(scale=scale, crop=(int(max(0, new_w - fw) / 2), int((1 - bot_pct) * new_h) - fh))
@@ -198,7 +199,8 @@ class PinholeBEVDetConfig(BEVDetConfig):
         fh, fw = step.numbers("final_dim", 2, int)
         if (fh, fw) != tuple(view.image_size):
             raise ConfigError(
-                f"{vt.source}: {step.where('final_dim')}={(fh, fw)} differs from {vt.where('image_size')}={view.image_size}"
+                f"{vt.source}: {step.where('final_dim')}={(fh, fw)} differs from "
+                f"{vt.where('image_size')}={view.image_size}"
             )
         aug = _test_mode_crop(
             _mean(step, "resize_lim", (1.0, 1.0)),
@@ -248,7 +250,8 @@ class PerspBEVDetConfig(BEVDetConfig):
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
-        """The raw fisheye size is not in the file (Fisheye3DOD: 800 x 800; the model refuses a rig whose camera differs)."""
+        """The raw fisheye size is not in the file (Fisheye3DOD: 800 x 800; the model refuses a rig whose
+        camera differs)."""
         return d.image.height, d.image.width
 
     @classmethod
@@ -373,7 +376,8 @@ class PinholePETRConfig(PETRConfig):
         steps = _steps(cfg, RESIZE_CROP_STEP)
         if not steps:
             raise ConfigError(
-                f"{head.source}: the test pipeline has no {RESIZE_CROP_STEP} step: not a pinhole-camera PETR configuration"
+                f"{head.source}: the test pipeline has no {RESIZE_CROP_STEP} step: not a pinhole-camera PETR "
+                "configuration"
             )
         step = Section(steps[0], f"test_pipeline.{RESIZE_CROP_STEP}", head.source)
         if step.get("training", False):

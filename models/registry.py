@@ -5,16 +5,16 @@
     class FisheyeBEVDet(FisheyeDetector):
         config_cls = BEVDetConfig
 
-An entry holds the model class and its configuration class (whose ``preprocess`` record, box
-count and geometry parameters describe a built model), the official key manifest, the keys that
-identify a checkpoint of it (``signature_keys`` present, ``absent_keys`` absent), the function
-that maps official keys to the model's (``checkpoint_filter``), the keys loading drops, and what
-its scores mean, and which of its modules stay float32 in an int8 file. :func:`create_model` builds an eval-mode model, :func:`list_models` names the
-registered architectures (the CLI's ``--arch`` choices), :func:`matching_architectures` tells
-them apart by a checkpoint's keys. An architecture lives in one module ``fisheye_<name>.py`` of this
-package (imported on first use of the registry) with its key manifest in ``manifests/``;
-registering it signs it up for strict loading, synthetic checkpoints, export, the CLI's ``--arch``
-and the tests parametrized over ``list_models()``.
+An entry holds the model class and its configuration class (whose ``preprocess`` record, box count
+and geometry parameters describe a built model), the official key manifest, the keys that identify a
+checkpoint of it (``signature_keys`` present, ``absent_keys`` absent), the function that maps
+official keys to the model's (``checkpoint_filter``), the keys loading drops, and what its scores
+mean, and which of its modules stay float32 in an int8 file. :func:`create_model` builds an
+eval-mode model, :func:`list_models` names the registered architectures (the CLI's ``--arch``
+choices), :func:`matching_architectures` tells them apart by a checkpoint's keys. An architecture
+lives in one module ``fisheye_<name>.py`` of this package (imported on first use of the registry)
+with its key manifest in ``manifests/``; registering it signs it up for strict loading, synthetic
+checkpoints, export, the CLI's ``--arch`` and the tests parametrized over ``list_models()``.
 """
 
 from __future__ import annotations

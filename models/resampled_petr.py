@@ -25,10 +25,12 @@ __all__ = ["ResampledPETR"]
 
 
 class ResampledPETR(FisheyePETR):
-    """FisheyePETR with an image front end and no feature warp; subclasses define ``normalise`` (the front end) and the head."""
+    """FisheyePETR with an image front end and no feature warp; subclasses define ``normalise`` (the front
+    end) and the head."""
 
     def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """Deprecated: :meth:`normalise`, whose views come flat, (B*V) x 3 x h x w; this keeps the old B x V x 3 x h x w."""
+        """Deprecated: :meth:`normalise`, whose views come flat, (B*V) x 3 x h x w; this keeps the old
+        B x V x 3 x h x w."""
         self._deprecated("normalize", "normalise")
         x = self.normalise(images, tables)
         return x.reshape(images.shape[0], -1, *x.shape[1:])

@@ -182,7 +182,8 @@ CLS_PRIOR_LOGIT = -4.595  # official cls bias init, bias_init_with_prob(0.01)
 
 
 def calibrate(model: nn.Module, seed: int) -> None:
-    """The calibration of ``model``'s family (FisheyeBEVDet or FisheyePETR, and their baselines); other models keep their weights."""
+    """The calibration of ``model``'s family (FisheyeBEVDet or FisheyePETR, and their baselines); other
+    models keep their weights."""
     if isinstance(model, FisheyeBEVDet):
         calibrate_bevdet(model, seed)
     elif isinstance(model, FisheyePETR):

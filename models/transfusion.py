@@ -1,4 +1,5 @@
-"""TransFusion head (its raw outputs for training, decoded boxes for inference), with the Fisheye3DOD quirks kept and an export-safe graph.
+"""TransFusion head (its raw outputs for training, decoded boxes for inference), with the Fisheye3DOD
+quirks kept and an export-safe graph.
 
 Quirks reproduced on purpose (each changes the output of the official checkpoint):
 - local-max NMS uses max_pool2d with padding 0 and zero-fills the border, so classes that are

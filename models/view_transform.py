@@ -95,7 +95,8 @@ class FisheyeLSS(nn.Module):
         d = self.num_depth
         if not isinstance(geometry, LSSGeometry) or geometry.grid.shape != (h, w, 2):
             raise ConfigError(
-                f"view transform grid is {getattr(geometry, 'grid', np.empty(0)).shape}, configuration needs ({h}, {w}, 2)"
+                f"view transform grid is {getattr(geometry, 'grid', np.empty(0)).shape}, configuration needs "
+                f"({h}, {w}, 2)"
             )
         if geometry.frustum.shape != (d, h, w, 3):
             raise ConfigError(
@@ -237,7 +238,8 @@ class RectifiedLSS(FisheyeLSS):
 
 
 class CylindricalLSS(RectifiedLSS):
-    """:class:`RectifiedLSS` on cylinder-rectified images (``CylindricalLSS(cfg: CylViewTransformConfig, geometry: CylLSSGeometry)``)."""
+    """:class:`RectifiedLSS` on cylinder-rectified images (``CylindricalLSS(cfg: CylViewTransformConfig,
+    geometry: CylLSSGeometry)``)."""
 
     def _check_geometry(self, geometry: AnyLSSGeometry) -> None:
         super()._check_geometry(geometry)

@@ -348,7 +348,8 @@ def _split_form(
 
 
 def _batch_index(name: str, spec: FrameSpec) -> tuple[int, str]:
-    """``'<frame index>.<camera>'`` -> (index, camera); the index in ASCII digits ("²" is a digit to Python, not here)."""
+    """``'<frame index>.<camera>'`` -> (index, camera); the index in ASCII digits ("²" is a digit to Python,
+    not here)."""
     index, dot, camera = name.partition(".")
     if not dot or not (index.isascii() and index.isdigit()) or len(index) > MAX_INDEX_DIGITS:
         raise RequestInvalid(
@@ -371,7 +372,8 @@ async def _multipart(
             index, camera = _batch_index(name, spec) if batch else (0, name)
             if camera in frames.get(index, {}):
                 raise RequestInvalid(
-                    f"frame {index}: camera '{shown(camera)}' given twice (part '{shown(name)}' repeats an earlier part)",
+                    f"frame {index}: camera '{shown(camera)}' given twice (part '{shown(name)}' repeats an earlier "
+                    "part)",
                     field=f"{index}.{camera}",
                 )
             frames.setdefault(index, {})[camera] = await upload.read()

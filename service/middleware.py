@@ -94,8 +94,8 @@ class ServiceMiddleware:
         try:
             if declared is not None and b"transfer-encoding" in headers:
                 refusal = BadRequest(
-                    "Content-Length and Transfer-Encoding: both given, so the body's end is ambiguous; send one of them "
-                    "(RFC 9112 section 6.3); the connection is closed",
+                    "Content-Length and Transfer-Encoding: both given, so the body's end is ambiguous; send one of "
+                    "them (RFC 9112 section 6.3); the connection is closed",
                     field="Transfer-Encoding",
                 )
                 await error_response(refusal, close=True)(scope, receive, send_counted)

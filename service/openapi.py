@@ -5,8 +5,8 @@ come first and give the documented status codes), which leaves FastAPI unaware o
 module writes both bodies into the schema: multipart (one binary part per camera, or
 ``<frame>.<camera>`` for batches, plus the option fields) and JSON (``DetectJsonRequest``,
 ``BatchJsonRequest``), and adds the ``/stream`` answers (``StreamResult``, ``StreamError``) to
-the components, since OpenAPI has no place for WebSocket messages. The camera names come from the loaded model, so the schema is built
-after the lifespan loaded it, and cached from then on.
+the components, since OpenAPI has no place for WebSocket messages. The camera names come from the
+loaded model, so the schema is built after the lifespan loaded it, and cached from then on.
 """
 
 from __future__ import annotations
@@ -74,7 +74,10 @@ def _multipart_schemas(service: Service) -> dict[str, Any]:
         },
         "BatchMultipart": {
             "type": "object",
-            "description": f"file parts named '<frame index>.<camera>' for frames 0..n-1 (n <= {service.settings.max_batch_frames}), and the option fields",
+            "description": (
+                "file parts named '<frame index>.<camera>' for frames 0..n-1 "
+                f"(n <= {service.settings.max_batch_frames}), and the option fields"
+            ),
             "properties": {**first, **_options(info.classes)},
             "patternProperties": {pattern: _image("<camera>", size)},
             "required": list(first),

@@ -166,7 +166,8 @@ class InferenceQueue:
             raise Unavailable("service: shutting down, not accepting new work", field="service", retry_after=retry)
         if self._pending >= self.settings.queue_size:
             raise Unavailable(
-                f"queue: full ({self._pending} requests waiting, queue_size={self.settings.queue_size}); retry after {retry} s",
+                f"queue: full ({self._pending} requests waiting, queue_size={self.settings.queue_size}); retry after "
+                f"{retry} s",
                 field="queue",
                 retry_after=retry,
             )

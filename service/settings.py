@@ -8,8 +8,8 @@
 | ``model_path`` | required | the ONNX file written by ``fisheye-infer export`` |
 | ``host`` / ``port`` | 127.0.0.1 / 8000 | where uvicorn listens; loopback unless told otherwise |
 | ``threads`` | all cores | ONNX Runtime intra-op threads |
-| ``spin`` | true | whether those threads spin for a while after a call (false: they sleep at once, leaving the cores to other processes) |
-| ``providers`` | CPU | execution providers in order (``CUDAExecutionProvider,CPUExecutionProvider``; a JSON list for provider options), or ``auto`` |
+| ``spin`` | true | whether those threads spin for a while after a call (``false``: see below) |
+| ``providers`` | CPU | execution providers in order (see below), or ``auto`` |
 | ``workers`` | 1 | inference threads calling the Detector |
 | ``queue_size`` | 8 | requests admitted and not yet running; beyond it: 503 + Retry-After |
 | ``max_body_bytes`` | 32 MiB | request body and WebSocket message size (413 beyond) |
@@ -24,6 +24,10 @@
 | ``api_key`` | none | when set, required as ``X-API-Key`` (health endpoints stay open) |
 | ``docs_public`` | false | with an ``api_key``: serve ``/docs`` and ``/openapi.json`` without it |
 | ``cors_origins`` | none | browser origins allowed to call the API |
+
+With ``spin`` false the threads sleep at once after a call, leaving the cores to other processes.
+``providers`` names them in order, as in ``CUDAExecutionProvider,CPUExecutionProvider``, or as a
+JSON list for provider options.
 
 Unsafe or contradictory combinations are refused when the settings are built, not at the
 first request.
@@ -126,7 +130,8 @@ class ServiceSettings(BaseSettings):
     def _refuse_unsafe(self) -> ServiceSettings:
         if self.api_key is not None and len(self.api_key.get_secret_value()) < MIN_API_KEY_LENGTH:
             raise ValueError(
-                f"api_key: expected at least {MIN_API_KEY_LENGTH} characters, got {len(self.api_key.get_secret_value())}"
+                f"api_key: expected at least {MIN_API_KEY_LENGTH} characters, got "
+                f"{len(self.api_key.get_secret_value())}"
             )
         if self.microbatch_max_size > self.max_batch_frames:
             raise ValueError(
@@ -134,7 +139,8 @@ class ServiceSettings(BaseSettings):
             )
         if "*" in self.cors_origins and self.api_key is not None:
             raise ValueError(
-                "cors_origins: '*' together with an api_key would let any web page use a key it obtains; list the origins"
+                "cors_origins: '*' together with an api_key would let any web page use a key it obtains; list the "
+                "origins"
             )
         return self
 

@@ -160,7 +160,8 @@ class OCamModel(_Frozen):
             if count is None:
                 if len(row) < 2 or int(row[0]) != len(row) - 1:
                     raise CameraModelError(
-                        f"OCam file {source}: {field}: the leading count {row[0]:g} does not match the {len(row) - 1} coefficients that follow"
+                        f"OCam file {source}: {field}: the leading count {row[0]:g} does not match the "
+                        f"{len(row) - 1} coefficients that follow"
                     )
             elif len(row) != count:
                 raise CameraModelError(f"OCam file {source}: {field}: expected {count} numbers, got {len(row)}")
@@ -190,9 +191,11 @@ class OCamModel(_Frozen):
             return " ".join(repr(float(v)) for v in values)
 
         return (
-            "#polynomial coefficients for the DIRECT mapping function (ocam_model.ss in MATLAB). These are used by cam2world\n\n"
+            "#polynomial coefficients for the DIRECT mapping function (ocam_model.ss in MATLAB). "
+            "These are used by cam2world\n\n"
             f"{len(self.pol)} {row(self.pol)}\n\n"
-            "#polynomial coefficients for the inverse mapping function (ocam_model.invpol in MATLAB). These are used by world2cam\n\n"
+            "#polynomial coefficients for the inverse mapping function (ocam_model.invpol in MATLAB). "
+            "These are used by world2cam\n\n"
             f"{len(self.invpol)} {row(self.invpol)}\n\n"
             '#center: "row" and "column", starting from 0 (C convention)\n\n'
             f"{self.center_row!r} {self.center_col!r}\n\n"

@@ -237,7 +237,8 @@ class Rig(BaseModel):
             ) from exc
         if isinstance(data, dict) and data.get("schema_version", RIG_SCHEMA_VERSION) != RIG_SCHEMA_VERSION:
             raise RigError(
-                f"rig file {path}: schema_version {data.get('schema_version')!r} is not supported (expected {RIG_SCHEMA_VERSION})"
+                f"rig file {path}: schema_version {data.get('schema_version')!r} is not supported "
+                f"(expected {RIG_SCHEMA_VERSION})"
             )
         if _is_pinhole_list(data):
             return cls.from_pinhole_list(data, source=f"rig file {path}", name=path.parent.name or path.stem)
@@ -262,7 +263,8 @@ class Rig(BaseModel):
                 raise RigError(f"{label} (K): expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {k.tolist()}")
             if cam.get("distortion", "none") not in ("none", None):
                 raise RigError(
-                    f"{label} (distortion): {cam.get('distortion')!r} is not supported; expected 'none' (an ideal pinhole)"
+                    f"{label} (distortion): {cam.get('distortion')!r} is not supported; "
+                    "expected 'none' (an ideal pinhole)"
                 )
             if lidar2cam.shape != (4, 4) or not np.all(np.isfinite(lidar2cam)):
                 raise RigError(f"{label} (lidar2cam): expected a finite 4x4 matrix, got shape {lidar2cam.shape}")
@@ -319,8 +321,8 @@ class Rig(BaseModel):
         for cam in self.cameras[1:]:
             if cam.model != first:
                 raise RigError(
-                    f"camera '{cam.name}': its camera model differs from '{self.cameras[0].name}'; this model needs one shared "
-                    "intrinsic calibration"
+                    f"camera '{cam.name}': its camera model differs from '{self.cameras[0].name}'; "
+                    "this model needs one shared intrinsic calibration"
                 )
         return first
 
@@ -336,7 +338,8 @@ class Rig(BaseModel):
                 size = (cam.model.width, cam.model.height)
                 if size != tuple(image_size):
                     raise RigError(
-                        f"camera '{cam.name}': image is {size[0]}x{size[1]}, model expects {image_size[0]}x{image_size[1]}"
+                        f"camera '{cam.name}': image is {size[0]}x{size[1]}, "
+                        f"model expects {image_size[0]}x{image_size[1]}"
                     )
 
     @property
@@ -364,7 +367,8 @@ class Rig(BaseModel):
             x, y, z = np.round(cam.position, 3) + 0.0  # no "-0.000"
             fov = getattr(cam.model, "fov", None)
             lines.append(
-                f"  {cam.name:<{width}} {cam.model.type:<15} {cam.model.width:>4}x{cam.model.height:<4} {fov if fov is not None else '-':>6}"
+                f"  {cam.name:<{width}} {cam.model.type:<15} {cam.model.width:>4}x{cam.model.height:<4} "
+                f"{fov if fov is not None else '-':>6}"
                 f"   {x:>7.3f}, {y:>7.3f}, {z:>7.3f}     {round(math.degrees(cam.heading), 1) + 0.0:>7.1f}°"
             )
         return "\n".join(lines)

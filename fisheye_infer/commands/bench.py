@@ -1,7 +1,8 @@
 """``fisheye-infer bench MODEL.onnx``: how fast an exported model runs on this machine, stage by stage.
 
     fisheye-infer bench model.onnx --threads 1,2 --batch 1,2,4 --repeat 10 --out bench.json
-    fisheye-infer bench model.fp16.onnx --providers CUDAExecutionProvider,CPUExecutionProvider   # on a GPU (onnxruntime-gpu)
+    fisheye-infer bench model.fp16.onnx \
+        --providers CUDAExecutionProvider,CPUExecutionProvider   # on a GPU (onnxruntime-gpu)
 
 The measurement is ``fisheye_infer.tools.bench`` (end to end and per stage, peak RSS in a fresh
 process), the stage split ``fisheye_infer.export.graph_stages``; ``benchmarks/`` compares the figures

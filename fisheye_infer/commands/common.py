@@ -28,7 +28,8 @@ NEEDS_EXPORT = "this command needs the export extra: pip install 'fisheye-infer[
 NEEDS_SERVE = "fisheye-infer serve needs the serve extra: pip install 'fisheye-infer[serve]'"
 NEEDS_RAY_SERVE = "fisheye-infer serve --ray needs the ray extra: pip install 'fisheye-infer[ray]'"
 PROVIDERS_HELP = (
-    "ONNX Runtime execution providers, comma-separated in order of preference (CUDAExecutionProvider,CPUExecutionProvider), "
+    "ONNX Runtime execution providers, comma-separated in order of preference "
+    "(CUDAExecutionProvider,CPUExecutionProvider), "
     'a JSON list with provider options (\'[["CUDAExecutionProvider", {"device_id": 1}], "CPUExecutionProvider"]\'), '
     "or 'auto' for the installed accelerated ones, then CPU (default: CPU)"
 )

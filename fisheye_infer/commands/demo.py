@@ -48,8 +48,10 @@ def run(args: argparse.Namespace) -> int:
     plan = build_pooling_plan(frustum_to_lidar(spherical_frustum(depth_bins()), rig.cam2lidar()), BevGrid())
     print(
         f"geometry: sampling grid {grid.shape[0]}x{grid.shape[1]}, "
-        f"{plan.num_kept:,} of {plan.num_points:,} frustum points pooled into {int((plan.counts > 0).sum()):,} BEV cells "
-        f"({len(plan.bucket_sizes)} buckets, {sum(b.size for b in plan.bucket_points) / max(plan.num_kept, 1):.2f}x padding)"
+        f"{plan.num_kept:,} of {plan.num_points:,} frustum points pooled into "
+        f"{int((plan.counts > 0).sum()):,} BEV cells "
+        f"({len(plan.bucket_sizes)} buckets, "
+        f"{sum(b.size for b in plan.bucket_points) / max(plan.num_kept, 1):.2f}x padding)"
     )
     print(f"wrote {save_png(out / 'rig.png', draw_rig(rig))}")
     print(f"wrote {save_png(out / 'sampling_grid.png', draw_sampling_grid(model, grid))}")
@@ -91,8 +93,9 @@ def run(args: argparse.Namespace) -> int:
     labels = json.loads((shipped.heldout_frame / "labels.json").read_text())["records"]
     found, extra = _match_labels(detections, labels)
     print(
-        f"\ndemo done: on the held-out frame, {found} of {len(labels)} labelled objects found (same class, centre within "
-        f"{MATCH_RADIUS_M:g} m, score >= {DEMO_SCORE_THRESHOLD}); {extra} box(es) on no object; see {out}/result.png"
+        f"\ndemo done: on the held-out frame, {found} of {len(labels)} labelled objects found "
+        f"(same class, centre within {MATCH_RADIUS_M:g} m, score >= {DEMO_SCORE_THRESHOLD}); "
+        f"{extra} box(es) on no object; see {out}/result.png"
     )
     return 0
 

@@ -2,7 +2,8 @@
 
     fisheye-infer detect model.onnx --images frame_dir/ --out result.json --viz result.png
     fisheye-infer detect --result result.json --images frame_dir/ --viz result.png   # draw a saved result
-    fisheye-infer detect model.onnx --ray --data ROOT --split val --out pred.json    # many frames with Ray Data (fisheye_infer.deploy.ray_batch)
+    fisheye-infer detect model.onnx --ray --data ROOT --split val --out pred.json    # many frames with Ray Data
+                                                                                     # (fisheye_infer.deploy.ray_batch)
 
 The results file holds the model id, classes, the rig, and per frame the detections (the
 runtime's records), the cameras used and the stage timings, so it can be drawn later on its own.
@@ -73,7 +74,8 @@ def _draw_saved(args: argparse.Namespace) -> int:
     missing = [k for k in ("rig", "classes", "frames") if not isinstance(doc, dict) or k not in doc]
     if missing:
         raise FrameError(
-            f"--result {args.result}: missing {', '.join(missing)}; expected a file written by 'fisheye-infer detect --out'"
+            f"--result {args.result}: missing {', '.join(missing)}; "
+            "expected a file written by 'fisheye-infer detect --out'"
         )
     rig = Rig.from_dict(doc["rig"], source=f"results file {args.result}")
     classes = tuple(doc["classes"])
@@ -128,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
         t = dets.timings_ms
         print(
             f"{name}: {len(dets)} boxes from {len(dets.cameras_used)} cameras in {sum(t.values()):.0f} ms "
-            f"(decode {t['decode']:.0f}, preprocess {t['preprocess']:.0f}, inference {t['inference']:.0f}, postprocess {t['postprocess']:.0f})"
+            f"(decode {t['decode']:.0f}, preprocess {t['preprocess']:.0f}, "
+            f"inference {t['inference']:.0f}, postprocess {t['postprocess']:.0f})"
         )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -185,11 +188,13 @@ def _run_ray(args: argparse.Namespace) -> int:
     ]
     if refused:
         raise ConfigError(
-            f"--ray writes the official unthresholded output for evaluation; {', '.join(refused)} cannot be combined with it"
+            "--ray writes the official unthresholded output for evaluation; "
+            f"{', '.join(refused)} cannot be combined with it"
         )
     if args.providers:
         raise ConfigError(
-            "--providers: the --ray actors run on CPU (Ray reserves CPUs for them, not GPUs); run without --ray on a GPU"
+            "--providers: the --ray actors run on CPU (Ray reserves CPUs for them, not GPUs); "
+            "run without --ray on a GPU"
         )
     if not args.model or not args.out or bool(args.data) == bool(args.images):
         raise ConfigError("--ray needs a MODEL, --out and exactly one of --data ROOT or --images")
@@ -232,7 +237,8 @@ def _run_ray(args: argparse.Namespace) -> int:
     result = detect_frames(args.model, frames, options, progress=lambda done, _: bar.update(done))
     path = result.save(args.out, {"model": str(args.model), **source})
     print(
-        f"wrote {path}: {len(result.results)} frame(s) in {result.seconds:.1f} s ({result.frames_per_second:.2f} frames/s)"
+        f"wrote {path}: {len(result.results)} frame(s) in {result.seconds:.1f} s "
+        f"({result.frames_per_second:.2f} frames/s)"
     )
     for token, reason in result.failed.items():
         print(f"failed: {token}: {reason}", file=sys.stderr)

@@ -57,7 +57,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--int8",
         action="store_true",
         help="after the fp32 file is verified, also write an int8 file next to it: --out model.onnx -> model.int8.onnx "
-        "(--out stays the fp32 file); written when it finds --min-kept of the fp32 top-50 boxes again (or with --force)",
+        "(--out stays the fp32 file); written when it finds --min-kept of the fp32 top-50 boxes again "
+        "(or with --force)",
     )
     int8.add_argument("--calib-images", help="folder with your own frames for calibration, read like --verify-images")
     int8.add_argument(
@@ -73,15 +74,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     int8.add_argument(
         "--int8-float",
         metavar="MODULES",
-        help="modules to leave float32, comma-separated state-dict prefixes (e.g. img_backbone.conv1,bbox_head; '' for none), "
-        "in place of the architecture's (FisheyeBEVDet: its head but the shared and first heatmap convolutions): fewer int8 layers keep "
-        "more of the fp32 boxes, at some of the speed-up",
+        help="modules to leave float32, comma-separated state-dict prefixes "
+        "(e.g. img_backbone.conv1,bbox_head; '' for none), "
+        "in place of the architecture's (FisheyeBEVDet: its head but the shared and first heatmap convolutions): "
+        "fewer int8 layers keep more of the fp32 boxes, at some of the speed-up",
     )
     parser.add_argument(
         "--fp16",
         action="store_true",
-        help="after the fp32 file is verified, also write a float16 file for GPU execution providers next to it: --out model.onnx -> "
-        "model.fp16.onnx; written when it finds --min-kept of the fp32 top-50 boxes again (or with --force)",
+        help="after the fp32 file is verified, also write a float16 file for GPU execution providers next to it: "
+        "--out model.onnx -> model.fp16.onnx; written when it finds --min-kept of the fp32 top-50 boxes again "
+        "(or with --force)",
     )
     reduced = parser.add_argument_group(
         "int8 and fp16 files", "each is compared with the verified fp32 file, ONNX against ONNX"
@@ -90,8 +93,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--compare-frames",
         type=int,
         default=COMPARE_FRAMES,
-        help=f"seeded synthetic frames for that comparison, plus --verify-images (default {COMPARE_FRAMES}: the share kept "
-        "varies from frame to frame, and the summary gives its standard error)",
+        help=f"seeded synthetic frames for that comparison, plus --verify-images (default {COMPARE_FRAMES}: "
+        "the share kept varies from frame to frame, and the summary gives its standard error)",
     )
     reduced.add_argument(
         "--min-kept",

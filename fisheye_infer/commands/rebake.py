@@ -28,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
         return missing_extra("rebake needs the onnx package: pip install onnx", exc)
     meta = rebake(args.model, args.rig, args.out)
     print(
-        f"wrote {args.out}: {meta.model_id}, rig {meta.rig.name!r} ({meta.rig_hash}), {len(meta.geometry_initializers)} geometry tables recomputed"
+        f"wrote {args.out}: {meta.model_id}, rig {meta.rig.name!r} ({meta.rig_hash}), "
+        f"{len(meta.geometry_initializers)} geometry tables recomputed"
     )
     return 0

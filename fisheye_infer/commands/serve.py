@@ -149,8 +149,8 @@ def _run_ray(args: argparse.Namespace, settings: Any) -> int:
 
     if settings.providers:
         print(
-            "fisheye-infer serve: error: providers: the --ray replicas run on CPU (Ray reserves CPUs for them, not GPUs); "
-            "serve without --ray on a GPU",
+            "fisheye-infer serve: error: providers: the --ray replicas run on CPU "
+            "(Ray reserves CPUs for them, not GPUs); serve without --ray on a GPU",
             file=sys.stderr,
         )
         return 1
@@ -173,8 +173,8 @@ def _run_ray(args: argparse.Namespace, settings: Any) -> int:
         serve.start(http_options={"host": settings.host, "port": settings.port})
         serve.run(build_app(settings, options), name="fisheye-infer", route_prefix="/")
         print(
-            f"serving {settings.model_path} on http://{settings.host}:{settings.port} with {options.replicas} replica(s) "
-            f"(Ctrl-C to stop)",
+            f"serving {settings.model_path} on http://{settings.host}:{settings.port} "
+            f"with {options.replicas} replica(s) (Ctrl-C to stop)",
             file=sys.stderr,
         )
         stop.wait()

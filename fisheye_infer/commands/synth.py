@@ -42,7 +42,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--stream",
         choices=("train", "val"),
         help="write frames of the randomised stream `fisheye-infer train` draws from (scenes, looks and seeds as it "
-        "renders them; 'val' is never trained on) instead of the plain scenes; the split file defaults to the stream's name",
+        "renders them; 'val' is never trained on) instead of the plain scenes; "
+        "the split file defaults to the stream's name",
     )
     parser.add_argument(
         "--first", type=int, default=0, help="with --stream: index of the first frame written (default 0)"
@@ -81,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     width, height = rig.cameras[0].model.width, rig.cameras[0].model.height
     boxes = sum(len(f.boxes) for f in frames)
     print(
-        f"wrote {len(frames)} frame(s) to {args.out}: {len(rig)} cameras at {width}x{height}, {boxes} boxes in all, {seconds / len(frames):.2f} s per frame"
+        f"wrote {len(frames)} frame(s) to {args.out}: {len(rig)} cameras at {width}x{height}, "
+        f"{boxes} boxes in all, {seconds / len(frames):.2f} s per frame"
     )
     print(f"first token: {frames[0].token}")
     print(f"next: fisheye-infer eval MODEL --data {args.out} --split {args.split or 'val'} --out report.json")

@@ -34,7 +34,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--steps",
         type=int,
         default=8000,
-        help="total optimiser steps (default 8000: the shipped model's first run, continued with --resume --steps 14000)",
+        help="total optimiser steps (default 8000: the shipped model's first run, "
+        "continued with --resume --steps 14000)",
     )
     parser.add_argument("--batch-size", type=int, default=2, help="frames per step (default 2)")
     parser.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of AdamW (default 2e-4)")
@@ -58,7 +59,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--depth-weight",
         type=float,
         default=3.0,
-        help="weight of the depth loss against the frames' true ray depths (default 3, as BEVDepth; 0: the official losses alone)",
+        help="weight of the depth loss against the frames' true ray depths "
+        "(default 3, as BEVDepth; 0: the official losses alone)",
     )
     parser.add_argument(
         "--qat",
@@ -146,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(previous)
     print(f"trained to step {trainer.step} of {options.steps}; wrote {path}")
     print(
-        f"next: fisheye-infer export --ckpt {path} --config {out / 'config.py'} --rig {out / 'rig.json'} --out {out / 'model.onnx'}"
+        f"next: fisheye-infer export --ckpt {path} --config {out / 'config.py'} "
+        f"--rig {out / 'rig.json'} --out {out / 'model.onnx'}"
     )
     return 0

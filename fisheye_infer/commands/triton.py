@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         "tritonserver --model-repository=/models"
     )
     print(
-        f"  python -c \"from fisheye_infer.deploy.triton import TritonDetector; print(TritonDetector('127.0.0.1:8000', '{target.name}').info)\""
+        '  python -c "from fisheye_infer.deploy.triton import TritonDetector; '
+        f"print(TritonDetector('127.0.0.1:8000', '{target.name}').info)\""
     )
     return 0

@@ -90,7 +90,8 @@ class BatchResult:
         return (len(self.results) + len(self.failed)) / self.seconds if self.seconds > 0 else 0.0
 
     def save(self, path: str | Path, meta: Mapping[str, Any] | None = None) -> Path:
-        """``{"meta": {..., "failed": {token: reason}}, "results": {token: [record, ...]}}``, as ``eval --results`` reads."""
+        """``{"meta": {..., "failed": {token: reason}}, "results": {token: [record, ...]}}``, as
+        ``eval --results`` reads."""
         from fisheye_infer.eval.evaluate import save_results
 
         info = {

@@ -2,8 +2,8 @@
 
 Layout (§3 of the dataset description)::
 
-    ROOT/calib_results.txt                          one OCam model for every fisheye camera
-    ROOT/ImageSets-2hz/{train,val}.json             [{scene_name, vehicle_name, weather, frame_id, prev_id, next_id}, ...]
+    ROOT/calib_results.txt                        one OCam model for every fisheye camera
+    ROOT/ImageSets-2hz/{train,val}.json           [{scene_name, vehicle_name, weather, frame_id, prev_id, next_id}, ...]
     ROOT/<scene>/<vehicle>/lidar/sensor_metadata.txt
     ROOT/<scene>/<vehicle>/fisheye_camera_<name>/{frame_id}.png  + sensor_metadata.txt
     ROOT/<scene>/<vehicle>/nu_rgb_camera_<name>/{frame_id}.png   + sensor_metadata.txt   (pinhole, optional)
@@ -96,7 +96,8 @@ def read_split(root: str | Path, split: str) -> list[SplitEntry]:
     for i, item in enumerate(doc):
         if not isinstance(item, dict) or not all(isinstance(item.get(k), str) for k in _SPLIT_FIELDS[:4]):
             raise DatasetError(
-                f"split '{split}': entry {i} must be an object with string fields {', '.join(_SPLIT_FIELDS)}; got {item!r}"
+                f"split '{split}': entry {i} must be an object with string fields {', '.join(_SPLIT_FIELDS)}; "
+                f"got {item!r}"
             )
         frame_id = item["frame_id"]
         if not frame_id.isdigit():
@@ -241,7 +242,8 @@ class Fisheye3DOD:
         unknown = [c for c in self.cameras if c not in FISHEYE3DOD_CAMERAS + PINHOLE_CAMERAS]
         if unknown or not self.cameras:
             raise DatasetError(
-                f"cameras: expected a non-empty subset of {', '.join(FISHEYE3DOD_CAMERAS + PINHOLE_CAMERAS)}, got {list(cameras)}"
+                f"cameras: expected a non-empty subset of {', '.join(FISHEYE3DOD_CAMERAS + PINHOLE_CAMERAS)}, "
+                f"got {list(cameras)}"
             )
         self.pinhole_cameras = PINHOLE_CAMERAS if pinhole else ()
         self.model: OCamModel | None = None

@@ -98,7 +98,8 @@ class EvalBoxes:
         """
         if not (len(tokens) == len(boxes) == len(scores) == len(labels)):
             raise ValueError(
-                f"tokens, boxes, scores, labels: expected equal lengths, got {len(tokens)}, {len(boxes)}, {len(scores)}, {len(labels)}"
+                "tokens, boxes, scores, labels: expected equal lengths, got "
+                f"{len(tokens)}, {len(boxes)}, {len(scores)}, {len(labels)}"
             )
         parts = []
         for i, (b, s, lab) in enumerate(zip(boxes, scores, labels)):

@@ -112,7 +112,8 @@ def _sample_order(gt: Results, pred: Results, allow_missing: bool) -> list[str]:
     missing = [t for t in gt if t not in pred]
     if missing and not allow_missing:
         raise FrameError(
-            f"predictions: {len(missing)} of {len(gt)} ground-truth samples have no entry, e.g. {', '.join(missing[:3])} "
+            f"predictions: {len(missing)} of {len(gt)} ground-truth samples have no entry, "
+            f"e.g. {', '.join(missing[:3])} "
             "(give an empty list for frames without detections, or allow missing samples)"
         )
     return list(pred) + missing

@@ -90,7 +90,8 @@ class EvalConfig(BaseModel):
             )
         if any(not t > 0 for t in self.dist_ths) or self.dist_th_tp not in self.dist_ths:
             raise ValueError(
-                f"dist_ths/dist_th_tp: thresholds must be positive and include dist_th_tp={self.dist_th_tp}, got {list(self.dist_ths)}"
+                f"dist_ths/dist_th_tp: thresholds must be positive and include dist_th_tp={self.dist_th_tp}, "
+                f"got {list(self.dist_ths)}"
             )
         if any(not r > 0 for r in self.distance_breakdown):
             raise ValueError(
@@ -300,7 +301,8 @@ class MetricsReport(BaseModel):
         lines = [
             "# Fisheye3DOD evaluation",
             "",
-            f"{self.num_samples} samples, {m.num_gt} ground-truth boxes and {m.num_pred} predictions within the class ranges.",
+            f"{self.num_samples} samples, {m.num_gt} ground-truth boxes and {m.num_pred} predictions "
+            "within the class ranges.",
             "FDS, mAP and AP in %; mATE in m, mASE as 1 - IoU, mAOE in rad.",
             "",
             "| FDS | mAP | mATE | mASE | mAOE |",
@@ -331,6 +333,7 @@ class MetricsReport(BaseModel):
             for label, s in self.distance.items():
                 aps = " | ".join(f"{100 * s.classes[n].ap:.1f}" for n in names)
                 lines.append(
-                    f"| {label} | {100 * s.FDS:.1f} | {100 * s.mAP:.1f} | {s.mATE:.3f} | {s.mASE:.3f} | {s.mAOE:.3f} | {aps} |"
+                    f"| {label} | {100 * s.FDS:.1f} | {100 * s.mAP:.1f} | "
+                    f"{s.mATE:.3f} | {s.mASE:.3f} | {s.mAOE:.3f} | {aps} |"
                 )
         return "\n".join(lines) + "\n"

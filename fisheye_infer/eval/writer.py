@@ -143,7 +143,8 @@ class Fisheye3DODWriter:
         return path
 
     def _write_models(self, rig: Rig) -> None:
-        """``calib_results.txt`` for the fisheye cameras; pinhole cameras must be :data:`PINHOLE_MODEL`, the reader's."""
+        """``calib_results.txt`` for the fisheye cameras; pinhole cameras must be
+        :data:`PINHOLE_MODEL`, the reader's."""
         fisheye = [c for c in rig.cameras if c.name not in PINHOLE_CAMERAS]
         for cam in rig.cameras:
             if cam.name in PINHOLE_CAMERAS and cam.model != PINHOLE_MODEL:
@@ -201,7 +202,8 @@ class Fisheye3DODWriter:
         ids: Sequence[int] | None = None,
         class_names: Sequence[str] = CLASSES,
     ) -> None:
-        """``label_3d/<frame_id>.json`` from runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw``, stored gravity-centred."""
+        """``label_3d/<frame_id>.json`` from runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw``, stored
+        gravity-centred."""
         frame_id = f"{int(frame_id):08d}"
         label_boxes = bottom_to_gravity(boxes)
         lab = np.asarray(labels, np.int64)

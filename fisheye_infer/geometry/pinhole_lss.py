@@ -73,7 +73,8 @@ class PinholeLSSParams(BaseModel):
 def image_frustum(
     image_size: tuple[int, int], feature_size: tuple[int, int], dbound: tuple[float, float, float]
 ) -> np.ndarray:
-    """(D, fH, fW, 3) float32 (x, y, depth): x = linspace(0, W - 1, fW), y = linspace(0, H - 1, fH), depth = arange(*dbound)."""
+    """(D, fH, fW, 3) float32 (x, y, depth): x = linspace(0, W - 1, fW), y = linspace(0, H - 1, fH),
+    depth = arange(*dbound)."""
     (ih, iw), (fh, fw) = image_size, feature_size
     ds = depth_bins(dbound).astype(np.float64)
     xs, ys = np.linspace(0, iw - 1, fw), np.linspace(0, ih - 1, fh)

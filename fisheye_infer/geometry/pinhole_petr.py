@@ -78,7 +78,8 @@ def view_coords(lidar2img: np.ndarray, params: PinholePETRParams) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PinholePETRGeometry:
-    """The views (K, pose and image transform, ``lidar2img``) and the perspective rectification grid (empty for pinhole cameras)."""
+    """The views (K, pose and image transform, ``lidar2img``) and the perspective rectification grid
+    (empty for pinhole cameras)."""
 
     params: PinholePETRParams
     views: Views
@@ -110,7 +111,8 @@ class PinholePETRGeometry:
         return np.zeros((len(self.lidar2img), *self.params.feature_size), bool)
 
     def coords(self, cam2lidar: np.ndarray | None = None) -> np.ndarray:
-        """(V, 3 * depth_num, H, W) float32; per-frame extrinsics are not supported (the views' poses come from the rig)."""
+        """(V, 3 * depth_num, H, W) float32; per-frame extrinsics are not supported (the views' poses come
+        from the rig)."""
         if cam2lidar is not None:
             raise ConfigError(
                 "pinhole PETR: per-frame extrinsics are not supported; build the model for the frame's rig instead"

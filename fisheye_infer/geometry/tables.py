@@ -11,8 +11,8 @@ needed to re-bake it.
 Resampling with a constant grid (the feature warp, the image rectification) is stored as its
 bilinear taps on the sampled source (``Params.source_size``): GridSample's
 (:func:`~fisheye_infer.geometry.grids.bilinear_taps`) for the warp, cv2.remap's
-(:func:`~fisheye_infer.geometry.grids.remap_taps`) for the rectification: the graph gathers four rows of the channels-last
-source per output pixel and weighs them with one batched MatMul: GridSample's bilinear,
+(:func:`~fisheye_infer.geometry.grids.remap_taps`) for the rectification: the graph gathers four rows of the
+channels-last source per output pixel and weighs them with one batched MatMul: GridSample's bilinear,
 zero-padded, ``align_corners=True`` result, in less time than ONNX Runtime's GridSample kernel.
 
 LSS (FisheyeBEVDet), for N cameras, an H x W angular grid and an X x Y BEV grid:

@@ -61,7 +61,8 @@ class ResizeCrop(BaseModel):
 
 
 class Perspective(BaseModel):
-    """Perspective views rectified from fisheye cameras: ``size`` (H, W), ``fov`` degrees, one view per yaw (degrees)."""
+    """Perspective views rectified from fisheye cameras: ``size`` (H, W), ``fov`` degrees, one view per yaw
+    (degrees)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
     kind: Literal["perspective"] = "perspective"
@@ -138,7 +139,8 @@ def yaw_rotation(yaw_deg: float) -> np.ndarray:
 
 
 def perspective_intrinsics(size: tuple[int, int], fov: float) -> np.ndarray:
-    """(3, 3) float32-valued ideal K of a ``fov``-degree view of ``size`` (H, W): the official ``get_camera_intrinsics``."""
+    """(3, 3) float32-valued ideal K of a ``fov``-degree view of ``size`` (H, W): the official
+    ``get_camera_intrinsics``."""
     h, w = size
     f = np.float32(w / (2.0 * np.tan(fov * np.pi / 360.0)))
     return _f32(np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]]))
@@ -182,7 +184,8 @@ def perspective_maps(camera: object, source: Perspective) -> tuple[np.ndarray, n
 
 
 def perspective_image_grid(rig: Rig, source: Perspective) -> np.ndarray:
-    """(Y * H, W, 2) float32 :func:`remap_grid` of the rig's shared fisheye model: every camera's views, stacked by yaw."""
+    """(Y * H, W, 2) float32 :func:`remap_grid` of the rig's shared fisheye model: every camera's views,
+    stacked by yaw."""
     camera = rig.shared_model()
     if not hasattr(camera, "world2cam"):
         raise ConfigError(
@@ -205,7 +208,8 @@ def front_end_tables(
     image_grid: np.ndarray | None,
 ) -> dict[str, np.ndarray]:
     """The tables that make the views from the raw (H, W) ``source_size`` images: cv2.remap's taps of the
-    perspective ``image_grid`` (``geom.rectify.*``), or PIL's resize and the crop to ``image_size`` (``geom.resize.*``)."""
+    perspective ``image_grid`` (``geom.rectify.*``), or PIL's resize and the crop to ``image_size``
+    (``geom.resize.*``)."""
     if isinstance(source, Perspective):
         if image_grid is None:
             raise ConfigError("perspective views: the rectification grid is missing")

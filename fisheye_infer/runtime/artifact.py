@@ -250,7 +250,8 @@ class ArtifactMeta(_Model):
         """Consistency a reader can verify: the rig matches its hash, cameras and image size."""
         if self.rig.hash != self.rig_hash:
             raise ArtifactError(
-                f"rig_hash: metadata says {self.rig_hash}, the embedded rig hashes to {self.rig.hash}; the file was altered"
+                f"rig_hash: metadata says {self.rig_hash}, the embedded rig hashes to {self.rig.hash}; "
+                "the file was altered"
             )
         if tuple(self.rig.names) != self.cameras:
             raise ArtifactError(

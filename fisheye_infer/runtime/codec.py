@@ -118,7 +118,8 @@ def decode_image(data: bytes, camera: str, expected_wh: tuple[int, int] | None =
         # Only PNG and JPEG are decoded: their headers state the size, so nothing of unknown size
         # (a decompression bomb in another format) ever reaches the decoder.
         raise FrameError(
-            f"camera '{camera}': the bytes are not a decodable JPEG or PNG image ({len(buf)} bytes, no PNG or JPEG header)"
+            f"camera '{camera}': the bytes are not a decodable JPEG or PNG image "
+            f"({len(buf)} bytes, no PNG or JPEG header)"
         )
     if expected_wh is not None and size != tuple(expected_wh):
         raise FrameError(

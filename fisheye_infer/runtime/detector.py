@@ -106,7 +106,8 @@ def check_output_shapes(outputs: Mapping[str, Sequence[object]], meta: ArtifactM
             and shape[-1] != len(meta.box_layout)
         ):
             raise ArtifactError(
-                f"{source}: box_layout: metadata names {len(meta.box_layout)} values per box, the graph's 'boxes' output has {shape[-1]}"
+                f"{source}: box_layout: metadata names {len(meta.box_layout)} values per box, "
+                f"the graph's 'boxes' output has {shape[-1]}"
             )
 
 
@@ -202,12 +203,14 @@ class FrameDetector:
         source = f"model {self.info.model_id}"
         if boxes.shape[1] != self.info.num_boxes:
             raise ArtifactError(
-                f"{source}: num_boxes: metadata says {self.info.num_boxes}, the graph returned {boxes.shape[1]} boxes per frame"
+                f"{source}: num_boxes: metadata says {self.info.num_boxes}, "
+                f"the graph returned {boxes.shape[1]} boxes per frame"
             )
         if labels.size and (labels.min() < 0 or labels.max() >= len(self.info.classes)):
             raise ArtifactError(
                 f"{source}: classes: metadata lists {len(self.info.classes)} ({', '.join(self.info.classes)}), "
-                f"the graph returned label {int(labels.max() if labels.max() >= len(self.info.classes) else labels.min())}; "
+                "the graph returned label "
+                f"{int(labels.max() if labels.max() >= len(self.info.classes) else labels.min())}; "
                 "the file's metadata does not match its graph"
             )
 
@@ -240,7 +243,8 @@ class FrameDetector:
         nms = check_nms(nms)
         if isinstance(frames, (Mapping, str, bytes, np.ndarray)) or not isinstance(frames, Iterable):
             raise FrameError(
-                f"frames: expected a list (or other iterable) of frames, got {type(frames).__name__}; for one frame use detect()"
+                f"frames: expected a list (or other iterable) of frames, got {type(frames).__name__}; "
+                "for one frame use detect()"
             )
         frames = frames if isinstance(frames, Sequence) else list(frames)
         if len(frames) == 0:

@@ -67,5 +67,6 @@ def check_nms(value: object) -> NmsConfig | None:
     if isinstance(value, str) and value in NMS_KINDS:
         return NmsConfig(kind=value)
     raise OptionError(
-        f"nms: expected an NmsConfig or one of {', '.join(repr(k) for k in NMS_KINDS)}, got {type(value).__name__} {_shown(value)}"
+        f"nms: expected an NmsConfig or one of {', '.join(repr(k) for k in NMS_KINDS)}, "
+        f"got {type(value).__name__} {_shown(value)}"
     )

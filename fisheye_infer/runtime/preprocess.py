@@ -76,7 +76,8 @@ def _as_mapping(frame: Frame, cameras: Sequence[str]) -> Mapping[str, ImageInput
         return frame
     if isinstance(frame, (str, bytes, np.ndarray)) or not isinstance(frame, Sequence):
         raise FrameError(
-            f"frame: expected a mapping camera name -> image or a sequence of {len(cameras)} images, got {type(frame).__name__}"
+            f"frame: expected a mapping camera name -> image or a sequence of {len(cameras)} images, "
+            f"got {type(frame).__name__}"
         )
     if len(frame) != len(cameras):
         raise FrameError(f"frame: got {len(frame)} images, expected {len(cameras)} in the order {', '.join(cameras)}")
@@ -200,13 +201,15 @@ def frames_from_paths(paths: Sequence[str | os.PathLike], cameras: Sequence[str]
             found = [p for p in files if p.stem in (camera, _short(camera))]
             if not found:
                 raise FrameError(
-                    f"camera '{camera}': no image in {folder} (expected {camera}.png, {_short(camera)}.png or a folder {camera}/)"
+                    f"camera '{camera}': no image in {folder} "
+                    f"(expected {camera}.png, {_short(camera)}.png or a folder {camera}/)"
                 )
             frame[camera] = found[0]
         return [(folder.name, frame)]
     if len(items) != len(cameras):
         raise FrameError(
-            f"images: got {len(items)} paths; give one folder, or {len(cameras)} files in the order {', '.join(cameras)}"
+            f"images: got {len(items)} paths; give one folder, "
+            f"or {len(cameras)} files in the order {', '.join(cameras)}"
         )
     for path in items:
         if not path.is_file():

@@ -63,7 +63,8 @@ def resolve_providers(providers: str | Sequence[Provider] | None) -> list[Provid
     wanted: list[Provider] = [providers] if isinstance(providers, str) else list(providers)
     if "auto" in wanted:
         raise ConfigError(
-            f"providers: 'auto' stands alone (the installed accelerated providers, then CPU), got {', '.join(map(str, wanted))}"
+            "providers: 'auto' stands alone (the installed accelerated providers, then CPU), "
+            f"got {', '.join(map(str, wanted))}"
         )
     for p in wanted:
         if not (
@@ -74,7 +75,8 @@ def resolve_providers(providers: str | Sequence[Provider] | None) -> list[Provid
     missing = [name for name in map(provider_name, wanted) if name not in installed]
     if missing:
         raise ConfigError(
-            f"providers: {', '.join(missing)} not offered by the installed onnxruntime (available: {', '.join(installed)})"
+            f"providers: {', '.join(missing)} not offered by the installed onnxruntime "
+            f"(available: {', '.join(installed)})"
         )
     return wanted
 
@@ -192,7 +194,8 @@ def check_started(session: ort.InferenceSession, wanted: Sequence[Provider], con
     missing = [name for name in map(provider_name, wanted) if name not in session.get_providers()]
     if missing:
         raise ConfigError(
-            f"{context}: ONNX Runtime did not start {', '.join(missing)} (the session runs on {', '.join(session.get_providers())}); "
+            f"{context}: ONNX Runtime did not start {', '.join(missing)} "
+            f"(the session runs on {', '.join(session.get_providers())}); "
             "its log says why (a CUDA provider needs a GPU, its driver, and the CUDA and cuDNN versions the installed "
             "onnxruntime-gpu was built for)"
         )

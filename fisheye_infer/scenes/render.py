@@ -382,7 +382,8 @@ def resized_rig(rig: Rig, scale: float) -> Rig:
         width, height = round(m.width * scale), round(m.height * scale)
         if width < 1 or height < 1 or abs(width / m.width - height / m.height) > 1e-9:
             raise ValueError(
-                f"scale: {scale} does not give a whole image with the same aspect ({m.width}x{m.height} -> {width}x{height})"
+                f"scale: {scale} does not give a whole image with the same aspect "
+                f"({m.width}x{m.height} -> {width}x{height})"
             )
         s = width / m.width
         size = {"width": width, "height": height}

@@ -1,6 +1,7 @@
 """How fast an exported model runs on this machine, stage by stage (``fisheye-infer bench``).
 
-    result = bench_model("model.onnx", threads=(1, 2), batches=(1, 2, 4))   # fisheye-infer bench model.onnx --out bench.json
+    result = bench_model("model.onnx", threads=(1, 2),
+                         batches=(1, 2, 4))   # fisheye-infer bench model.onnx --out bench.json
     print(format_table(result))
 
 For every thread count and batch size: warm-up, then ``repeat`` timed calls of
@@ -8,7 +9,8 @@ For every thread count and batch size: warm-up, then ``repeat`` timed calls of
 decode (PNG bytes -> arrays), preprocessing, inference and post-processing, with median and
 p90 of each and the throughput. Given a ``StageTimer`` (``fisheye_infer.export.graph_stages.time_stages``,
 which needs ``onnx``), inference is further split into backbone+neck, view transform and head by
-running the graph cut into stage models. Peak RSS is measured in a fresh process per thread count, as a service would see it.
+running the graph cut into stage models. Peak RSS is measured in a fresh process per thread count,
+as a service would see it.
 ``providers`` runs all of it in other ONNX Runtime execution providers (a GPU's: ``CUDAExecutionProvider``);
 thread counts then only set the CPU side (nodes the provider leaves to the CPU, and the stage cuts' copies).
 Nothing here asserts a speed: the numbers are for people; ``benchmarks/compare.py`` sets them
@@ -228,7 +230,8 @@ def bench_model(
 def format_table(result: dict[str, Any]) -> str:
     """One line per (threads, batch): medians and p90 in ms, throughput; then the graph stages."""
     lines = [
-        f"{result['model']} ({result.get('architecture')}, {result.get('quantization')}; {', '.join(result.get('providers', ['CPUExecutionProvider']))})",
+        f"{result['model']} ({result.get('architecture')}, {result.get('quantization')}; "
+        f"{', '.join(result.get('providers', ['CPUExecutionProvider']))})",
         "threads batch | total med/p90 ms | decode | preprocess | inference | postprocess | frames/s",
     ]
     for r in result["runs"]:

@@ -58,7 +58,8 @@ class CpuInfo:
 
 
 def cpu_info(cpuinfo: Path = Path("/proc/cpuinfo")) -> CpuInfo:
-    """The first processor's entry of ``cpuinfo``; where it cannot be read (not Linux), the platform's name and no flags."""
+    """The first processor's entry of ``cpuinfo``; where it cannot be read (not Linux), the platform's name and
+    no flags."""
     fields: dict[str, str] = {}
     with contextlib.suppress(OSError):
         for line in cpuinfo.read_text(errors="replace").split("\n\n", 1)[0].splitlines():
@@ -87,7 +88,7 @@ def int8_saturation_warning(meta: ArtifactMeta, providers: Iterable[str], cpu: C
     if "CPUExecutionProvider" not in list(providers)[:1] or not cpu.avx2 or cpu.vnni:
         return None
     return (
-        f"model {meta.model_id}: int8 with {q.weight_bits or 8}-bit weights on a CPU without VNNI ({cpu.name}): ONNX Runtime adds "
-        "u8 x s8 products in saturating int16 pairs here, so boxes can differ from the verified ones; export the int8 file "
-        "again (fisheye-infer export --int8 writes 7-bit weights, which never saturate)"
+        f"model {meta.model_id}: int8 with {q.weight_bits or 8}-bit weights on a CPU without VNNI ({cpu.name}): "
+        "ONNX Runtime adds u8 x s8 products in saturating int16 pairs here, so boxes can differ from the verified "
+        "ones; export the int8 file again (fisheye-infer export --int8 writes 7-bit weights, which never saturate)"
     )

@@ -27,6 +27,9 @@ class Progress:
         rate = done / elapsed if elapsed > 0 else 0.0
         filled = self.width * done // max(self.total, 1)
         eta = (self.total - done) / rate if rate > 0 else 0.0
-        line = f"  [{'#' * filled}{'.' * (self.width - filled)}] {done}/{self.total} frames, {rate:.1f} frames/s, {eta:.0f} s left"
+        line = (
+            f"  [{'#' * filled}{'.' * (self.width - filled)}] {done}/{self.total} frames, "
+            f"{rate:.1f} frames/s, {eta:.0f} s left"
+        )
         end = "\n" if not self.tty or done == self.total else ""
         print(("\r" if self.tty else "") + line, end=end, file=sys.stderr, flush=True)

@@ -44,7 +44,8 @@ class AssignerConfig:
 
 @dataclass(frozen=True)
 class Assignment:
-    """Per proposal (P,): the ground-truth index it was matched to (-1: background) and their 3D IoU (0 when unmatched)."""
+    """Per proposal (P,): the ground-truth index it was matched to (-1: background) and their 3D IoU (0 when
+    unmatched)."""
 
     gt_index: np.ndarray
     iou: np.ndarray
@@ -112,7 +113,8 @@ def hungarian_assign(
     pc_span: tuple[float, float],
     config: AssignerConfig = AssignerConfig(),
 ) -> Assignment:
-    """Decoded proposals (P, 7) with class logits (P, K), ground truth (G, 7) and labels (G,) -> one-to-one assignment."""
+    """Decoded proposals (P, 7) with class logits (P, K), ground truth (G, 7) and labels (G,) -> one-to-one
+    assignment."""
     from scipy.optimize import linear_sum_assignment
 
     pred_boxes = np.asarray(pred_boxes, np.float64).reshape(-1, 7)

@@ -50,8 +50,13 @@ def step_loader(batches: StepBatches, start: int, stop: int, workers: int) -> to
     )
     # batch_size=None: collate_fn gets one item, not the list torch's annotation has it take
     return torch.utils.data.DataLoader(
-        batches, batch_size=None, sampler=range(start, stop), num_workers=workers, collate_fn=_as_is, **ahead
-    )  # type: ignore[arg-type]
+        batches,
+        batch_size=None,
+        sampler=range(start, stop),
+        num_workers=workers,
+        collate_fn=_as_is,  # type: ignore[arg-type]
+        **ahead,
+    )
 
 
 def _as_is(batch: Batch) -> Batch:

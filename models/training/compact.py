@@ -10,7 +10,8 @@ square at 0.6 m cells (160 x 160, 80 x 80 at the head), narrower neck, BEV encod
 
 A trained checkpoint is exported like any other by passing the config file this module writes:
 
-    fisheye-infer export --ckpt runs/compact/model.pth --config runs/compact/config.py --rig runs/compact/rig.json --out model.onnx
+    fisheye-infer export --ckpt runs/compact/model.pth --config runs/compact/config.py \\
+        --rig runs/compact/rig.json --out model.onnx
 """
 
 from __future__ import annotations
@@ -71,12 +72,14 @@ def compact_bevdet_config() -> Any:
 
 
 def compact_rig(rig: Rig | None = None) -> Rig:
-    """The rig the compact model sees: ``rig`` (default: the shipped one) with its images scaled by ``COMPACT_SCALE``."""
+    """The rig the compact model sees: ``rig`` (default: the shipped one) with its images scaled by
+    ``COMPACT_SCALE``."""
     return resized_rig(rig or default_rig(), COMPACT_SCALE)
 
 
 def mmdet3d_config_source(cfg: Any) -> str:
-    """A ``BEVDetConfig`` as an official-style mmdet3d config file (what ``BEVDetConfig.from_mmdet3d_config`` reads back)."""
+    """A ``BEVDetConfig`` as an official-style mmdet3d config file (what
+    ``BEVDetConfig.from_mmdet3d_config`` reads back)."""
     img, bb, vt, enc, hd = cfg.image, cfg.backbone, cfg.view_transform, cfg.bev_encoder, cfg.head
     model = dict(
         type="FisheyeBEVDet",

@@ -318,7 +318,8 @@ class Trainer:
                         val = {"step": self.step, "split": "val", **self.validate()}
                         log.write(json.dumps(val) + "\n")
                         bar.note(
-                            f"step {self.step}: validation loss {val['loss']:.3f} (matched IoU {val['matched_iou']:.2f})"
+                            f"step {self.step}: validation loss {val['loss']:.3f} (matched IoU "
+                            f"{val['matched_iou']:.2f})"
                         )
                     bar.note(f"step {self.step}: wrote {self.save()}")
         bar.close()
@@ -353,9 +354,9 @@ class ProgressBar:
         left = (self.total - self.done) * self.seconds
         self.write(
             f"\r{self.done}/{self.total} [{'#' * filled}{'.' * (self.WIDTH - filled)}] loss {self.mean['loss']:.3f} "
-            f"(heatmap {self.mean['loss_heatmap']:.3f} cls {self.mean['loss_cls']:.3f} bbox {self.mean['loss_bbox']:.3f} "
-            f"depth {self.mean['loss_depth']:.3f}, "
-            f"IoU {self.mean['matched_iou']:.2f}) {self.seconds:.1f} s/step, {left / 60:.0f} min left "
+            f"(heatmap {self.mean['loss_heatmap']:.3f} cls {self.mean['loss_cls']:.3f} bbox "
+            f"{self.mean['loss_bbox']:.3f} depth {self.mean['loss_depth']:.3f}, IoU {self.mean['matched_iou']:.2f}) "
+            f"{self.seconds:.1f} s/step, {left / 60:.0f} min left "
         )
 
     def note(self, text: str) -> None:

@@ -46,7 +46,8 @@ class LossConfig:
 def gaussian_focal_loss(
     logits: torch.Tensor, target: torch.Tensor, alpha: float = 2.0, gamma: float = 4.0
 ) -> torch.Tensor:
-    """Summed mmdet GaussianFocalLoss of ``clip_sigmoid(logits)`` against a Gaussian ``target`` (same shape), not yet averaged."""
+    """Summed mmdet GaussianFocalLoss of ``clip_sigmoid(logits)`` against a Gaussian ``target`` (same
+    shape), not yet averaged."""
     pred = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
     pos = target.eq(1).to(pred.dtype)
     neg_weights = (1 - target).pow(gamma)

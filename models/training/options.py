@@ -63,7 +63,8 @@ class TrainOptions:
 
 
 def lr_factor(step: int, total: int, warmup: int, start: float = 1 / 3, floor: float = 2e-4) -> float:
-    """Learning-rate multiplier at ``step`` (0-based): linear warm-up from ``start``, times a cosine from 1 to ``floor``."""
+    """Learning-rate multiplier at ``step`` (0-based): linear warm-up from ``start``, times a cosine from 1
+    to ``floor``."""
     warm = start + (1 - start) * min(step, warmup) / warmup if warmup else 1.0
     progress = min(step / max(total, 1), 1.0)
     return warm * (floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * progress)))
@@ -77,7 +78,8 @@ def training_device(name: str) -> torch.device:
         raise ConfigError(f"--device {name!r}: not a torch device ({exc})") from None
     if device.type == "cuda" and (not torch.cuda.is_available() or (device.index or 0) >= torch.cuda.device_count()):
         raise ConfigError(
-            f"--device {name}: no such CUDA device here (torch {torch.__version__} sees {torch.cuda.device_count()} GPU(s))"
+            f"--device {name}: no such CUDA device here (torch {torch.__version__} sees {torch.cuda.device_count()} "
+            "GPU(s))"
         )
     if device.type not in ("cpu", "cuda"):
         raise ConfigError(f"--device {name}: expected cpu or cuda[:N]")

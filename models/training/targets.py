@@ -72,7 +72,8 @@ def gaussian_2d(radius: int) -> np.ndarray:
 
 
 def draw_gaussian(heatmap: np.ndarray, row: int, col: int, radius: int) -> None:
-    """Max-blend a Gaussian of ``radius`` centred at (row, col) into ``heatmap`` (R x C), in place, clipped at the border.
+    """Max-blend a Gaussian of ``radius`` centred at (row, col) into ``heatmap`` (R x C), in place,
+    clipped at the border.
 
     A centre outside the map draws nothing."""
     rows, cols = heatmap.shape

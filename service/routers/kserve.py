@@ -86,7 +86,8 @@ async def _config(request: Request, service: Service) -> dict[str, Any]:
 
 
 def _max_batch(service: Service) -> int:
-    """Frames per request: at most ``max_batch_frames``, and no more than fit in ``max_body_bytes`` as binary tensors."""
+    """Frames per request: at most ``max_batch_frames``, and no more than fit in ``max_body_bytes`` as
+    binary tensors."""
     s, info = service.settings, service.detector.info if service.detector else None
     if info is None:
         raise Unavailable("model: not loaded yet", field="model", retry_after=s.retry_after_s)
@@ -239,8 +240,8 @@ def _inputs(
     frames = {shape[0] for shape in shapes.values()}
     if len(frames) != 1 or 0 in frames:
         raise RequestInvalid(
-            f"inputs: {INPUT_IMAGES} has {shapes[INPUT_IMAGES][0]} frames, {INPUT_CAMERA_VALID} {shapes[INPUT_CAMERA_VALID][0]}; "
-            "expected the same, at least 1",
+            f"inputs: {INPUT_IMAGES} has {shapes[INPUT_IMAGES][0]} frames, {INPUT_CAMERA_VALID} "
+            f"{shapes[INPUT_CAMERA_VALID][0]}; expected the same, at least 1",
             field="inputs",
         )
     if frames.pop() > max_frames:

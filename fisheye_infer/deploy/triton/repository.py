@@ -67,7 +67,8 @@ class TritonOptions:
     | ``max_batch_size`` | 4 | frames per batched run; 0 turns batching off (the batch axis is then part of the dims) |
     | ``max_queue_delay_us`` | 5000 | dynamic batching: how long a request waits for others |
     | ``preferred_batch_sizes`` | none | dynamic batching: batch sizes to form when possible |
-    | ``instances`` / ``kind`` | 1 / ``auto`` | model instances per device; ``cpu``, ``gpu`` or ``auto`` (GPU when present) |
+    | ``instances`` | 1 | model instances per device |
+    | ``kind`` | ``auto`` | ``cpu``, ``gpu`` or ``auto`` (GPU when present) |
     | ``gpus`` | all | GPU ids for ``kind="gpu"`` |
     | ``threads`` | backend default | ONNX Runtime intra-op threads per instance |
     | ``tensorrt`` | off | TensorRT as the GPU execution accelerator (needs ``kind="gpu"``) |
@@ -92,7 +93,8 @@ class TritonOptions:
     def __post_init__(self) -> None:
         if self.name is not None and not _NAME.match(self.name):
             raise ValueError(
-                f"name: {self.name!r} is not a usable model name (letters, digits, '_', '.', '-'; not starting with '.' or '-')"
+                f"name: {self.name!r} is not a usable model name "
+                "(letters, digits, '_', '.', '-'; not starting with '.' or '-')"
             )
         if self.max_batch_size < 0:
             raise ValueError(f"max_batch_size: expected 0 (no batching) or more, got {self.max_batch_size}")
@@ -194,7 +196,8 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
 
 
 def _quote(text: str) -> str:
-    """A text-format string literal: printable ASCII as is (quote and backslash escaped), other bytes of its UTF-8 as octal escapes."""
+    """A text-format string literal: printable ASCII as is (quote and backslash escaped), other bytes of its UTF-8
+    as octal escapes."""
     out = []
     for byte in text.encode("utf-8"):
         if byte in (34, 92):
