@@ -12,49 +12,36 @@ same products and sums, in another arrangement); only float rounding order may d
 - ``upsample_as_depth_to_space``: a ConvTranspose with kernel = stride (SECONDFPN's upsampling)
   becomes a 1x1 Conv to ``s * s`` times the channels and a DepthToSpace. ONNX Runtime has no int8
   ConvTranspose kernel; the Conv runs in int8.
-- ``data_movement_on_quantized_values``: a reshape, transpose or depth-to-space next to a per-tensor
-  QuantizeLinear / DequantizeLinear moves to the uint8 side of it (it only permutes values, and
-  per-tensor (de)quantization acts on each value alike), so it moves a quarter of the bytes, and
-  a Concat after it reads only dequantized values again (ONNX Runtime then runs it in uint8).
-- ``neighbour_swap_as_concat``: a large uint8 Transpose that exchanges two neighbouring axes, the
-  outer of a few entries (the stem's 2x2 blocks: rows of a block before the block's column),
-  becomes a Split along that axis and a Concat of the slices one axis further in. ONNX Runtime's
-  Transpose moves such a tensor value by value; Concat copies each contiguous run (here six
-  values) at once: the shipped model's 4 x 320 x 320 frame 3.4 -> 1.0 ms on one thread, full size
-  (800 x 800) 11 -> 4.6 ms.
+- after quantization, ``data_movement_on_quantized_values`` and ``neighbour_swap_as_concat`` (in
+  ``quantized_rewrites``) move reshapes and transposes to the uint8 side of the quantization and
+  copy a large uint8 transpose as Split + Concat.
+
+The graph bookkeeping the rewrites share (fresh value names, node order, recorded module paths) is
+in ``graph_edit``.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Iterator
-from typing import Any
+from collections.abc import Collection
 
 import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
 from .graph import readers_of, static_shapes
+from .graph_edit import attrs, int64s, like, replace
+from .quantized_rewrites import data_movement_on_quantized_values, neighbour_swap_as_concat
 
 __all__ = [
     "before_quantization",
     "after_quantization",
     "stem_as_space_to_depth",
     "upsample_as_depth_to_space",
-    "data_movement_on_quantized_values",
-    "neighbour_swap_as_concat",
 ]
 
 #: A stride-2 convolution over at most this many input channels is a stem worth rewriting.
 STEM_MAX_CHANNELS = 4
-#: Ops that only move values; a per-tensor quantization commutes with them.
-DATA_MOVEMENT = ("Reshape", "Transpose", "DepthToSpace", "SpaceToDepth")
-#: A uint8 neighbouring-axes Transpose becomes Split + Concat when its outer axis has at most this
-#: many entries (one slice each), each copy moves at least ``SWAP_MIN_RUN`` contiguous values, and a
-#: batch item holds at least ``SWAP_MIN_VALUES`` values; elsewhere Transpose is as fast or faster.
-SWAP_MAX_SLICES = 4
-SWAP_MIN_RUN = 2
-SWAP_MIN_VALUES = 1 << 16
 
 
 def before_quantization(model: onnx.ModelProto, quantized: Collection[str] | None = None) -> list[str]:
@@ -64,54 +51,9 @@ def before_quantization(model: onnx.ModelProto, quantized: Collection[str] | Non
 
 
 def after_quantization(model: onnx.ModelProto) -> list[str]:
-    """Apply the QDQ-graph rewrites in place; returns the names of the nodes moved or rewritten."""
+    """Apply the QDQ-graph rewrites in place (``quantized_rewrites``); returns the names of the nodes moved
+    or rewritten."""
     return data_movement_on_quantized_values(model) + neighbour_swap_as_concat(model)
-
-
-# -- helpers ---------------------------------------------------------------------------------------
-
-
-def _attrs(node: onnx.NodeProto) -> dict[str, Any]:
-    return {a.name: helper.get_attribute_value(a) for a in node.attribute}
-
-
-def _int64s(name: str, values: list[int]) -> onnx.TensorProto:
-    return numpy_helper.from_array(np.asarray(values, dtype=np.int64), name)
-
-
-def _value_names(graph: onnx.GraphProto) -> set[str]:
-    return (
-        {i.name for i in graph.input} | {i.name for i in graph.initializer} | {o for n in graph.node for o in n.output}
-    )
-
-
-def _fresh(taken: set[str], base: str) -> str:
-    """A value name not yet in ``taken`` (which it joins)."""
-    name, k = base, 1
-    while name in taken:
-        name, k = f"{base}.{k}", k + 1
-    taken.add(name)
-    return name
-
-
-def _position(graph: onnx.GraphProto, node: onnx.NodeProto) -> int:
-    """Index of ``node`` in the graph, found by its first output (each value is made once)."""
-    return next(i for i, n in enumerate(graph.node) if n.output[0] == node.output[0])
-
-
-def _replace(graph: onnx.GraphProto, old: list[onnx.NodeProto], new: list[onnx.NodeProto]) -> None:
-    """Put ``new`` where the first of ``old`` stood, and drop ``old``."""
-    at = min(_position(graph, n) for n in old)
-    for node in old:
-        del graph.node[_position(graph, node)]
-    for k, node in enumerate(new):
-        graph.node.insert(at + k, node)
-
-
-def _like(node: onnx.NodeProto, template: onnx.NodeProto) -> onnx.NodeProto:
-    """``node`` with ``template``'s recorded metadata (its module path: int8 scopes read it)."""
-    node.metadata_props.extend(template.metadata_props)
-    return node
 
 
 # -- before quantization ---------------------------------------------------------------------------
@@ -142,7 +84,7 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
         if (
             transpose is None
             or transpose.op_type != "Transpose"
-            or list(_attrs(transpose).get("perm", [])) != [0, 3, 1, 2]
+            or list(attrs(transpose).get("perm", [])) != [0, 3, 1, 2]
             or weight is None
             or len(weight.dims) != 4
             or len(readers[weight.name]) != 1
@@ -168,10 +110,10 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
         name = conv.name or conv.output[0]
         source = transpose.input[0]
         split, merged = f"{name}.blocks.split_shape", f"{name}.blocks.shape"
-        graph.initializer.extend([_int64s(split, [0, h, 2, wd, 2, c]), _int64s(merged, [0, h, wd, 4 * c])])
+        graph.initializer.extend([int64s(split, [0, h, 2, wd, 2, c]), int64s(merged, [0, h, wd, 4 * c])])
         chain = [
-            _like(helper.make_node("Reshape", [source, split], [f"{name}.rows2"], name=f"{name}.blocks.split"), conv),
-            _like(
+            like(helper.make_node("Reshape", [source, split], [f"{name}.rows2"], name=f"{name}.blocks.split"), conv),
+            like(
                 helper.make_node(
                     "Transpose",
                     [f"{name}.rows2"],
@@ -181,13 +123,13 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
                 ),
                 conv,
             ),
-            _like(
+            like(
                 helper.make_node(
                     "Reshape", [f"{name}.blocks6", merged], [f"{name}.blocks_nhwc"], name=f"{name}.blocks.merge"
                 ),
                 conv,
             ),
-            _like(
+            like(
                 helper.make_node(
                     "Transpose",
                     [f"{name}.blocks_nhwc"],
@@ -198,15 +140,17 @@ def stem_as_space_to_depth(model: onnx.ModelProto, only: Collection[str] | None 
                 conv,
             ),
         ]
-        attrs = _attrs(conv)
-        attrs.update(kernel_shape=[blocks, blocks], strides=[1, 1], pads=[begin, begin, end_h, end_w])
-        attrs.pop("auto_pad", None)
-        new_conv = _like(
-            helper.make_node("Conv", [chain[-1].output[0], *conv.input[1:]], list(conv.output), name=name, **attrs),
+        conv_attrs = attrs(conv)
+        conv_attrs.update(kernel_shape=[blocks, blocks], strides=[1, 1], pads=[begin, begin, end_h, end_w])
+        conv_attrs.pop("auto_pad", None)
+        new_conv = like(
+            helper.make_node(
+                "Conv", [chain[-1].output[0], *conv.input[1:]], list(conv.output), name=name, **conv_attrs
+            ),
             conv,
         )
         readers[transpose.output[0]].remove(conv)
-        _replace(graph, [conv] + ([transpose] if not readers[transpose.output[0]] else []), [*chain, new_conv])
+        replace(graph, [conv] + ([transpose] if not readers[transpose.output[0]] else []), [*chain, new_conv])
         changed.append(name)
     return changed
 
@@ -215,9 +159,9 @@ def _stem_plan(
     conv: onnx.NodeProto, weight_shape: tuple[int, ...], nhwc: tuple[int, ...] | None
 ) -> tuple[int, int, int, int, int] | None:
     """(kernel in blocks, shift e, front padding in blocks, end padding in blocks (rows, columns)), or ``None``."""
-    attrs = _attrs(conv)
+    conv_attrs = attrs(conv)
     _, c, k, k2 = weight_shape
-    pads = list(attrs.get("pads", [0, 0, 0, 0]))
+    pads = list(conv_attrs.get("pads", [0, 0, 0, 0]))
     if (
         nhwc is None
         or len(nhwc) != 4
@@ -225,10 +169,10 @@ def _stem_plan(
         or c > STEM_MAX_CHANNELS
         or k != k2
         or any(d <= 0 or d % 2 for d in nhwc[1:3])
-        or list(attrs.get("strides", [1, 1])) != [2, 2]
-        or attrs.get("group", 1) != 1
-        or list(attrs.get("dilations", [1, 1])) != [1, 1]
-        or attrs.get("auto_pad", b"NOTSET") not in (b"NOTSET", "NOTSET")
+        or list(conv_attrs.get("strides", [1, 1])) != [2, 2]
+        or conv_attrs.get("group", 1) != 1
+        or list(conv_attrs.get("dilations", [1, 1])) != [1, 1]
+        or conv_attrs.get("auto_pad", b"NOTSET") not in (b"NOTSET", "NOTSET")
         or len(set(pads)) != 1
     ):
         return None
@@ -285,15 +229,15 @@ def upsample_as_depth_to_space(model: onnx.ModelProto, only: Collection[str] | N
         relu = after[0] if len(after) == 1 and after[0].op_type == "Relu" else None
         blocks = f"{name}.blocks"
         chain = [
-            _like(helper.make_node("Conv", list(node.input), [blocks], name=f"{name}.conv", kernel_shape=[1, 1]), node)
+            like(helper.make_node("Conv", list(node.input), [blocks], name=f"{name}.conv", kernel_shape=[1, 1]), node)
         ]
         if relu is not None:
             chain.append(
-                _like(helper.make_node("Relu", [blocks], [f"{blocks}.relu"], name=relu.name or f"{name}.relu"), relu)
+                like(helper.make_node("Relu", [blocks], [f"{blocks}.relu"], name=relu.name or f"{name}.relu"), relu)
             )
         final = (relu or node).output[0]
         chain.append(
-            _like(
+            like(
                 helper.make_node(
                     "DepthToSpace",
                     [chain[-1].output[0]],
@@ -305,161 +249,27 @@ def upsample_as_depth_to_space(model: onnx.ModelProto, only: Collection[str] | N
                 node,
             )
         )
-        _replace(graph, [node] + ([relu] if relu is not None else []), chain)
+        replace(graph, [node] + ([relu] if relu is not None else []), chain)
         changed.append(name)
     return changed
 
 
 def _is_block_upsample(node: onnx.NodeProto, weight_shape: tuple[int, ...]) -> bool:
     """ConvTranspose with kernel = stride (square, > 1), group 1, no padding, dilation or output padding."""
-    attrs = _attrs(node)
+    node_attrs = attrs(node)
     k = list(weight_shape[2:])
     pad_free = (
-        attrs.get("auto_pad", b"NOTSET") in (b"NOTSET", b"VALID", "NOTSET", "VALID")
-        and not any(attrs.get("pads", [0]))
-        and not any(attrs.get("output_padding", [0]))
-        and "output_shape" not in attrs
+        node_attrs.get("auto_pad", b"NOTSET") in (b"NOTSET", b"VALID", "NOTSET", "VALID")
+        and not any(node_attrs.get("pads", [0]))
+        and not any(node_attrs.get("output_padding", [0]))
+        and "output_shape" not in node_attrs
     )
     return (
         len(k) == 2
         and k[0] == k[1] > 1
-        and list(attrs.get("strides", [1, 1])) == k
-        and list(attrs.get("kernel_shape", k)) == k
-        and attrs.get("group", 1) == 1
-        and list(attrs.get("dilations", [1, 1])) == [1, 1]
+        and list(node_attrs.get("strides", [1, 1])) == k
+        and list(node_attrs.get("kernel_shape", k)) == k
+        and node_attrs.get("group", 1) == 1
+        and list(node_attrs.get("dilations", [1, 1])) == [1, 1]
         and pad_free
     )
-
-
-# -- after quantization ----------------------------------------------------------------------------
-
-
-def data_movement_on_quantized_values(model: onnx.ModelProto) -> list[str]:
-    """Move value-permuting ops to the uint8 side of per-tensor quantization; returns the ops moved.
-
-    ``DequantizeLinear -> DepthToSpace`` becomes ``DepthToSpace -> DequantizeLinear``; a chain of
-    Reshape / Transpose / DepthToSpace / SpaceToDepth ending in ``QuantizeLinear`` gets the
-    QuantizeLinear at its start. Only where each moved value has that one reader and the scale and
-    zero point are scalars.
-    """
-    graph = model.graph
-    inits = {i.name: i for i in graph.initializer}
-    taken = _value_names(graph)
-    moved: list[str] = []
-
-    def per_tensor(node: onnx.NodeProto) -> bool:
-        return all(name in inits and len(inits[name].dims) == 0 for name in node.input[1:3] if name)
-
-    readers = readers_of(graph)
-    for dq in [n for n in graph.node if n.op_type == "DequantizeLinear" and per_tensor(n)]:
-        after = readers.get(dq.output[0], [])
-        if dq.input[0] in inits or len(after) != 1 or after[0].op_type not in ("DepthToSpace", "SpaceToDepth"):
-            continue
-        move = after[0]
-        i, j = _position(graph, dq), _position(graph, move)
-        quantized = _fresh(taken, f"{move.output[0]}.quantized")
-        first, second = onnx.NodeProto(), onnx.NodeProto()
-        first.CopyFrom(move)  # the permutation, now on the quantized values, where the DequantizeLinear stood
-        first.input[0], first.output[0] = dq.input[0], quantized
-        second.CopyFrom(dq)  # the DequantizeLinear, now making the permutation's old output
-        second.input[0], second.output[0] = quantized, move.output[0]
-        graph.node[i].CopyFrom(first)
-        graph.node[j].CopyFrom(second)
-        moved.append(first.name)
-
-    readers = readers_of(graph)
-    producers = {o: n for n in graph.node for o in n.output}
-    retyped: set[str] = set()
-    for q in [n for n in graph.node if n.op_type == "QuantizeLinear" and per_tensor(n)]:
-        chain = list(_movement_chain(q.input[0], producers, readers))
-        if not chain:
-            continue
-        first, last = chain[-1], chain[0]
-        at, old_at, moved_q = _position(graph, first), _position(graph, q), onnx.NodeProto()
-        moved_q.CopyFrom(q)
-        moved_q.input[0] = first.input[0]
-        moved_q.output[0] = _fresh(taken, f"{first.input[0]}.quantized")
-        retyped.update(n.output[0] for n in chain[1:])  # float before, uint8 now
-        first.input[0] = moved_q.output[0]
-        last.output[0] = q.output[0]
-        del graph.node[old_at]  # after the chain, so ``at`` still points at its start
-        graph.node.insert(at, moved_q)
-        moved.extend(n.name for n in reversed(chain))
-    stale = [v for v in graph.value_info if v.name in retyped]
-    for info in stale:
-        graph.value_info.remove(info)
-    return moved
-
-
-def _movement_chain(
-    value: str, producers: dict[str, onnx.NodeProto], readers: dict[str, list[onnx.NodeProto]]
-) -> Iterator[onnx.NodeProto]:
-    """The data-movement nodes that lead to ``value``, nearest first, each the only reader of its input."""
-    node = producers.get(value)
-    while node is not None and node.op_type in DATA_MOVEMENT and len(readers.get(node.output[0], [])) == 1:
-        yield node
-        source = node.input[0]
-        if len(readers.get(source, [])) != 1:
-            return
-        node = producers.get(source)
-
-
-def neighbour_swap_as_concat(model: onnx.ModelProto) -> list[str]:
-    """Rewrite a uint8 Transpose that exchanges axes ``a`` and ``a + 1`` as Split + Concat; returns their names.
-
-    Slice ``j`` of the input along ``a`` is ``x[..., j:j+1, :, ...]``; moving its unit axis one place
-    further in is a Reshape (the values keep their order), and concatenating the slices along
-    ``a + 1`` puts ``x[..., j, i, ...]`` at ``[..., i, j, ...]``: the transposed tensor. Only where
-    that was measured faster: uint8 values (ONNX Runtime's float Transpose is as fast or faster),
-    ``a`` after the batch axis with 2 to ``SWAP_MAX_SLICES`` entries, contiguous runs of at least
-    ``SWAP_MIN_RUN`` values behind ``a + 1`` (with runs of one value Concat is slower), the
-    dimensions from ``a`` on known, and at least ``SWAP_MIN_VALUES`` values per batch item.
-    Dimensions before ``a`` are copied (Reshape's 0), so the batch may be symbolic.
-    """
-    graph = model.graph
-    inferred = onnx.shape_inference.infer_shapes(model).graph
-    uint8 = {
-        v.name
-        for v in [*inferred.value_info, *inferred.input]
-        if v.type.tensor_type.elem_type == onnx.TensorProto.UINT8
-    }
-    shapes = static_shapes(model)
-    taken = _value_names(graph)
-    names = {n.name for n in graph.node}
-    changed: list[str] = []
-    for node in [n for n in graph.node if n.op_type == "Transpose" and n.input[0] in uint8]:
-        perm = list(_attrs(node).get("perm", []))
-        moved = [i for i, p in enumerate(perm) if p != i]
-        shape = shapes.get(node.input[0])
-        if len(moved) != 2 or moved[1] != moved[0] + 1 or moved[0] == 0 or shape is None or len(shape) != len(perm):
-            continue
-        a = moved[0]
-        tail = shape[a:]
-        if (
-            any(d <= 0 for d in tail)
-            or not 2 <= tail[0] <= SWAP_MAX_SLICES
-            or math.prod(tail[2:]) < SWAP_MIN_RUN
-            or math.prod(d for d in shape[1:] if d > 0) < SWAP_MIN_VALUES
-        ):
-            continue
-        name = node.name or node.output[0]
-        sizes, piece = _fresh(taken, f"{name}.slice_sizes"), _fresh(taken, f"{name}.slice_shape")
-        graph.initializer.extend([_int64s(sizes, [1] * tail[0]), _int64s(piece, [0] * a + [tail[1], 1, *tail[2:]])])
-        slices = [_fresh(taken, f"{name}.slice{j}") for j in range(tail[0])]
-        moved_slices = [_fresh(taken, f"{name}.slice{j}.moved") for j in range(tail[0])]
-        chain = [
-            _like(
-                helper.make_node("Split", [node.input[0], sizes], slices, name=_fresh(names, f"{name}.split"), axis=a),
-                node,
-            )
-        ]
-        chain += [
-            _like(helper.make_node("Reshape", [s, piece], [m], name=_fresh(names, f"{name}.move{j}")), node)
-            for j, (s, m) in enumerate(zip(slices, moved_slices, strict=True))
-        ]
-        chain.append(
-            _like(helper.make_node("Concat", moved_slices, list(node.output), name=node.name, axis=a + 1), node)
-        )
-        _replace(graph, [node], chain)
-        changed.append(name)
-    return changed

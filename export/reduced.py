@@ -27,8 +27,10 @@ from .fp16 import to_float16
 from .fp16_parity import fp16_parity
 from .frames import CALIBRATION_SEED, verification_frames
 from .graph import save_model, set_metadata
+from .int8_parity import int8_parity
+from .int8_scope import quantized_scope
 from .options import Comparison, Int8Options, options_from_keywords
-from .quantize import FrameReader, architecture_float, int8_parity, int8_path_for, quantize, quantized_scope
+from .quantize import FrameReader, architecture_float, int8_path_for, quantize
 from .results import Fp16Result, Int8Result
 from .tensorrt_check import check_tensorrt
 

@@ -30,16 +30,17 @@ matrix itself is data, in ``tensorrt_matrix``; what the checks read of a graph, 
 Findings are ``error`` (the parser or the engine build refuses the node; ``compatible`` becomes
 False) or ``note`` (accepted, but worth knowing): DOUBLE is cast down to FLOAT; INT64 data
 tensors, which TensorRT 10 keeps (the matrix lists INT64 for the ops that carry them) and
-TensorRT 8.x cast down to INT32, clamping; dynamic input dimensions beyond the batch axis (the
-engine needs an optimization profile covering them); a weights-only input computed from
-constants (fold constants first); a TopK K computed at run time (cannot be checked here).
+TensorRT 8.x cast down to INT32, clamping (both noted by ``tensorrt_notes``); dynamic input
+dimensions beyond the batch axis (the engine needs an optimization profile covering them); a
+weights-only input computed from constants (fold constants first); a TopK K computed at run time
+(cannot be checked here).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import onnx
-from onnx import TensorProto, numpy_helper
+from onnx import TensorProto
 
 from fisheye_infer.runtime.artifact import TensorRTReport
 
@@ -54,13 +55,12 @@ from .tensorrt_matrix import (
     MIN_OPSET,
     RESIZE_MODES,
     RESIZE_TRANSFORMS,
-    SHAPE_ARITHMETIC,
-    SHAPE_INPUTS,
     SUPPORTED_OPS,
     TARGET,
     UNSUPPORTED_OPS,
     WEIGHTS_INPUTS,
 )
+from .tensorrt_notes import note_doubles, note_int64
 
 __all__ = [
     "MAX_OPSET",
@@ -72,9 +72,6 @@ __all__ = [
     "UNSUPPORTED_OPS",
     "check_tensorrt",
 ]
-
-_INT32 = np.iinfo(np.int32)
-_EXAMPLES = 3
 
 
 def check_tensorrt(model: onnx.ModelProto) -> TensorRTReport:
@@ -89,8 +86,8 @@ def check_tensorrt(model: onnx.ModelProto) -> TensorRTReport:
             if _check_op(node, found):
                 _check_types(g, node, found)
                 _check_node(g, node, found)
-    _note_doubles(g, found)
-    _note_int64(g, found)
+    note_doubles(g, found)
+    note_int64(g, found)
     return TensorRTReport(
         target=TARGET, compatible=not any(f.severity == "error" for f in found), findings=tuple(found)
     )
@@ -322,82 +319,4 @@ def _check_zero_point(g: GraphFacts, node: onnx.NodeProto, found: Findings) -> N
             node,
             f"{node.op_type} {what} is {zero.dtype} with non-zero values: TensorRT quantizes symmetrically "
             "(zero point 0) only",
-        )
-
-
-def _note_doubles(g: GraphFacts, found: Findings) -> None:
-    doubles = sorted(v for v, t in g.types.items() if t == TensorProto.DOUBLE)
-    if doubles:
-        found.note(
-            None,
-            f"{len(doubles)} DOUBLE value(s) (e.g. {', '.join(doubles[:_EXAMPLES])}): the parser casts DOUBLE down to "
-            "FLOAT, clamping to +-FLT_MAX",
-        )
-
-
-def _shape_like(g: GraphFacts) -> set[str]:
-    """Values that only ever hold shapes, axes or counts: every use is a shape input, or shape arithmetic
-    whose results are shape-like too. Graph outputs never are."""
-    graph = g.model.graph
-    uses: dict[str, list[tuple[onnx.NodeProto, int]]] = {}
-    for node in graph.node:
-        for i, name in enumerate(node.input):
-            uses.setdefault(name, []).append((node, i))
-    for sub in list(subgraphs(graph))[1:]:  # a value read inside a subgraph: treat as data
-        for node in sub.node:
-            for name in node.input:
-                uses.setdefault(name, []).append((node, -1))
-    shape_like: set[str] = set()
-
-    def decide(value: str) -> None:
-        if value in g.outputs or not uses.get(value):
-            return
-        if all(
-            i in SHAPE_INPUTS.get(n.op_type, ())
-            or (n.op_type in SHAPE_ARITHMETIC and all(o in shape_like for o in n.output if o))
-            for n, i in uses[value]
-        ):
-            shape_like.add(value)
-
-    for node in reversed(graph.node):  # consumers before producers
-        for out in node.output:
-            decide(out)
-    for name in list(g.initializers) + list(g.inputs):
-        decide(name)
-    return shape_like
-
-
-def _note_int64(g: GraphFacts, found: Findings) -> None:
-    shape_like = _shape_like(g)
-    tables = sorted(
-        (i for name, i in g.initializers.items() if i.data_type == TensorProto.INT64 and name not in shape_like),
-        key=lambda t: -int(np.prod(t.dims, dtype=np.int64)),
-    )  # the largest tables make the best examples
-    if tables:
-        arrays = [numpy_helper.to_array(t) for t in tables]
-        largest = max((int(np.abs(a).max()) for a in arrays if a.size), default=0)
-        fits = all(a.size == 0 or (a.min() >= _INT32.min and a.max() <= _INT32.max) for a in arrays)
-        examples = ", ".join(f"{t.name} {tuple(t.dims)}" for t in tables[:_EXAMPLES])
-        found.note(
-            None,
-            f"{len(tables)} INT64 initializer(s) hold data, not shapes (e.g. {examples}): TensorRT 10 keeps INT64 "
-            f"for the ops the matrix lists it for; TensorRT 8.x casts INT64 down to INT32, clamping to +-2^31-1: "
-            + (
-                f"every value fits in INT32 (largest |value| {largest})"
-                if fits
-                else f"values up to {largest} do NOT fit in INT32"
-            ),
-        )
-    values = [
-        (node, out)
-        for node in g.model.graph.node
-        for out in node.output
-        if out and g.types.get(out) == TensorProto.INT64 and out not in shape_like
-    ]
-    if values:
-        examples = ", ".join(f"{out} ({node.op_type})" for node, out in values[:_EXAMPLES])
-        found.note(
-            None,
-            f"{len(values)} INT64 value(s) computed at run time hold data, not shapes (e.g. {examples}): TensorRT 10 "
-            "computes them in INT64; TensorRT 8.x computes them in INT32",
         )

@@ -13,7 +13,8 @@ from .config import ModelConfig, Preprocessing
 from .cyl_config import BEVDetCylConfig, CylPETRConfig
 from .mmconfig import read_mmdet3d_config
 from .petr_config import PETRConfig
-from .pinhole_config import PerspBEVDetConfig, PerspPETRConfig, PinholeBEVDetConfig, PinholePETRConfig
+from .pinhole_config import PerspBEVDetConfig, PinholeBEVDetConfig
+from .pinhole_petr_config import PerspPETRConfig, PinholePETRConfig
 from .registry import ModelEntry, create_model, get_model_entry, list_models, matching_architectures, register_model
 from .seeded_checkpoint import calibrated_checkpoint, make_checkpoint
 

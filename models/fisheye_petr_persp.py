@@ -30,7 +30,7 @@ from .fisheye_petr import _HEAD, SIGNATURE_KEYS, checkpoint_filter_fn
 from .front_end import perspective_views
 from .petr_config import PETRConfig
 from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, RectifiedPETRHead
-from .pinhole_config import PerspPETRConfig
+from .pinhole_petr_config import PerspPETRConfig
 from .registry import register_model
 from .resampled_petr import ResampledPETR
 

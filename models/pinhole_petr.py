@@ -26,7 +26,7 @@ from .front_end import resized_views
 from .normalise import normalise_frames
 from .petr_config import PETRConfig
 from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, RectifiedPETRHead
-from .pinhole_config import PinholePETRConfig
+from .pinhole_petr_config import PinholePETRConfig
 from .registry import register_model
 from .resampled_petr import ResampledPETR
 

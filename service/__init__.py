@@ -5,7 +5,8 @@
 
 Modules: ``settings`` (ServiceSettings), ``app`` (create_app), ``server`` (uvicorn with a
 graceful drain), ``state`` (what one app owns), ``queue`` (bounded inference queue,
-micro-batching), ``intake`` (request checks before decoding), ``pipeline``, ``schemas``,
+micro-batching), ``bodies`` (reading /detect's multipart and JSON bodies), ``intake``
+(frame and option checks before decoding, and decoding), ``pipeline``, ``schemas``,
 ``errors`` (status codes), ``metrics``, ``middleware``, ``openapi``, ``protocol`` (the
 ``/stream`` frame format, importable without the web stack), ``routers/`` (detect, stream,
 health, kserve: the KServe v2 protocol), and ``ray_serve`` (the same app on Ray Serve, the

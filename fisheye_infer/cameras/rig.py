@@ -4,14 +4,12 @@ Frames: the lidar frame is x forward, y left, z up (metres); each camera frame i
 (x right, y down, z forward). ``cam2lidar`` maps camera-frame points into the lidar frame.
 The camera order is the model's input order (Fisheye3DOD: front, left, right, rear).
 
-A rig is read from
-- an OCam ``calib_results.txt`` shared by all cameras plus a ``lidar2cam.json``,
-- Fisheye3DOD ``sensor_metadata.txt`` files (CARLA poses, "compat" or "exact" convention),
-- the project's own rig file (JSON or YAML, with ``schema_version``),
-- a pinhole camera list (``{"cameras": [{"name", "width", "height", "K", "distortion": "none",
-  "lidar2cam"}, ...]}``, the layout of ``rig-pinhole6/cameras.json``),
-and written to the rig file. ``Rig.hash`` is a stable content hash that ties an exported model
-to the rig its geometry tables were computed for.
+A rig is read from an OCam ``calib_results.txt`` plus ``lidar2cam.json``, from Fisheye3DOD
+``sensor_metadata.txt`` files (CARLA poses, "compat" or "exact" convention), from the project's
+own rig file (JSON or YAML) or from a pinhole camera list (``rig-pinhole6/cameras.json``), and
+written to the rig file; ``rig_files`` parses those formats, :class:`Rig` validates the result.
+``Rig.hash`` is a stable content hash that ties an exported model to the rig its geometry tables
+were computed for.
 """
 
 from __future__ import annotations
@@ -23,15 +21,25 @@ from collections.abc import Sequence
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from fisheye_infer.cameras.camera_models import AnyCameraModel, OCamModel
-from fisheye_infer.cameras.carla_poses import Convention, cam2lidar_from_poses, read_sensor_metadata
-from fisheye_infer.errors import CameraModelError, RigError
+from fisheye_infer.cameras.camera_models import AnyCameraModel
+from fisheye_infer.cameras.carla_poses import Convention
+from fisheye_infer.cameras.rig_files import (
+    RIG_SCHEMA_VERSION,
+    describe_validation_error,
+    is_pinhole_list,
+    pinhole_list_cameras,
+    read_lidar2cam_json,
+    read_ocam,
+    read_rig_document,
+    read_sensor_metadata_poses,
+    write_rig_document,
+)
+from fisheye_infer.errors import RigError
 
 __all__ = [
     "Rig",
@@ -43,7 +51,6 @@ __all__ = [
     "resolve_rig",
 ]
 
-RIG_SCHEMA_VERSION: Final = 1
 #: The detectors' input order for Fisheye3DOD.
 FISHEYE3DOD_CAMERAS = ("fisheye_camera_front", "fisheye_camera_left", "fisheye_camera_right", "fisheye_camera_rear")
 #: The six nuScenes-like pinhole cameras in the pinhole baselines' input order (rear_right before rear_left).
@@ -125,7 +132,7 @@ class Rig(BaseModel):
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
-            raise RigError(f"{source}: " + _describe(exc, data)) from None
+            raise RigError(f"{source}: " + describe_validation_error(exc, data)) from None
 
     @classmethod
     def from_cameras(
@@ -165,26 +172,12 @@ class Rig(BaseModel):
 
         Without ``order``, Fisheye3DOD's order is used when the file has exactly its cameras.
         """
-        model = _read_ocam(calib, fov)
-        path = Path(lidar2cam_json)
-        try:
-            doc = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise RigError(f"extrinsics {path}: cannot be read as JSON ({exc})") from exc
-        cams = doc.get("cameras") if isinstance(doc, dict) else None
-        if not isinstance(cams, dict) or not cams:
-            raise RigError(f'extrinsics {path}: expected {{"cameras": {{name: 4x4 lidar2cam}}}}')
+        model = read_ocam(calib, fov)
+        cam2lidar = read_lidar2cam_json(lidar2cam_json)
         if order is None:
-            order = FISHEYE3DOD_CAMERAS if set(cams) == set(FISHEYE3DOD_CAMERAS) else list(cams)
-        cam2lidar = {}
-        for cam, m in cams.items():
-            arr = np.asarray(m, dtype=np.float64)
-            if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
-                raise RigError(
-                    f"camera '{cam}' (lidar2cam in {path}): expected a finite 4x4 matrix, got shape {arr.shape}"
-                )
-            cam2lidar[cam] = np.linalg.inv(arr)
-        return cls.from_cameras({c: model for c in cams}, cam2lidar, order, name=name or path.parent.name)
+            order = FISHEYE3DOD_CAMERAS if set(cam2lidar) == set(FISHEYE3DOD_CAMERAS) else list(cam2lidar)
+        name = name or Path(lidar2cam_json).parent.name
+        return cls.from_cameras({c: model for c in cam2lidar}, cam2lidar, order, name=name)
 
     @classmethod
     def from_sensor_metadata(
@@ -201,22 +194,8 @@ class Rig(BaseModel):
         ``frame_id`` defaults to the first frame that every camera and the lidar recorded.
         """
         root = Path(vehicle_dir)
-        model = _read_ocam(calib, fov)
-        lidar = read_sensor_metadata(root / "lidar" / "sensor_metadata.txt")
-        poses = {cam: read_sensor_metadata(root / cam / "sensor_metadata.txt") for cam in cameras}
-        if frame_id is None:
-            common = set(lidar).intersection(*(set(p) for p in poses.values()))
-            if not common:
-                raise RigError(f"{root}: no frame is recorded by the lidar and every camera ({', '.join(cameras)})")
-            frame_id = min(common)
-        frame_id = f"{int(frame_id):08d}"
-        if frame_id not in lidar:
-            raise RigError(f"{root}: frame {frame_id} missing from lidar/sensor_metadata.txt")
-        cam2lidar = {}
-        for cam, p in poses.items():
-            if frame_id not in p:
-                raise RigError(f"camera '{cam}': frame {frame_id} missing from its sensor_metadata.txt")
-            cam2lidar[cam] = cam2lidar_from_poses(p[frame_id], lidar[frame_id], convention)
+        model = read_ocam(calib, fov)
+        frame_id, cam2lidar = read_sensor_metadata_poses(root, cameras, frame_id, convention)
         return cls.from_cameras(
             {c: model for c in cameras}, cam2lidar, cameras, name=f"{root.parent.name}/{root.name}@{frame_id}"
         )
@@ -225,22 +204,8 @@ class Rig(BaseModel):
     def load(cls, path: str | Path) -> Rig:
         """Read a rig file (``.json``, ``.yaml`` or ``.yml``)."""
         path = Path(path)
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise RigError(f"rig file {path}: cannot be read ({exc.strerror})") from exc
-        try:
-            data = yaml.safe_load(text) if path.suffix.lower() in (".yaml", ".yml") else json.loads(text)
-        except (yaml.YAMLError, json.JSONDecodeError) as exc:
-            raise RigError(
-                f"rig file {path}: not valid {'YAML' if path.suffix.lower() in ('.yaml', '.yml') else 'JSON'}: {exc}"
-            ) from exc
-        if isinstance(data, dict) and data.get("schema_version", RIG_SCHEMA_VERSION) != RIG_SCHEMA_VERSION:
-            raise RigError(
-                f"rig file {path}: schema_version {data.get('schema_version')!r} is not supported "
-                f"(expected {RIG_SCHEMA_VERSION})"
-            )
-        if _is_pinhole_list(data):
+        data = read_rig_document(path)
+        if is_pinhole_list(data):
             return cls.from_pinhole_list(data, source=f"rig file {path}", name=path.parent.name or path.stem)
         return cls.from_dict(data, source=f"rig file {path}")
 
@@ -251,46 +216,12 @@ class Rig(BaseModel):
         ``cam2lidar`` is ``inv(lidar2cam)`` in float64. A camera with distortion, skew or a K whose
         last row is not (0, 0, 1) is refused by name: the pinhole detectors take ideal pinhole images.
         """
-        models: dict[str, Any] = {}
-        cam2lidar: dict[str, np.ndarray] = {}
-        for i, cam in enumerate(data["cameras"]):
-            label = f"{source}: camera '{cam.get('name', f'#{i}')}'"
-            k = np.asarray(cam.get("K"), dtype=np.float64)
-            lidar2cam = np.asarray(cam.get("lidar2cam"), dtype=np.float64)
-            if k.shape != (3, 3) or not np.all(np.isfinite(k)):
-                raise RigError(f"{label} (K): expected a finite 3x3 matrix, got shape {k.shape}")
-            if k[0, 1] != 0 or k[1, 0] != 0 or not np.array_equal(k[2], (0.0, 0.0, 1.0)):
-                raise RigError(f"{label} (K): expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {k.tolist()}")
-            if cam.get("distortion", "none") not in ("none", None):
-                raise RigError(
-                    f"{label} (distortion): {cam.get('distortion')!r} is not supported; "
-                    "expected 'none' (an ideal pinhole)"
-                )
-            if lidar2cam.shape != (4, 4) or not np.all(np.isfinite(lidar2cam)):
-                raise RigError(f"{label} (lidar2cam): expected a finite 4x4 matrix, got shape {lidar2cam.shape}")
-            if "name" not in cam or "width" not in cam or "height" not in cam:
-                raise RigError(f"{label}: expected the fields name, width, height, K, lidar2cam")
-            models[cam["name"]] = {
-                "type": "pinhole",
-                "width": cam["width"],
-                "height": cam["height"],
-                "fx": k[0, 0],
-                "fy": k[1, 1],
-                "cx": k[0, 2],
-                "cy": k[1, 2],
-            }
-            cam2lidar[cam["name"]] = np.linalg.inv(lidar2cam)
+        models, cam2lidar = pinhole_list_cameras(data, source)
         return cls.from_cameras(models, cam2lidar, name=name)
 
     def save(self, path: str | Path) -> Path:
         """Write the rig file; YAML for ``.yaml``/``.yml``, JSON otherwise."""
-        path = Path(path)
-        data = self.model_dump(mode="json")
-        if path.suffix.lower() in (".yaml", ".yml"):
-            path.write_text(yaml.safe_dump(data, sort_keys=False))
-        else:
-            path.write_text(json.dumps(data, indent=2) + "\n")
-        return path
+        return write_rig_document(self.model_dump(mode="json"), path)
 
     # -- access ---------------------------------------------------------------------------
 
@@ -374,16 +305,6 @@ class Rig(BaseModel):
         return "\n".join(lines)
 
 
-def _is_pinhole_list(data: Any) -> bool:
-    """A camera list with ``K`` and ``lidar2cam`` per camera (not the project's rig schema)."""
-    cams = data.get("cameras") if isinstance(data, dict) else None
-    return (
-        isinstance(cams, list)
-        and bool(cams)
-        and all(isinstance(c, dict) and "K" in c and "lidar2cam" in c for c in cams)
-    )
-
-
 def _canonical(value: Any) -> Any:
     """JSON data with every float rounded to 10 decimals and signed zeros made positive."""
     if isinstance(value, float):
@@ -397,33 +318,6 @@ def _canonical(value: Any) -> Any:
 
 def _as_dict(model: Any) -> Any:
     return model.model_dump() if isinstance(model, BaseModel) else model
-
-
-def _read_ocam(calib: str | Path, fov: float) -> OCamModel:
-    try:
-        return OCamModel.from_file(calib, fov=fov)
-    except CameraModelError as exc:
-        raise RigError(str(exc)) from exc
-
-
-def _describe(exc: ValidationError, data: Any) -> str:
-    """Turn pydantic's locations into 'camera <name>: field: message'."""
-    cameras = data.get("cameras") if isinstance(data, dict) else None
-    parts = []
-    for err in exc.errors():
-        loc = list(err["loc"])
-        where = ".".join(str(x) for x in loc) or "rig"
-        if len(loc) >= 2 and loc[0] == "cameras" and isinstance(loc[1], int):
-            entry = cameras[loc[1]] if isinstance(cameras, (list, tuple)) and loc[1] < len(cameras) else None
-            name = entry.get("name") if isinstance(entry, dict) else None
-            field = (
-                ".".join(str(x) for x in loc[2:] if x not in ("ocam", "kannala_brandt", "equidistant", "pinhole"))
-                or "entry"
-            )
-            where = f"camera '{name}' ({field})" if name else f"camera #{loc[1]} ({field})"
-        msg = err["msg"].removeprefix("Value error, ")
-        parts.append(f"{where}: {msg}")
-    return "; ".join(parts)
 
 
 @lru_cache(maxsize=1)

@@ -1,4 +1,5 @@
-"""Synthetic scenes for tests, training and evaluation: ``render`` (boxes on a textured ground,
-ray-cast through any rig) and ``streams`` (the seeded random streams drawn from it and their
-files on disk).
+"""Synthetic scenes for tests, training and evaluation: ``scene`` (the boxes of a frame and their
+look, drawn at random), ``render`` (a scene on a textured ground, ray-cast through any rig, and
+whole frames written with their labels) and ``streams`` (the seeded random streams drawn from
+them and their files on disk).
 """

@@ -27,7 +27,8 @@ import numpy as np
 from fisheye_infer.cameras.carla_poses import CarlaPose
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.runtime.records import GT_SCORE, boxes_to_records, records_to_arrays
-from fisheye_infer.scenes.render import Renderer, Scene, random_appearance, random_scene
+from fisheye_infer.scenes.render import Renderer
+from fisheye_infer.scenes.scene import Scene, random_appearance, random_scene
 
 __all__ = ["Sample", "SyntheticFrames", "SPLITS", "write_split", "write_frame_folder"]
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from fisheye_infer.cameras.camera_models import OCamModel
 from fisheye_infer.cameras.rig import Rig
-from fisheye_infer.scenes.render import CLASS_COLOURS
+from fisheye_infer.scenes.scene import CLASS_COLOURS
 
 if TYPE_CHECKING:
     from fisheye_infer.runtime.detections import Detections

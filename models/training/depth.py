@@ -21,7 +21,8 @@ import torch
 
 from fisheye_infer.geometry.grids import spherical_directions
 from fisheye_infer.geometry.lss import LSSGeometry
-from fisheye_infer.scenes.render import Renderer, Scene
+from fisheye_infer.scenes.render import Renderer
+from fisheye_infer.scenes.scene import Scene
 
 from ..bevdet_config import ViewTransformConfig
 

@@ -25,9 +25,9 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 from starlette.requests import ClientDisconnect
 
+from fisheye_infer.service.bodies import read_request
 from fisheye_infer.service.deps import ServiceDep, require_api_key
 from fisheye_infer.service.errors import RequestTimeout, Unavailable
-from fisheye_infer.service.intake import read_request
 from fisheye_infer.service.pipeline import run_frames
 from fisheye_infer.service.schemas import BatchResponse, DetectResponse, ErrorOut
 from fisheye_infer.service.state import Service

@@ -16,7 +16,8 @@ from fisheye_infer.cameras.rig import Rig, default_rig
 from fisheye_infer.eval.dataset import Fisheye3DOD
 from fisheye_infer.eval.writer import camera_poses
 from fisheye_infer.runtime.records import CLASSES
-from fisheye_infer.scenes.render import CLASS_SIZES, Renderer, Scene, random_scene, resized_rig, synthesize
+from fisheye_infer.scenes.render import Renderer, resized_rig, synthesize
+from fisheye_infer.scenes.scene import CLASS_SIZES, Scene, random_scene
 
 
 def test_reader_reads_back_the_rig_and_boxes_written(synth_set: SynthSet) -> None:
@@ -101,7 +102,7 @@ def test_boxes_are_visible_where_they_project(ring_scene: Scene) -> None:
 
 
 def test_box_pixels_carry_the_class_colour(ring_scene: Scene) -> None:
-    from fisheye_infer.scenes.render import CLASS_COLOURS
+    from fisheye_infer.scenes.scene import CLASS_COLOURS
 
     rig = resized_rig(default_rig(), 0.25)
     images = Renderer().render(rig, ring_scene)

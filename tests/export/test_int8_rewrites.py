@@ -8,12 +8,8 @@ import onnxruntime as ort
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from fisheye_infer.export.int8_rewrites import (
-    data_movement_on_quantized_values,
-    neighbour_swap_as_concat,
-    stem_as_space_to_depth,
-    upsample_as_depth_to_space,
-)
+from fisheye_infer.export.int8_rewrites import stem_as_space_to_depth, upsample_as_depth_to_space
+from fisheye_infer.export.quantized_rewrites import data_movement_on_quantized_values, neighbour_swap_as_concat
 
 RNG = np.random.default_rng(0)
 

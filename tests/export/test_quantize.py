@@ -20,20 +20,16 @@ from fisheye_infer.export.exporter import Int8Result, export, export_int8
 from fisheye_infer.export.graph import save_model, set_metadata
 from fisheye_infer.export.graph_stages import name_nodes
 from fisheye_infer.export.int8_rewrites import before_quantization
+from fisheye_infer.export.int8_scope import WEIGHTED_OPS, image_region, int8_nodes, module_of, quantized_scope
 from fisheye_infer.export.options import Comparison, Int8Options
 from fisheye_infer.export.quantize import (
     QUANT_OPS,
-    WEIGHTED_OPS,
     FrameReader,
     architecture_float,
     check_weight_range,
     eight_bit_constants,
-    image_region,
-    int8_nodes,
     int8_path_for,
-    module_of,
     quantize,
-    quantized_scope,
 )
 from fisheye_infer.precision import WEIGHT_QMAX
 from fisheye_infer.runtime.artifact import Quantization, read_meta

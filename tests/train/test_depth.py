@@ -12,7 +12,8 @@ torch = pytest.importorskip("torch")
 from fisheye_infer.cameras.rig import default_rig  # noqa: E402
 from fisheye_infer.models import create_model  # noqa: E402
 from fisheye_infer.models.training.depth import DepthTargets, depth_loss  # noqa: E402
-from fisheye_infer.scenes.render import Scene, resized_rig  # noqa: E402
+from fisheye_infer.scenes.render import resized_rig  # noqa: E402
+from fisheye_infer.scenes.scene import Scene  # noqa: E402
 
 GROUND = -2.0
 #: A 4 m cube standing on the ground, its near face 8 m ahead of the lidar (6.6 m ahead of the front camera).

@@ -133,7 +133,7 @@ def test_the_detectors_simulated_layers_are_the_int8_files(small_bevdet_config: 
     import onnx
 
     from fisheye_infer.cameras.rig import default_rig
-    from fisheye_infer.export.quantize import WEIGHTED_OPS, int8_nodes, module_of
+    from fisheye_infer.export.int8_scope import WEIGHTED_OPS, int8_nodes, module_of
     from fisheye_infer.models import create_model
     from fisheye_infer.scenes.render import resized_rig
 
