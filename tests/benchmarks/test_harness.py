@@ -259,9 +259,31 @@ def test_report_writes_pages_and_removes_stale_generated_ones(tmp_path: Path) ->
     docs.mkdir()
     (docs / "gone-machine.md").write_text(f"# old\n\n{report.NOTICE}\n")
     (docs / "notes.md").write_text("# written by hand\n")
+    card = tmp_path / "MODEL_CARD.md"
+    card.write_text(f"# card\n\n{report.CARD_BEGIN}\n{report.CARD_END}\n")
     saved(tmp_path, {"T": [{"v": 1.0}]})
-    assert report.main(["--results", str(tmp_path / "results"), "--docs", str(docs)]) == 0
+    assert report.main(["--results", str(tmp_path / "results"), "--docs", str(docs), "--card", str(card)]) == 0
     assert sorted(p.name for p in docs.glob("*.md")) == sorted(["index.md", f"{HOST['slug']}.md", "notes.md"])
+    assert card.read_text() == f"# card\n\n{report.CARD_BEGIN}\n{report.CARD_END}\n"  # no model_card result: unchanged
+
+
+def test_model_card_figures_come_from_the_latest_model_card_result(tmp_path: Path) -> None:
+    card = f"# card\n\n## Figures\n\n{report.CARD_BEGIN}\nold tables\n{report.CARD_END}\n\n## Limitations\n"
+    result = {
+        "command": report.CARD_COMMAND,
+        "machine": HOST,
+        "date": "2025-01-02T03:04:05Z",
+        "measurements": {"Sensor failure": [{"cameras": "front + rear", "FDS 0-30 m": 0.335}]},
+    }
+    older = {**result, "date": "2025-01-01T00:00:00Z", "measurements": {"Sensor failure": [{"FDS 0-30 m": 0.1}]}}
+    quick = {**result, "command": f"{report.CARD_COMMAND} --quick", "date": "2025-02-01T00:00:00Z"}
+    text = report.card_figures([older, result, quick], card)
+    block = text[text.index(report.CARD_BEGIN) : text.index(report.CARD_END)]
+    assert "### Sensor failure" in block and "| front + rear | 0.335 |" in block and "old tables" not in block
+    assert f"`{report.CARD_COMMAND}`" in block and "| 0.100 |" not in block and "--quick" not in block
+    assert text.startswith("# card\n\n## Figures") and text.endswith(f"{report.CARD_END}\n\n## Limitations\n")
+    with pytest.raises(ValueError, match="no"):
+        report.card_figures([result], "# a card without the markers\n")
 
 
 def test_committed_pages_are_what_the_report_generates() -> None:
@@ -269,6 +291,12 @@ def test_committed_pages_are_what_the_report_generates() -> None:
     pages = report.render(harness.read_results(harness.RESULTS))
     committed = {path.name: path.read_text() for path in report.DOCS.glob("*.md")}
     assert committed == pages, "run `python benchmarks/report.py` and commit docs/performance/"
+
+
+def test_committed_model_card_figures_are_what_the_report_generates() -> None:
+    """Hand edits of the card's figures fail here: they come from the latest model_card result alone."""
+    card = report.CARD.read_text()
+    assert card == report.card_figures(harness.read_results(harness.RESULTS), card), "run `python benchmarks/report.py`"
 
 
 def test_committed_pages_link_only_to_pages_beside_them() -> None:
