@@ -6,7 +6,7 @@
 #
 # The model is not baked in: mount (or COPY in a derived image) an ONNX file written by
 # `fisheye-infer export` at /models/model.onnx. Every setting is a FISHEYE_* variable
-# (see fisheye_infer/service/settings.py), e.g. -e FISHEYE_API_KEY=... -e FISHEYE_THREADS=4
+# (see service/settings.py), e.g. -e FISHEYE_API_KEY=... -e FISHEYE_THREADS=4
 # -e FISHEYE_QUEUE_SIZE=16. Set FISHEYE_THREADS to the container's CPU limit: ONNX Runtime
 # otherwise sizes its pool by the host's cores.
 #
@@ -26,7 +26,7 @@ ENV PIP_NO_CACHE_DIR=1 \
 RUN useradd --create-home --uid 10001 fisheye
 
 WORKDIR /opt/fisheye-infer
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md LICENSE ./
 COPY fisheye_infer ./fisheye_infer
 COPY models ./models
 COPY export ./export
