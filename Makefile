@@ -22,9 +22,10 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/pytest -q
 
-# The inner loop: everything but the full-size models (tests/conftest.py marks those slow)
+# The inner loop: all but the slow tests (tests/conftest.py: full-size models, whole exports, Ray)
+# and the fresh-install one
 test-fast: $(STAMP)
-	$(BIN)/pytest -q -m "not slow"
+	$(BIN)/pytest -q -m "not slow and not install"
 
 # ruff over the tree, mypy over the whole library: the runtime, models, export and service (settings in
 # pyproject.toml's [tool.mypy]; tests/test_lint.py runs both within `make test`)

@@ -42,11 +42,11 @@ def ocam1600() -> OCamModel:
     return OCamModel.from_file(DATA / "ocam_sample_1600.txt", fov=360)
 
 
-# -- the fast lane: tests of full-size models are `slow` ---------------------------------------
+# -- the fast lane: tests of full-size models, whole exports and Ray are `slow` ------------------
 
 #: Fixtures that build, export or run a full-size model (the official configurations, the shipped
-#: model): a test that uses one is marked ``slow`` and left out of ``make test-fast``.
-FULL_SIZE_FIXTURES = frozenset(
+#: model), or start Ray: a test that uses one is marked ``slow`` and left out of ``make test-fast``.
+SLOW_FIXTURES = frozenset(
     {
         "bevdet_export",
         "petr_export",
@@ -60,13 +60,15 @@ FULL_SIZE_FIXTURES = frozenset(
         "full_bevdet",
         "kit_bevdet",
         "kit_export",
+        "pinhole_model",
+        "ray_local",
     }
 )
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
-        if FULL_SIZE_FIXTURES & set(getattr(item, "fixturenames", ())):
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.slow)
 
 

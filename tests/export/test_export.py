@@ -240,6 +240,7 @@ def _broken_trace(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(exporter_module, "trace_to_onnx", broken)
 
 
+@pytest.mark.slow  # a whole export: make test-fast leaves it out
 def test_a_graph_that_disagrees_with_pytorch_is_refused(
     small_ckpt: Path, small_bevdet_config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -143,6 +143,7 @@ def test_reduced_precision_files_are_not_converted_again(petr_fp16: Fp16Result, 
         )
 
 
+@pytest.mark.slow  # a whole export: make test-fast leaves it out
 def test_export_with_fp16_writes_both_files(small_export, small_bevdet_config, tmp_path: Path) -> None:
     """``export(fp16=True)`` (``--fp16``): the verified fp32 file at ``out``, the fp16 file next to it, both in the summary."""
     out = tmp_path / "m.onnx"

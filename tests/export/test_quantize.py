@@ -397,6 +397,7 @@ def test_failed_box_match_keeps_no_int8_file(small_export, tmp_path: Path, monke
     assert "FAILED" in result.summary()
 
 
+@pytest.mark.slow  # a whole export: make test-fast leaves it out
 def test_export_refusing_int8_keeps_fp32_and_says_what_to_try(
     small_export, small_bevdet_config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -494,6 +495,7 @@ def test_comparison_options_need_a_reduced_file(
     assert "need --int8 or --fp16" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a whole export: make test-fast leaves it out
 def test_export_with_int8_writes_both_files(
     small_export, small_bevdet_config, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:

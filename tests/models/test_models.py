@@ -70,6 +70,7 @@ def test_strict_load_and_forward(built) -> None:  # noqa: ANN001
         load_model(arch, {"state_dict": dropped}, config, rig)
 
 
+@pytest.mark.slow  # a whole export: make test-fast leaves it out
 def test_export_is_verified_and_described(built, tmp_path: Path) -> None:  # noqa: ANN001
     arch, ckpt, config, rig = built
     result = export(

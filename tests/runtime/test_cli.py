@@ -55,6 +55,7 @@ def test_bad_rig_is_a_clear_error_not_a_traceback(tmp_path: Path) -> None:
     assert "error: rig file" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow  # a whole export: make test-fast leaves it out
 def test_demo_runs_on_defaults(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out

@@ -53,6 +53,7 @@ def test_checkpoint_is_official_format_for_its_config(straight_run: Run) -> None
     assert meta["step"] == 4 and meta["synthetic"] is False and meta["config"] == config.to_dict()
 
 
+@pytest.mark.slow  # a whole export: make test-fast leaves it out
 def test_trained_checkpoint_round_trips_through_export(straight_run: Run, capsys: pytest.CaptureFixture[str]) -> None:
     folder = straight_run.folder
     out = folder / "model.onnx"
