@@ -22,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
-import os
 import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -37,6 +36,7 @@ from fisheye_infer.export.graph_stages import name_nodes
 from fisheye_infer.geometry.tables import PREFIX as GEOMETRY_PREFIX
 from fisheye_infer.precision import CALIBRATION_PERCENTILE, WEIGHT_BITS, WEIGHT_QMAX
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES
+from fisheye_infer.tools.files import pending_file
 
 from .graph import check_standard_ops, save_model
 from .int8_rewrites import after_quantization, before_quantization
@@ -200,13 +200,9 @@ def quantize(
     if changed:
         raise ExportError(f"int8: quantization altered geometry tables {changed}; refusing to write {out}")
     check_standard_ops(result)  # QDQ in the default domain only: no com.microsoft contrib nodes
-    tmp_out = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    try:
-        save_model(result, tmp_out)
-        os.replace(tmp_out, out)
-    finally:
-        tmp_out.unlink(missing_ok=True)
-    return out
+    with pending_file(out) as pending:
+        save_model(result, pending.path)
+        return pending.commit()
 
 
 def eight_bit_constants(model: onnx.ModelProto, nodes: Sequence[str]) -> dict[str, list[dict[str, bool]]]:
