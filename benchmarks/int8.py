@@ -5,9 +5,10 @@
     python benchmarks/int8.py --keep-float "" --keep-float bbox_head.shared_conv,bbox_head.heatmap_head
     python benchmarks/int8.py --weight-bits 8       # the network scope with 8-bit weights beside the 7-bit ones
 
-1. the checkpoint's fp32 export (verified) and, from that file, the int8 files of both scopes
-   (``network``, the default, and ``trunk``), with the exporter's own calibration
-   (``--calib-frames`` seeded renders of the rig; ``--calib-images`` adds frames of your own);
+1. the checkpoint's fp32 export (verified) and, from that file, the int8 file ``--int8`` writes (``auto``:
+   the int8 search's choice) and those of both scopes chosen by hand (``network`` with the architecture's
+   float32 modules, and ``trunk``), with the exporter's own calibration (``--calib-frames`` seeded renders
+   of the rig; ``--calib-images`` adds frames of your own);
 2. on ``--frames`` frames of the validation stream (``fisheye-infer synth --stream val``): FDS and
    mAP of each file, and the share of the fp32 top-50 boxes per frame each int8 file finds again
    (0.5 m, same label), over all boxes, per class and per band of the fp32 box's score, beside the
@@ -54,6 +55,7 @@ def export_files(args: Any, work: Path) -> tuple[dict[str, Path], list[Row]]:
         raise SystemExit("the fp32 export wrote no file")
     paths: dict[str, Path] = {"fp32": fp32_path}
     variants: list[tuple[str, str, tuple[str, ...] | None, int]] = [
+        ("auto", "auto", None, WEIGHT_BITS),
         ("network", "network", None, WEIGHT_BITS),
         ("trunk", "trunk", None, WEIGHT_BITS),
     ]
@@ -79,11 +81,13 @@ def export_files(args: Any, work: Path) -> tuple[dict[str, Path], list[Row]]:
         if result.path is None:
             raise SystemExit(f"int8 {name}: no file written")
         paths[name] = result.path
-        p = result.parity
+        p, q = result.parity, result.meta.quantization
+        search = q.search if q is not None else None
         rows.append(
             {
                 "file": name,
-                "scope": result.meta.quantization.scope if result.meta.quantization else None,
+                "scope": q.scope if q is not None else None,
+                "search: trials": len(search.trials) if search is not None else None,
                 "export s": time.perf_counter() - t0,
                 "own check: frames": p.frames,
                 "own check: top-50 kept": p.top_matched_fraction,

@@ -325,8 +325,8 @@ def export(
         result = replace(result, seconds=time.perf_counter() - start, int8=quant)
         if not quant.parity.passed and not force:
             raise ParityError(
-                "the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written (keep more "
-                "layers float32 with --int8-float or --int8-scope trunk, calibrate on your own frames with "
+                "the int8 file finds too few of the fp32 file's boxes; fp32 file kept, no int8 file written (choose "
+                "the float32 layers by hand with --int8-float or --int8-scope, calibrate on your own frames with "
                 f"--calib-images, accept a lower share with --min-kept, or use --force to keep it)\n{result.summary()}"
             )
     if fp16 and written is not None:

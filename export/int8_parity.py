@@ -10,6 +10,7 @@ int8 file is written.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,15 @@ from fisheye_infer.runtime.artifact import OUTPUTS, ReducedParityReport
 
 from .verify import run_onnx
 
-__all__ = ["int8_parity"]
+__all__ = ["file_outputs", "int8_parity"]
+
+
+def file_outputs(path: str | Path, frames: np.ndarray, threads: int = 2) -> list[np.ndarray]:
+    """A file's ``OUTPUTS`` on ``frames`` (every camera present), one frame at a time, as a deployed
+    detector runs: the fp32 side of ``int8_parity``, computed once when many int8 files are judged."""
+    valid = np.ones(frames.shape[:2], bool)
+    outputs = run_onnx(path, frames, valid, threads, per_frame=True)
+    return [outputs[k] for k in OUTPUTS]
 
 
 def int8_parity(
@@ -29,16 +38,17 @@ def int8_parity(
     frames: np.ndarray,
     threads: int = 2,
     min_fraction: float = MIN_TOP_MATCHED,
+    *,
+    reference: Sequence[np.ndarray] | None = None,
 ) -> ReducedParityReport:
     """The int8 file against the fp32 ONNX file on ``frames``, one frame at a time.
 
     int8 is not expected to reproduce fp32 to 1e-3 m; the criterion is detection-level: at
     least ``min_fraction`` of the fp32 top-50 boxes found again within 0.5 m with the same label.
+    ``reference``: the fp32 file's ``file_outputs`` on these frames, when already computed.
     """
-    valid = np.ones(frames.shape[:2], bool)
-    ref, cand = (
-        [run_onnx(path, frames, valid, threads, per_frame=True)[k] for k in OUTPUTS] for path in (fp32_path, int8_path)
-    )
+    ref = file_outputs(fp32_path, frames, threads) if reference is None else list(reference)
+    cand = file_outputs(int8_path, frames, threads)
     kept = top_matched(ref, cand)
     return ReducedParityReport(
         frames=len(frames),

@@ -46,6 +46,7 @@ __all__ = [
     "TRUNK_OPS",
     "WEIGHTED_OPS",
     "image_region",
+    "int8_layer_modules",
     "int8_nodes",
     "module_of",
     "quantized_scope",
@@ -131,6 +132,15 @@ def module_of(node: onnx.NodeProto, weights: set[str] | None = None) -> str:
             scopes = [s for s in ast.literal_eval(prop.value) if s == TRACE_ROOT or s.startswith(TRACE_ROOT + ".")]
             return scopes[-1].removeprefix(TRACE_ROOT).removeprefix(".") if scopes else ""
     return ""
+
+
+def int8_layer_modules(model: onnx.ModelProto, scope: str = "network", keep_float: Sequence[str] = ()) -> list[str]:
+    """The module (``module_of``) of each weighted layer ``int8_nodes`` covers, in graph order: what the int8
+    search groups into candidates to keep float32 (the input is left as it is)."""
+    model = _named(model)
+    nodes = set(int8_nodes(model, scope, keep_float))
+    weights = {i.name for i in model.graph.initializer}
+    return [module_of(n, weights) for n in model.graph.node if n.name in nodes and n.op_type in WEIGHTED_OPS]
 
 
 def quantized_scope(

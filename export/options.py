@@ -16,10 +16,12 @@ from typing import Any
 from fisheye_infer.errors import ExportError
 from fisheye_infer.precision import COMPARE_FRAMES, MIN_TOP_MATCHED, WEIGHT_BITS, WEIGHT_QMAX
 
-__all__ = ["SCOPES", "Comparison", "Int8Options", "options_from_keywords"]
+__all__ = ["AUTO", "SCOPES", "Comparison", "Int8Options", "options_from_keywords"]
 
 #: What the int8 file may cover: ``network`` (the image trunk and every weighted layer beyond it) or ``trunk``.
 SCOPES = ("network", "trunk")
+#: The default scope: the int8 search chooses the scope and the float32 modules (``int8_search``).
+AUTO = "auto"
 
 
 @dataclass(frozen=True)
@@ -27,20 +29,33 @@ class Int8Options:
     """How the int8 file is made.
 
     ``calib_frames`` seeded synthetic renders of the file's rig plus the frames in ``calib_images``
-    calibrate the activation ranges; ``scope`` is one of ``SCOPES``; ``keep_float`` names modules
-    (state-dict prefixes) left float32, None for the architecture's own ``int8_float``;
-    ``weight_bits`` is 7, or 8 only to measure what 7 costs (``fisheye_infer.precision``).
+    calibrate the activation ranges. By default (``scope`` ``AUTO``, ``keep_float`` None) the int8 search
+    chooses what stays float32, starting from the architecture's own ``int8_float``, until the file passes
+    its comparison (``int8_search``). Chosen by hand: ``scope`` one of ``SCOPES`` (``AUTO`` with
+    ``keep_float`` given is ``network``) and ``keep_float`` the modules (state-dict prefixes) left float32,
+    None for the architecture's ``int8_float``. ``weight_bits`` is 7, or 8 only to measure what 7 costs
+    (``fisheye_infer.precision``).
     """
 
     calib_images: str | Path | None = None
     calib_frames: int = 8
-    scope: str = "network"
+    scope: str = AUTO
     keep_float: Sequence[str] | None = None
     weight_bits: int = WEIGHT_BITS
 
+    @property
+    def searched(self) -> bool:
+        """Whether the int8 search chooses the scope and float modules (neither was given)."""
+        return self.scope == AUTO and self.keep_float is None
+
+    @property
+    def chosen_scope(self) -> str:
+        """The scope of a file chosen by hand: ``scope``, or ``network`` where it says ``AUTO``."""
+        return "network" if self.scope == AUTO else self.scope
+
     def __post_init__(self) -> None:
-        if self.scope not in SCOPES:
-            raise ExportError(f"--int8-scope {self.scope}: expected one of {', '.join(SCOPES)}")
+        if self.scope not in (AUTO, *SCOPES):
+            raise ExportError(f"--int8-scope {self.scope}: expected one of {', '.join((AUTO, *SCOPES))}")
         if self.calib_frames < 0:
             raise ExportError(f"--calib-frames {self.calib_frames}: expected 0 or more synthetic calibration frames")
         if self.calib_frames == 0 and self.calib_images is None:

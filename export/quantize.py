@@ -129,6 +129,7 @@ def quantize(
     keep_float: Sequence[str] | None = None,
     per_channel: bool = True,
     weight_bits: int = WEIGHT_BITS,
+    calibration_cache: str | Path | None = None,
 ) -> Path:
     """Static QDQ quantization of ``onnx_path``'s ``int8_nodes(scope, keep_float)`` into ``out``; returns ``out``.
     ``keep_float`` defaults to the file's architecture's (``architecture_float``).
@@ -140,6 +141,12 @@ def quantize(
     such a file can give other boxes on CPUs without VNNI). Only the
     chosen nodes get QDQ pairs; every other node, initializer and the metadata are carried over unchanged (the
     exporter then replaces the metadata with the int8 parity report).
+
+    ``calibration_cache``: a JSON file of activation ranges (ONNX Runtime's calibration cache). Missing,
+    the ranges are computed and saved there; present, they are read instead of running the frames again.
+    A cache serves every later call on the same file and frames whose scope is within the first call's
+    (ranges are recorded for every tensor of the quantized op types): how ``int8_search`` builds many
+    files from one calibration.
     """
     src, out = Path(onnx_path), Path(out)
     if weight_bits not in WEIGHT_QMAX:
@@ -177,6 +184,7 @@ def quantize(
                     per_channel=per_channel,
                     reduce_range=weight_bits == 7,  # weights; activations keep 8 bits, and so do the constants below
                     calibrate_method=CalibrationMethod.Percentile,
+                    calibration_cache_path=calibration_cache,
                     extra_options={
                         "WeightSymmetric": True,
                         "ActivationSymmetric": False,

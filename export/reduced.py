@@ -29,6 +29,7 @@ from .frames import CALIBRATION_SEED, verification_frames
 from .graph import save_model, set_metadata
 from .int8_parity import int8_parity
 from .int8_scope import quantized_scope
+from .int8_search import search_int8
 from .options import Comparison, Int8Options, options_from_keywords
 from .quantize import FrameReader, architecture_float, int8_path_for, quantize
 from .results import Fp16Result, Int8Result
@@ -95,7 +96,8 @@ def export_int8(
 
     Calibration: the options' seeded synthetic renders of the file's own rig (seeds from
     ``CALIBRATION_SEED``, disjoint from the comparison's) plus the user's calibration frames.
-    Evidence: the int8 file against the fp32 file on the ``comparison``'s frames.
+    Evidence: the int8 file against the fp32 file on the ``comparison``'s frames. By default what stays
+    float32 is searched for until the file passes (``int8_search``); its record is in the metadata.
     """
     options, comparison = options_from_keywords(
         options, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS, caller="export_int8"
@@ -112,27 +114,53 @@ def export_int8(
     calibration = verification_frames(
         meta.rig, options.calib_frames, seed=CALIBRATION_SEED, images=options.calib_images
     )
+    fp32_graph = onnx.load(str(src), load_external_data=False)
     with pending_file(out, "q") as pending:
-        progress(
-            f"int8 [2/3] static QDQ quantization, scope {options.scope} (U8 activations, S8 per-channel "
-            f"{options.weight_bits}-bit weights)"
-        )
-        chosen_by = "the architecture's int8_float" if options.keep_float is None else "asked for at export"
-        keep_float = architecture_float(src) if options.keep_float is None else tuple(options.keep_float)
-        quantize(
-            src,
-            pending.path,
-            FrameReader(calibration),
-            scope=options.scope,
-            keep_float=keep_float,
-            weight_bits=options.weight_bits,
-        )
+        batch = _comparison_frames(meta, comparison, "int8 [2/3]", progress)
+        if options.searched:
+            progress(
+                f"int8 [3/3] static QDQ quantization (U8 activations, S8 per-channel {options.weight_bits}-bit "
+                "weights), searching what stays float32 for the file to pass"
+            )
+            searched = search_int8(
+                src,
+                pending.path,
+                FrameReader(calibration),
+                batch,
+                comparison,
+                start=architecture_float(src),
+                weight_bits=options.weight_bits,
+                force=force,
+                progress=progress,
+            )
+            scope, keep_float, parity, search = searched.scope, searched.float_modules, searched.parity, searched.record
+            chosen_by = "the int8 search"
+        else:
+            scope = options.chosen_scope
+            keep_float = architecture_float(src) if options.keep_float is None else tuple(options.keep_float)
+            chosen_by = "the architecture's int8_float" if options.keep_float is None else "asked for at export"
+            progress(
+                f"int8 [3/3] static QDQ quantization, scope {scope} (U8 activations, S8 per-channel "
+                f"{options.weight_bits}-bit weights), then the comparison"
+            )
+            quantize(
+                src,
+                pending.path,
+                FrameReader(calibration),
+                scope=scope,
+                keep_float=keep_float,
+                weight_bits=options.weight_bits,
+            )
+            parity = int8_parity(src, pending.path, batch, threads=comparison.threads, min_fraction=comparison.min_kept)
+            search = None
         proto = onnx.load(str(pending.path))
-        covered = quantized_scope(onnx.load(str(src), load_external_data=False), options.scope, keep_float, chosen_by)
-        batch = _comparison_frames(meta, comparison, "int8 [3/3]", progress)
-        parity = int8_parity(src, pending.path, batch, threads=comparison.threads, min_fraction=comparison.min_kept)
         quantization = Quantization(
-            mode="int8-qdq", scope=covered, calibration_frames=len(calibration), weight_bits=options.weight_bits
+            mode="int8-qdq",
+            scope=quantized_scope(fp32_graph, scope, keep_float, chosen_by),
+            calibration_frames=len(calibration),
+            weight_bits=options.weight_bits,
+            float_modules=keep_float,
+            search=search,
         )
         reduced = _reduced_meta(proto, meta, parity, quantization)
         written = _publish(proto, reduced, pending, parity.passed or force)

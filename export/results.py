@@ -11,6 +11,8 @@ from pathlib import Path
 
 from fisheye_infer.runtime.artifact import ArtifactMeta, ParityReport, ReducedParityReport
 
+from .int8_search import search_table
+
 __all__ = ["ExportResult", "Fp16Result", "Int8Result", "ReducedResult"]
 
 
@@ -44,6 +46,7 @@ class Int8Result(ReducedResult):
                 f"{p.match_radius_m:g} m with the same label (need {p.min_top_matched:.0%}) -> "
                 f"{'PASSED' if p.passed else 'FAILED'}; took {self.seconds:.1f} s",
                 *_by_score_lines(p),
+                *_search_lines(self.meta),
                 *_tensorrt_lines(self.meta, "int8 file: "),
             ]
         )
@@ -86,6 +89,27 @@ def _by_score_lines(p: ReducedParityReport) -> list[str]:
         return []
     bands = [f"{band} {m / c:.1%} of {c}" for band, (m, c) in p.top_matched_by_score.items() if c]
     return ["  by the fp32 box's score: " + ", ".join(bands)]
+
+
+def _search_lines(meta: ArtifactMeta) -> list[str]:
+    """What the int8 search tried and chose: the table, what stayed float32 and the speed-up it measured."""
+    q = meta.quantization
+    if q is None or q.search is None:
+        return []
+    search = q.search
+    p = meta.parity
+    assert isinstance(p, ReducedParityReport)  # an int8 file's parity is against its fp32 file
+    if search.chosen is None:
+        head = f"int8 search: no trial passed ({len(search.trials)} tried in {search.seconds:.0f} s):"
+    else:
+        trial = search.trials[search.chosen]
+        floats = ", ".join(trial.float_modules) or "no module"
+        head = (
+            f"int8 search: trial {search.chosen + 1} of {len(search.trials)} ({search.seconds:.0f} s): scope "
+            f"{trial.scope}, float32: {floats}; {search.speedup:.2f}x the fp32 file's speed on this machine "
+            f"({search.cpu}, {search.threads} thread(s))"
+        )
+    return [head, *search_table(search, p.min_top_matched)]
 
 
 def _tensorrt_lines(meta: ArtifactMeta, prefix: str = "") -> list[str]:

@@ -58,7 +58,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="after the fp32 file is verified, also write an int8 file next to it: --out model.onnx -> model.int8.onnx "
         "(--out stays the fp32 file); written when it finds --min-kept of the fp32 top-50 boxes again "
-        "(or with --force)",
+        "(or with --force). Alone, it searches what stays float32 until the file passes, and reports the trials",
     )
     int8.add_argument("--calib-images", help="folder with your own frames for calibration, read like --verify-images")
     int8.add_argument(
@@ -66,18 +66,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     int8.add_argument(
         "--int8-scope",
-        choices=("network", "trunk"),
-        default="network",
-        help="network: every layer with weights (image trunk, depth net, BEV encoder and neck, head convolutions, "
-        "linear layers; default); trunk: the image backbone and neck only",
+        choices=("auto", "network", "trunk"),
+        default="auto",
+        help="auto (default): start from every layer with weights less the architecture's float32 modules, keep "
+        "float32 the modules whose int8 error costs most boxes until the file passes, the trunk scope last; "
+        "network: every layer with weights (image trunk, depth net, BEV encoder and neck, head convolutions, "
+        "linear layers) less --int8-float; trunk: the image backbone and neck only",
     )
     int8.add_argument(
         "--int8-float",
         metavar="MODULES",
-        help="modules to leave float32, comma-separated state-dict prefixes "
-        "(e.g. img_backbone.conv1,bbox_head; '' for none), "
-        "in place of the architecture's (FisheyeBEVDet: its head but the shared and first heatmap convolutions): "
-        "fewer int8 layers keep more of the fp32 boxes, at some of the speed-up",
+        help="modules to leave float32 by hand, comma-separated state-dict prefixes "
+        "(e.g. img_backbone.conv1,bbox_head; '' for none), in place of the search "
+        "(with --int8-scope network or trunk alone: the architecture's own, FisheyeBEVDet's head but its shared "
+        "and first heatmap convolutions): fewer int8 layers keep more of the fp32 boxes, at some of the speed-up",
     )
     parser.add_argument(
         "--fp16",
@@ -115,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     if (
         args.calib_images is not None
         or args.calib_frames != 8
-        or args.int8_scope != "network"
+        or args.int8_scope != "auto"
         or args.int8_float is not None
     ) and not args.int8:
         print(

@@ -33,6 +33,8 @@ __all__ = [
     "Normalisation",
     "ParityReport",
     "ReducedParityReport",
+    "Int8Search",
+    "Int8Trial",
     "Quantization",
     "ReplayedChoice",
     "TensorRTFinding",
@@ -42,9 +44,9 @@ __all__ = [
     "read_meta",
 ]
 
-ARTIFACT_SCHEMA_VERSION: Final = 2
-#: Schema versions this runtime reads: 1 is migrated on reading (``ArtifactMeta``).
-READABLE_SCHEMA_VERSIONS: Final = (1, 2)
+ARTIFACT_SCHEMA_VERSION: Final = 3
+#: Schema versions this runtime reads: 1 and 2 are migrated on reading (``ArtifactMeta``).
+READABLE_SCHEMA_VERSIONS: Final = (1, 2, 3)
 METADATA_KEY = "fisheye_infer"
 INPUT_IMAGES = "images"  # uint8 (B, N, H, W, 3) in the colour order below
 INPUT_CAMERA_VALID = "camera_valid"  # bool (B, N): False zeroes that camera's features
@@ -163,6 +165,32 @@ def _parity_v1_to_v2(parity: dict[str, Any]) -> dict[str, Any]:
     return reduced
 
 
+class Int8Trial(_Model):
+    """One int8 file the int8 search built and judged against the fp32 file (``export.int8_search``)."""
+
+    #: start: the architecture's float modules; sensitivity: the start plus one candidate module float;
+    #: float: the start plus the most sensitive modules; trunk: the image trunk alone in int8.
+    step: Literal["start", "sensitivity", "float", "trunk"]
+    scope: Literal["network", "trunk"]
+    float_modules: tuple[str, ...]  # state-dict prefixes kept float32 (geometry and the like stay float anyway)
+    int8_layers: int  # weighted layers in int8
+    top_matched_fraction: float
+    top_matched_standard_error: float
+    passed: bool
+
+
+class Int8Search(_Model):
+    """How an int8 file's float32 modules were chosen: every trial, the one written, and what it gains."""
+
+    trials: tuple[Int8Trial, ...]
+    chosen: int | None  # index into ``trials``; None: none passed
+    #: fp32 time / int8 time per frame on the exporting machine (median of alternated runs at ``threads``)
+    speedup: float | None = None
+    threads: int
+    cpu: str  # the exporting machine's CPU, as ``fisheye_infer.tools.cpu`` names it
+    seconds: float  # the search's wall time
+
+
 class Quantization(_Model):
     """A reduced-precision file derived from a verified fp32 file: what was reduced and how."""
 
@@ -172,6 +200,9 @@ class Quantization(_Model):
     #: int8: the weights' bits. 7 keeps u8 x s8 pair sums within int16, so CPUs without VNNI compute what
     #: VNNI computes (``WEIGHT_BITS``); None in int8 files written before it was recorded (8 bits).
     weight_bits: Literal[7, 8] | None = None
+    #: int8: the modules (state-dict prefixes) kept float32 beyond what every int8 file keeps float.
+    float_modules: tuple[str, ...] = ()
+    search: Int8Search | None = None  # int8 written by the search (``fisheye-infer export --int8`` alone)
 
 
 class TensorRTFinding(_Model):
@@ -208,9 +239,9 @@ class TensorRTReport(_Model):
 
 
 class ArtifactMeta(_Model):
-    """The metadata document; reading a schema-1 document migrates it to the current schema."""
+    """The metadata document; reading a schema-1 or -2 document migrates it to the current schema."""
 
-    schema_version: Literal[2] = ARTIFACT_SCHEMA_VERSION
+    schema_version: Literal[3] = ARTIFACT_SCHEMA_VERSION
     architecture: str
     model_id: str = Field(description="architecture + rig hash + checkpoint digest: names this exact file's behaviour")
     classes: tuple[str, ...]
@@ -239,11 +270,14 @@ class ArtifactMeta(_Model):
     @model_validator(mode="before")
     @classmethod
     def _migrate(cls, data: Any) -> Any:
-        """Schema 1 -> 2: the parity record takes the type of the file it describes (fp32 or reduced)."""
+        """Schema 1 -> 2: the parity record takes the type of the file it describes (fp32 or reduced).
+        2 -> 3: the int8 search's record and float modules, absent from older files, are added."""
         if isinstance(data, dict) and data.get("schema_version") == 1:
             data = {**data, "schema_version": 2}
             if isinstance(data.get("parity"), dict):
                 data["parity"] = _parity_v1_to_v2(data["parity"])
+        if isinstance(data, dict) and data.get("schema_version") == 2:
+            data = {**data, "schema_version": 3}
         return data
 
     def check(self) -> ArtifactMeta:
@@ -274,7 +308,7 @@ def parse_meta(document: str | None, source: str = "model") -> ArtifactMeta:
     if version not in READABLE_SCHEMA_VERSIONS:
         raise ArtifactError(
             f"{source}: metadata schema_version {version!r} is not supported by this fisheye-infer "
-            f"(it reads {' and '.join(map(str, READABLE_SCHEMA_VERSIONS))})"
+            f"(it reads {', '.join(map(str, READABLE_SCHEMA_VERSIONS[:-1]))} and {READABLE_SCHEMA_VERSIONS[-1]})"
         )
     try:
         return ArtifactMeta.model_validate(raw).check()

@@ -74,7 +74,7 @@ def test_normalisation_division_is_in_the_first_convolution(exported) -> None:
 
 def test_metadata_describes_the_model(exported, rig: Rig) -> None:
     meta = read_meta(exported.onnx)
-    assert meta.architecture == exported.arch and meta.schema_version == 2
+    assert meta.architecture == exported.arch and meta.schema_version == 3
     assert meta.cameras == tuple(rig.names) and meta.rig_hash == rig.hash and meta.rig == rig
     assert meta.image_size == (800, 800) and meta.colour_order == "BGR"
     assert meta.normalisation.mean == (123.675, 116.28, 103.53)
@@ -296,7 +296,7 @@ def test_metadata_is_required_and_checked(bevdet_export, tmp_path: Path) -> None
     with pytest.raises(ArtifactError, match="no 'fisheye_infer' metadata"):
         read_meta(bare)
     model = onnx.load(str(bevdet_export.onnx))
-    doc = get_metadata(model)[METADATA_KEY].replace('"schema_version":2', '"schema_version":7')
+    doc = get_metadata(model)[METADATA_KEY].replace('"schema_version":3', '"schema_version":7')
     for p in model.metadata_props:
         if p.key == METADATA_KEY:
             p.value = doc

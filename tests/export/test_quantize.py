@@ -44,7 +44,7 @@ def small_int8(small_export, tmp_path_factory: pytest.TempPathFactory) -> Int8Re
     return export_int8(
         small_export.onnx,
         out,
-        options=Int8Options(calib_frames=2),
+        options=Int8Options(calib_frames=2, scope="network"),
         comparison=Comparison(frames=2),
         force=True,
         progress=lambda _: None,
@@ -389,7 +389,7 @@ def test_failed_box_match_keeps_no_int8_file(small_export, tmp_path: Path, monke
     result = export_int8(
         small_export.onnx,
         tmp_path / "m.int8.onnx",
-        options=Int8Options(calib_frames=1),
+        options=Int8Options(calib_frames=1, scope="network"),
         comparison=Comparison(frames=1),
         progress=lambda _: None,
     )
@@ -406,14 +406,14 @@ def test_export_refusing_int8_keeps_fp32_and_says_what_to_try(
         reduced_module, "int8_parity", lambda *a, **k: real(*a, **k).model_copy(update={"passed": False})
     )
     out = tmp_path / "m.onnx"
-    with pytest.raises(ParityError, match="--int8-float or --int8-scope trunk") as failure:
+    with pytest.raises(ParityError, match="--int8-float or --int8-scope") as failure:
         export(
             small_export.ckpt,
             out,
             config=small_bevdet_config,
             rig=read_meta(small_export.onnx).rig,
             frames=1,
-            int8=Int8Options(calib_frames=1),
+            int8=Int8Options(calib_frames=1, scope="network"),
             progress=lambda _: None,
         )
     assert "--calib-images" in str(failure.value) and "--force" in str(failure.value)
@@ -445,7 +445,7 @@ def test_min_kept_is_the_bar_the_int8_file_is_written_at(small_export, small_int
         and small_int8.parity.top_matched_standard_error is not None
         and kept > 0.0
     )
-    options = Int8Options(calib_frames=2)
+    options = Int8Options(calib_frames=2, scope="network")
     lower = export_int8(
         small_export.onnx,
         tmp_path / "low.int8.onnx",
@@ -534,7 +534,7 @@ def test_full_bevdet_quantizes_its_network(bevdet_export, tmp_path: Path) -> Non
     result = export_int8(
         bevdet_export.onnx,
         tmp_path / "bevdet.int8.onnx",
-        options=Int8Options(calib_frames=2),
+        options=Int8Options(calib_frames=2, scope="network"),
         comparison=Comparison(frames=1),
         force=True,
         progress=lambda _: None,
@@ -662,7 +662,7 @@ def test_8_bit_weights_on_request(small_export, tmp_path: Path) -> None:
     result = export_int8(
         small_export.onnx,
         tmp_path / "m.int8.onnx",
-        options=Int8Options(calib_frames=1, weight_bits=8),
+        options=Int8Options(calib_frames=1, scope="network", weight_bits=8),
         comparison=Comparison(frames=1),
         force=True,
         progress=lambda _: None,
@@ -686,6 +686,7 @@ def test_previous_keywords_still_work_with_a_deprecation_warning(small_export, t
             calib_frames=1,
             frames=1,
             weight_bits=8,
+            scope="network",
             force=True,
             progress=lambda _: None,
         )
@@ -763,6 +764,7 @@ def test_schema_1_metadata_reads_as_the_split_reports(small_export, small_int8: 
     assert parse_meta(json.dumps(fp32_v1)).parity == read_meta(small_export.onnx).parity
     int8 = json.loads(small_int8.meta.model_dump_json())
     reduced = int8["parity"]
+    int8["quantization"] = {k: v for k, v in int8["quantization"].items() if k not in ("float_modules", "search")}
     int8_v1 = {
         **int8,
         "schema_version": 1,
@@ -784,4 +786,19 @@ def test_schema_1_metadata_reads_as_the_split_reports(small_export, small_int8: 
     assert isinstance(migrated.parity, ReducedParityReport) and isinstance(
         read_meta(small_export.onnx).parity, ParityReport
     )
-    assert migrated.schema_version == 2 and migrated.parity == small_int8.parity  # 0.95: the bar before it was recorded
+    assert migrated.schema_version == 3 and migrated.parity == small_int8.parity  # 0.95: the bar before it was recorded
+    assert migrated.quantization is not None and migrated.quantization.search is None
+
+
+def test_schema_2_metadata_reads_without_the_search_record(small_int8: Int8Result) -> None:
+    """Files of schema 2 have neither the float modules nor the int8 search's record; they read as schema 3."""
+    import json
+
+    from fisheye_infer.runtime.artifact import parse_meta
+
+    int8 = json.loads(small_int8.meta.model_dump_json())
+    int8["quantization"] = {k: v for k, v in int8["quantization"].items() if k not in ("float_modules", "search")}
+    migrated = parse_meta(json.dumps({**int8, "schema_version": 2}))
+    assert migrated.schema_version == 3 and migrated.quantization is not None
+    assert migrated.quantization.float_modules == () and migrated.quantization.search is None
+    assert migrated.model_copy(update={"quantization": small_int8.meta.quantization}) == small_int8.meta

@@ -270,7 +270,7 @@ def test_int8_file_is_for_onnx_runtime_not_tensorrt(small_export, tmp_path) -> N
     result = export_int8(
         small_export.onnx,
         tmp_path / "small.int8.onnx",
-        options=Int8Options(calib_frames=1),
+        options=Int8Options(calib_frames=1, scope="network"),
         comparison=Comparison(frames=1),
         force=True,
         progress=lambda _: None,
