@@ -15,9 +15,8 @@ the fp32 time and caps the speed-up near 2x (``benchmarks/int8.py`` measures bot
 What stays float, and why: everything that reads a ``geom.*`` table (the warp, the lift and the
 pooling gathers and MatMuls; those tables must stay named and untouched so that ``rebake`` still
 works, and their errors are metres), products of two activations (attention scores), softmax,
-layer norms and the box decoding, and the modules an architecture names in ``int8_float`` (where
-quantizing was measured to cost accuracy: FisheyeBEVDet's TransFusion head but its shared
-convolution and the first convolution of its heatmap branch).
+layer norms and the box decoding, and the modules named in ``keep_float``: those the int8 search
+chooses (``int8_search``, starting from the architecture's ``int8_float``), or a user's.
 
 The regions are found by graph position, initializer names and each node's recorded module path,
 not by node names (which change with the exporter). Kept apart from ``quantize``, which runs ONNX

@@ -55,7 +55,7 @@ SCORE_SEMANTICS = (
     "sigmoid(class logit); top boxes over queries x classes (NMS-free); no threshold, as the official test time"
 )
 
-#: The classification and regression branches stay float32 in the int8 file (the counterpart of
+#: Where the int8 search starts: the classification and regression branches float32 (the counterpart of
 #: the TransFusion head's branches, which FisheyeBEVDet's measurement keeps float); the transformer's linear
 #: layers are quantized. Not measured: no trained FisheyePETR exists, and on the checkpoint kit's
 #: untrained head the top boxes' scores tie (the best five equal to three decimals), so no int8

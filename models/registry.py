@@ -68,8 +68,8 @@ class ModelEntry:
     checkpoint_filter: Callable[[StateDict], dict[str, Any]]
     ignored_keys: tuple[str, ...]
     score_semantics: str
-    #: Modules (state-dict prefixes) whose layers stay float32 in the int8 file: where quantizing
-    #: them was measured to cost accuracy on a trained model (see ``fisheye_infer.export.quantize``).
+    #: Modules (state-dict prefixes) whose layers stay float32 in the int8 file at the start of the int8
+    #: search (``fisheye_infer.export.int8_search``), and in a file of ``--int8-scope network`` by hand.
     int8_float: tuple[str, ...] = ()
     #: What tells a checkpoint of this architecture from others with the same keys (a stored table's form).
     predicate: Callable[[StateDict], bool] | None = None

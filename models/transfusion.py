@@ -40,10 +40,11 @@ SCORE_SEMANTICS = (
     "sigmoid(class logit) x the proposal's heatmap peak (TransFusion); no threshold, no NMS, as the official test time"
 )
 
-#: The head stays float32 in the int8 file, but for its shared convolution and the first
-#: convolution of its heatmap branch: both are 3x3 over the whole BEV grid and the head's largest
-#: layers, so quantizing them buys most of the head's speed-up; the heatmap's last convolution ranks
-#: the proposals and stays float, as do the prediction heads, the decoder and the class encoding.
+#: Where the int8 search starts (``fisheye_infer.export.int8_search``): the head float32, but for its
+#: shared convolution and the first convolution of its heatmap branch: both are 3x3 over the whole BEV
+#: grid and the head's largest layers, so quantizing them buys most of the head's speed-up; the heatmap's
+#: last convolution ranks the proposals and stays float, as do the prediction heads, the decoder and the
+#: class encoding.
 #: ``benchmarks/int8.py --keep-float MODULE ...`` measures any other choice (FDS against fp32, the
 #: share of the fp32 top-50 boxes kept, the speed-up) on the shipped model's held-out frames.
 INT8_FLOAT = ("bbox_head.heatmap_head.1", "bbox_head.prediction_heads", "bbox_head.decoder", "bbox_head.class_encoding")
