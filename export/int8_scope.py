@@ -174,7 +174,11 @@ def quantized_scope(
 
 
 def _named(model: onnx.ModelProto) -> onnx.ModelProto:
-    """A copy of ``model`` with every node named (the input is left as it is)."""
+    """``model`` when every node has a unique name already, else a copy with every node named (the input is
+    left as it is)."""
+    names = [n.name for n in model.graph.node]
+    if all(names) and len(set(names)) == len(names):
+        return model
     copy = onnx.ModelProto()
     copy.CopyFrom(model)
     name_nodes(copy)

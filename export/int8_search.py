@@ -39,6 +39,7 @@ import onnxruntime as ort
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, Int8Search, Int8Trial, ReducedParityReport
 from fisheye_infer.tools.cpu import cpu_info
 
+from .graph_stages import name_nodes
 from .int8_parity import file_outputs, int8_parity
 from .int8_scope import int8_layer_modules
 from .options import Comparison
@@ -159,6 +160,7 @@ class _Search:
         self.comparison, self.weight_bits, self.progress = comparison, weight_bits, progress
         self.cache = workdir / "ranges.json"
         self.model = onnx.load(str(src), load_external_data=False)
+        name_nodes(self.model)  # once, so that each trial's count of int8 layers reads it without a copy
         self.reference = file_outputs(src, frames, comparison.threads)
         self.trials: list[Int8Trial] = []
         self.reports: list[ReducedParityReport] = []
