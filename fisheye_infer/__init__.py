@@ -13,8 +13,18 @@ needs ``[triton]``. Importing this package loads none of them.
 
 from fisheye_infer import _moved
 from fisheye_infer._version import __version__
-from fisheye_infer.cameras.camera_models import CameraModel, Equidistant, KannalaBrandt, OCamModel, Pinhole
-from fisheye_infer.cameras.ocam_fit import OCamFit, fit_ocam_from_kb
+from fisheye_infer.cameras.camera_models import (
+    CameraModel,
+    DistortedPinhole,
+    DoubleSphere,
+    Equidistant,
+    ExtendedUnified,
+    KannalaBrandt,
+    OCamModel,
+    Omnidirectional,
+    Pinhole,
+)
+from fisheye_infer.cameras.ocam_fit import OCamFit, fit_ocam, fit_ocam_from_kb
 from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, Rig, RigCamera, default_rig, resolve_rig
 from fisheye_infer.errors import (
     ArtifactError,
@@ -54,6 +64,10 @@ __all__ = [
     "FrameError",
     "InferenceError",
     "KannalaBrandt",
+    "DistortedPinhole",
+    "DoubleSphere",
+    "ExtendedUnified",
+    "Omnidirectional",
     "NmsConfig",
     "OCamFit",
     "OCamModel",
@@ -64,6 +78,7 @@ __all__ = [
     "RigCamera",
     "RigError",
     "default_rig",
+    "fit_ocam",
     "fit_ocam_from_kb",
     "resolve_rig",
 ]

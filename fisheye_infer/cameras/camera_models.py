@@ -10,7 +10,14 @@ coordinates whose integer values are pixel centres (the ``cv2.remap`` convention
 it also keeps the exact semantics of the ``ocamcamera`` package the official code calls
 (``world2cam`` with its (-1, -1) sentinel and ``valid_area``), because the detectors' sampling
 grids are defined by those semantics. ``KannalaBrandt`` is OpenCV's fisheye model (and the
-paper's 5-term r(theta)); ``Equidistant`` and ``Pinhole`` complete the set.
+paper's 5-term r(theta)); ``Equidistant`` and ``Pinhole`` complete the set of the paper's models.
+
+The wide-angle models that robot calibration tools (Kalibr, Basalt, ROS) write: ``DoubleSphere``
+(Usenko et al., 2018), ``ExtendedUnified`` (EUCM, Khomutenko et al., 2016; the unified model is its
+``beta = 1``), ``Omnidirectional`` (Mei and Rives' unified model with radial-tangential distortion,
+Kalibr's ``omni-radtan``) and ``DistortedPinhole`` (OpenCV's pinhole with ``plumb_bob``/``radtan`` or
+``rational_polynomial`` distortion). Projection and unprojection are in closed form where the model
+has one; a pixel outside a model's image of the sphere unprojects to NaN.
 
 The models are frozen pydantic objects so that a rig file can carry them as plain JSON.
 """
@@ -33,6 +40,10 @@ __all__ = [
     "KannalaBrandt",
     "Equidistant",
     "Pinhole",
+    "DistortedPinhole",
+    "DoubleSphere",
+    "ExtendedUnified",
+    "Omnidirectional",
     "AnyCameraModel",
     "incidence_angle",
 ]
@@ -386,4 +397,212 @@ class Pinhole(_Frozen):
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
 
-AnyCameraModel = Annotated[OCamModel | KannalaBrandt | Equidistant | Pinhole, Field(discriminator="type")]
+def _within_fov(points: np.ndarray, fov: float) -> np.ndarray:
+    """Rays within ``fov`` (degrees, full angle) of the optical axis."""
+    return (incidence_angle(points) <= math.radians(fov / 2)) & points.any(axis=1)
+
+
+def _radtan(x: np.ndarray, y: np.ndarray, d: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's distortion of normalised coordinates: radial k1, k2[, k3] (rational k4, k5, k6 divide),
+    tangential p1, p2; ``d`` in OpenCV's order (k1, k2, p1, p2[, k3[, k4, k5, k6]])."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = (*d, 0.0, 0.0, 0.0, 0.0)[:8]
+    r2 = x * x + y * y
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    return (
+        x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+        y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y,
+    )
+
+
+def _undistort_radtan(x: np.ndarray, y: np.ndarray, d: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Invert ``_radtan`` with OpenCV's iterative undistortion (identity camera matrix, 100 iterations)."""
+    if not any(d):
+        return x, y
+    pts = np.stack([x, y], axis=-1).reshape(-1, 1, 2)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    coeffs = np.asarray(d, np.float64)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4's name for the overload with a criteria
+        out = cv2.undistortPointsIter(pts, np.eye(3), coeffs, None, None, criteria)
+    else:
+        out = cv2.undistortPoints(pts, np.eye(3), coeffs, criteria=criteria)
+    out = out.reshape(-1, 2)
+    return out[:, 0], out[:, 1]
+
+
+class DistortedPinhole(_Frozen):
+    """OpenCV's pinhole camera with lens distortion (``cv2.projectPoints``): ROS's ``plumb_bob`` (5
+    coefficients) and ``rational_polynomial`` (8), Kalibr's ``pinhole-radtan`` (4: k1, k2, r1 = p1, r2 = p2).
+
+    ``distortion`` in OpenCV's order (k1, k2, p1, p2[, k3[, k4, k5, k6]]). Only rays in front of the
+    camera project; unprojection inverts the distortion iteratively, as ``cv2.undistortPoints`` does.
+    """
+
+    type: Literal["distorted_pinhole"] = "distorted_pinhole"
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    distortion: tuple[float, ...] = Field(min_length=4, max_length=8)
+
+    @field_validator("distortion")
+    @classmethod
+    def _opencv_lengths(cls, value: tuple[float, ...]) -> tuple[float, ...]:
+        if len(value) not in (4, 5, 8):
+            raise ValueError(f"expected 4, 5 or 8 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]), got {len(value)}")
+        return value
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = _points(points)
+        z = p[:, 2]
+        safe = np.where(z > 0, z, 1.0)
+        x, y = _radtan(p[:, 0] / safe, p[:, 1] / safe, self.distortion)
+        uv = np.stack([self.fx * x + self.cx, self.fy * y + self.cy], axis=-1)
+        return uv, (z > 0) & _inside_image(uv, self.width, self.height)
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        q = _pixels(uv)
+        x, y = _undistort_radtan((q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy, self.distortion)
+        rays = np.stack([x, y, np.ones(len(q))], axis=-1)
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+class DoubleSphere(_Frozen):
+    """The double sphere model (Usenko, Demmel and Cremers, 2018; Kalibr's and Basalt's ``ds``).
+
+    A ray is projected onto a unit sphere, that point onto a second unit sphere shifted by ``xi``
+    along the axis, and that one by a pinhole shifted by ``alpha / (1 - alpha)``:
+    ``u = fx x / (alpha d2 + (1 - alpha)(xi d1 + z)) + cx`` with ``d1 = |p|`` and
+    ``d2 = |(x, y, xi d1 + z)|``. Rays with ``z <= -w2 d1`` do not project (``w2`` from the paper), nor
+    rays beyond ``fov`` (degrees; the importers set it to what the image covers).
+    """
+
+    type: Literal["double_sphere"] = "double_sphere"
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    xi: float
+    alpha: float = Field(gt=0.0, le=1.0)
+    fov: float = Field(default=180.0, gt=0.0, le=360.0)
+
+    @property
+    def _w2(self) -> float:
+        a, xi = self.alpha, self.xi
+        w1 = a / (1 - a) if a <= 0.5 else (1 - a) / a
+        return (w1 + xi) / math.sqrt(2 * w1 * xi + xi * xi + 1)
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = _points(points)
+        x, y, z = p.T
+        d1 = np.linalg.norm(p, axis=1)
+        k = self.xi * d1 + z
+        d2 = np.sqrt(x * x + y * y + k * k)
+        den = self.alpha * d2 + (1 - self.alpha) * k
+        safe = np.where(den > 0, den, 1.0)
+        uv = np.stack([self.fx * x / safe + self.cx, self.fy * y / safe + self.cy], axis=-1)
+        valid = (z > -self._w2 * d1) & (den > 0) & _within_fov(p, self.fov) & _inside_image(uv, self.width, self.height)
+        return uv, valid
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        q = _pixels(uv)
+        mx, my = (q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy
+        r2 = mx * mx + my * my
+        a, xi = self.alpha, self.xi
+        with np.errstate(invalid="ignore"):
+            mz = (1 - a * a * r2) / (a * np.sqrt(1 - (2 * a - 1) * r2) + 1 - a)
+            scale = (mz * xi + np.sqrt(mz * mz + (1 - xi * xi) * r2)) / (mz * mz + r2)
+        rays = np.stack([scale * mx, scale * my, scale * mz - xi], axis=-1)
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+class ExtendedUnified(_Frozen):
+    """The extended unified camera model (EUCM: Khomutenko, Garcia and Martinet, 2016; Kalibr's and
+    Basalt's ``eucm``); ``beta = 1`` is the unified camera model (UCM).
+
+    ``u = fx x / (alpha d + (1 - alpha) z) + cx`` with ``d = sqrt(beta (x^2 + y^2) + z^2)``: a ray meets
+    an ellipsoid, then a pinhole. Rays with ``z <= -w d`` (``w`` from ``alpha``) or beyond ``fov`` do
+    not project.
+    """
+
+    type: Literal["eucm"] = "eucm"
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    alpha: float = Field(ge=0.0, le=1.0)
+    beta: float = Field(gt=0.0)
+    fov: float = Field(default=180.0, gt=0.0, le=360.0)
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = _points(points)
+        x, y, z = p.T
+        a = self.alpha
+        d = np.sqrt(self.beta * (x * x + y * y) + z * z)
+        den = a * d + (1 - a) * z
+        safe = np.where(den > 0, den, 1.0)
+        uv = np.stack([self.fx * x / safe + self.cx, self.fy * y / safe + self.cy], axis=-1)
+        w = a / (1 - a) if a <= 0.5 else (1 - a) / a
+        valid = (z > -w * d) & (den > 0) & _within_fov(p, self.fov) & _inside_image(uv, self.width, self.height)
+        return uv, valid
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        q = _pixels(uv)
+        mx, my = (q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy
+        r2 = mx * mx + my * my
+        a, b = self.alpha, self.beta
+        with np.errstate(invalid="ignore"):
+            mz = (1 - b * a * a * r2) / (a * np.sqrt(1 - (2 * a - 1) * b * r2) + 1 - a)
+        rays = np.stack([mx, my, mz], axis=-1)
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+class Omnidirectional(_Frozen):
+    """Mei and Rives' unified model with radial-tangential distortion (Kalibr's ``omni-radtan``).
+
+    A ray is projected onto the unit sphere, shifted by ``xi`` along the axis, and imaged by an
+    OpenCV pinhole with ``distortion`` (k1, k2, p1, p2). Rays with ``z <= -w |p|``, ``w = min(xi,
+    1 / xi)``, or beyond ``fov`` do not project.
+    """
+
+    type: Literal["omnidirectional"] = "omnidirectional"
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    xi: float = Field(ge=0.0)
+    distortion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    fov: float = Field(default=180.0, gt=0.0, le=360.0)
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = _points(points)
+        norm = np.linalg.norm(p, axis=1)
+        s = p / np.where(norm > 0, norm, 1.0)[:, None]
+        den = s[:, 2] + self.xi
+        safe = np.where(den > 0, den, 1.0)
+        x, y = _radtan(s[:, 0] / safe, s[:, 1] / safe, self.distortion)
+        uv = np.stack([self.fx * x + self.cx, self.fy * y + self.cy], axis=-1)
+        w = min(self.xi, 1 / self.xi) if self.xi > 0 else 0.0
+        valid = (s[:, 2] > -w) & (den > 0) & _within_fov(p, self.fov) & _inside_image(uv, self.width, self.height)
+        return uv, valid
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        q = _pixels(uv)
+        mx, my = _undistort_radtan((q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy, self.distortion)
+        r2 = mx * mx + my * my
+        with np.errstate(invalid="ignore"):
+            factor = (self.xi + np.sqrt(1 + (1 - self.xi * self.xi) * r2)) / (r2 + 1)
+        rays = np.stack([factor * mx, factor * my, factor - self.xi], axis=-1)
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+AnyCameraModel = Annotated[
+    OCamModel
+    | KannalaBrandt
+    | Equidistant
+    | Pinhole
+    | DistortedPinhole
+    | DoubleSphere
+    | ExtendedUnified
+    | Omnidirectional,
+    Field(discriminator="type"),
+]

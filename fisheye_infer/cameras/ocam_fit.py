@@ -1,26 +1,32 @@
-"""Fit an OCam model to a Kannala-Brandt (OpenCV fisheye) calibration.
+"""Fit an OCam model to a lens calibrated with another model (Kannala-Brandt, double sphere, EUCM, Mei).
 
 The Fisheye3DOD checkpoints were trained with OCam sampling grids. A user whose lenses are
-calibrated with OpenCV's fisheye model (or the paper's r(theta) polynomial) gets the OCam
-model of the same lens from ``fit_ocam_from_kb``, and with it the geometry tables the
-detectors expect. The fit reports its own reprojection error, so the user can judge it.
+calibrated with OpenCV's fisheye model (or the paper's r(theta) polynomial), or with Kalibr's
+and Basalt's wide-angle models, gets the OCam model of the same lens from ``fit_ocam``, and with
+it the geometry tables the detectors expect. The fit reports its own reprojection error, so the
+user can judge it (a model with tangential distortion is not radially symmetric, and shows it there).
 
-With fx = fy = f and no skew: invpol is a least-squares polynomial of rho(theta) =
-r_KB(theta + pi/2) over theta in [-pi/2, fov/2 - pi/2]; pol is a polynomial (with a1 = 0, as
-OCamCalib fixes it) of -rho / tan(alpha(rho)), the z of the ray through image radius rho.
-fx != fy is carried by the affine c = fy / fx.
+In units of fx pixels along the image's x axis: invpol is a least-squares polynomial of the image
+radius rho(theta) of a ray at incidence theta + pi/2, over the lens's ``fov``; pol is a polynomial
+(with a1 = 0, as OCamCalib fixes it) of -rho / tan(alpha(rho)), the z of the ray through image
+radius rho. fx != fy is carried by the affine c = fy / fx.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from fisheye_infer.cameras.camera_models import KannalaBrandt, OCamModel
+from fisheye_infer.cameras.camera_models import DoubleSphere, ExtendedUnified, KannalaBrandt, OCamModel, Omnidirectional
+from fisheye_infer.cameras.rig import Rig
 
-__all__ = ["OCamFit", "fit_ocam_from_kb"]
+#: The models ``fit_rig_ocam`` replaces by their OCam fit.
+_FITTED = (KannalaBrandt, DoubleSphere, ExtendedUnified, Omnidirectional)
+
+__all__ = ["OCamFit", "fit_ocam", "fit_ocam_from_kb", "fit_rig_ocam"]
 
 
 @dataclass(frozen=True)
@@ -47,42 +53,59 @@ def _lstsq_poly(x: np.ndarray, y: np.ndarray, powers: list[int], scale: float) -
     return full
 
 
-def fit_ocam_from_kb(kb: KannalaBrandt, invpol_degree: int = 12, pol_degree: int = 10, samples: int = 2000) -> OCamFit:
-    """OCam model of a Kannala-Brandt lens over its ``fov``, with the fit's max reprojection error."""
-    alpha_max = math.radians(kb.fov / 2.0)
-    f = kb.fx
+def fit_ocam(lens: Any, invpol_degree: int = 12, pol_degree: int = 10, samples: int = 2000) -> OCamFit:
+    """OCam model of a lens over its ``fov``, with the fit's max reprojection error. ``lens``: a model with
+    ``fx``, ``fy``, ``cx``, ``cy``, ``fov`` and ``project``/``unproject`` (``KannalaBrandt``, ``DoubleSphere``,
+    ``ExtendedUnified``, ``Omnidirectional``)."""
+    alpha_max = math.radians(lens.fov / 2.0)
+    f = lens.fx
+    along_x = lens.model_copy(update={"width": 1 << 20, "height": 1 << 20, "cx": 0.0, "cy": 0.0})  # no image edge
     # invpol: image radius (in fx pixels) as a function of theta = alpha - pi/2.
     alpha = np.linspace(0.0, alpha_max, samples)
     theta = alpha - math.pi / 2
-    rho = f * kb.distort(alpha)
+    rho = along_x.project(np.stack([np.sin(alpha), np.zeros_like(alpha), np.cos(alpha)], axis=-1))[0][:, 0]
     invpol = _lstsq_poly(theta, rho, list(range(invpol_degree + 1)), scale=1.0)
     # pol: z(rho) = -pol(rho) with z = rho / tan(alpha); at rho -> 0 this tends to f.
     rho_max = float(rho[-1])
     radius = np.linspace(0.0, rho_max, samples)
-    alpha_of_rho = kb.undistort(radius / f)
+    rays = along_x.unproject(np.stack([radius, np.zeros_like(radius)], axis=-1))
+    alpha_of_rho = np.arctan2(np.hypot(rays[:, 0], rays[:, 1]), rays[:, 2])
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(radius > 0, radius * np.cos(alpha_of_rho) / np.sin(alpha_of_rho), f)
     pol = _lstsq_poly(radius, -z, [0] + list(range(2, pol_degree + 1)), scale=rho_max)
     model = OCamModel(
         pol=tuple(pol.tolist()),
         invpol=tuple(invpol.tolist()),
-        center_row=kb.cy,
-        center_col=kb.cx,
-        c=kb.fy / kb.fx,
+        center_row=lens.cy,
+        center_col=lens.cx,
+        c=lens.fy / lens.fx,
         d=0.0,
         e=0.0,
-        width=kb.width,
-        height=kb.height,
-        fov=kb.fov,
+        width=lens.width,
+        height=lens.height,
+        fov=lens.fov,
     )
     # Errors over rays/pixels spread across the whole fov, at several azimuths.
     a = np.linspace(0.0, alpha_max, 200)
     b = np.linspace(-math.pi, math.pi, 36, endpoint=False)
     a, b = np.meshgrid(a, b)
     rays = np.stack([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), np.cos(a)], axis=-1).reshape(-1, 3)
-    kb_uv, _ = kb.project(rays)
+    lens_uv, _ = lens.project(rays)
     ocam_uv, _ = model.project(rays)
-    project_err = float(np.abs(ocam_uv - kb_uv).max())
-    back, _ = kb.project(model.unproject(kb_uv))
-    unproject_err = float(np.abs(back - kb_uv).max())
+    project_err = float(np.abs(ocam_uv - lens_uv).max())
+    back, _ = lens.project(model.unproject(lens_uv))
+    unproject_err = float(np.abs(back - lens_uv).max())
     return OCamFit(model=model, max_project_error_px=project_err, max_unproject_error_px=unproject_err)
+
+
+def fit_ocam_from_kb(kb: KannalaBrandt, invpol_degree: int = 12, pol_degree: int = 10, samples: int = 2000) -> OCamFit:
+    """``fit_ocam`` of a Kannala-Brandt lens."""
+    return fit_ocam(kb, invpol_degree, pol_degree, samples)
+
+
+def fit_rig_ocam(rig: Rig) -> tuple[Rig, dict[str, OCamFit]]:
+    """``rig`` with every wide-angle camera (Kannala-Brandt, double sphere, EUCM, Mei) replaced by its
+    ``fit_ocam`` model, and the fits by camera name: the form the fisheye detectors' geometry takes."""
+    fits = {cam.name: fit_ocam(cam.model) for cam in rig.cameras if isinstance(cam.model, _FITTED)}
+    models = {cam.name: fits[cam.name].model if cam.name in fits else cam.model for cam in rig.cameras}
+    return Rig.from_cameras(models, dict(zip(rig.names, rig.cam2lidar(), strict=True)), name=rig.name), fits

@@ -18,6 +18,7 @@ import hashlib
 import json
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
@@ -201,6 +202,53 @@ class Rig(BaseModel):
         )
 
     @classmethod
+    def from_calibration(
+        cls,
+        files: Sequence[str | Path],
+        extrinsics: str | Path,
+        format: str | None = None,
+        names: Sequence[str] | None = None,
+        name: str | None = None,
+    ) -> Rig:
+        """Cameras from calibration files (``calibration_files``: Kalibr, ROS ``CameraInfo``, OpenCV) placed
+        in the lidar frame by ``{"cameras": {name: lidar2cam 4x4}}`` (``extrinsics``).
+
+        A Kalibr camchain places its cameras relative to each other: one camera in ``extrinsics`` places
+        them all, and any other listed must agree with the chain (1 mm, 0.06 degrees). Files without a
+        chain need every camera in ``extrinsics``. ``names`` renames the cameras in file order.
+        """
+        from fisheye_infer.cameras.calibration_files import read_calibration
+
+        cameras = [cam for f in files for cam in read_calibration(f, format)]
+        if names is not None:
+            if len(names) != len(cameras):
+                raise RigError(
+                    f"names: {len(names)} given for {len(cameras)} camera(s) in {', '.join(map(str, files))}"
+                )
+            cameras = [replace(cam, name=new) for cam, new in zip(cameras, names, strict=True)]
+        given = read_lidar2cam_json(extrinsics)
+        chained = [c for c in cameras if c.cam2first is not None]
+        cam2lidar = {c.name: given[c.name] for c in cameras if c.name in given}
+        if chained:
+            anchor = next((c for c in chained if c.name in given), None)
+            if anchor is None:
+                raise RigError(
+                    f"extrinsics {extrinsics}: none of the chained cameras ({', '.join(c.name for c in chained)}) is "
+                    "in it; give lidar2cam of at least one"
+                )
+            first2lidar = given[anchor.name] @ np.linalg.inv(anchor.cam2first)
+            for cam in chained:
+                placed = first2lidar @ cam.cam2first
+                if cam.name in given:
+                    _check_agrees(cam.name, given[cam.name], placed, extrinsics)
+                cam2lidar[cam.name] = placed
+        missing = [c.name for c in cameras if c.name not in cam2lidar]
+        if missing:
+            raise RigError(f"extrinsics {extrinsics}: no lidar2cam for camera(s) {', '.join(missing)}")
+        models = {c.name: c.model for c in cameras}
+        return cls.from_cameras(models, cam2lidar, name=name or Path(files[0]).stem)
+
+    @classmethod
     def load(cls, path: str | Path) -> Rig:
         """Read a rig file (``.json``, ``.yaml`` or ``.yml``)."""
         path = Path(path)
@@ -292,17 +340,29 @@ class Rig(BaseModel):
         width = max(24, *(len(n) for n in self.names))
         lines = [f"rig {self.name!r}  hash {self.hash}  frame: lidar (x forward, y left, z up)"]
         lines.append(
-            f"  {'camera':<{width}} {'model':<15} {'image':>9} {'fov':>6}   {'position x, y, z (m)':<26} {'heading':>8}"
+            f"  {'camera':<{width}} {'model':<17} {'image':>9} {'fov':>7}   {'position x, y, z (m)':<26} {'heading':>8}"
         )
         for cam in self.cameras:
             x, y, z = np.round(cam.position, 3) + 0.0  # no "-0.000"
             fov = getattr(cam.model, "fov", None)
             lines.append(
-                f"  {cam.name:<{width}} {cam.model.type:<15} {cam.model.width:>4}x{cam.model.height:<4} "
-                f"{fov if fov is not None else '-':>6}"
+                f"  {cam.name:<{width}} {cam.model.type:<17} {cam.model.width:>4}x{cam.model.height:<4} "
+                f"{fov if fov is not None else '-':>7}"
                 f"   {x:>7.3f}, {y:>7.3f}, {z:>7.3f}     {round(math.degrees(cam.heading), 1) + 0.0:>7.1f}°"
             )
         return "\n".join(lines)
+
+
+def _check_agrees(name: str, given: np.ndarray, chained: np.ndarray, source: str | Path) -> None:
+    """A camera placed both by the extrinsics and by the camchain: the two must agree."""
+    delta = np.linalg.inv(given) @ chained
+    metres = float(np.linalg.norm(delta[:3, 3]))
+    degrees = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(delta[:3, :3]) - 1) / 2))))
+    if metres > 1e-3 or degrees > 0.06:
+        raise RigError(
+            f"camera '{name}': the extrinsics in {source} and the camchain disagree by {metres * 1000:.1f} mm and "
+            f"{degrees:.2f} degrees; give one camera's lidar2cam, or ones that agree"
+        )
 
 
 def _canonical(value: Any) -> Any:

@@ -178,6 +178,19 @@ def write_rig_document(data: dict[str, Any], path: str | Path) -> Path:
     return path
 
 
+#: The camera model types, which pydantic puts in an error's location (a discriminated union's tag).
+_MODEL_TYPES = (
+    "ocam",
+    "kannala_brandt",
+    "equidistant",
+    "pinhole",
+    "distorted_pinhole",
+    "double_sphere",
+    "eucm",
+    "omnidirectional",
+)
+
+
 def describe_validation_error(exc: ValidationError, data: Any) -> str:
     """Pydantic's error locations in a rig document as 'camera '<name>' (field): message'."""
     cameras = data.get("cameras") if isinstance(data, dict) else None
@@ -188,10 +201,7 @@ def describe_validation_error(exc: ValidationError, data: Any) -> str:
         if len(loc) >= 2 and loc[0] == "cameras" and isinstance(loc[1], int):
             entry = cameras[loc[1]] if isinstance(cameras, (list, tuple)) and loc[1] < len(cameras) else None
             name = entry.get("name") if isinstance(entry, dict) else None
-            field = (
-                ".".join(str(x) for x in loc[2:] if x not in ("ocam", "kannala_brandt", "equidistant", "pinhole"))
-                or "entry"
-            )
+            field = ".".join(str(x) for x in loc[2:] if x not in _MODEL_TYPES) or "entry"
             where = f"camera '{name}' ({field})" if name else f"camera #{loc[1]} ({field})"
         msg = err["msg"].removeprefix("Value error, ")
         parts.append(f"{where}: {msg}")

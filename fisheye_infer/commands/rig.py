@@ -1,4 +1,4 @@
-"""``fisheye-infer rig show|plot|grid|convert``: look at a camera rig, or write one from calibration files."""
+"""``fisheye-infer rig show|plot|grid|convert|import``: look at a camera rig, or write one from calibration files."""
 
 from __future__ import annotations
 
@@ -43,6 +43,30 @@ def configure(parser: argparse.ArgumentParser) -> None:
     convert.add_argument("--fov", type=float, default=220.0, help="lens field of view in degrees (default 220)")
     convert.add_argument("--out", required=True, help="rig file to write (.json or .yaml)")
     convert.set_defaults(run=run_convert)
+    imported = actions.add_parser(
+        "import", help="write a rig file from Kalibr, ROS CameraInfo or OpenCV calibration files"
+    )
+    imported.add_argument(
+        "files", nargs="+", help="a Kalibr camchain, or one ROS CameraInfo YAML / OpenCV FileStorage file per camera"
+    )
+    imported.add_argument(
+        "--format", choices=("kalibr", "ros", "opencv"), help="the files' format (default: recognised from each file)"
+    )
+    imported.add_argument(
+        "--extrinsics",
+        required=True,
+        help='lidar2cam.json: {"cameras": {name: 4x4 lidar2cam}}; one camera of a Kalibr camchain places them all',
+    )
+    imported.add_argument("--names", help="comma-separated camera names, in file order (default: the files' own)")
+    imported.add_argument(
+        "--ocam",
+        action="store_true",
+        help="replace each wide-angle model by its OCam fit, the form the fisheye detectors' geometry takes "
+        "(the fit's error is printed)",
+    )
+    imported.add_argument("--out", required=True, help="rig file to write (.json or .yaml)")
+    imported.add_argument("--plot", help="PNG of the rig from above (default: --out with .png)")
+    imported.set_defaults(run=run_import)
 
 
 def run_show(args: argparse.Namespace) -> int:
@@ -97,4 +121,24 @@ def run_convert(args: argparse.Namespace) -> int:
     rig.save(args.out)
     print(rig.describe())
     print(f"wrote {args.out}")
+    return 0
+
+
+def run_import(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from fisheye_infer.cameras.ocam_fit import fit_rig_ocam
+    from fisheye_infer.cameras.rig import Rig
+    from fisheye_infer.tools.viz import draw_rig, save_png
+
+    names = [n.strip() for n in args.names.split(",")] if args.names else None
+    rig = Rig.from_calibration(args.files, args.extrinsics, format=args.format, names=names, name=Path(args.out).stem)
+    if args.ocam:
+        rig, fits = fit_rig_ocam(rig)
+        for camera, fit in fits.items():
+            print(f"camera '{camera}': OCam fit, max reprojection error {fit.max_reprojection_error_px:.3f} px")
+    rig.save(args.out)
+    print(rig.describe())
+    plot = args.plot or str(Path(args.out).with_suffix(".png"))
+    print(f"wrote {args.out} and {save_png(plot, draw_rig(rig))}")
     return 0
