@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml
 	# torch first, pinned: this CPU build is what the export extra is developed against
 	$(BIN)/pip install torch==2.13.0
 	# ray and triton: the Ray Serve / Ray Data / Triton client paths the tests exercise
-	$(BIN)/pip install -e '.[export,serve,dev,ray,triton]'
+	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,ros]'
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -41,7 +41,7 @@ docs: $(STAMP)
 # then docs/performance/ generated from them. `make bench BENCH_ARGS=--quick` for the short runs.
 BENCH_ARGS ?=
 bench: $(STAMP)
-	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,bench]'
+	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,ros,bench]'
 	$(BIN)/python benchmarks/run_all.py $(BENCH_ARGS)
 
 # docs/performance/ generated again from the results under benchmarks/results/

@@ -27,6 +27,7 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
     ("make-checkpoint", "make_checkpoint", "write a seeded random-weight checkpoint (demos and tests)"),
     ("train", "train", "train a FisheyeBEVDet on synthetic frames (default: the compact model)"),
     ("detect", "detect", "run a model on frames; write results JSON and pictures"),
+    ("replay", "replay", "run a model on a recorded ROS bag; write an MCAP file for ROS 2 tools and Foxglove"),
     ("serve", "serve", "serve a model over HTTP and WebSocket"),
     ("triton", "triton", "write a Triton model repository (config.pbtxt + model.onnx) for an exported file"),
     ("bench", "bench", "benchmark a model on this machine: latency per stage, throughput, peak RSS"),

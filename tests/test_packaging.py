@@ -59,7 +59,8 @@ BLOCK_HEAVY = """
 import importlib.abc, sys
 class Block(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name.split('.')[0] in {'torch', 'fastapi', 'uvicorn', 'starlette', 'onnx', 'matplotlib', 'ray', 'tritonclient', 'grpc'}:
+        if name.split('.')[0] in {'torch', 'fastapi', 'uvicorn', 'starlette', 'onnx', 'matplotlib', 'ray', 'tritonclient', 'grpc',
+                                  'rosbags', 'mcap', 'mcap_protobuf', 'foxglove_schemas_protobuf'}:
             raise ImportError(f'{name} is not installed')
 sys.meta_path.insert(0, Block())
 """
@@ -123,6 +124,16 @@ def test_missing_ray_or_triton_extra_names_the_install_line(tmp_path: Path) -> N
     assert (
         "pip install 'fisheye-infer[triton]'" in result.stdout and "pip install 'fisheye-infer[ray]'" in result.stdout
     )
+
+
+def test_missing_ros_extra_names_the_install_line(tmp_path: Path) -> None:
+    code = BLOCK_HEAVY + (
+        "from fisheye_infer.cli import main\n"
+        f"print(main(['replay', 'm.onnx', 'b.mcap', '--camera', 'a=/a', '--out', {str(tmp_path / 'o.mcap')!r}]))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0 and result.stdout.strip() == "1", result.stderr
+    assert "pip install 'fisheye-infer[ros]'" in result.stderr
 
 
 MOVED_CHECK = """

@@ -150,13 +150,13 @@ def _kalibr(path: Path) -> list[CalibratedCamera]:
 
 
 def _kalibr_model(entry: dict[str, Any], label: str) -> Any:
-    camera, distortion = entry.get("camera_model"), entry.get("distortion_model", "none")
+    camera, distortion = str(entry.get("camera_model")), str(entry.get("distortion_model", "none"))
     kind = _KALIBR_MODELS.get((camera, distortion))
     if kind is None:
         supported = ", ".join(f"{c}-{d}" for c, d in _KALIBR_MODELS)
         raise RigError(
-            f"{label}: camera_model {camera!r} with distortion_model {distortion!r} cannot be represented "
-            f"(supported: {supported})"
+            f"{label}: camera_model {entry.get('camera_model')!r} with distortion_model {distortion!r} cannot be "
+            f"represented (supported: {supported})"
         )
     intrinsics = _floats(entry.get("intrinsics"), _KALIBR_INTRINSICS[camera], f"{label} (intrinsics)")
     coeffs = _floats(entry.get("distortion_coeffs", []), None, f"{label} (distortion_coeffs)")

@@ -227,18 +227,18 @@ class Rig(BaseModel):
                 )
             cameras = [replace(cam, name=new) for cam, new in zip(cameras, names, strict=True)]
         given = read_lidar2cam_json(extrinsics)
-        chained = [c for c in cameras if c.cam2first is not None]
+        chained = [(c, c.cam2first) for c in cameras if c.cam2first is not None]
         cam2lidar = {c.name: given[c.name] for c in cameras if c.name in given}
         if chained:
-            anchor = next((c for c in chained if c.name in given), None)
+            anchor = next(((c, pose) for c, pose in chained if c.name in given), None)
             if anchor is None:
                 raise RigError(
-                    f"extrinsics {extrinsics}: none of the chained cameras ({', '.join(c.name for c in chained)}) is "
-                    "in it; give lidar2cam of at least one"
+                    f"extrinsics {extrinsics}: none of the chained cameras ({', '.join(c.name for c, _ in chained)}) "
+                    "is in it; give lidar2cam of at least one"
                 )
-            first2lidar = given[anchor.name] @ np.linalg.inv(anchor.cam2first)
-            for cam in chained:
-                placed = first2lidar @ cam.cam2first
+            first2lidar = given[anchor[0].name] @ np.linalg.inv(anchor[1])
+            for cam, pose in chained:
+                placed = first2lidar @ pose
                 if cam.name in given:
                     _check_agrees(cam.name, given[cam.name], placed, extrinsics)
                 cam2lidar[cam.name] = placed

@@ -22,7 +22,15 @@ from fisheye_infer.scenes.scene import CLASS_COLOURS
 if TYPE_CHECKING:
     from fisheye_infer.runtime.detections import Detections
 
-__all__ = ["camera_colours", "draw_bev", "draw_detections", "draw_rig", "draw_sampling_grid", "save_png"]
+__all__ = [
+    "class_colour",
+    "camera_colours",
+    "draw_bev",
+    "draw_detections",
+    "draw_rig",
+    "draw_sampling_grid",
+    "save_png",
+]
 
 _PALETTE = [(66, 133, 244), (52, 168, 83), (251, 188, 5), (234, 67, 53), (171, 71, 188), (0, 172, 193)]
 
@@ -113,8 +121,9 @@ def save_png(path: str | Path, image: np.ndarray) -> Path:
     return path
 
 
-def _class_colour(name: str) -> tuple[int, int, int]:
-    """The colour the synthetic scenes paint the class with; grey for other classes."""
+def class_colour(name: str) -> tuple[int, int, int]:
+    """The colour (BGR, 0-255) the synthetic scenes paint the class with, and every overlay draws it with;
+    grey for other classes."""
     return CLASS_COLOURS.get(name, (160, 160, 160))
 
 
@@ -138,7 +147,7 @@ def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, ri
         cv2.fillPoly(img, [np.round(corners).astype(np.int32)], (90, 90, 90))
     cv2.arrowedLine(img, (size // 2, size // 2), (size // 2, size // 2 - int(4 * scale)), (0, 0, 0), 2, tipLength=0.3)
     for box, name, score in zip(bev_corners(detections.boxes), detections.names, detections.scores):
-        colour = _class_colour(name)
+        colour = class_colour(name)
         poly = np.round(px(box[:, 0], box[:, 1])).astype(np.int32)
         cv2.polylines(img, [poly], True, colour, 2, cv2.LINE_AA)
         front = np.round(poly[:2].mean(axis=0)).astype(int)
@@ -168,7 +177,7 @@ def draw_detections(
         )
         thickness = max(1, model.width // 400)
         for polylines, name, score in zip(lines[cam.name], detections.names, detections.scores):
-            colour = _class_colour(name)
+            colour = class_colour(name)
             for line in polylines:
                 cv2.polylines(canvas, [np.round(line).astype(np.int32)], False, colour, thickness, cv2.LINE_AA)
             if polylines:

@@ -1,0 +1,134 @@
+"""Bag replay throughput: a recorded drive through a model into an MCAP file, with and without the images.
+
+    python benchmarks/replay.py compact [--frames 100 --rounds 3 --threads 2] [--quick]
+
+1. ``--frames`` synthetic frames of the model's rig at 10 Hz, each camera a ``sensor_msgs/CompressedImage``
+   (JPEG) with its stamp jittered by up to 2 ms, written as a rosbag2 MCAP bag with ``rosbags``;
+2. ``fisheye-infer replay``'s work (``fisheye_infer.ros.replay.replay``: read, synchronise, decode, detect in
+   batches of 4, write detections, markers, the Foxglove scene and per-camera overlays) timed end to end,
+   without and with ``--images``, in turns: frames per second;
+3. ``docs/assets/replay-overlay.png``: a frame's front camera image with the overlay read back from the
+   MCAP file (``/<camera>/detections``, drawn as written), beside ``fisheye-infer detect --viz``'s picture
+   of the same frame.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import cv2
+import harness
+import numpy as np
+from model_files import ARTIFACTS, MODEL_HELP, model_path
+
+FRAMES_HZ = 10
+OVERLAY = Path(__file__).resolve().parents[1] / "docs" / "assets" / "replay-overlay.png"
+
+
+def write_bag(model: Path, folder: Path, frames: int) -> dict[str, str]:
+    """The rosbag2 MCAP bag of ``frames`` rendered frames; the camera -> topic map."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from fisheye_infer.ros.messages import typestore
+    from fisheye_infer.runtime.artifact import read_meta
+    from fisheye_infer.scenes.render import Renderer, random_scene
+
+    rig = read_meta(model).rig
+    store = typestore().types
+    topics = {camera: f"/{camera}/image/compressed" for camera in rig.names}
+    rng = np.random.default_rng(0)
+    renderer = Renderer(texture_seed=0)
+    with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = {
+            c: writer.add_connection(t, "sensor_msgs/msg/CompressedImage", typestore=typestore())
+            for c, t in topics.items()
+        }
+        for i in range(frames):
+            frame = renderer.render(rig, random_scene(np.random.default_rng(5000 + i)))
+            for camera, image in frame.items():
+                stamp = 10**18 + i * 10**9 // FRAMES_HZ + int(rng.integers(0, 2_000_000))
+                time = store["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9)
+                header = store["std_msgs/msg/Header"](stamp=time, frame_id=camera)
+                data = np.frombuffer(cv2.imencode(".jpg", image)[1].tobytes(), np.uint8)
+                msg = store["sensor_msgs/msg/CompressedImage"](header=header, format="jpeg", data=data)
+                raw = typestore().serialize_cdr(msg, "sensor_msgs/msg/CompressedImage")
+                writer.write(connections[camera], stamp, raw)
+    return topics
+
+
+def overlay_picture(model: Path, out_mcap: Path, camera: str, index: int = 0) -> np.ndarray:
+    """The camera's image with the MCAP file's overlay for it, beside ``draw_detections`` of the same frame."""
+    from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+    from mcap.reader import make_reader
+
+    from fisheye_infer.ros.messages import image_from_message, typestore
+    from fisheye_infer.runtime.detector import Detector
+    from fisheye_infer.tools.viz import draw_detections
+
+    images: dict[str, list[np.ndarray]] = {}
+    overlays: list[ImageAnnotations] = []
+    with out_mcap.open("rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            if channel.topic.endswith("/image/compressed"):
+                msg = typestore().deserialize_cdr(message.data, "sensor_msgs/msg/CompressedImage")
+                images.setdefault(channel.topic.split("/")[1], []).append(image_from_message(msg))
+            elif channel.topic == f"/{camera}/detections":
+                overlays.append(ImageAnnotations.FromString(message.data))
+    picture = images[camera][index].copy()
+    for line in overlays[index].points:
+        points = np.round([[p.x, p.y] for p in line.points]).astype(np.int32)
+        c = line.outline_color
+        cv2.polylines(picture, [points], False, (int(c.b * 255), int(c.g * 255), int(c.r * 255)), 2, cv2.LINE_AA)
+    detector = Detector(model)
+    frame = {name: stack[index] for name, stack in images.items()}
+    viz = draw_detections(detector.detect(frame), detector.info.meta.rig, frame)
+    left = cv2.resize(picture, (viz.shape[0], viz.shape[0]), interpolation=cv2.INTER_AREA)
+    return np.hstack([left, viz])
+
+
+def main(argv: list[str] | None = None) -> int:
+    from fisheye_infer.ros.replay import replay
+    from fisheye_infer.tools.viz import save_png
+
+    bench = harness.Benchmark(__file__, __doc__, quick="20 frames, 2 rounds")
+    p = bench.parser
+    p.add_argument("model", nargs="?", default="compact", help=MODEL_HELP)
+    p.add_argument("--frames", type=int, default=100, help="frames in the bag (default 100)")
+    p.add_argument("--rounds", type=int, default=3, help="replays per setting, settings in turns (default 3)")
+    p.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads (default 2)")
+    args = bench.parse(argv)
+    if args.quick:
+        args.frames, args.rounds = 20, 2
+
+    model = model_path(args.model)
+    work = ARTIFACTS / "replay"
+    bag = work / f"drive-{args.frames}"
+    work.mkdir(parents=True, exist_ok=True)
+    if not bag.exists():
+        topics = write_bag(model, bag, args.frames)
+    else:
+        from fisheye_infer.runtime.artifact import read_meta
+
+        topics = {camera: f"/{camera}/image/compressed" for camera in read_meta(model).rig.names}
+
+    def run(images: bool) -> float:
+        report = replay(model, [bag], topics, work / f"out-{images}.mcap", images=images, threads=args.threads)
+        if report.frames != args.frames or not report.complete:
+            raise SystemExit(f"replay: {report.summary()}")
+        return report.frames / report.seconds
+
+    settings = {"detections only": lambda: run(False), "with --images": lambda: run(True)}
+    rates = harness.in_turns(settings, args.rounds, flip=True)
+    rows = [
+        {"output": name, "frames": args.frames, "frames/s median": float(np.median(r)), "frames/s min": min(r)}
+        for name, r in rates.items()
+    ]
+    save_png(OVERLAY, overlay_picture(model, work / "out-True.mcap", next(iter(topics))))
+    bench.save(args, {f"Replay of {args.frames} frames, {args.threads} threads, batches of 4": rows})
+    print(f"wrote {OVERLAY}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

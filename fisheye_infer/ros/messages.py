@@ -1,0 +1,210 @@
+"""ROS 2 messages in and out, with ``rosbags`` (pure Python, CDR): camera images to frames, detections to
+``vision_msgs/Detection3DArray`` and ``visualization_msgs/MarkerArray``.
+
+    store = typestore()                                  # ROS 2 Humble's types plus vision_msgs
+    image = image_from_message(msg)                      # sensor_msgs/Image or CompressedImage -> BGR uint8
+    array = detection_array(detections, stamp, "lidar")  # vision_msgs/msg/Detection3DArray
+
+Images: ``sensor_msgs/Image`` in ``bgr8``, ``rgb8`` or ``mono8``; ``sensor_msgs/CompressedImage`` in JPEG or
+PNG (``compressed_image_transport``'s formats); anything else is refused by name. Boxes go out at their
+gravity centre with their yaw as a quaternion about z, in the frame the caller names (the rig's lidar
+frame); the class name is the hypothesis id, as ``vision_msgs`` asks.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any
+
+import cv2
+import numpy as np
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from fisheye_infer.errors import FrameError
+from fisheye_infer.runtime.box_geometry import centres
+from fisheye_infer.runtime.detections import Detections
+from fisheye_infer.runtime.records import yaw_to_quaternion
+from fisheye_infer.tools.viz import class_colour
+
+__all__ = [
+    "DETECTION_ARRAY",
+    "IMAGE_TYPES",
+    "MARKER_ARRAY",
+    "detection_array",
+    "image_from_message",
+    "marker_array",
+    "ros2_image",
+    "stamp_ns",
+    "typestore",
+]
+
+DETECTION_ARRAY = "vision_msgs/msg/Detection3DArray"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+
+#: ``vision_msgs`` (ROS 2, 4.x) definitions the ROS 2 type stores lack.
+_VISION_MSGS = {
+    "vision_msgs/msg/ObjectHypothesis": "string class_id\nfloat64 score\n",
+    "vision_msgs/msg/ObjectHypothesisWithPose": (
+        "vision_msgs/ObjectHypothesis hypothesis\ngeometry_msgs/PoseWithCovariance pose\n"
+    ),
+    "vision_msgs/msg/BoundingBox3D": "geometry_msgs/Pose center\ngeometry_msgs/Vector3 size\n",
+    "vision_msgs/msg/Detection3D": (
+        "std_msgs/Header header\nvision_msgs/ObjectHypothesisWithPose[] results\n"
+        "vision_msgs/BoundingBox3D bbox\nstring id\n"
+    ),
+    "vision_msgs/msg/Detection3DArray": "std_msgs/Header header\nvision_msgs/Detection3D[] detections\n",
+}
+
+
+@lru_cache(maxsize=1)
+def typestore() -> Typestore:
+    """ROS 2 Humble's message types with ``vision_msgs`` registered."""
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types: dict[str, Any] = {}
+    for name, text in _VISION_MSGS.items():
+        types.update(get_types_from_msg(text, name))
+    store.register(types)
+    return store
+
+
+def stamp_ns(header: Any) -> int:
+    """A ``std_msgs/Header``'s stamp in integer nanoseconds."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def image_from_message(msg: Any, topic: str = "image") -> np.ndarray:
+    """A camera message as an (H, W, 3) BGR uint8 image; an encoding or format this cannot read is refused."""
+    if hasattr(msg, "encoding"):  # sensor_msgs/Image
+        channels = {"bgr8": 3, "rgb8": 3, "mono8": 1}.get(msg.encoding)
+        if channels is None:
+            raise FrameError(f"{topic}: image encoding {msg.encoding!r} is not read (expected bgr8, rgb8 or mono8)")
+        data = np.asarray(msg.data, np.uint8)
+        if msg.step < msg.width * channels or len(data) < msg.step * msg.height:
+            raise FrameError(
+                f"{topic}: image {msg.width}x{msg.height} {msg.encoding} with step {msg.step} holds {len(data)} bytes"
+            )
+        rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)[:, : msg.width * channels]
+        pixels = rows.reshape(msg.height, msg.width, channels)
+        if msg.encoding == "rgb8":
+            return np.ascontiguousarray(pixels[:, :, ::-1])
+        if msg.encoding == "mono8":
+            return cv2.cvtColor(pixels[:, :, 0], cv2.COLOR_GRAY2BGR)
+        return np.ascontiguousarray(pixels)
+    fmt = str(msg.format).lower()
+    if not any(kind in fmt for kind in ("jpeg", "jpg", "png")) or "depth" in fmt:
+        raise FrameError(f"{topic}: compressed format {msg.format!r} is not read (expected JPEG or PNG)")
+    image = cv2.imdecode(np.asarray(msg.data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise FrameError(f"{topic}: the {msg.format!r} data does not decode")
+    return image
+
+
+def ros2_image(msg: Any) -> Any:
+    """A camera message read from any bag (a ROS 1 one too, whose header has a ``seq``) as the ROS 2 message of
+    the same type, to be written in CDR."""
+    header = _header(stamp_ns(msg.header), msg.header.frame_id)
+    types = typestore().types
+    if hasattr(msg, "encoding"):
+        return types[IMAGE_TYPES[0]](
+            header=header,
+            height=msg.height,
+            width=msg.width,
+            encoding=msg.encoding,
+            is_bigendian=msg.is_bigendian,
+            step=msg.step,
+            data=msg.data,
+        )
+    return types[IMAGE_TYPES[1]](header=header, format=msg.format, data=msg.data)
+
+
+def _header(stamp: int, frame_id: str) -> Any:
+    store = typestore().types
+    time = store["builtin_interfaces/msg/Time"](sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
+    return store["std_msgs/msg/Header"](stamp=time, frame_id=frame_id)
+
+
+def _poses(detections: Detections) -> list[Any]:
+    """Each box's gravity centre and yaw as a ``geometry_msgs/Pose``."""
+    store = typestore().types
+    point, quaternion, pose = (store[f"geometry_msgs/msg/{n}"] for n in ("Point", "Quaternion", "Pose"))
+    q = yaw_to_quaternion(detections.boxes[:, 6].astype(np.float64))  # (w, x, y, z)
+    return [
+        pose(
+            position=point(x=float(c[0]), y=float(c[1]), z=float(c[2])),
+            orientation=quaternion(x=r[1], y=r[2], z=r[3], w=r[0]),
+        )
+        for c, r in zip(centres(detections.boxes), q.tolist(), strict=True)
+    ]
+
+
+def detection_array(detections: Detections, stamp: int, frame_id: str) -> Any:
+    """``vision_msgs/msg/Detection3DArray``: one ``Detection3D`` per box, the class name as hypothesis id."""
+    store = typestore().types
+    vector, covariance = store["geometry_msgs/msg/Vector3"], store["geometry_msgs/msg/PoseWithCovariance"]
+    hypothesis, with_pose = store["vision_msgs/msg/ObjectHypothesis"], store["vision_msgs/msg/ObjectHypothesisWithPose"]
+    box, detection = store["vision_msgs/msg/BoundingBox3D"], store["vision_msgs/msg/Detection3D"]
+    header = _header(stamp, frame_id)
+    items = []
+    for i, (pose, name, score, b) in enumerate(
+        zip(_poses(detections), detections.names, detections.scores.tolist(), detections.boxes, strict=True)
+    ):
+        result = with_pose(
+            hypothesis=hypothesis(class_id=name, score=float(score)),
+            pose=covariance(pose=pose, covariance=np.zeros(36, np.float64)),
+        )
+        size = vector(x=float(b[3]), y=float(b[4]), z=float(b[5]))
+        items.append(detection(header=header, results=[result], bbox=box(center=pose, size=size), id=str(i)))
+    return store[DETECTION_ARRAY](header=header, detections=items)
+
+
+def marker_array(detections: Detections, stamp: int, frame_id: str) -> Any:
+    """``visualization_msgs/msg/MarkerArray``: a DELETEALL marker, then one CUBE per box (namespace: its class)."""
+    store = typestore().types
+    marker_type: Any = store["visualization_msgs/msg/Marker"]  # its constants (CUBE, ADD, ...) are class attributes
+    colour = store["std_msgs/msg/ColorRGBA"]
+    vector, duration = store["geometry_msgs/msg/Vector3"], store["builtin_interfaces/msg/Duration"]
+    header = _header(stamp, frame_id)
+    origin = store["geometry_msgs/msg/Pose"](
+        position=store["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
+        orientation=store["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+    )
+
+    def marker(**fields: Any) -> Any:
+        defaults = {
+            "header": header,
+            "ns": "",
+            "id": 0,
+            "type": marker_type.CUBE,
+            "action": marker_type.ADD,
+            "pose": origin,
+            "scale": vector(x=0.0, y=0.0, z=0.0),
+            "color": colour(r=0.0, g=0.0, b=0.0, a=0.0),
+            "lifetime": duration(sec=0, nanosec=0),
+            "frame_locked": False,
+            "points": [],
+            "colors": [],
+            "texture_resource": "",
+            "texture": store["sensor_msgs/msg/CompressedImage"](header=header, format="", data=np.zeros(0, np.uint8)),
+            "uv_coordinates": [],
+            "text": "",
+            "mesh_resource": "",
+            "mesh_file": store["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+            "mesh_use_embedded_materials": False,
+        }
+        return marker_type(**{**defaults, **fields})
+
+    markers = [marker(action=marker_type.DELETEALL)]
+    for i, (pose, name, b) in enumerate(zip(_poses(detections), detections.names, detections.boxes, strict=True)):
+        bl, g, r = (v / 255 for v in class_colour(name))
+        markers.append(
+            marker(
+                ns=name,
+                id=i,
+                pose=pose,
+                scale=vector(x=float(b[3]), y=float(b[4]), z=float(b[5])),
+                color=colour(r=r, g=g, b=bl, a=0.5),
+            )
+        )
+    return store[MARKER_ARRAY](markers=markers)

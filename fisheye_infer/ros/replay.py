@@ -1,0 +1,245 @@
+"""A recorded drive through a detector: ROS bags in, an MCAP file and nuScenes-style records out.
+
+    report = replay("model.onnx", ["drive.mcap"], {"fisheye_camera_front": "/front/image/compressed", ...},
+                    "detections.mcap")
+
+Reads rosbag2 (MCAP or sqlite3) and ROS 1 bags (``rosbags.highlevel.AnyReader``), synchronises the
+cameras' messages by header stamp (``sync.Synchroniser``), decodes them (``messages.image_from_message``),
+runs the ``Detector`` on batches of frames, and writes one MCAP file (the ``mcap`` library) with, per
+synchronised frame and stamped with its first camera's header stamp:
+
+- ``/detections`` (``vision_msgs/msg/Detection3DArray``) and ``/detections/markers``
+  (``visualization_msgs/msg/MarkerArray``), ROS 2 messages in CDR;
+- ``/detections/scene`` (``foxglove.SceneUpdate``) and ``/<camera>/detections`` (``foxglove.ImageAnnotations``:
+  the boxes drawn through that camera's model), Foxglove's protobuf schemas;
+- with ``images``, each camera's input message again, on its own topic, as recorded.
+
+Beside it, ``<out>.json``: the nuScenes-style records of every frame (``{"results": {stamp: [...]}}``), which
+``fisheye-infer eval --results`` reads. Frames that could not be synchronised or decoded are counted by
+reason in the ``ReplayReport``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import mcap.writer
+from mcap_protobuf.schema import register_schema
+from rosbags.highlevel import AnyReader
+
+from fisheye_infer.errors import FrameError, OptionError
+from fisheye_infer.eval.evaluate import save_results
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.tools.files import pending_file
+
+from .foxglove import image_annotations, scene_update
+from .messages import (
+    DETECTION_ARRAY,
+    IMAGE_TYPES,
+    MARKER_ARRAY,
+    detection_array,
+    image_from_message,
+    marker_array,
+    ros2_image,
+    stamp_ns,
+    typestore,
+)
+from .sync import SyncedSet, Synchroniser
+
+__all__ = ["DETECTIONS_TOPIC", "ReplayReport", "replay"]
+
+DETECTIONS_TOPIC = "/detections"
+
+
+@dataclass
+class ReplayReport:
+    """What a replay read, ran and wrote; ``dropped`` counts camera messages by reason, ``undecodable``
+    frames whose images did not decode."""
+
+    frames: int = 0
+    messages: int = 0
+    dropped: Counter[str] = field(default_factory=Counter)
+    undecodable: int = 0
+    seconds: float = 0.0
+    out: Path | None = None
+    records: Path | None = None
+
+    @property
+    def complete(self) -> bool:
+        """Whether every camera message became part of a frame that ran."""
+        return not self.dropped and not self.undecodable
+
+    def summary(self) -> str:
+        rate = self.frames / self.seconds if self.seconds else 0.0
+        lost = ", ".join(f"{n} {reason}" for reason, n in sorted(self.dropped.items())) or "none"
+        return "\n".join(
+            [
+                f"replayed {self.frames} frame(s) from {self.messages} camera message(s) in {self.seconds:.1f} s "
+                f"({rate:.1f} frames/s)",
+                f"camera messages dropped: {lost}; frames that did not decode: {self.undecodable}",
+                f"wrote {self.out} and {self.records}",
+            ]
+        )
+
+
+def replay(
+    model: str | Path,
+    bags: Sequence[str | Path],
+    topics: Mapping[str, str],
+    out: str | Path,
+    *,
+    images: bool = False,
+    frame_id: str = "lidar",
+    tolerance_ms: float = 20.0,
+    queue_size: int = 10,
+    batch: int = 4,
+    threads: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> ReplayReport:
+    """Replay ``bags`` through ``model`` into ``out`` (an ``.mcap`` file) and ``out`` with ``.json``; see the
+    module docstring. ``topics`` maps each camera the model names to its image topic; ``progress`` is told
+    the frames done and the most there can be (the fewest messages of one camera)."""
+    started = time.perf_counter()
+    detector = Detector(model, threads=threads)
+    cameras = list(detector.info.cameras)
+    missing = [c for c in cameras if c not in topics]
+    extra = [c for c in topics if c not in cameras]
+    if missing or extra:
+        raise OptionError(
+            f"--camera: the model's cameras are {', '.join(cameras)}; "
+            + (f"no topic given for {', '.join(missing)}" if missing else f"{', '.join(extra)} is not one of them")
+        )
+    if batch < 1:
+        raise OptionError(f"--batch {batch}: expected 1 or more")
+    out = Path(out)
+    report = ReplayReport()
+    sync = Synchroniser(cameras, int(tolerance_ms * 1e6), queue_size)
+    camera_of = {topic: camera for camera, topic in topics.items()}
+    store = typestore()
+    results: dict[str, list[dict[str, Any]]] = {}
+    with AnyReader([Path(b) for b in bags], default_typestore=store) as reader:
+        connections = _camera_connections(reader, topics)
+        expected = min(c.msgcount for c in connections)
+        with pending_file(out) as pending, open(pending.path, "wb") as stream:
+            writer = _McapWriter(stream, reader, connections if images else [], detector)
+            pending_sets: list[SyncedSet] = []
+
+            def run(sets: list[SyncedSet]) -> None:
+                frames, kept = [], []
+                for synced in sets:
+                    try:
+                        frames.append(
+                            {
+                                cam: image_from_message(msg, connection.topic)
+                                for cam, (connection, msg, _) in zip(cameras, synced.items, strict=True)
+                            }
+                        )
+                        kept.append(synced)
+                    except FrameError:
+                        report.undecodable += 1
+                if not frames:
+                    return
+                for synced, detections in zip(kept, detector.detect_batch(frames), strict=True):
+                    writer.write_frame(synced, detections, frame_id)
+                    results[str(synced.stamp)] = detections.to_nuscenes()
+                    report.frames += 1
+                    if progress is not None:
+                        progress(report.frames, expected)
+
+            for connection, _, raw in reader.messages(connections=connections):
+                report.messages += 1
+                msg: Any = reader.deserialize(raw, connection.msgtype)
+                camera = camera_of[connection.topic]
+                for synced in sync.push(camera, stamp_ns(msg.header), (connection, msg, raw)):
+                    pending_sets.append(synced)
+                    if len(pending_sets) == batch:
+                        run(pending_sets)
+                        pending_sets = []
+            run(pending_sets)
+            sync.flush()
+            writer.finish()
+            stream.close()
+            report.out = pending.commit()
+    report.dropped = sync.dropped
+    meta = {"model_id": detector.info.meta.model_id, "bags": [str(b) for b in bags], "topics": dict(topics)}
+    report.records = save_results(out.with_suffix(".json"), results, meta)
+    report.seconds = time.perf_counter() - started
+    return report
+
+
+def _camera_connections(reader: AnyReader, topics: Mapping[str, str]) -> list[Any]:
+    """The bag's connections of the cameras' topics; a missing topic or one of another type is refused."""
+    by_topic = {c.topic: c for c in reader.connections}
+    chosen = []
+    for camera, topic in topics.items():
+        connection = by_topic.get(topic)
+        if connection is None:
+            images = sorted(t for t, c in by_topic.items() if c.msgtype in IMAGE_TYPES) or ["none"]
+            raise OptionError(
+                f"--camera {camera}={topic}: no such topic in the bag (image topics: {', '.join(images)})"
+            )
+        if connection.msgtype not in IMAGE_TYPES:
+            raise OptionError(
+                f"--camera {camera}={topic}: the topic holds {connection.msgtype}, not {' or '.join(IMAGE_TYPES)}"
+            )
+        chosen.append(connection)
+    return chosen
+
+
+class _McapWriter:
+    """The output MCAP: ROS 2 channels (CDR, ``ros2msg`` schemas) and Foxglove channels (protobuf)."""
+
+    def __init__(self, stream: Any, reader: AnyReader, image_connections: Sequence[Any], detector: Detector) -> None:
+        self.writer = mcap.writer.Writer(stream)
+        self.writer.start(profile="ros2", library="fisheye-infer")
+        self.store = typestore()
+        self.rig = detector.info.meta.rig
+        self.channels: dict[str, int] = {}
+        self.channels[DETECTIONS_TOPIC] = self._ros_channel(DETECTIONS_TOPIC, DETECTION_ARRAY)
+        self.channels[DETECTIONS_TOPIC + "/markers"] = self._ros_channel(DETECTIONS_TOPIC + "/markers", MARKER_ARRAY)
+        from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+        scene = register_schema(self.writer, SceneUpdate)
+        annotations = register_schema(self.writer, ImageAnnotations)
+        self.channels[DETECTIONS_TOPIC + "/scene"] = self.writer.register_channel(
+            DETECTIONS_TOPIC + "/scene", "protobuf", scene
+        )
+        for camera in self.rig.names:
+            topic = f"/{camera}/detections"
+            self.channels[topic] = self.writer.register_channel(topic, "protobuf", annotations)
+        self.image_topics = {c.topic: self._ros_channel(c.topic, c.msgtype) for c in image_connections}
+
+    def _ros_channel(self, topic: str, msgtype: str) -> int:
+        text, _ = self.store.generate_msgdef(msgtype, ros_version=2)
+        schema = self.writer.register_schema(msgtype, "ros2msg", text.encode())
+        return self.writer.register_channel(topic, "cdr", schema)
+
+    def _write(self, topic: str, data: bytes | memoryview, stamp: int) -> None:
+        self.writer.add_message(self.channels[topic], stamp, bytes(data), stamp)
+
+    def write_frame(self, synced: SyncedSet, detections: Any, frame_id: str) -> None:
+        stamp = synced.stamp
+        self._write(
+            DETECTIONS_TOPIC,
+            self.store.serialize_cdr(detection_array(detections, stamp, frame_id), DETECTION_ARRAY),
+            stamp,
+        )
+        markers = self.store.serialize_cdr(marker_array(detections, stamp, frame_id), MARKER_ARRAY)
+        self._write(DETECTIONS_TOPIC + "/markers", markers, stamp)
+        self._write(DETECTIONS_TOPIC + "/scene", scene_update(detections, stamp, frame_id).SerializeToString(), stamp)
+        for camera, overlay in image_annotations(detections, self.rig, stamp).items():
+            self._write(f"/{camera}/detections", overlay.SerializeToString(), stamp)
+        for connection, msg, _ in synced.items:
+            if connection.topic in self.image_topics:
+                cdr = self.store.serialize_cdr(ros2_image(msg), connection.msgtype)
+                when = stamp_ns(msg.header)
+                self.writer.add_message(self.image_topics[connection.topic], when, bytes(cdr), when)
+
+    def finish(self) -> None:
+        self.writer.finish()
