@@ -33,6 +33,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", required=True, help="MCAP file to write; the records go beside it as .json")
     parser.add_argument("--images", action="store_true", help="also write the camera messages into the MCAP file")
+    parser.add_argument(
+        "--score-threshold",
+        type=float,
+        help="keep the messages' boxes scoring at least this (default: every box); the records keep every box",
+    )
     parser.add_argument("--frame-id", default="lidar", help="frame id of the detections (default: lidar)")
     parser.add_argument(
         "--tolerance-ms",
@@ -72,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         topics,
         args.out,
         images=args.images,
+        score_threshold=args.score_threshold,
         frame_id=args.frame_id,
         tolerance_ms=args.tolerance_ms,
         queue_size=args.queue,

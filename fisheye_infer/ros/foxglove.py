@@ -32,10 +32,7 @@ from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.records import yaw_to_quaternion
 from fisheye_infer.tools.viz import class_colour
 
-__all__ = ["EDGE_SAMPLES", "image_annotations", "scene_update"]
-
-#: Points per box edge in the image overlays: enough for a fisheye edge to curve smoothly.
-EDGE_SAMPLES = 24
+__all__ = ["image_annotations", "scene_update"]
 
 
 def _timestamp(stamp: int) -> Timestamp:
@@ -67,7 +64,7 @@ def scene_update(detections: Detections, stamp: int, frame_id: str) -> SceneUpda
 
 def image_annotations(detections: Detections, rig: Rig, stamp: int) -> dict[str, ImageAnnotations]:
     """Per camera: each box's visible edges as line strips in pixels, and its class and score at its top."""
-    lines = project_boxes(detections.boxes, rig, samples_per_edge=EDGE_SAMPLES)
+    lines = project_boxes(detections.boxes, rig)
     when = _timestamp(stamp)
     out = {}
     for cam in rig.cameras:
@@ -79,7 +76,7 @@ def image_annotations(detections: Detections, rig: Rig, stamp: int) -> dict[str,
                     PointsAnnotation(
                         timestamp=when,
                         type=PointsAnnotation.Type.LINE_STRIP,
-                        points=[Point2(x=float(u), y=float(v)) for u, v in line],
+                        points=[Point2(x=u, y=v) for u, v in line.tolist()],
                         outline_color=colour,
                         thickness=2.0,
                     )

@@ -14,6 +14,8 @@ synchronised frame and stamped with its first camera's header stamp:
   the boxes drawn through that camera's model), Foxglove's protobuf schemas;
 - with ``images``, each camera's input message again, on its own topic, as recorded.
 
+``score_threshold`` thins the messages' boxes; the records keep every box.
+
 Beside it, ``<out>.json``: the nuScenes-style records of every frame (``{"results": {stamp: [...]}}``), which
 ``fisheye-infer eval --results`` reads. Frames that could not be synchronised or decoded are counted by
 reason in the ``ReplayReport``.
@@ -94,6 +96,7 @@ def replay(
     out: str | Path,
     *,
     images: bool = False,
+    score_threshold: float | None = None,
     frame_id: str = "lidar",
     tolerance_ms: float = 20.0,
     queue_size: int = 10,
@@ -102,8 +105,9 @@ def replay(
     progress: Callable[[int, int], None] | None = None,
 ) -> ReplayReport:
     """Replay ``bags`` through ``model`` into ``out`` (an ``.mcap`` file) and ``out`` with ``.json``; see the
-    module docstring. ``topics`` maps each camera the model names to its image topic; ``progress`` is told
-    the frames done and the most there can be (the fewest messages of one camera)."""
+    module docstring. ``topics`` maps each camera the model names to its image topic; ``score_threshold``
+    keeps the messages' boxes at or above it (the records keep every box, as evaluation needs); ``progress``
+    is told the frames done and the most there can be (the fewest messages of one camera)."""
     started = time.perf_counter()
     detector = Detector(model, threads=threads)
     cameras = list(detector.info.cameras)
@@ -145,7 +149,7 @@ def replay(
                 if not frames:
                     return
                 for synced, detections in zip(kept, detector.detect_batch(frames), strict=True):
-                    writer.write_frame(synced, detections, frame_id)
+                    writer.write_frame(synced, detections.filter(min_score=score_threshold), frame_id)
                     results[str(synced.stamp)] = detections.to_nuscenes()
                     report.frames += 1
                     if progress is not None:

@@ -88,5 +88,6 @@ class Synchroniser:
     def flush(self) -> None:
         """End of stream: every message still queued is counted ``incomplete at the end``."""
         for queue in self._queues.values():
-            self.dropped["incomplete at the end"] += len(queue)
+            if queue:
+                self.dropped["incomplete at the end"] += len(queue)
             queue.clear()

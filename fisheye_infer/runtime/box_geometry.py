@@ -77,10 +77,14 @@ def project_boxes(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> di
         uv, valid = cam.model.project(cam_pts)
         uv = uv.reshape(len(samples), len(BOX_EDGES), samples_per_edge, 2)
         valid = valid.reshape(len(samples), len(BOX_EDGES), samples_per_edge)
+        whole, seen = valid.all(axis=2), valid.any(axis=2)  # (K, 12): most edges are all in view or none
         per_box = []
         for k in range(len(samples)):
             lines: list[np.ndarray] = []
-            for e in range(len(BOX_EDGES)):
+            for e in np.flatnonzero(seen[k]):
+                if whole[k, e]:
+                    lines.append(uv[k, e])
+                    continue
                 runs = np.split(
                     np.arange(samples_per_edge), np.flatnonzero(np.diff(valid[k, e].astype(np.int8)) != 0) + 1
                 )

@@ -177,7 +177,7 @@ def test_replay_matches_the_detector_frame_by_frame(small_export, recording: Rec
 
     # the overlays are the project's own projection of the same boxes
     first = detector.detect(recording.images[0])
-    lines = project_boxes(first.boxes, rig, samples_per_edge=24)
+    lines = project_boxes(first.boxes, rig)
     for camera in rig.names:
         overlay = ImageAnnotations.FromString(written[f"/{camera}/detections"][0][1])
         drawn = [np.array([[p.x, p.y] for p in a.points]) for a in overlay.points]
