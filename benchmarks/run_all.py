@@ -71,6 +71,7 @@ STEPS = (
         "load_service", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("httpx", "uvicorn", "websockets")
     ),
     Step("scale_out", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("ray", "httpx")),
+    Step("replay", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("rosbags", "mcap")),
     Step(
         "official_configs",
         quick=lambda m: ["--only", "fisheye_bevdet", "nusc_petr"],

@@ -118,14 +118,10 @@ def exported(request: pytest.FixtureRequest) -> Exported:
 
 @pytest.fixture(scope="session")
 def moved_rig(rig: Rig) -> Rig:
-    """The shipped rig with every camera moved 0.2 m forward and turned 1.7 degrees: new extrinsics."""
-    c, s = np.cos(0.03), np.sin(0.03)
-    move = np.array([[c, -s, 0, 0.2], [s, c, 0, 0.05], [0, 0, 1, 0.1], [0, 0, 0, 1.0]])
-    data = rig.model_dump(mode="json")
-    for cam in data["cameras"]:
-        cam["cam2lidar"] = (move @ np.array(cam["cam2lidar"])).tolist()
-    data["name"] = "moved"
-    return Rig.from_dict(data)
+    """The shipped rig with every camera moved (``small_configs.move_rig``)."""
+    from small_configs import move_rig
+
+    return move_rig(rig)
 
 
 @pytest.fixture(scope="session")

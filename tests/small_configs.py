@@ -5,6 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
+from fisheye_infer.cameras.rig import Rig
+
 #: The six-camera pinhole rig of the pinhole baselines (``rig-pinhole6/cameras.json``).
 PINHOLE_RIG = Path(__file__).parent / "data" / "rig-pinhole6" / "cameras.json"
 
@@ -117,3 +121,14 @@ def small_configs() -> dict:
             default_rig(),
         ),
     }
+
+
+def move_rig(rig: Rig) -> Rig:
+    """``rig`` with every camera moved 0.2 m forward and turned 1.7 degrees: new extrinsics."""
+    c, s = np.cos(0.03), np.sin(0.03)
+    move = np.array([[c, -s, 0, 0.2], [s, c, 0, 0.05], [0, 0, 1, 0.1], [0, 0, 0, 1.0]])
+    data = rig.model_dump(mode="json")
+    for cam in data["cameras"]:
+        cam["cam2lidar"] = (move @ np.array(cam["cam2lidar"])).tolist()
+    data["name"] = "moved"
+    return Rig.from_dict(data)

@@ -77,7 +77,8 @@ def project_boxes(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> di
         uv, valid = cam.model.project(cam_pts)
         uv = uv.reshape(len(samples), len(BOX_EDGES), samples_per_edge, 2)
         valid = valid.reshape(len(samples), len(BOX_EDGES), samples_per_edge)
-        whole, seen = valid.all(axis=2), valid.any(axis=2)  # (K, 12): most edges are all in view or none
+        whole: np.ndarray = np.all(valid, axis=2)  # (K, 12): most edges are all in view or none
+        seen: np.ndarray = np.any(valid, axis=2)
         per_box = []
         for k in range(len(samples)):
             lines: list[np.ndarray] = []

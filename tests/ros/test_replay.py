@@ -164,9 +164,22 @@ def test_replay_matches_the_detector_frame_by_frame(small_export, recording: Rec
         expected = detector.detect(images)
         assert array.header.stamp.sec * 10**9 + array.header.stamp.nanosec == stamp and array.header.frame_id == "lidar"
         assert len(array.detections) == len(expected)
-        got = np.array([[d.bbox.center.position.x, d.bbox.center.position.y, d.bbox.size.x] for d in array.detections])
-        want = np.stack([expected.boxes[:, 0], expected.boxes[:, 1], expected.boxes[:, 3]], axis=-1)
-        assert np.abs(got - want).max() < 1e-5
+        got = np.array(
+            [
+                [
+                    d.bbox.center.position.x,
+                    d.bbox.center.position.y,
+                    d.bbox.center.position.z - d.bbox.size.z / 2,  # the gravity centre -> the bottom
+                    d.bbox.size.x,
+                    d.bbox.size.y,
+                    d.bbox.size.z,
+                    2 * np.arctan2(d.bbox.center.orientation.z, d.bbox.center.orientation.w),
+                ]
+                for d in array.detections
+            ]
+        )
+        yaw = np.angle(np.exp(1j * (got[:, 6] - expected.boxes[:, 6])))  # the same yaw up to a full turn
+        assert np.abs(got[:, :6] - expected.boxes[:, :6]).max() < 1e-5 and np.abs(yaw).max() < 1e-5
         assert [d.results[0].hypothesis.class_id for d in array.detections] == expected.names
         assert np.allclose([d.results[0].hypothesis.score for d in array.detections], expected.scores, atol=1e-6)
     markers = store.deserialize_cdr(written["/detections/markers"][0][1], "visualization_msgs/msg/MarkerArray")
