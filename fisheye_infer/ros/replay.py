@@ -23,6 +23,7 @@ reason in the ``ReplayReport``.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
@@ -32,7 +33,7 @@ from typing import Any
 
 import mcap.writer
 from mcap_protobuf.schema import register_schema
-from rosbags.highlevel import AnyReader
+from rosbags.highlevel import AnyReader, AnyReaderError
 
 from fisheye_infer.errors import FrameError, OptionError
 from fisheye_infer.eval.evaluate import save_results
@@ -120,13 +121,24 @@ def replay(
         )
     if batch < 1:
         raise OptionError(f"--batch {batch}: expected 1 or more")
+    shared = sorted({t for t in topics.values() if list(topics.values()).count(t) > 1})
+    if shared:
+        raise OptionError(f"--camera: topic {', '.join(shared)} is given for more than one camera")
+    missing_bags = [str(b) for b in bags if not Path(b).exists()]
+    if missing_bags:
+        raise OptionError(f"bag {', '.join(missing_bags)}: no such file or folder")
     out = Path(out)
     report = ReplayReport()
     sync = Synchroniser(cameras, int(tolerance_ms * 1e6), queue_size)
     camera_of = {topic: camera for camera, topic in topics.items()}
     store = typestore()
     results: dict[str, list[dict[str, Any]]] = {}
-    with AnyReader([Path(b) for b in bags], default_typestore=store) as reader:
+    opened = contextlib.ExitStack()
+    try:
+        reader = opened.enter_context(AnyReader([Path(b) for b in bags], default_typestore=store))
+    except AnyReaderError as exc:
+        raise FrameError(f"bag {', '.join(map(str, bags))}: cannot be read as a rosbag2 or ROS 1 bag ({exc})") from exc
+    with opened:
         connections = _camera_connections(reader, topics)
         expected = min(c.msgcount for c in connections)
         with pending_file(out) as pending, open(pending.path, "wb") as stream:

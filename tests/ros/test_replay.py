@@ -239,6 +239,18 @@ def test_a_missing_topic_or_camera_is_named(small_export, recording: Recording, 
             {k: v for k, v in topics.items() if "rear" not in k},
             tmp_path / "a.mcap",
         )
+    with pytest.raises(OptionError, match="topic /fisheye_camera_front/image is given for more than one camera"):
+        replay(
+            small_export.onnx,
+            [recording.mcap],
+            {**topics, "fisheye_camera_rear": topics["fisheye_camera_front"]},
+            tmp_path / "c.mcap",
+        )
+    with pytest.raises(OptionError, match="no such file or folder"):
+        replay(small_export.onnx, [tmp_path / "none.mcap"], topics, tmp_path / "d.mcap")
+    (tmp_path / "junk.bag").write_bytes(b"junk")
+    with pytest.raises(FrameError, match="cannot be read as a rosbag2 or ROS 1 bag"):
+        replay(small_export.onnx, [tmp_path / "junk.bag"], topics, tmp_path / "e.mcap")
     with pytest.raises(OptionError, match=r"/nowhere: no such topic in the bag \(image topics: /fisheye_camera_front"):
         replay(small_export.onnx, [recording.mcap], {**topics, "fisheye_camera_rear": "/nowhere"}, tmp_path / "b.mcap")
 
