@@ -34,6 +34,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="MCAP file to write; the records go beside it as .json")
     parser.add_argument("--images", action="store_true", help="also write the camera messages into the MCAP file")
     parser.add_argument(
+        "--no-foxglove",
+        dest="foxglove",
+        action="store_false",
+        help="leave out the Foxglove channels (protobuf): the file then holds ROS 2 messages only",
+    )
+    parser.add_argument(
         "--score-threshold",
         type=float,
         help="keep the messages' boxes scoring at least this (default: every box); the records keep every box",
@@ -77,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         topics,
         args.out,
         images=args.images,
+        foxglove=args.foxglove,
         score_threshold=args.score_threshold,
         frame_id=args.frame_id,
         tolerance_ms=args.tolerance_ms,

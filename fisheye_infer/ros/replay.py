@@ -14,7 +14,8 @@ synchronised frame and stamped with its first camera's header stamp:
   the boxes drawn through that camera's model), Foxglove's protobuf schemas;
 - with ``images``, each camera's input message again, on its own topic, as recorded.
 
-``score_threshold`` thins the messages' boxes; the records keep every box.
+``score_threshold`` thins the messages' boxes; the records keep every box. Without ``foxglove`` the file
+holds the ROS 2 channels only.
 
 Beside it, ``<out>.json``: the nuScenes-style records of every frame (``{"results": {stamp: [...]}}``), which
 ``fisheye-infer eval --results`` reads. Frames that could not be synchronised or decoded are counted by
@@ -97,6 +98,7 @@ def replay(
     out: str | Path,
     *,
     images: bool = False,
+    foxglove: bool = True,
     score_threshold: float | None = None,
     frame_id: str = "lidar",
     tolerance_ms: float = 20.0,
@@ -106,7 +108,8 @@ def replay(
     progress: Callable[[int, int], None] | None = None,
 ) -> ReplayReport:
     """Replay ``bags`` through ``model`` into ``out`` (an ``.mcap`` file) and ``out`` with ``.json``; see the
-    module docstring. ``topics`` maps each camera the model names to its image topic; ``score_threshold``
+    module docstring. ``topics`` maps each camera the model names to its image topic; ``foxglove``: also the
+    Foxglove channels (protobuf; without them the file holds ROS 2 messages only); ``score_threshold``
     keeps the messages' boxes at or above it (the records keep every box, as evaluation needs); ``progress``
     is told the frames done and the most there can be (the fewest messages of one camera)."""
     started = time.perf_counter()
@@ -142,7 +145,7 @@ def replay(
         connections = _camera_connections(reader, topics)
         expected = min(c.msgcount for c in connections)
         with pending_file(out) as pending, open(pending.path, "wb") as stream:
-            writer = _McapWriter(stream, reader, connections if images else [], detector)
+            writer = _McapWriter(stream, reader, connections if images else [], detector, foxglove)
             pending_sets: list[SyncedSet] = []
 
             def run(sets: list[SyncedSet]) -> None:
@@ -210,7 +213,9 @@ def _camera_connections(reader: AnyReader, topics: Mapping[str, str]) -> list[An
 class _McapWriter:
     """The output MCAP: ROS 2 channels (CDR, ``ros2msg`` schemas) and Foxglove channels (protobuf)."""
 
-    def __init__(self, stream: Any, reader: AnyReader, image_connections: Sequence[Any], detector: Detector) -> None:
+    def __init__(
+        self, stream: Any, reader: AnyReader, image_connections: Sequence[Any], detector: Detector, foxglove: bool
+    ) -> None:
         self.writer = mcap.writer.Writer(stream)
         self.writer.start(profile="ros2", library="fisheye-infer")
         self.store = typestore()
@@ -218,17 +223,19 @@ class _McapWriter:
         self.channels: dict[str, int] = {}
         self.channels[DETECTIONS_TOPIC] = self._ros_channel(DETECTIONS_TOPIC, DETECTION_ARRAY)
         self.channels[DETECTIONS_TOPIC + "/markers"] = self._ros_channel(DETECTIONS_TOPIC + "/markers", MARKER_ARRAY)
-        from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
-        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+        self.foxglove = foxglove
+        if foxglove:
+            from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+            from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-        scene = register_schema(self.writer, SceneUpdate)
-        annotations = register_schema(self.writer, ImageAnnotations)
-        self.channels[DETECTIONS_TOPIC + "/scene"] = self.writer.register_channel(
-            DETECTIONS_TOPIC + "/scene", "protobuf", scene
-        )
-        for camera in self.rig.names:
-            topic = f"/{camera}/detections"
-            self.channels[topic] = self.writer.register_channel(topic, "protobuf", annotations)
+            scene = register_schema(self.writer, SceneUpdate)
+            annotations = register_schema(self.writer, ImageAnnotations)
+            self.channels[DETECTIONS_TOPIC + "/scene"] = self.writer.register_channel(
+                DETECTIONS_TOPIC + "/scene", "protobuf", scene
+            )
+            for camera in self.rig.names:
+                topic = f"/{camera}/detections"
+                self.channels[topic] = self.writer.register_channel(topic, "protobuf", annotations)
         self.image_topics = {c.topic: self._ros_channel(c.topic, c.msgtype) for c in image_connections}
 
     def _ros_channel(self, topic: str, msgtype: str) -> int:
@@ -248,9 +255,11 @@ class _McapWriter:
         )
         markers = self.store.serialize_cdr(marker_array(detections, stamp, frame_id), MARKER_ARRAY)
         self._write(DETECTIONS_TOPIC + "/markers", markers, stamp)
-        self._write(DETECTIONS_TOPIC + "/scene", scene_update(detections, stamp, frame_id).SerializeToString(), stamp)
-        for camera, overlay in image_annotations(detections, self.rig, stamp).items():
-            self._write(f"/{camera}/detections", overlay.SerializeToString(), stamp)
+        if self.foxglove:
+            scene = scene_update(detections, stamp, frame_id).SerializeToString()
+            self._write(DETECTIONS_TOPIC + "/scene", scene, stamp)
+            for camera, overlay in image_annotations(detections, self.rig, stamp).items():
+                self._write(f"/{camera}/detections", overlay.SerializeToString(), stamp)
         for connection, msg, _ in synced.items:
             if connection.topic in self.image_topics:
                 cdr = self.store.serialize_cdr(ros2_image(msg), connection.msgtype)

@@ -213,6 +213,11 @@ def test_sqlite3_and_ros1_bags_replay_to_the_same_detections(
         assert report.frames == 3 and report.dropped == recording.dropped
         outputs.append([data for _, data in _read_mcap(out)["/detections"]])
     assert outputs[0] == outputs[1] == outputs[2]
+    ros_only = tmp_path / "ros_only.mcap"
+    replay(small_export.onnx, [recording.mcap], _topics(rig.names), ros_only, foxglove=False, threads=1)
+    with ros_only.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and {c.message_encoding for c in summary.channels.values()} == {"cdr"}
 
 
 def test_cli_exit_code_says_whether_messages_were_dropped(
