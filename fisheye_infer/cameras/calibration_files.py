@@ -91,27 +91,27 @@ def read_calibration(path: str | Path, format: str | None = None) -> list[Calibr
     raise RigError(f"{path}: format {kind!r} is not one of {', '.join(FORMATS)}")
 
 
-def image_fov(model: Any, samples: int = 400) -> float:
-    """The full field of view (degrees) that ``model``'s image shows: twice the largest incidence angle of
-    the rays through the image border. Pixels that are not the image of a ray (outside the model's image
-    of the sphere, or where a distortion polynomial has turned back) are left out: their unprojection
-    does not project back onto them."""
+def image_fov(model: Any, directions: int = 72, steps: int = 400) -> float:
+    """The full field of view (degrees) that ``model``'s image shows: twice the largest incidence angle of the
+    rays through its pixels, sampled from the principal point out to the image border in ``directions``
+    directions. A pixel that is not the image of a ray (outside a circular fisheye's image circle, or where a
+    distortion polynomial has turned back) is left out: its unprojection does not project back onto it."""
     w, h = model.width, model.height
-    t = np.linspace(0.0, 1.0, samples)
-    border = np.concatenate(
-        [
-            np.stack([t * (w - 1), np.zeros_like(t)], -1),
-            np.stack([t * (w - 1), np.full_like(t, h - 1)], -1),
-            np.stack([np.zeros_like(t), t * (h - 1)], -1),
-            np.stack([np.full_like(t, w - 1), t * (h - 1)], -1),
-        ]
-    )
-    rays = model.unproject(border)
+    angle = np.linspace(0.0, 2 * math.pi, directions, endpoint=False)
+    dx, dy = np.cos(angle), np.sin(angle)
+    with np.errstate(divide="ignore"):  # the distance to the border along each direction
+        reach = np.minimum(
+            np.where(dx > 0, (w - 1 - model.cx) / dx, np.where(dx < 0, -model.cx / dx, np.inf)),
+            np.where(dy > 0, (h - 1 - model.cy) / dy, np.where(dy < 0, -model.cy / dy, np.inf)),
+        )
+    t = np.linspace(0.0, 1.0, steps)[None, :] * reach[:, None]
+    pixels = np.stack([model.cx + t * dx[:, None], model.cy + t * dy[:, None]], axis=-1).reshape(-1, 2)
+    rays = model.unproject(pixels)
     with np.errstate(invalid="ignore"):
         back = model.project(np.nan_to_num(rays))[0]
-    on_sphere = np.isfinite(rays).all(axis=1) & (np.abs(back - border).max(axis=1) < 0.01)
+    on_sphere = np.isfinite(rays).all(axis=1) & (np.abs(back - pixels).max(axis=1) < 0.01)
     if not on_sphere.any():
-        raise RigError(f"{type(model).__name__}: no pixel of the image border is the image of a ray")
+        raise RigError(f"{type(model).__name__}: no pixel of the image is the image of a ray")
     return round(2 * math.degrees(float(incidence_angle(rays[on_sphere]).max())), 3)
 
 

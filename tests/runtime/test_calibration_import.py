@@ -126,6 +126,17 @@ def test_kalibr_camchain_gives_each_model_and_the_chained_poses(tmp_path: Path) 
         assert 90 < model.fov < 360 and model.fov >= 2 * math.degrees(np.arccos(border[:, 2]).max()) - 1e-6
 
 
+def test_a_circular_fisheye_gets_the_fov_of_its_image_circle() -> None:
+    """The image circle inside the frame: the border shows no ray, the circle's edge gives the fov (to the
+    pixel: the angle rises steeply at the edge, 1.8 degrees over its last pixel here)."""
+    from fisheye_infer.cameras.calibration_files import image_fov
+
+    lens = DoubleSphere(fx=100.0, fy=100.0, cx=400.0, cy=400.0, xi=0.0, alpha=0.6, width=800, height=800, fov=360.0)
+    edge = 100.0 / math.sqrt(2 * 0.6 - 1)  # alpha > 0.5: the sphere's image is a disc of this radius (px)
+    ray = lens.unproject(np.array([[400.0 + edge * (1 - 1e-9), 400.0]]))[0]
+    assert 2 * math.degrees(math.acos(ray[2])) - 2.5 < image_fov(lens) <= 2 * math.degrees(math.acos(ray[2]))
+
+
 def test_kalibr_cameras_given_twice_must_agree_with_the_chain(tmp_path: Path) -> None:
     camchain = tmp_path / "camchain.yaml"
     lidar2cam = _kalibr_camchain(camchain)
