@@ -47,8 +47,6 @@ __all__ = ["FORMATS", "CalibratedCamera", "detect_format", "image_fov", "read_ca
 
 #: The calibration formats ``read_calibration`` reads.
 FORMATS: Final = ("kalibr", "ros", "opencv")
-#: Models whose field of view the importers set from the image (``image_fov``).
-_WIDE = (KannalaBrandt, DoubleSphere, ExtendedUnified, Omnidirectional)
 
 
 @dataclass(frozen=True)

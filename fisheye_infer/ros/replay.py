@@ -145,7 +145,7 @@ def replay(
         connections = _camera_connections(reader, topics)
         expected = min(c.msgcount for c in connections)
         with pending_file(out) as pending, open(pending.path, "wb") as stream:
-            writer = _McapWriter(stream, reader, connections if images else [], detector, foxglove)
+            writer = _McapWriter(stream, connections if images else [], detector, foxglove)
             pending_sets: list[SyncedSet] = []
 
             def run(sets: list[SyncedSet]) -> None:
@@ -155,7 +155,7 @@ def replay(
                         frames.append(
                             {
                                 cam: image_from_message(msg, connection.topic)
-                                for cam, (connection, msg, _) in zip(cameras, synced.items, strict=True)
+                                for cam, (connection, msg) in zip(cameras, synced.items, strict=True)
                             }
                         )
                         kept.append(synced)
@@ -174,7 +174,7 @@ def replay(
                 report.messages += 1
                 msg: Any = reader.deserialize(raw, connection.msgtype)
                 camera = camera_of[connection.topic]
-                for synced in sync.push(camera, stamp_ns(msg.header), (connection, msg, raw)):
+                for synced in sync.push(camera, stamp_ns(msg.header), (connection, msg)):
                     pending_sets.append(synced)
                     if len(pending_sets) == batch:
                         run(pending_sets)
@@ -213,9 +213,7 @@ def _camera_connections(reader: AnyReader, topics: Mapping[str, str]) -> list[An
 class _McapWriter:
     """The output MCAP: ROS 2 channels (CDR, ``ros2msg`` schemas) and Foxglove channels (protobuf)."""
 
-    def __init__(
-        self, stream: Any, reader: AnyReader, image_connections: Sequence[Any], detector: Detector, foxglove: bool
-    ) -> None:
+    def __init__(self, stream: Any, image_connections: Sequence[Any], detector: Detector, foxglove: bool) -> None:
         self.writer = mcap.writer.Writer(stream)
         self.writer.start(profile="ros2", library="fisheye-infer")
         self.store = typestore()
@@ -260,7 +258,7 @@ class _McapWriter:
             self._write(DETECTIONS_TOPIC + "/scene", scene, stamp)
             for camera, overlay in image_annotations(detections, self.rig, stamp).items():
                 self._write(f"/{camera}/detections", overlay.SerializeToString(), stamp)
-        for connection, msg, _ in synced.items:
+        for connection, msg in synced.items:
             if connection.topic in self.image_topics:
                 cdr = self.store.serialize_cdr(ros2_image(msg), connection.msgtype)
                 when = stamp_ns(msg.header)
