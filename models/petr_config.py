@@ -151,16 +151,22 @@ class PETRConfig(ModelConfig):
             )
         sections = cls._read_head(head, cfg, d)
         return cls(
-            image=read_image(model, cfg, *cls._image_size(head, d), d.image),
+            image=read_image(model, cfg, *cls._image_size(head, d, cfg), d.image),
             backbone=read_backbone(model, d.backbone, required=False),
             **sections,
             class_names=classes,
         )
 
     @classmethod
-    def _image_size(cls, head: Section, d: PETRConfig) -> tuple[int, int]:
-        """(H, W) of the camera images; official files do not state it (Fisheye3DOD: 800 x 800)."""
-        return d.image.height, d.image.width
+    def _image_size(cls, head: Section, d: PETRConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
+        """(H, W) of the camera images: the top-level ``image_size`` of a file ``fisheye-infer train`` wrote;
+        official files do not state it (Fisheye3DOD: 800 x 800, the size of the OCam calibration)."""
+        size = cfg.get("image_size")
+        if size is None:
+            return d.image.height, d.image.width
+        if not isinstance(size, (list, tuple)) or len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
+            raise ConfigError(f"{head.source}: image_size: expected [height, width] in pixels, got {size!r}")
+        return int(size[0]), int(size[1])
 
     @classmethod
     def _read_head(cls, head: Section, cfg: Mapping[str, Any], d: PETRConfig) -> dict[str, Any]:

@@ -27,7 +27,7 @@ from torch import nn
 
 from fisheye_infer.errors import CheckpointError, ConfigError
 from fisheye_infer.geometry.cyl_petr import CylPETRGeometry
-from fisheye_infer.geometry.petr import PETRGeometry
+from fisheye_infer.geometry.petr import PETRGeometry, sine_position_encoding
 from fisheye_infer.geometry.pinhole_petr import PinholePETRGeometry
 from fisheye_infer.geometry.tables import PETR_KEY_MASK, PETR_KEY_POS, WARP
 
@@ -197,6 +197,19 @@ class FisheyePETRHead(nn.Module):
         pe = np.stack([self.geometry.key_pos(weights, x).reshape(n, fh, fw, c) for x in coords])
         return _f32(pe).permute(0, 1, 4, 2, 3).to(self.coords3d.device)  # B x N x C x H x W
 
+    def trainable_positions(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(key_pos (1, N*H*W, C), query_pos (Q, C)) computed by this head's torch modules, so that training
+        reaches ``position_encoder``, ``adapt_pos3d``, ``query_embedding`` and ``reference_points``.
+
+        The inputs are the geometry's numpy tables (the key coordinates and the sine encoding of the key
+        mask), so the numbers are those of the cached ``key_pos``/``query_pos``; only the gradient is new.
+        """
+        p = self.geometry.params
+        mask = self.key_mask()[0].cpu().numpy()
+        sine = _f32(sine_position_encoding(mask, p.num_feats, p.temperature)).to(self.coords3d.device)
+        pe = self.position_encoder(self.coords3d) + self.adapt_pos3d(sine)  # N x C x H x W
+        return pe.permute(0, 2, 3, 1).reshape(1, -1, self.cfg.embed_dims), self.query_positions()
+
     def tables(self) -> dict[str, torch.Tensor]:
         """The ``geom.*`` tables an exported graph holds as named initializers."""
         return {
@@ -232,11 +245,13 @@ class FisheyePETRHead(nn.Module):
         cam2lidar: Any = None,
         return_intermediate: bool = False,
         tables: dict[str, torch.Tensor] | None = None,
+        positions: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """P3 (B, N, C, h, w) -> decoder output (B, Q, C), or (L, B, Q, C) for all layers.
 
         A camera with ``camera_valid`` False gets zero warped features and all its keys masked;
         the positional embeddings stay those of the full rig (they are calibration constants).
+        ``positions`` (``trainable_positions()``) replaces the cached key and query embeddings.
         """
         b, n, c_in = p3.shape[:3]
         c, (fh, fw) = self.cfg.embed_dims, self.cfg.feature_size
@@ -250,7 +265,9 @@ class FisheyePETRHead(nn.Module):
         key_bias = key_padding_bias(mask.reshape(mask.shape[0], n * fh * fw))  # B|1 x K
         x = self.input_proj(x.reshape(b * n, c_in, fh, fw))
         memory = x.reshape(b, n, c, fh, fw).permute(0, 1, 3, 4, 2).reshape(b, n * fh * fw, c)
-        if cam2lidar is None:
+        if positions is not None:
+            key_pos, query_pos = positions
+        elif cam2lidar is None:
             key_pos, query_pos = tables[PETR_KEY_POS], self.query_pos
         else:
             key_pos = self.position_embedding(cam2lidar).permute(0, 1, 3, 4, 2).reshape(-1, n * fh * fw, c)

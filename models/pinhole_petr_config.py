@@ -109,7 +109,7 @@ class PinholePETRConfig(PETRConfig):
         return _pinhole_petr_params(self, self.views())
 
     @classmethod
-    def _image_size(cls, head: Section, d: PETRConfig) -> tuple[int, int]:
+    def _image_size(cls, head: Section, d: PETRConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
         """The raw camera size: ``ResizeCropFlipImage``'s ``H`` and ``W`` where the file has them, else 1280x720."""
         return d.image.height, d.image.width
 

@@ -1,6 +1,8 @@
-"""``fisheye-infer train``: train a FisheyeBEVDet on synthetic frames (torch is imported only when the command runs).
+"""``fisheye-infer train``: train a FisheyeBEVDet or FisheyePETR on synthetic frames (torch is imported only
+when the command runs).
 
 fisheye-infer train --out runs/compact [--until 1000] [--resume]
+fisheye-infer train --arch fisheye-petr --out runs/petr --init-backbone runs/compact/model.pth
 fisheye-infer train --out runs/tuned --init runs/compact/model.pth --seed 1 --lr 5e-5 --steps 2500
 fisheye-infer train --out runs/qat --init runs/compact/model.pth --qat 0.5 --device cuda --workers 7 --batch-size 8
 """
@@ -9,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from fisheye_infer.commands.common import NEEDS_EXPORT, missing_extra
 
@@ -20,8 +23,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, help="run folder: config.py, rig.json, model.pth, checkpoint.pth, log.jsonl"
     )
     parser.add_argument(
-        "--config", help="mmdet3d-style FisheyeBEVDet config to train (default: the compact configuration)"
+        "--arch",
+        choices=("fisheye-bevdet", "fisheye-petr"),
+        default="fisheye-bevdet",
+        help="the architecture to train (default fisheye-bevdet; --config files name their own)",
     )
+    parser.add_argument("--config", help="mmdet3d-style config to train (default: the compact configuration of --arch)")
     parser.add_argument(
         "--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)"
     )
@@ -81,6 +88,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="start from this checkpoint's weights (a model.pth of the same configuration and rig): "
         "a fine-tuning run with its own optimiser and schedule",
     )
+    parser.add_argument(
+        "--init-backbone",
+        help="start the image backbone and neck from this checkpoint (any architecture with the same backbone, "
+        "e.g. a trained compact FisheyeBEVDet for the compact FisheyePETR); the rest starts seeded",
+    )
+    parser.add_argument(
+        "--freeze-backbone",
+        action="store_true",
+        help="keep the image backbone and neck as they start (from --init-backbone or --init): "
+        "their weights and BatchNorm statistics; a step skips their backward",
+    )
     parser.set_defaults(run=run)
 
 
@@ -94,8 +112,8 @@ def run(args: argparse.Namespace) -> int:
         return missing_extra(NEEDS_EXPORT, exc)
     from fisheye_infer.cameras.rig import Rig
     from fisheye_infer.errors import ConfigError
-    from fisheye_infer.models import BEVDetConfig
-    from fisheye_infer.models.training.compact import compact_bevdet_config, compact_rig
+    from fisheye_infer.models import get_model_entry
+    from fisheye_infer.models.training.compact import compact_bevdet_config, compact_petr_config, compact_rig
 
     out = Path(args.out)
     if args.until is not None and args.until < 1:
@@ -111,7 +129,8 @@ def run(args: argparse.Namespace) -> int:
             )
         if not (out / "config.py").is_file() or not (out / "rig.json").is_file():
             raise ConfigError(f"--resume: {out} has no config.py and rig.json; is it a run folder?")
-        config, rig = BEVDetConfig.from_mmdet3d_config(out / "config.py"), Rig.load(out / "rig.json")
+        config_cls = get_model_entry(_run_arch(out)).config_cls
+        config, rig = config_cls.from_mmdet3d_config(out / "config.py"), Rig.load(out / "rig.json")
     else:
         if (out / "checkpoint.pth").exists():
             raise ConfigError(
@@ -119,7 +138,10 @@ def run(args: argparse.Namespace) -> int:
             )
         if args.rig and not args.config:
             raise ConfigError("--rig needs --config (the compact configuration comes with its own rig)")
-        config = BEVDetConfig.from_mmdet3d_config(args.config) if args.config else compact_bevdet_config()
+        if args.config:
+            config = _config_file(args.config)
+        else:
+            config = compact_petr_config() if args.arch == "fisheye-petr" else compact_bevdet_config()
         if args.rig:
             from fisheye_infer.cameras.rig import resolve_rig
 
@@ -138,6 +160,8 @@ def run(args: argparse.Namespace) -> int:
         depth_weight=args.depth_weight,
         init=args.init or "",
         qat=args.qat,
+        init_backbone=args.init_backbone or "",
+        freeze_backbone=args.freeze_backbone,
     )
     previous = torch.get_num_threads()
     torch.set_num_threads(args.threads)
@@ -152,3 +176,29 @@ def run(args: argparse.Namespace) -> int:
         f"--rig {out / 'rig.json'} --out {out / 'model.onnx'}"
     )
     return 0
+
+
+def _run_arch(folder: Path) -> str:
+    """The architecture a run folder trains: its checkpoint's ``meta.arch`` (runs of FisheyeBEVDet before it
+    was recorded have none)."""
+    import torch
+
+    path = folder / "checkpoint.pth"
+    if not path.is_file():
+        return "fisheye-bevdet"  # the trainer's resume names the missing file
+    meta = torch.load(path, map_location="cpu", weights_only=True, mmap=True).get("meta", {})
+    return str(meta.get("arch", "fisheye-bevdet"))
+
+
+def _config_file(path: str) -> Any:
+    """The configuration of an mmdet3d-style file of a trainable architecture (its ``model.type`` says which)."""
+    from fisheye_infer.errors import ConfigError
+    from fisheye_infer.models import BEVDetConfig, PETRConfig
+    from fisheye_infer.models.mmconfig import read_mmdet3d_config
+
+    model_type = (read_mmdet3d_config(path).get("model") or {}).get("type")
+    if model_type == "PETR":
+        return PETRConfig.from_mmdet3d_config(path)
+    if model_type == "FisheyeBEVDet":
+        return BEVDetConfig.from_mmdet3d_config(path)
+    raise ConfigError(f"--config {path}: model.type {model_type!r} is not trainable (FisheyeBEVDet or PETR)")

@@ -18,8 +18,8 @@ from .depth import DepthTargets
 
 __all__ = ["Batch", "StepBatches", "collate", "step_loader"]
 
-#: One step's frames and their depth targets (B*N x H x W bins).
-Batch = tuple[list[Sample], np.ndarray]
+#: One step's frames and their depth targets (B*N x H x W bins; None for a model without a depth head).
+Batch = tuple[list[Sample], np.ndarray | None]
 
 
 def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
@@ -31,11 +31,13 @@ class StepBatches(torch.utils.data.Dataset[Batch]):
     """Step ``s`` -> frames ``s*B .. s*B+B-1`` of ``frames`` with their depth targets: what one step
     trains on, rendered where it is asked for (in the loop, or ahead in ``DataLoader`` workers)."""
 
-    def __init__(self, frames: SyntheticFrames, depth_targets: DepthTargets, batch_size: int) -> None:
+    def __init__(self, frames: SyntheticFrames, depth_targets: DepthTargets | None, batch_size: int) -> None:
         self.frames, self.depth_targets, self.batch_size = frames, depth_targets, batch_size
 
     def __getitem__(self, step: int) -> Batch:
         samples = [self.frames[step * self.batch_size + i] for i in range(self.batch_size)]
+        if self.depth_targets is None:
+            return samples, None
         return samples, np.concatenate([self.depth_targets(s.scene) for s in samples])
 
 

@@ -1,4 +1,5 @@
-"""The compact FisheyeBEVDet that trains on a CPU, and the mmdet3d-style config file that describes it.
+"""The compact FisheyeBEVDet and FisheyePETR that train on a CPU, and the mmdet3d-style config files that
+describe them.
 
 Same architecture as the official ``fisheye_bevdet.py`` (ResNet-18 + FPN, fisheye LSS, SECOND +
 SECONDFPN, TransFusion head) with sizes cut where the measured cost of a training step says so
@@ -6,7 +7,10 @@ SECONDFPN, TransFusion head) with sizes cut where the measured cost of a trainin
 0.16 of the official pixels), ResNet-18 at half width (``base_channels=32``, which also keeps the
 checkpoint under 15 MB), a 10 x 40 angular grid, 48 one-metre depth bins, the official 96 m BEV
 square at 0.6 m cells (160 x 160, 80 x 80 at the head), narrower neck, BEV encoder and head, and
-100 proposals. The official full-size configuration stays the default everywhere else.
+100 proposals. The compact FisheyePETR has the same rig and image backbone (so it can start from
+the compact FisheyeBEVDet's, ``--init-backbone``), the same 10 x 40 angular key grid, and a
+decoder of the official depth (6 layers) at half width (128 channels, 4 heads, 512 in the FFN)
+with 300 queries. The official full-size configurations stay the default everywhere else.
 
 A trained checkpoint is exported like any other by passing the config file this module writes:
 
@@ -25,7 +29,9 @@ from fisheye_infer.scenes.render import resized_rig
 __all__ = [
     "COMPACT_SCALE",
     "COMPACT_SECTIONS",
+    "COMPACT_PETR_SECTIONS",
     "compact_bevdet_config",
+    "compact_petr_config",
     "compact_rig",
     "mmdet3d_config_source",
     "write_config",
@@ -62,6 +68,27 @@ COMPACT_SECTIONS: dict[str, dict[str, Any]] = {
         "voxel_size": (0.15, 0.15),
     },
 }
+
+
+COMPACT_PETR_SECTIONS: dict[str, dict[str, Any]] = {
+    "image": COMPACT_SECTIONS["image"],
+    "backbone": COMPACT_SECTIONS["backbone"],
+    "head": {
+        "feature_size": (10, 40),
+        "dbound": (0.5, 48.5, 1.0),
+        "embed_dims": 128,
+        "num_heads": 4,
+        "ffn_dims": 512,
+        "num_query": 300,
+    },
+}
+
+
+def compact_petr_config() -> Any:
+    """The compact FisheyePETR configuration (a ``PETRConfig``)."""
+    from fisheye_infer.models import PETRConfig
+
+    return PETRConfig().replace(**COMPACT_PETR_SECTIONS)
 
 
 def compact_bevdet_config() -> Any:
@@ -174,12 +201,20 @@ def mmdet3d_config_source(cfg: Any) -> str:
 
 
 def write_config(cfg: Any, path: str | Path) -> Path:
-    """Write :func:`mmdet3d_config_source` to ``path`` and check that it reads back as ``cfg``."""
-    from fisheye_infer.models import BEVDetConfig
+    """Write ``cfg`` (a ``BEVDetConfig`` or ``PETRConfig``) as an mmdet3d config file to ``path`` and check that
+    it reads back as ``cfg``."""
+    from fisheye_infer.models import BEVDetConfig, PETRConfig
+
+    from .petr_config_file import petr_config_source
 
     path = Path(path)
-    path.write_text(mmdet3d_config_source(cfg))
-    back = BEVDetConfig.from_mmdet3d_config(path)
+    if type(cfg) is PETRConfig:
+        path.write_text(petr_config_source(cfg))
+    elif type(cfg) is BEVDetConfig:
+        path.write_text(mmdet3d_config_source(cfg))
+    else:
+        raise TypeError(f"no config file format for {type(cfg).__name__}")
+    back = type(cfg).from_mmdet3d_config(path)
     if back != cfg:
         raise RuntimeError(f"{path}: the written config does not read back as the configuration it describes")
     return path

@@ -3,11 +3,13 @@
 The optimiser is the official one (AdamW, weight decay 0.01, gradient norm clipped at 35; a
 linear warm-up from 1/3 of the rate over the first 500 steps, then cosine annealing to 2e-4 of
 it). Three parts of the official recipe are left out: the momentum cycle, dropout (0.1 in the
-official decoder; the plain-PyTorch decoder has none) and the ImageNet-pretrained ResNet-18
+official decoders; the plain-PyTorch decoders have none) and the ImageNet-pretrained ResNet-18
 (``torchvision://resnet18``, not available offline; the backbone starts from seeded fan-in
-weights and the heatmap classifiers from the official prior bias -2.19). One term is added: the
-depth loss of ``depth.py`` (weight ``depth_weight``, 3 as BEVDepth; 0 leaves the official losses
-alone), which stands in for what the pretrained backbone would bring.
+weights, or from another run's image backbone with ``init_backbone``, and the classifiers from
+the official prior biases). What each architecture minimises is its objective's
+(``objectives.py``): FisheyeBEVDet's official losses plus the depth loss of ``depth.py`` (weight
+``depth_weight``, 3 as BEVDepth; 0 leaves the official losses alone), which stands in for what
+the pretrained backbone would bring; FisheyePETR's official losses of every decoder layer.
 
 Step ``s`` trains on frames ``s*B .. s*B+B-1`` of the training split and the learning rate is a
 function of the step, so a run is a pure function of its options: resuming from a checkpoint
@@ -34,67 +36,34 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import CheckpointError, ConfigError
-from fisheye_infer.geometry.lss import LSSGeometry
 from fisheye_infer.scenes.streams import SyntheticFrames
 from fisheye_infer.tools.files import pending_file
 
-from ..fisheye_bevdet import FisheyeBEVDet
-from ..view_transform import FisheyeLSS
-from .batches import Batch, StepBatches, collate, step_loader
+from .batches import Batch, StepBatches, step_loader
 from .compact import write_config
-from .depth import DepthTargets, depth_loss
-from .losses import LossConfig, TransFusionLoss
+from .objectives import objective_for
 from .options import TrainOptions, lr_factor, training_device
 from .qat import FakeQuant
-from .targets import HeadGrid
 
-__all__ = ["Trainer", "init_for_training", "HEATMAP_PRIOR"]
+__all__ = ["Trainer", "TRAINABLE", "arch_of"]
 
-ARCH = "fisheye-bevdet"
-#: Initial bias of both heatmap classifiers (the official init: sigmoid(-2.19) = 0.1).
-HEATMAP_PRIOR = -2.19
-TERMS = ("loss", "loss_heatmap", "loss_cls", "loss_bbox", "loss_depth", "matched_iou")
-
-
-class _DepthProbe:
-    """Keeps the depth head's latest output (a forward hook), so the depth loss reads what the forward computed."""
-
-    def __init__(self, view_transform: FisheyeLSS) -> None:
-        self.num_depth = view_transform.num_depth
-        self.logits: torch.Tensor | None = None
-        view_transform.depthnet.register_forward_hook(self._keep)
-
-    def _keep(self, module: nn.Module, inputs: Any, output: torch.Tensor) -> None:
-        self.logits = output
-
-    def probs(self) -> torch.Tensor:
-        """M x D x H x W softmax depth of the last forward."""
-        if self.logits is None:
-            raise RuntimeError("the depth probe has seen no forward pass yet")
-        return torch.softmax(self.logits[:, : self.num_depth], dim=1)
+#: What ``init_backbone`` loads: the image backbone and its neck, the same modules in every architecture.
+BACKBONE_PREFIXES = ("img_backbone.", "img_neck.")
+#: The architectures ``Trainer`` trains (each has an objective in ``objectives.py``).
+TRAINABLE = ("fisheye-bevdet", "fisheye-petr")
 
 
-def init_for_training(model: FisheyeBEVDet, seed: int) -> None:
-    """Seeded fan-in weights (the synthetic-checkpoint initialiser) and the official heatmap prior bias."""
-    from fisheye_infer.models.seeded_checkpoint import init_weights
+def arch_of(config: Any) -> str:
+    """The trainable architecture whose configuration class ``config`` is."""
+    from fisheye_infer.models import get_model_entry
 
-    init_weights(model, seed)
-    head = model.bbox_head
-    with torch.no_grad():
-        for branch in (head.heatmap_head, *(pred.get_submodule("heatmap") for pred in head.prediction_heads)):
-            _classifier_bias(branch).fill_(HEATMAP_PRIOR)
-
-
-def _classifier_bias(branch: nn.Module) -> torch.Tensor:
-    """The bias of a heatmap branch's last convolution (the classifier): where the prior goes."""
-    last = list(branch.children())[-1]
-    if not isinstance(last, (nn.Conv1d, nn.Conv2d)) or last.bias is None:
-        raise TypeError(f"a heatmap branch ends in {type(last).__name__}, not a convolution with a bias")
-    return last.bias
+    for name in TRAINABLE:
+        if type(config) is get_model_entry(name).config_cls:
+            return name
+    raise ConfigError(f"no trainable architecture takes a {type(config).__name__} (trainable: {', '.join(TRAINABLE)})")
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
@@ -105,7 +74,8 @@ def _atomic_save(obj: Any, path: Path) -> None:
 
 
 class Trainer:
-    """Trains a FisheyeBEVDet of ``config`` for ``rig`` in the run folder ``out``.
+    """Trains a model of ``config`` (a FisheyeBEVDet or FisheyePETR configuration) for ``rig`` in the run folder
+    ``out``.
 
     Trainer(compact_bevdet_config(), compact_rig(), "runs/compact", TrainOptions()).run()
     """
@@ -116,7 +86,6 @@ class Trainer:
         rig: Rig,
         out: str | Path,
         options: TrainOptions = TrainOptions(),  # noqa: B008
-        loss: LossConfig = LossConfig(),  # noqa: B008
         device: str = "cpu",
         workers: int = 0,
     ) -> None:  # noqa: B008 (frozen dataclasses)
@@ -127,35 +96,33 @@ class Trainer:
 
         if workers < 0:
             raise ConfigError(f"--workers: expected 0 or more, got {workers}")
+        self.arch = arch_of(config)
         self.config, self.rig, self.out, self.options = config, rig, Path(out), options
         self.device, self.workers = training_device(device), workers
         rig.require(rig.names, (config.image.width, config.image.height))
         torch.manual_seed(options.seed)
-        model = create_model(ARCH, config, rig)
-        assert isinstance(model, FisheyeBEVDet)  # ARCH's class
-        self.model = model
-        init_for_training(self.model, options.seed)
-        grid = HeadGrid.from_head(config.head)
-        bev_range = (*grid.pc_range, grid.pc_range[0] + grid.span[0], grid.pc_range[1] + grid.span[1])
-        self.train_frames = SyntheticFrames(rig, "train", options.seed, bev_range=bev_range)
-        self.val_frames = SyntheticFrames(rig, "val", options.seed, bev_range=bev_range)
-        self.loss = TransFusionLoss(self.model.bbox_head, grid, loss)
-        vt = self.model.view_transform
-        assert isinstance(vt.geometry, LSSGeometry)  # ARCH's fisheye lift
-        depth_targets = DepthTargets(vt.geometry, config.view_transform)
-        self.train_batches = StepBatches(self.train_frames, depth_targets, options.batch_size)
-        self.val_batches = StepBatches(self.val_frames, depth_targets, 1)
-        self.depth_probe = _DepthProbe(vt)
-        self.fake_quant = FakeQuant(self.model, get_model_entry(ARCH).int8_float) if options.qat else None
+        self.model = create_model(self.arch, config, rig)
+        self.objective = objective_for(self.model, options)
+        self.objective.init(options.seed)
+        labelled = self.objective.bev_range
+        self.train_frames = SyntheticFrames(rig, "train", options.seed, bev_range=labelled)
+        self.val_frames = SyntheticFrames(rig, "val", options.seed, bev_range=labelled)
+        self.train_batches = StepBatches(self.train_frames, self.objective.depth_targets, options.batch_size)
+        self.val_batches = StepBatches(self.val_frames, self.objective.depth_targets, 1)
+        self.fake_quant = FakeQuant(self.model, get_model_entry(self.arch).int8_float) if options.qat else None
+        if options.freeze_backbone:
+            for name, param in self.model.named_parameters():
+                param.requires_grad_(not name.startswith(BACKBONE_PREFIXES))
         self.model.to(self.device)
-        self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
+        trained = [p for p in self.model.parameters() if p.requires_grad]
+        self.optimizer = torch.optim.AdamW(trained, lr=options.lr, weight_decay=options.weight_decay)
         self.step = 0
 
     # -- checkpoints ------------------------------------------------------------------------
 
     def _meta(self) -> dict[str, Any]:
         return {
-            "arch": ARCH,
+            "arch": self.arch,
             "synthetic": False,
             "step": self.step,
             "config": self.config.to_dict(),
@@ -166,6 +133,7 @@ class Trainer:
 
     def save(self) -> Path:
         """Write ``model.pth`` (official format) and ``checkpoint.pth`` (plus optimiser state) for the current step."""
+        self.objective.settle()
         state = {k: v.detach().cpu().contiguous() for k, v in self.model.official_state_dict().items()}
         meta = self._meta()
         fake_quant = self.fake_quant.state() if self.fake_quant is not None else {}
@@ -186,16 +154,18 @@ class Trainer:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
         meta = ckpt.get("meta", {})
         self._check_origin(meta, f"--resume: {path}", recorded=True)
-        saved = {"init": "", "qat": 0.0, **meta.get("train_options", {})}  # runs before fine-tuning and int8 simulation
+        # runs made before fine-tuning, int8 simulation and backbone initialisation existed
+        saved = {"init": "", "qat": 0.0, "init_backbone": "", "freeze_backbone": False, **meta.get("train_options", {})}
         mine = dataclasses.asdict(self.options)
+        starts = ("init", "init_backbone")  # where the run's weights started; checkpoint.pth holds them now
         differ = [
             f"{k}: saved {saved.get(k)!r}, given {v!r}"
             for k, v in mine.items()
-            if k not in ("steps", "init") and saved.get(k) != v
+            if k not in ("steps", *starts) and saved.get(k) != v
         ]
         if differ:
             raise CheckpointError(f"--resume: {path} was made with other options ({'; '.join(differ)})")
-        self.options = dataclasses.replace(self.options, init=saved["init"])  # the weights come from checkpoint.pth
+        self.options = dataclasses.replace(self.options, **{k: saved[k] for k in starts})
         load_official_state_dict(self.model, ckpt["state_dict"], geometry="rig", context=str(path))
         self.optimizer.load_state_dict(ckpt["optimizer"])
         if self.fake_quant is not None:
@@ -216,6 +186,28 @@ class Trainer:
         self._check_origin(meta, f"--init: {path}", recorded=False)
         load_official_state_dict(self.model, state_dict, geometry="rig", context=f"--init {path}")
 
+    def load_backbone(self) -> None:
+        """Start the image backbone and neck (``img_backbone.*``, ``img_neck.*``) from ``options.init_backbone``,
+        a checkpoint of any architecture with the same backbone section; the rest keeps its seeded weights."""
+        from fisheye_infer.models import load_checkpoint
+
+        path = Path(self.options.init_backbone)
+        if not path.is_file():
+            raise CheckpointError(f"--init-backbone: {path} does not exist")
+        state_dict, _meta = load_checkpoint(path)
+        mine = {k: v for k, v in self.model.state_dict().items() if k.startswith(BACKBONE_PREFIXES)}
+        theirs = {k: v for k, v in state_dict.items() if k.startswith(BACKBONE_PREFIXES)}
+        missing = sorted(set(mine) - set(theirs))
+        if missing:
+            raise CheckpointError(f"--init-backbone: {path} has no {missing[0]} ({len(missing)} backbone keys missing)")
+        for k, v in mine.items():
+            if tuple(theirs[k].shape) != tuple(v.shape):
+                theirs_shape, mine_shape = tuple(theirs[k].shape), tuple(v.shape)
+                raise CheckpointError(
+                    f"--init-backbone: {path}: {k} is {theirs_shape}, this configuration's is {mine_shape}"
+                )
+        self.model.load_state_dict(theirs, strict=False)
+
     def _check_origin(self, meta: dict[str, Any], what: str, recorded: bool) -> None:
         """Refuse a checkpoint whose ``meta`` names another configuration or rig than this run's
         (``recorded``: both must be there, as in this loop's own checkpoints)."""
@@ -234,16 +226,6 @@ class Trainer:
 
     # -- training ---------------------------------------------------------------------------
 
-    def _losses(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """The official terms plus the weighted depth loss, for one forward over a step's frames."""
-        samples, depth = batch
-        images, boxes, labels = collate(samples)
-        terms = self.loss(self.model.forward_raw(torch.from_numpy(images).to(self.device)), boxes, labels)
-        terms["loss_depth"] = depth_loss(self.depth_probe.probs(), torch.from_numpy(depth).to(self.device))
-        if self.options.depth_weight:
-            terms["loss"] = terms["loss"] + self.options.depth_weight * terms["loss_depth"]
-        return terms
-
     def int8_step(self, step: int) -> bool:
         """Whether step ``step``'s forward simulates the int8 file (a seeded draw at rate ``options.qat``)."""
         return self.fake_quant is not None and bool(
@@ -261,13 +243,16 @@ class Trainer:
         if self.fake_quant is not None:
             self.fake_quant.enabled = int8
         self.model.train()
-        terms = self._losses(batch)
+        if self.options.freeze_backbone:
+            for prefix in BACKBONE_PREFIXES:
+                self.model.get_submodule(prefix.rstrip(".")).eval()  # BatchNorm statistics stay as they started
+        terms = self.objective(batch, self.device)
         self.optimizer.zero_grad(set_to_none=True)
         terms["loss"].backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.options.grad_clip)
         self.optimizer.step()
         self.step += 1
-        row = {k: float(terms[k].detach()) for k in TERMS}
+        row = {k: float(terms[k].detach()) for k in self.objective.terms}
         row.update(
             step=self.step,
             lr=self.optimizer.param_groups[0]["lr"],
@@ -284,10 +269,10 @@ class Trainer:
         self.model.eval()
         if self.fake_quant is not None:
             self.fake_quant.enabled = False
-        sums = dict.fromkeys(TERMS, 0.0)
+        sums = dict.fromkeys(self.objective.terms, 0.0)
         for i in range(self.options.val_frames):
-            terms = self._losses(self.val_batches[i])
-            for k in TERMS:
+            terms = self.objective(self.val_batches[i], self.device)
+            for k in self.objective.terms:
                 sums[k] += float(terms[k]) / self.options.val_frames
         return sums
 
@@ -300,13 +285,17 @@ class Trainer:
         if resume:
             self.resume()
         else:
+            if self.options.freeze_backbone and not (self.options.init or self.options.init_backbone):
+                raise ConfigError("--freeze-backbone keeps the backbone as it starts: give --init-backbone or --init")
             if self.options.init:
                 self.load_init()
+            elif self.options.init_backbone:
+                self.load_backbone()
             write_config(self.config, self.out / "config.py")
             self.rig.save(self.out / "rig.json")
             (self.out / "log.jsonl").write_text("")
         stop = self.options.steps if until is None else min(int(until), self.options.steps)
-        bar = ProgressBar(self.options.steps, self.step, progress)
+        bar = ProgressBar(self.options.steps, self.step, self.objective.terms, progress)
         with (self.out / "log.jsonl").open("a") as log:
             for batch in self._batches(stop):
                 row = self.train_step(batch)
@@ -315,14 +304,12 @@ class Trainer:
                 bar.update(row)
                 if self.step % self.options.checkpoint_every == 0 or self.step == stop:
                     if self.options.val_frames:
-                        val = {"step": self.step, "split": "val", **self.validate()}
-                        log.write(json.dumps(val) + "\n")
-                        bar.note(
-                            f"step {self.step}: validation loss {val['loss']:.3f} (matched IoU "
-                            f"{val['matched_iou']:.2f})"
-                        )
+                        terms = self.validate()
+                        log.write(json.dumps({"step": self.step, "split": "val", **terms}) + "\n")
+                        bar.note(f"step {self.step}: validation {_terms(terms, self.objective.terms)}")
                     bar.note(f"step {self.step}: wrote {self.save()}")
         bar.close()
+        self.objective.settle()
         if self.fake_quant is not None:
             self.fake_quant.enabled = False  # the trained model, as the checkpoint holds it
         return self.out / "model.pth"
@@ -337,25 +324,23 @@ class ProgressBar:
 
     WIDTH = 24
 
-    def __init__(self, total: int, done: int, write: Callable[[str], None] | None) -> None:
+    def __init__(self, total: int, done: int, terms: tuple[str, ...], write: Callable[[str], None] | None) -> None:
         import sys
 
-        self.total, self.done = total, done
+        self.total, self.done, self.terms = total, done, terms
         self.mean: dict[str, float] = {}
         self.write = write or (lambda text: (sys.stderr.write(text), sys.stderr.flush()))
         self.seconds: float | None = None
 
     def update(self, row: dict[str, float]) -> None:
         self.done = int(row["step"])
-        for k in TERMS:
+        for k in self.terms:
             self.mean[k] = row[k] if k not in self.mean else 0.9 * self.mean[k] + 0.1 * row[k]
         self.seconds = row["seconds"] if self.seconds is None else 0.9 * self.seconds + 0.1 * row["seconds"]
         filled = int(self.WIDTH * self.done / self.total)
         left = (self.total - self.done) * self.seconds
         self.write(
-            f"\r{self.done}/{self.total} [{'#' * filled}{'.' * (self.WIDTH - filled)}] loss {self.mean['loss']:.3f} "
-            f"(heatmap {self.mean['loss_heatmap']:.3f} cls {self.mean['loss_cls']:.3f} bbox "
-            f"{self.mean['loss_bbox']:.3f} depth {self.mean['loss_depth']:.3f}, IoU {self.mean['matched_iou']:.2f}) "
+            f"\r{self.done}/{self.total} [{'#' * filled}{'.' * (self.WIDTH - filled)}] {_terms(self.mean, self.terms)} "
             f"{self.seconds:.1f} s/step, {left / 60:.0f} min left "
         )
 
@@ -364,3 +349,9 @@ class ProgressBar:
 
     def close(self) -> None:
         self.write("\n")
+
+
+def _terms(values: dict[str, float], names: tuple[str, ...]) -> str:
+    """``loss 1.234 (cls 0.5 bbox 0.7 ...)``: the loss and its terms, short names."""
+    parts = [f"{n.removeprefix('loss_')} {values[n]:.3f}" for n in names if n != "loss"]
+    return f"loss {values['loss']:.3f} ({' '.join(parts)})"

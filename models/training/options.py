@@ -30,7 +30,11 @@ class TrainOptions:
     with its own optimiser, warm-up and schedule. ``qat`` is the share of steps whose forward
     rounds as the int8 file will (``qat.FakeQuant``; which steps is seeded): 0 trains the float
     model alone, 1 the int8 simulation alone, between the two both (the shipped model's model card
-    says what 0.5 changed).
+    says what 0.5 changed). ``init_backbone`` starts only the image backbone and neck from a
+    checkpoint (of any architecture with the same backbone section, e.g. a trained FisheyeBEVDet
+    for a FisheyePETR): the stand-in for the official ImageNet weights; ``init`` takes precedence.
+    ``freeze_backbone`` keeps the image backbone and neck as they start (weights and BatchNorm
+    statistics), so a step skips their backward: about half of a compact FisheyePETR step's time.
     """
 
     steps: int = 8000
@@ -45,6 +49,8 @@ class TrainOptions:
     depth_weight: float = 3.0
     init: str = ""
     qat: float = 0.0
+    init_backbone: str = ""
+    freeze_backbone: bool = False
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "checkpoint_every"):

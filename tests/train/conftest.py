@@ -63,3 +63,28 @@ def resumed_run(tmp_path_factory: pytest.TempPathFactory, small_inputs: tuple[Pa
     copy = tmp_path_factory.mktemp("resumed") / "run"
     shutil.copytree(first.folder, copy)
     return first, train(copy, None, 4, resume=True)
+
+
+@pytest.fixture(scope="session")
+def petr_inputs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The reduced FisheyePETR (four 64x64 cameras) as an mmdet3d-style file and its rig."""
+    from small_configs import small_configs
+
+    config, rig = small_configs()["fisheye-petr"]
+    folder = tmp_path_factory.mktemp("petr_inputs")
+    write_config(config, folder / "config.py")
+    rig.save(folder / "rig.json")
+    return folder / "config.py", folder / "rig.json"
+
+
+@pytest.fixture(scope="session")
+def petr_run(tmp_path_factory: pytest.TempPathFactory, petr_inputs: tuple[Path, Path]) -> Run:
+    """Four FisheyePETR steps in one go."""
+    return train(tmp_path_factory.mktemp("petr") / "run", petr_inputs, 4)
+
+
+@pytest.fixture(scope="session")
+def petr_resumed(tmp_path_factory: pytest.TempPathFactory, petr_inputs: tuple[Path, Path]) -> Run:
+    """A four-step FisheyePETR run stopped after step 2 and resumed."""
+    run = train(tmp_path_factory.mktemp("petr_first") / "run", petr_inputs, 4, until=2)
+    return train(run.folder, None, 4, resume=True)
