@@ -33,6 +33,7 @@ __all__ = [
     "compact_bevdet_config",
     "compact_petr_config",
     "compact_rig",
+    "image_trunk_sections",
     "mmdet3d_config_source",
     "write_config",
 ]
@@ -104,12 +105,10 @@ def compact_rig(rig: Rig | None = None) -> Rig:
     return resized_rig(rig or default_rig(), COMPACT_SCALE)
 
 
-def mmdet3d_config_source(cfg: Any) -> str:
-    """A ``BEVDetConfig`` as an official-style mmdet3d config file (what
-    ``BEVDetConfig.from_mmdet3d_config`` reads back)."""
-    img, bb, vt, enc, hd = cfg.image, cfg.backbone, cfg.view_transform, cfg.bev_encoder, cfg.head
-    model = dict(
-        type="FisheyeBEVDet",
+def image_trunk_sections(cfg: Any) -> dict[str, Any]:
+    """The config sections every architecture shares: ``data_preprocessor``, ``img_backbone`` and ``img_neck``."""
+    img, bb = cfg.image, cfg.backbone
+    return dict(
         data_preprocessor=dict(mean=list(img.mean), std=list(img.std), bgr_to_rgb=img.bgr_to_rgb),
         img_backbone=dict(
             type="mmdet.ResNet",
@@ -125,6 +124,16 @@ def mmdet3d_config_source(cfg: Any) -> str:
             out_channels=bb.neck_out_channels,
             num_outs=bb.neck_num_outs,
         ),
+    )
+
+
+def mmdet3d_config_source(cfg: Any) -> str:
+    """A ``BEVDetConfig`` as an official-style mmdet3d config file (what
+    ``BEVDetConfig.from_mmdet3d_config`` reads back)."""
+    img, vt, enc, hd = cfg.image, cfg.view_transform, cfg.bev_encoder, cfg.head
+    model = dict(
+        type="FisheyeBEVDet",
+        **image_trunk_sections(cfg),
         view_transform=dict(
             type="FisheyeLSSTransform",
             in_channels=vt.in_channels,

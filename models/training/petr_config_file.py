@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from .compact import image_trunk_sections
+
 __all__ = ["petr_config_source"]
 
 
@@ -18,21 +20,7 @@ def petr_config_source(cfg: Any) -> str:
     layer_attn = dict(type="MultiheadAttention", embed_dims=hd.embed_dims, num_heads=hd.num_heads)
     model = dict(
         type="PETR",
-        data_preprocessor=dict(mean=list(img.mean), std=list(img.std), bgr_to_rgb=img.bgr_to_rgb),
-        img_backbone=dict(
-            type="mmdet.ResNet",
-            depth=bb.depth,
-            base_channels=bb.base_channels,
-            strides=list(bb.strides),
-            dilations=list(bb.dilations),
-            out_indices=list(bb.out_indices),
-        ),
-        img_neck=dict(
-            type="mmdet.FPN",
-            in_channels=list(bb.neck_in_channels),
-            out_channels=bb.neck_out_channels,
-            num_outs=bb.neck_num_outs,
-        ),
+        **image_trunk_sections(cfg),
         pts_bbox_head=dict(
             type="FisheyePETRHead",
             num_classes=len(cfg.class_names),
