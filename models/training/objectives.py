@@ -131,10 +131,20 @@ class PETRObjective:
         self.bev_range = (pc[0], pc[1], pc[3], pc[4])
 
     def init(self, seed: int) -> None:
-        _seeded(self.model, seed)
+        """The image trunk as FisheyeBEVDet's (seeded fan-in weights); the head as the official one: PyTorch's
+        default initialisation of its layers (made under the run's seed), Xavier-uniform weights in the
+        transformer, reference points uniform in [0, 1] and the class prior.
+
+        The head's scale matters: with fan-in weights the keys and the image features come out several times
+        larger, the cross-attention softmax saturates and every query ends up with the same output."""
+        _seeded(self.model.img_backbone, seed)
+        _seeded(self.model.img_neck, seed)
         head = self.model.pts_bbox_head
         gen = torch.Generator().manual_seed(int(seed))
         with torch.no_grad():
+            for param in head.transformer.parameters():
+                if param.dim() > 1:
+                    nn.init.xavier_uniform_(param, generator=gen)
             head.reference_points.weight.copy_(torch.rand(head.reference_points.weight.shape, generator=gen))
             _last_bias(head.cls_branches[0]).fill_(CLASS_PRIOR)
         head.refresh_embeddings()
