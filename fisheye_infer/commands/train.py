@@ -66,8 +66,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--depth-weight",
         type=float,
         default=3.0,
-        help="weight of the depth loss against the frames' true ray depths "
-        "(default 3, as BEVDepth; 0: the official losses alone)",
+        help="FisheyeBEVDet: weight of the depth loss against the frames' true ray depths "
+        "(default 3, as BEVDepth; 0: the official losses alone); FisheyePETR has no depth head",
     )
     parser.add_argument(
         "--qat",
