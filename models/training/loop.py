@@ -173,7 +173,16 @@ class Trainer:
         self.step = int(meta["step"])
         if self.options.steps < self.step:
             raise ConfigError(f"--steps {self.options.steps}: the run in {self.out} is already at step {self.step}")
+        self._trim_log()
         return self.step
+
+    def _trim_log(self) -> None:
+        """Drop the log lines of steps after the checkpoint (a run killed between checkpoints logged them), so
+        that the resumed run's lines follow on without repeating a step."""
+        log = self.out / "log.jsonl"
+        if log.is_file():
+            lines = log.read_text().splitlines(keepends=True)
+            log.write_text("".join(line for line in lines if json.loads(line)["step"] <= self.step))
 
     def load_init(self) -> None:
         """Start from the weights of ``options.init``; refuse a checkpoint of another configuration or rig."""

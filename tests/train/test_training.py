@@ -89,6 +89,23 @@ def test_resume_continues_from_the_saved_step(resumed_run: tuple[Run, Run], stra
         torch.testing.assert_close(a[key], b[key], rtol=1e-4, atol=1e-5, msg=key)
 
 
+def test_resume_drops_the_lines_logged_after_the_checkpoint(resumed_run: tuple[Run, Run], tmp_path: Path) -> None:
+    """A run killed between checkpoints has logged steps its checkpoint.pth does not hold; they run again."""
+    import json
+    import shutil
+
+    first, _ = resumed_run
+    killed = tmp_path / "run"
+    shutil.copytree(first.folder, killed)
+    with (killed / "log.jsonl").open("a") as log:
+        log.write(json.dumps({"step": 3, "loss": 1.0}) + "\n")  # step 3 done, its checkpoint never written
+    same = ["--batch-size", "1", "--lr", "1e-3", "--val-frames", "1", "--checkpoint-every", "2"]  # the run's options
+    assert main(["train", "--out", str(killed), "--steps", "4", *same, "--resume"]) == 0
+    rows = [json.loads(line) for line in (killed / "log.jsonl").read_text().splitlines()]
+    steps = [r for r in rows if "split" not in r]
+    assert [r["step"] for r in steps] == [1, 2, 3, 4] and steps[2]["loss"] != 1.0
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
