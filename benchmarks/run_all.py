@@ -57,6 +57,7 @@ STEPS = (
     Step("compare", quick=lambda m: ["--quick", "--models", m], modules=("torch", "onnx")),
     Step("int8", modules=("torch", "onnx")),
     Step("model_card", modules=("torch", "onnx")),
+    Step("study", modules=("torch", "onnx")),
     Step("train_step", modules=("torch",)),
     Step("spinning", args=lambda m: [m], quick=lambda m: [m, "--quick"]),
     Step("profile_ops", args=lambda m: [m], quick=lambda m: [m, "--runs", "2"], modules=("onnx",)),

@@ -3,7 +3,7 @@
 - ``reference/cli.md``: the command-line reference, walked from ``fisheye_infer.cli.build_parser()``
   and every (nested) subparser: usage, description, and each argument group's flags with their help.
 - ``shipped-model.md``: the shipped model's card, ``models/pretrained/fisheye_bevdet_compact/MODEL_CARD.md``
-  (written by ``benchmarks/model_card.py``), as it is.
+  (figures written by ``benchmarks/report.py``), as it is.
 
 and the nav's "Performance" section, from the pages the benchmark report wrote under ``docs/performance/``.
 """
@@ -19,9 +19,11 @@ from mkdocs.config.defaults import MkDocsConfig
 from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[2]
-MODEL_CARD = ROOT / "models" / "pretrained" / "fisheye_bevdet_compact" / "MODEL_CARD.md"
+#: Each generated card page and the card it shows.
+MODEL_CARDS = {
+    "shipped-model.md": ROOT / "models" / "pretrained" / "fisheye_bevdet_compact" / "MODEL_CARD.md",
+}
 CLI_PAGE = "reference/cli.md"
-MODEL_CARD_PAGE = "shipped-model.md"
 
 
 def _subparsers(parser: argparse.ArgumentParser) -> list[tuple[str, str, argparse.ArgumentParser]]:
@@ -169,5 +171,6 @@ def on_config(config: MkDocsConfig) -> MkDocsConfig:
 
 def on_files(files: Files, config: MkDocsConfig) -> Files:
     files.append(File.generated(config, CLI_PAGE, content=cli_reference()))
-    files.append(File.generated(config, MODEL_CARD_PAGE, content=MODEL_CARD.read_text(encoding="utf-8")))
+    for page, card in MODEL_CARDS.items():
+        files.append(File.generated(config, page, content=card.read_text(encoding="utf-8")))
     return files

@@ -1,14 +1,15 @@
 """``fisheye-infer demo``: the main job on the shipped defaults.
 
-The shipped rig and its geometry (pictures of the rig and of the sampling grid), the shipped
-trained compact FisheyeBEVDet exported to a verified ONNX file, and detection on its held-out
-frame, with how many of the frame's labelled objects were found.
+The shipped rig and its geometry (pictures of the rig and of the sampling grid), and each shipped
+trained model (the compact FisheyeBEVDet and FisheyePETR) exported to a verified ONNX file and run
+on the held-out frame, with how many of the frame's labelled objects it found.
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 __all__ = ["configure", "run"]
 
@@ -18,17 +19,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(run=run)
 
 
-#: Score threshold of the demo's picture and counts: where the shipped model's F1 (2 m, same class)
-#: peaks on held-out frames (recall 0.62, precision 0.82 on 100 of them; 0.1 gives 0.69 and 0.67,
-#: 0.3 keeps 0.95 precision at 0.43 recall).
-DEMO_SCORE_THRESHOLD = 0.15
-
-
 def run(args: argparse.Namespace) -> int:
-    """The main job on embedded defaults: the shipped rig and its geometry, the shipped trained
-    compact FisheyeBEVDet exported to a verified ONNX file, and detection on its held-out frame."""
-    import json
-
+    """The main job on embedded defaults: the shipped rig and its geometry, and each shipped trained model
+    exported to a verified ONNX file and run on the held-out frame."""
     from fisheye_infer.cameras.rig import default_rig
     from fisheye_infer.geometry import (
         BevGrid,
@@ -57,11 +50,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {save_png(out / 'sampling_grid.png', draw_sampling_grid(model, grid))}")
 
     try:
-        from fisheye_infer.export.exporter import export
-        from fisheye_infer.models.pretrained import COMPACT_BEVDET as shipped
+        from fisheye_infer.export.exporter import export  # noqa: F401 (the [export] extra)
+        from fisheye_infer.models.pretrained import PRETRAINED
     except ImportError as exc:
         print(f"skipping export and detection: the [export] extra is not installed ({exc})")
         return 0
+    for shipped in PRETRAINED:
+        _export_and_detect(shipped, out)
+    return 0
+
+
+def _export_and_detect(shipped: Any, out: Path) -> None:
+    """Export a shipped model (``Pretrained``) to ``out/<name>.onnx``, verified on its held-out frame, and run it
+    there: ``<name>.json``, ``<name>.png`` and how many labelled objects its boxes above its threshold find."""
+    import json
+
+    from fisheye_infer.commands import detect
+    from fisheye_infer.export.exporter import export
+
     onnx_path = out / f"{shipped.name}.onnx"
     print(f"\nexport: the shipped {shipped.name}, trained on randomised synthetic frames (model card: {shipped.card})")
     print(
@@ -69,35 +75,20 @@ def run(args: argparse.Namespace) -> int:
             shipped.checkpoint, onnx_path, config=shipped.config, rig=shipped.rig, verify_images=shipped.heldout_frame
         ).summary()
     )
-
-    from fisheye_infer.commands import detect
-
     detect_parser = argparse.ArgumentParser(prog="fisheye-infer detect")  # detect's own flags and defaults
     detect.configure(detect_parser)
-    detect.run(
-        detect_parser.parse_args(
-            [
-                str(onnx_path),
-                "--images",
-                str(shipped.heldout_frame),
-                "--out",
-                str(out / "result.json"),
-                "--viz",
-                str(out / "result.png"),
-                "--score-threshold",
-                str(DEMO_SCORE_THRESHOLD),
-            ]
-        )
-    )
-    detections = json.loads((out / "result.json").read_text())["frames"][0]["detections"]
+    result, picture = out / f"{shipped.name}.json", out / f"{shipped.name}.png"
+    threshold = str(shipped.score_threshold)
+    argv = [str(onnx_path), "--images", str(shipped.heldout_frame), "--out", str(result), "--viz", str(picture)]
+    detect.run(detect_parser.parse_args([*argv, "--score-threshold", threshold]))
+    detections = json.loads(result.read_text())["frames"][0]["detections"]
     labels = json.loads((shipped.heldout_frame / "labels.json").read_text())["records"]
     found, extra = _match_labels(detections, labels)
     print(
-        f"\ndemo done: on the held-out frame, {found} of {len(labels)} labelled objects found "
-        f"(same class, centre within {MATCH_RADIUS_M:g} m, score >= {DEMO_SCORE_THRESHOLD}); "
-        f"{extra} box(es) on no object; see {out}/result.png"
+        f"\n{shipped.name} on the held-out frame: {found} of {len(labels)} labelled objects found "
+        f"(same class, centre within {MATCH_RADIUS_M:g} m, score >= {threshold}); "
+        f"{extra} box(es) on no object; see {picture}"
     )
-    return 0
 
 
 #: Centre distance within which a detection finds a labelled object (the metric's 2 m threshold).

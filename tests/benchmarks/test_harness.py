@@ -262,7 +262,8 @@ def test_report_writes_pages_and_removes_stale_generated_ones(tmp_path: Path) ->
     card = tmp_path / "MODEL_CARD.md"
     card.write_text(f"# card\n\n{report.CARD_BEGIN}\n{report.CARD_END}\n")
     saved(tmp_path, {"T": [{"v": 1.0}]})
-    assert report.main(["--results", str(tmp_path / "results"), "--docs", str(docs), "--card", str(card)]) == 0
+    argv = ["--results", str(tmp_path / "results"), "--docs", str(docs), "--card", f"{report.CARD_COMMAND}={card}"]
+    assert report.main(argv) == 0
     assert sorted(p.name for p in docs.glob("*.md")) == sorted(["index.md", f"{HOST['slug']}.md", "notes.md"])
     assert card.read_text() == f"# card\n\n{report.CARD_BEGIN}\n{report.CARD_END}\n"  # no model_card result: unchanged
 
@@ -293,10 +294,12 @@ def test_committed_pages_are_what_the_report_generates() -> None:
     assert committed == pages, "run `python benchmarks/report.py` and commit docs/performance/"
 
 
-def test_committed_model_card_figures_are_what_the_report_generates() -> None:
-    """Hand edits of the card's figures fail here: they come from the latest model_card result alone."""
-    card = report.CARD.read_text()
-    assert card == report.card_figures(harness.read_results(harness.RESULTS), card), "run `python benchmarks/report.py`"
+@pytest.mark.parametrize("command", list(report.CARDS))
+def test_committed_model_card_figures_are_what_the_report_generates(command: str) -> None:
+    """Hand edits of a card's figures fail here: they come from the latest model_card result alone."""
+    card = report.CARDS[command].read_text()
+    results = harness.read_results(harness.RESULTS)
+    assert card == report.card_figures(results, card, command), "run `python benchmarks/report.py`"
 
 
 def test_committed_pages_link_only_to_pages_beside_them() -> None:
@@ -309,7 +312,13 @@ def test_committed_pages_link_only_to_pages_beside_them() -> None:
 
 
 def _scripts() -> set[str]:
-    return {p.stem for p in (ROOT / "benchmarks").glob("*.py")} - {"harness", "report", "model_files", "run_all"}
+    return {p.stem for p in (ROOT / "benchmarks").glob("*.py")} - {
+        "harness",
+        "report",
+        "model_files",
+        "run_all",
+        "paper",
+    }
 
 
 def test_run_all_runs_every_benchmark() -> None:

@@ -1,11 +1,11 @@
-"""The shipped compact FisheyeBEVDet: its files, its export, and that it detects on frames it never saw.
+"""Each shipped model: its files, its export, and that it detects on frames it never saw.
 
 The frames are the validation stream's 300-331 (the training command never draws from that
-stream; the model card's figures use frames 0-199 and the bundled frame is 210). On these 32
-frames the model scores Car AP@2m 0.82 and mAP 0.55 within 30 m (ONNX Runtime, one thread); the
-bars sit well below, so that another CPU's last-bit differences can never fail them while a
-broken export, decoding or checkpoint (AP near 0) always does, and so does the model before its
-fine-tuning (0.63 and 0.36).
+stream; the model cards' figures use frames 0-199 and the bundled frame is 210). On these 32
+frames (ONNX Runtime, one thread) the compact FisheyeBEVDet scores Car AP@2m 0.82 and mAP 0.55
+within 30 m; its bars (``BARS``) sit well below, so that another CPU's last-bit differences can
+never fail them while a broken export, decoding or checkpoint (AP near 0) always does, and so does
+the model before its fine-tuning (0.63 and 0.36).
 """
 
 from __future__ import annotations
@@ -19,64 +19,69 @@ torch = pytest.importorskip("torch")
 from fisheye_infer.cameras.rig import Rig  # noqa: E402
 from fisheye_infer.eval.dataset import Fisheye3DOD  # noqa: E402
 from fisheye_infer.eval.evaluate import detect_dataset, evaluate_results  # noqa: E402
-from fisheye_infer.models.pretrained import COMPACT_BEVDET  # noqa: E402
+from fisheye_infer.models.pretrained import COMPACT_BEVDET, PRETRAINED, Pretrained  # noqa: E402
 from fisheye_infer.runtime.detector import Detector  # noqa: E402
 from fisheye_infer.scenes.streams import SyntheticFrames, write_split  # noqa: E402
 
 FIRST, COUNT = 300, 32
-#: Bars of this test (the model card's 200-frame figures are higher).
-CAR_AP_2M_30M, MAP_30M = 0.65, 0.4
+#: Per shipped model: its architecture, and the bars of this test (Car AP@2m and mAP within 30 m; the model
+#: cards' 200-frame figures are higher).
+ARCH = {COMPACT_BEVDET.name: "fisheye-bevdet"}
+BARS = {COMPACT_BEVDET.name: (0.65, 0.4)}
+
+
+@pytest.fixture(scope="session", params=PRETRAINED, ids=lambda m: m.name)
+def shipped(request: pytest.FixtureRequest) -> Pretrained:
+    return request.param
 
 
 @pytest.fixture(scope="session")
-def shipped_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def shipped_export(shipped: Pretrained, tmp_path_factory: pytest.TempPathFactory) -> Path:
     from fisheye_infer.export.exporter import export
 
-    out = tmp_path_factory.mktemp("shipped") / "compact.onnx"
-    result = export(
-        COMPACT_BEVDET.checkpoint, out, config=COMPACT_BEVDET.config, rig=COMPACT_BEVDET.rig, progress=lambda _: None
-    )
+    out = tmp_path_factory.mktemp("shipped") / f"{shipped.name}.onnx"
+    result = export(shipped.checkpoint, out, config=shipped.config, rig=shipped.rig, progress=lambda _: None)
     assert result.parity.passed
     return out
 
 
 @pytest.fixture(scope="session")
 def heldout(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Frames 300-331 of the validation stream through the shipped rig (every shipped model's)."""
+    assert len({Rig.load(m.rig).hash for m in PRETRAINED}) == 1
     root = tmp_path_factory.mktemp("heldout")
     write_split(SyntheticFrames(Rig.load(COMPACT_BEVDET.rig), "val"), root, range(FIRST, FIRST + COUNT))
     return root
 
 
-def test_the_shipped_files_are_complete_and_small() -> None:
-    from fisheye_infer.models import BEVDetConfig, load_checkpoint
+def test_the_shipped_files_are_complete_and_small(shipped: Pretrained) -> None:
+    from fisheye_infer.models import get_model_entry, load_checkpoint
 
-    assert COMPACT_BEVDET.checkpoint.stat().st_size <= 20e6
-    _, meta = load_checkpoint(COMPACT_BEVDET.checkpoint)
-    assert (
-        meta["arch"] == "fisheye-bevdet"
-        and meta["synthetic"] is False
-        and meta["step"] == meta["train_options"]["steps"]
-    )
-    config = BEVDetConfig.from_mmdet3d_config(COMPACT_BEVDET.config)
-    assert Rig.load(COMPACT_BEVDET.rig).hash == meta["rig_hash"] and config.to_dict() == meta["config"]
-    card = COMPACT_BEVDET.card.read_text()
+    assert shipped.checkpoint.stat().st_size <= 20e6
+    _, meta = load_checkpoint(shipped.checkpoint)
+    assert meta["arch"] == ARCH[shipped.name] and meta["synthetic"] is False
+    assert meta["step"] == meta["train_options"]["steps"]
+    config = get_model_entry(meta["arch"]).config_cls.from_mmdet3d_config(shipped.config)
+    assert Rig.load(shipped.rig).hash == meta["rig_hash"] and config.to_dict() == meta["config"]
+    card = shipped.card.read_text()
     assert "fisheye-infer train" in card and "benchmarks/model_card.py" in card
-    assert {p.name for p in COMPACT_BEVDET.heldout_frame.iterdir()} >= {"labels.json", "fisheye_camera_front.png"}
+    assert {p.name for p in shipped.heldout_frame.iterdir()} >= {"labels.json", "fisheye_camera_front.png"}
 
 
-def test_it_detects_objects_in_frames_it_never_saw(shipped_export: Path, heldout: Path) -> None:
+def test_it_detects_objects_in_frames_it_never_saw(shipped: Pretrained, shipped_export: Path, heldout: Path) -> None:
     gt, pred = detect_dataset(Detector(shipped_export, threads=1), Fisheye3DOD(heldout, "val"), progress=False)
     near = evaluate_results(gt, pred).distance["0-30 m"]
-    assert near.classes["Car"].ap_by_threshold["2.0"] >= CAR_AP_2M_30M, near.classes["Car"]
-    assert near.mAP >= MAP_30M, near
+    car_bar, map_bar = BARS[shipped.name]
+    assert near.classes["Car"].ap_by_threshold["2.0"] >= car_bar, near.classes["Car"]
+    assert near.mAP >= map_bar, near
 
 
-def test_onnx_and_pytorch_give_the_same_metric(shipped_export: Path, heldout: Path) -> None:
+def test_onnx_and_pytorch_give_the_same_metric(shipped: Pretrained, shipped_export: Path, heldout: Path) -> None:
     from fisheye_infer.export.exporter import open_checkpoint
     from fisheye_infer.export.torch_detector import TorchDetector
 
     data = Fisheye3DOD(heldout, "val", limit=8)
-    model = open_checkpoint(COMPACT_BEVDET.checkpoint, config=COMPACT_BEVDET.config, rig=COMPACT_BEVDET.rig).model
+    model = open_checkpoint(shipped.checkpoint, config=shipped.config, rig=shipped.rig).model
     reports = [
         evaluate_results(*detect_dataset(detector, data, progress=False))
         for detector in (Detector(shipped_export, threads=1), TorchDetector(model, shipped_export))
