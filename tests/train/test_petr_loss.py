@@ -154,7 +154,7 @@ def test_init_sets_the_official_priors(small_petr) -> None:
     head = small_petr.pts_bbox_head
     assert torch.all(head.cls_branches[-1][-1].bias == CLASS_PRIOR)
     assert float(torch.sigmoid(torch.tensor(CLASS_PRIOR))) == pytest.approx(0.01)
-    ref = head.reference_points.weight
+    ref = head.reference_points.weight.detach()
     assert float(ref.min()) >= 0 and float(ref.max()) <= 1 and float(ref.std()) > 0.2  # uniform in [0, 1]
 
 
