@@ -7,12 +7,14 @@ Defaults: the shipped compact FisheyeBEVDet (``fisheye_infer.models.pretrained``
 
 1. ``--frames`` frames of the validation stream (``fisheye-infer synth --stream val``; the training
    command never draws from it) in the Fisheye3DOD layout, for the model's own rig;
-2. the checkpoint's export (verified) and its int8 file (kept whatever its own check says);
+2. the checkpoint's export (verified), its int8 file and its fp16 file (each kept whatever its own
+   check says);
 3. the official metric, every class at 0-30 m and 0-48 m, of: the ONNX file with all four cameras;
    the PyTorch model on the same frames through the same decoding (``TorchDetector``); the paper's
    sensor-failure study in run-time degraded mode (no retraining): front+rear, left+right and each
-   single camera missing; the int8 file, with the share of the fp32 file's top-50 boxes it finds
-   again (0.5 m, same label); and the recall and precision of the boxes above a score threshold
+   single camera missing; the int8 file and the fp16 file (in the CPU provider, which runs a float16
+   graph as written), each with the share of the fp32 file's top-50 boxes it finds again (0.5 m,
+   same label); and the recall and precision of the boxes above a score threshold
    (2 m, same class), the figures a model's display threshold is chosen from.
 
 This module also holds what ``int8.py`` shares with it: the held-out frames and the kept boxes.
@@ -149,6 +151,30 @@ def threshold_rows(gt: dict[str, list[dict[str, Any]]], pred: dict[str, list[dic
     return rows
 
 
+def reduced_rows(
+    name: str, fp32: Detector, candidate: Detector, full: MetricsReport, data: Path
+) -> tuple[list[Row], list[Row]]:
+    """A reduced-precision file against the fp32 file: FDS at both ranges with the share of the fp32
+    top-50 boxes it finds again, and that share per class and per band of the fp32 box's score."""
+    report, _ = run(candidate, data, list(fp32.info.cameras))
+    kept = top50_kept(fp32, candidate, data)
+    ranges = [
+        {
+            "range": label,
+            "FDS fp32": full.distance[label].FDS,
+            f"FDS {name}": report.distance[label].FDS,
+            "difference": report.distance[label].FDS - full.distance[label].FDS,
+            "top-50 kept": kept.share(),
+        }
+        for label in RANGES
+    ]
+    groups = [*(group for group in kept.classes if group != "all"), *SCORE_BANDS]
+    by_group = [
+        {"boxes of": group, "fp32 boxes": kept.considered[group], "top-50 kept": kept.share(group)} for group in groups
+    ]
+    return ranges, by_group
+
+
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """The trained model a benchmark measures and the held-out frames it is measured on."""
     from fisheye_infer.models.pretrained import PRETRAINED
@@ -209,7 +235,7 @@ def mean_rows(report: MetricsReport) -> list[Row]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from fisheye_infer.export.exporter import export, export_int8, open_checkpoint
+    from fisheye_infer.export.exporter import export, export_fp16, export_int8, open_checkpoint
     from fisheye_infer.export.torch_detector import TorchDetector
 
     bench = harness.Benchmark(__file__, __doc__, quick="20 held-out frames")
@@ -226,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     onnx_path = work / "model.onnx"
     export(ckpt, onnx_path, config=config, rig=rig, progress=lambda _: None)
     quant = export_int8(onnx_path, force=True, progress=lambda _: None)  # kept whatever its own check says
+    half = export_fp16(onnx_path, force=True, progress=lambda _: None)
     fp32 = Detector(onnx_path, threads=args.threads)
     cameras = list(fp32.info.cameras)
     full, (gt, pred) = run(fp32, data, cameras)
@@ -259,22 +286,8 @@ def main(argv: list[str] | None = None) -> int:
             {"cameras": name, **summary_row(report), f"paper FDS ({method})": figures[0] if figures else None}
         )
 
-    int8_report, _ = run(Detector(quant.path or onnx_path, threads=args.threads), data, cameras)
-    kept = top50_kept(fp32, Detector(quant.path or onnx_path, threads=args.threads), data)
-    int8 = [
-        {
-            "range": label,
-            "FDS fp32": full.distance[label].FDS,
-            "FDS int8": int8_report.distance[label].FDS,
-            "difference": int8_report.distance[label].FDS - full.distance[label].FDS,
-            "top-50 kept": kept.share(),
-        }
-        for label in RANGES
-    ]
-    groups = [*(name for name in kept.classes if name != "all"), *SCORE_BANDS]
-    int8_kept = [
-        {"boxes of": group, "fp32 boxes": kept.considered[group], "top-50 kept": kept.share(group)} for group in groups
-    ]
+    int8, int8_kept = reduced_rows("int8", fp32, Detector(quant.path or onnx_path, threads=args.threads), full, data)
+    fp16, _ = reduced_rows("fp16", fp32, Detector(half.path or onnx_path, threads=args.threads), full, data)
     scope = quant.meta.quantization.scope if quant.meta.quantization else ""
     bench.save(
         args,
@@ -286,6 +299,7 @@ def main(argv: list[str] | None = None) -> int:
             "Sensor failure at run time (degraded mode, no retraining)": failure,
             f"int8 ({scope}) against the fp32 file": int8,
             "int8: top-50 kept per class and by the fp32 box's score": int8_kept,
+            "fp16 against the fp32 file (both in ONNX Runtime's CPU provider)": fp16,
             "Boxes from a score threshold: recall and precision (2 m, same class)": threshold_rows(gt, pred),
         },
     )

@@ -28,6 +28,7 @@ CARD_COMMAND = "python benchmarks/model_card.py"
 #: latest result fills it (a shipped model other than the default: ``model_card.py --model NAME``).
 CARDS = {
     CARD_COMMAND: PRETRAINED / "fisheye_bevdet_compact" / "MODEL_CARD.md",
+    f"{CARD_COMMAND} --model fisheye-petr-compact": PRETRAINED / "fisheye_petr_compact" / "MODEL_CARD.md",
     "python benchmarks/study.py": harness.ROOT / "docs" / "study.md",
 }
 CARD_BEGIN = (

@@ -49,10 +49,10 @@ def test_wheel_installs_one_namespace(wheel: Path) -> None:
         assert f"fisheye_infer/{sub}/__init__.py" in names
     assert "fisheye_infer/data/rig-fisheye3dod/calib_results.txt" in names
     assert "fisheye_infer/models/manifests/fisheye_bevdet_keys.json" in names
-    shipped = "fisheye_infer/models/pretrained/fisheye_bevdet_compact"
-    assert {
-        f"{shipped}/{n}" for n in ("model.pth", "config.py", "rig.json", "MODEL_CARD.md", "heldout_frame/labels.json")
-    } <= set(names)
+    for folder in ("fisheye_bevdet_compact", "fisheye_petr_compact"):
+        shipped = f"fisheye_infer/models/pretrained/{folder}"
+        files = ("model.pth", "config.py", "rig.json", "MODEL_CARD.md", "heldout_frame/labels.json")
+        assert {f"{shipped}/{n}" for n in files} <= set(names)
 
 
 BLOCK_HEAVY = """

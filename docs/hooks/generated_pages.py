@@ -2,8 +2,8 @@
 
 - ``reference/cli.md``: the command-line reference, walked from ``fisheye_infer.cli.build_parser()``
   and every (nested) subparser: usage, description, and each argument group's flags with their help.
-- ``shipped-model.md``: the shipped model's card, ``models/pretrained/fisheye_bevdet_compact/MODEL_CARD.md``
-  (figures written by ``benchmarks/report.py``), as it is.
+- ``shipped/<name>.md``: each shipped model's card (``fisheye_infer.models.pretrained.PRETRAINED``: its
+  ``MODEL_CARD.md``, figures written by ``benchmarks/report.py``), as it is.
 
 and the nav's "Performance" section, from the pages the benchmark report wrote under ``docs/performance/``.
 """
@@ -18,11 +18,6 @@ from pathlib import Path
 from mkdocs.config.defaults import MkDocsConfig
 from mkdocs.structure.files import File, Files
 
-ROOT = Path(__file__).resolve().parents[2]
-#: Each generated card page and the card it shows.
-MODEL_CARDS = {
-    "shipped-model.md": ROOT / "models" / "pretrained" / "fisheye_bevdet_compact" / "MODEL_CARD.md",
-}
 CLI_PAGE = "reference/cli.md"
 
 
@@ -158,6 +153,13 @@ def _reference(parser: argparse.ArgumentParser) -> str:
     return "\n".join(lines) + "\n"
 
 
+def model_cards() -> dict[str, Path]:
+    """Each generated card page (``shipped/<name>.md``) and the shipped model's card it shows."""
+    from fisheye_infer.models.pretrained import PRETRAINED
+
+    return {f"shipped/{model.name}.md": model.card for model in PRETRAINED}
+
+
 def on_config(config: MkDocsConfig) -> MkDocsConfig:
     """The "Performance" entry of the nav becomes a section: its index, then every other page the
     benchmark report generated under ``docs/performance/`` (their set changes with the results)."""
@@ -171,6 +173,6 @@ def on_config(config: MkDocsConfig) -> MkDocsConfig:
 
 def on_files(files: Files, config: MkDocsConfig) -> Files:
     files.append(File.generated(config, CLI_PAGE, content=cli_reference()))
-    for page, card in MODEL_CARDS.items():
+    for page, card in model_cards().items():
         files.append(File.generated(config, page, content=card.read_text(encoding="utf-8")))
     return files
