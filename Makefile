@@ -19,13 +19,18 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/fisheye-infer demo --out artifacts/demo
 
+# Two workers by default (WORKERS=8 for more), a test file to each in turn; tests/conftest.py hands
+# out the longest files first and builds each full-size export once
+WORKERS ?= 2
+PYTEST := $(BIN)/pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder
+
 test: $(STAMP)
-	$(BIN)/pytest -q
+	$(PYTEST)
 
 # The inner loop: all but the slow tests (tests/conftest.py: full-size models, whole exports, Ray)
 # and the fresh-install one
 test-fast: $(STAMP)
-	$(BIN)/pytest -q -m "not slow and not install"
+	$(PYTEST) -m "not slow and not install"
 
 # ruff over the tree, mypy over the whole library: the runtime, models, export and service (settings in
 # pyproject.toml's [tool.mypy]; tests/test_lint.py runs both within `make test`)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,6 +72,27 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.slow)
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        items.sort(key=lambda item: _rank(item.nodeid.split("::")[0]))
+
+
+# -- several workers (`make test`: pytest -n 2 --dist loadfile --no-loadscope-reorder) ------------
+
+#: The files that take longest, handed out first (each file is one worker's unit of work) so that
+#: no worker is left alone with one of them at the end; the others follow in collection order.
+LONGEST_FILES = ("tests/export/test_export.py", "tests/models/test_pinhole.py")
+
+
+def _rank(file: str) -> int:
+    return LONGEST_FILES.index(file) if file in LONGEST_FILES else len(LONGEST_FILES)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under several workers, PyTorch (imported later, here and in the commands the tests start) takes
+    one thread in each: two processes of two OpenMP threads on two cores wait on each other's
+    descheduled threads at every parallel region."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 # -- exported models, once per session -------------------------------------------------------
@@ -85,30 +108,40 @@ class Exported:
     result: object  # fisheye_infer.export.exporter.ExportResult
 
 
-def _export(arch: str, folder: Path) -> Exported:
+def _export(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
+    """The kit's checkpoint of ``arch`` exported once per run: under several workers the first to ask
+    exports into the run's shared temporary folder and the others wait for it and read its result."""
     pytest.importorskip("torch")
     from checkpoint_kit import kit_checkpoint
+    from filelock import FileLock
 
     from fisheye_infer.export.exporter import export
 
-    ckpt = kit_checkpoint(arch, folder / f"{arch}.pth")
-    out = folder / f"{arch}.onnx"
-    result = export(ckpt, out, verify_images=SAMPLE_FRAME, progress=lambda _: None)
-    return Exported(arch, ckpt, out, result)
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        folder = tmp_path_factory.getbasetemp().parent / f"shared-{arch}"  # the workers' common parent
+    else:
+        folder = tmp_path_factory.mktemp(arch)
+    ckpt, out, done = folder / f"{arch}.pth", folder / f"{arch}.onnx", folder / "result.pkl"
+    with FileLock(f"{folder}.lock"):
+        if not done.is_file():
+            folder.mkdir(exist_ok=True)
+            result = export(kit_checkpoint(arch, ckpt), out, verify_images=SAMPLE_FRAME, progress=lambda _: None)
+            done.write_bytes(pickle.dumps(result))  # an ExportResult: its classes import by their module's name
+    return Exported(arch, ckpt, out, pickle.loads(done.read_bytes()))
 
 
 @pytest.fixture(scope="session")
 def bevdet_export(tmp_path_factory: pytest.TempPathFactory) -> Exported:
     """The kit's FisheyeBEVDet exported for the default rig: self-check on two rendered frames and the
     bundled sample frame (``--verify-images``), at 1 and 2 threads."""
-    return _export("fisheye-bevdet", tmp_path_factory.mktemp("bevdet"))
+    return _export("fisheye-bevdet", tmp_path_factory)
 
 
 @pytest.fixture(scope="session")
 def petr_export(tmp_path_factory: pytest.TempPathFactory) -> Exported:
     """The kit's FisheyePETR exported for the default rig: self-check on two rendered frames and the
     bundled sample frame (``--verify-images``), at 1 and 2 threads."""
-    return _export("fisheye-petr", tmp_path_factory.mktemp("petr"))
+    return _export("fisheye-petr", tmp_path_factory)
 
 
 @pytest.fixture(scope="session", params=["fisheye-bevdet", "fisheye-petr"])

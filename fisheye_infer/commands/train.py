@@ -112,7 +112,6 @@ def run(args: argparse.Namespace) -> int:
         return missing_extra(NEEDS_EXPORT, exc)
     from fisheye_infer.cameras.rig import Rig
     from fisheye_infer.errors import ConfigError
-    from fisheye_infer.models import get_model_entry
     from fisheye_infer.models.training.compact import compact_bevdet_config, compact_petr_config, compact_rig
 
     out = Path(args.out)
@@ -129,8 +128,7 @@ def run(args: argparse.Namespace) -> int:
             )
         if not (out / "config.py").is_file() or not (out / "rig.json").is_file():
             raise ConfigError(f"--resume: {out} has no config.py and rig.json; is it a run folder?")
-        config_cls = get_model_entry(_run_arch(out)).config_cls
-        config, rig = config_cls.from_mmdet3d_config(out / "config.py"), Rig.load(out / "rig.json")
+        config, rig = _config_file(out / "config.py"), Rig.load(out / "rig.json")  # model.type names the arch
     else:
         if (out / "checkpoint.pth").exists():
             raise ConfigError(
@@ -178,19 +176,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_arch(folder: Path) -> str:
-    """The architecture a run folder trains: its checkpoint's ``meta.arch`` (runs of FisheyeBEVDet before it
-    was recorded have none)."""
-    import torch
-
-    path = folder / "checkpoint.pth"
-    if not path.is_file():
-        return "fisheye-bevdet"  # the trainer's resume names the missing file
-    meta = torch.load(path, map_location="cpu", weights_only=True, mmap=True).get("meta", {})
-    return str(meta.get("arch", "fisheye-bevdet"))
-
-
-def _config_file(path: str) -> Any:
+def _config_file(path: str | Path) -> Any:
     """The configuration of an mmdet3d-style file of a trainable architecture (its ``model.type`` says which)."""
     from fisheye_infer.errors import ConfigError
     from fisheye_infer.models import BEVDetConfig, PETRConfig
@@ -201,4 +187,4 @@ def _config_file(path: str) -> Any:
         return PETRConfig.from_mmdet3d_config(path)
     if model_type == "FisheyeBEVDet":
         return BEVDetConfig.from_mmdet3d_config(path)
-    raise ConfigError(f"--config {path}: model.type {model_type!r} is not trainable (FisheyeBEVDet or PETR)")
+    raise ConfigError(f"{path}: model.type {model_type!r} is not trainable (FisheyeBEVDet or PETR)")

@@ -3,6 +3,7 @@ continues the same run, and the image backbone can start from another run's."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,16 @@ def test_resume_continues_the_uninterrupted_run(petr_resumed: Run, petr_run: Run
     b, _ = load_checkpoint(petr_run.folder / "model.pth")
     for key in a:
         torch.testing.assert_close(a[key], b[key], rtol=1e-4, atol=1e-5, msg=key)
+
+
+def test_resume_before_the_first_checkpoint_names_the_missing_file(
+    petr_inputs: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A FisheyePETR run stopped before its first checkpoint: its folder holds config.py and rig.json only."""
+    for path in petr_inputs:
+        shutil.copy(path, tmp_path / path.name)
+    assert main(["train", "--out", str(tmp_path), "--resume"]) == 1
+    assert f"{tmp_path / 'checkpoint.pth'} does not exist" in capsys.readouterr().err
 
 
 @pytest.mark.slow  # a whole export: make test-fast leaves it out
