@@ -40,7 +40,7 @@ from .reduced import export_fp16, export_int8, fp16_path_for, int8_path_for
 from .results import ExportResult, Fp16Result, Int8Result, ReducedResult
 from .tensorrt_check import check_tensorrt
 from .trace import OPSET, trace_to_onnx
-from .verify import verify
+from .verify import Reference, verify
 
 if TYPE_CHECKING:
     from fisheye_infer.models import GeometryReport, ModelEntry
@@ -297,7 +297,7 @@ def export(
             f"frame(s){' + ' + str(verify_images) if verify_images else ''})"
         )
         batch = verification_frames(the_rig, frames, images=verify_images)
-        parity = verify(pending.path, model, batch, threads=threads)
+        parity = verify(pending.path, Reference(model, batch), threads=threads)
         meta = meta.model_copy(update={"parity": parity})
         set_metadata(proto, meta, extra)
         written: Path | None = None

@@ -191,7 +191,10 @@ class Reference:
     so the tolerances always rest on float32's drift at the same choices the graph made.
     """
 
-    def __init__(self, model: nn.Module, frames: np.ndarray, valid: np.ndarray) -> None:
+    def __init__(self, model: nn.Module, frames: np.ndarray, valid: np.ndarray | None = None) -> None:
+        """``model`` on ``frames`` (F, N, H, W, 3) uint8 with cameras ``valid`` (F, N) (default: all)."""
+        if valid is None:
+            valid = np.ones(frames.shape[:2], dtype=bool)
         self.frames, self.valid = frames, valid
         self.single = _Head(model, frames, valid)
         self.double = _Head(copy.deepcopy(model).double().eval(), frames, valid)
@@ -283,28 +286,22 @@ def checked_graph(path: str | Path, out: str | Path) -> Path:
     )
 
 
-def verify(
-    path: str | Path,
-    model: nn.Module,
-    frames: np.ndarray,
-    valid: np.ndarray | None = None,
-    threads: Sequence[int] = (1, 2),
-) -> ParityReport:
-    """Check the file ``path`` against ``model`` on ``frames`` (F, N, H, W, 3) uint8, one by one and batched."""
-    if valid is None:
-        valid = np.ones(frames.shape[:2], dtype=bool)
+def verify(path: str | Path, reference: Reference, threads: Sequence[int] = (1, 2)) -> ParityReport:
+    """Check the file ``path`` against ``reference`` (the PyTorch model on its frames), one by one and batched.
+
+    A reference serves several files (its float64 answers are computed once per ranking): the
+    tolerances of each report rest on float32's drift at every choice the reference has compared.
+    """
     path = Path(path)
     checked = checked_graph(path, path.with_name(f".{path.name}.{os.getpid()}.checked"))
     try:
-        return _verify(path, checked, model, frames, valid, threads)
+        return _verify(path, checked, reference, threads)
     finally:
         checked.unlink(missing_ok=True)
 
 
-def _verify(
-    path: Path, checked: Path, model: nn.Module, frames: np.ndarray, valid: np.ndarray, threads: Sequence[int]
-) -> ParityReport:
-    reference = Reference(model, frames, valid)
+def _verify(path: Path, checked: Path, reference: Reference, threads: Sequence[int]) -> ParityReport:
+    frames, valid = reference.frames, reference.valid
     diffs = []
     for t in threads:
         diffs.append(compare_run(reference, run_onnx(checked, frames, valid, t, PROBE, per_frame=True)))

@@ -219,7 +219,7 @@ class BEVDetConfig(ModelConfig):
         enc.type_is("SECOND")
         fpn.type_is("SECONDFPN")
         head.type_is("TransFusionHead")
-        image = read_image(model, cfg, *cls._image_size(vt, d), d.image)
+        image = read_image(model, cfg, *cls._image_size(vt, d, cfg), d.image)
         if image.bgr_to_rgb:
             raise ConfigError(
                 f"{source}: model.data_preprocessor.bgr_to_rgb=True is not supported "
@@ -237,7 +237,7 @@ class BEVDetConfig(ModelConfig):
         )
 
     @classmethod
-    def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
+    def _image_size(cls, vt: Section, d: BEVDetConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
         """(H, W) of the camera images: the view transform's ``image_size``."""
         h, w = vt.get("image_size", (d.image.height, d.image.width))
         return int(h), int(w)

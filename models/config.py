@@ -271,6 +271,20 @@ def read_image(model: Section, cfg: Mapping[str, Any], height: int, width: int, 
     )
 
 
+def written_image_size(cfg: Mapping[str, Any], default: ImageConfig, source: str) -> tuple[int, int]:
+    """(H, W) of the raw camera images: the top-level ``image_size`` of a file ``fisheye-infer train`` wrote.
+
+    Official files of models whose raw input is not the view transform's (the fisheye PETR, the
+    pinhole and rectified baselines) do not state it: it is the camera's (Fisheye3DOD: 800 x 800,
+    the OCam calibration's; the pinhole converter's 1280 x 720), ``default``'s size here."""
+    size = cfg.get("image_size")
+    if size is None:
+        return default.height, default.width
+    if not isinstance(size, (list, tuple)) or len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
+        raise ConfigError(f"{source}: image_size: expected [height, width] in pixels, got {size!r}")
+    return int(size[0]), int(size[1])
+
+
 def read_backbone(model: Section, default: BackboneConfig, *, required: bool = True) -> BackboneConfig:
     """The ``backbone`` section from ``img_backbone`` (mmdet ResNet) and ``img_neck`` (FPN)."""
     bb, neck = model.sub("img_backbone", required=required), model.sub("img_neck", required=required)

@@ -28,7 +28,7 @@ from fisheye_infer.geometry.cyl_lss import CylLSSParams
 from fisheye_infer.geometry.cyl_petr import CylPETRParams
 
 from .bevdet_config import BEVDetConfig, ViewTransformConfig, view_transform_fields
-from .config import BackboneConfig, CylinderConfig, feature_size_of
+from .config import BackboneConfig, CylinderConfig, feature_size_of, written_image_size
 from .mmconfig import Section
 from .petr_config import PETRConfig, PETRHeadConfig, head_fields
 
@@ -117,10 +117,10 @@ class BEVDetCylConfig(BEVDetConfig):
         )
 
     @classmethod
-    def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
-        """The raw fisheye size is not in the file (Fisheye3DOD: 800 x 800; the model refuses a rig whose
-        camera differs)."""
-        return d.image.height, d.image.width
+    def _image_size(cls, vt: Section, d: BEVDetConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
+        """The raw fisheye size: the top-level ``image_size`` of a file ``fisheye-infer train`` wrote; official
+        files do not state it (Fisheye3DOD: 800 x 800; the model refuses a rig whose camera differs)."""
+        return written_image_size(cfg, d.image, vt.source)
 
     @classmethod
     def _read_view_transform(cls, vt: Section, cfg: Mapping[str, Any], d: BEVDetConfig) -> dict[str, Any]:

@@ -22,7 +22,16 @@ from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.petr import PETRParams
 from fisheye_infer.runtime.records import CLASSES
 
-from .config import BackboneConfig, ImageConfig, ModelConfig, feature_size_of, read_backbone, read_classes, read_image
+from .config import (
+    BackboneConfig,
+    ImageConfig,
+    ModelConfig,
+    feature_size_of,
+    read_backbone,
+    read_classes,
+    read_image,
+    written_image_size,
+)
 from .mmconfig import Section
 
 __all__ = ["PETRHeadConfig", "PETRConfig"]
@@ -161,12 +170,7 @@ class PETRConfig(ModelConfig):
     def _image_size(cls, head: Section, d: PETRConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
         """(H, W) of the camera images: the top-level ``image_size`` of a file ``fisheye-infer train`` wrote;
         official files do not state it (Fisheye3DOD: 800 x 800, the size of the OCam calibration)."""
-        size = cfg.get("image_size")
-        if size is None:
-            return d.image.height, d.image.width
-        if not isinstance(size, (list, tuple)) or len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
-            raise ConfigError(f"{head.source}: image_size: expected [height, width] in pixels, got {size!r}")
-        return int(size[0]), int(size[1])
+        return written_image_size(cfg, d.image, head.source)
 
     @classmethod
     def _read_head(cls, head: Section, cfg: Mapping[str, Any], d: PETRConfig) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from fisheye_infer.geometry.pinhole_lss import PinholeLSSParams
 from fisheye_infer.geometry.views import Perspective, ResizeCrop
 
 from .bevdet_config import BEVDetConfig, ViewTransformConfig, view_transform_fields
-from .config import ImageConfig
+from .config import ImageConfig, written_image_size
 from .mmconfig import Section
 from .pinhole_views import (
     IMAGE_AUG_STEP,
@@ -98,9 +98,10 @@ class PinholeBEVDetConfig(BEVDetConfig):
         )
 
     @classmethod
-    def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
-        """The raw camera size is not in the file (the official converter's 1280x720)."""
-        return d.image.height, d.image.width
+    def _image_size(cls, vt: Section, d: BEVDetConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
+        """The raw camera size: the top-level ``image_size`` of a file ``fisheye-infer train`` wrote; official
+        files do not state it (the official converter's 1280x720)."""
+        return written_image_size(cfg, d.image, vt.source)
 
     @classmethod
     def _read_view_transform(cls, vt: Section, cfg: Mapping[str, Any], d: BEVDetConfig) -> dict[str, Any]:
@@ -125,10 +126,11 @@ class PinholeBEVDetConfig(BEVDetConfig):
                 f"{vt.source}: {step.where('final_dim')}={(fh, fw)} differs from "
                 f"{vt.where('image_size')}={view.image_size}"
             )
+        height, width = cls._image_size(vt, d, cfg)
         aug = test_mode_crop(
             range_mean(step, "resize_lim", (1.0, 1.0)),
-            d.image.width,
-            d.image.height,
+            width,
+            height,
             (fh, fw),
             range_mean(step, "bot_pct_lim", (0.0, 0.0)),
         )
@@ -172,10 +174,10 @@ class PerspBEVDetConfig(BEVDetConfig):
         )
 
     @classmethod
-    def _image_size(cls, vt: Section, d: BEVDetConfig) -> tuple[int, int]:
-        """The raw fisheye size is not in the file (Fisheye3DOD: 800 x 800; the model refuses a rig whose
-        camera differs)."""
-        return d.image.height, d.image.width
+    def _image_size(cls, vt: Section, d: BEVDetConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
+        """The raw fisheye size: the top-level ``image_size`` of a file ``fisheye-infer train`` wrote; official
+        files do not state it (Fisheye3DOD: 800 x 800; the model refuses a rig whose camera differs)."""
+        return written_image_size(cfg, d.image, vt.source)
 
     @classmethod
     def _read_view_transform(cls, vt: Section, cfg: Mapping[str, Any], d: BEVDetConfig) -> dict[str, Any]:

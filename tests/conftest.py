@@ -73,18 +73,28 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.slow)
     if os.environ.get("PYTEST_XDIST_WORKER"):
-        items.sort(key=lambda item: _rank(item.nodeid.split("::")[0]))
+        late = {_file(item) for item in items if SHARED_EXPORTS & set(getattr(item, "fixturenames", ()))}
+        items.sort(key=lambda item: _rank(_file(item), late))
 
 
 # -- several workers (`make test`: pytest -n 2 --dist loadfile --no-loadscope-reorder) ------------
 
 #: The files that take longest, handed out first (each file is one worker's unit of work) so that
-#: no worker is left alone with one of them at the end; the others follow in collection order.
+#: no worker is left alone with one of them at the end. The first builds the session's full-size
+#: exports (``SHARED_EXPORTS``); the other files that use them come last, when they are built, and
+#: the rest in between, in collection order.
 LONGEST_FILES = ("tests/export/test_export.py", "tests/models/test_pinhole.py")
+SHARED_EXPORTS = frozenset({"bevdet_export", "petr_export"})
 
 
-def _rank(file: str) -> int:
-    return LONGEST_FILES.index(file) if file in LONGEST_FILES else len(LONGEST_FILES)
+def _file(item: pytest.Item) -> str:
+    return item.nodeid.split("::")[0]
+
+
+def _rank(file: str, late: set[str]) -> int:
+    if file in LONGEST_FILES:
+        return LONGEST_FILES.index(file)
+    return len(LONGEST_FILES) + (file in late)
 
 
 def pytest_configure(config: pytest.Config) -> None:

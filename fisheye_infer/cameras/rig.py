@@ -49,6 +49,7 @@ __all__ = [
     "PINHOLE_CAMERAS",
     "RIG_SCHEMA_VERSION",
     "default_rig",
+    "pinhole_rig",
     "resolve_rig",
 ]
 
@@ -386,6 +387,14 @@ def default_rig() -> Rig:
     base = resources.files("fisheye_infer") / "data" / "rig-fisheye3dod"
     with resources.as_file(base) as folder:
         return Rig.from_ocam_extrinsics(folder / "calib_results.txt", folder / "lidar2cam.json", name="fisheye3dod")
+
+
+def pinhole_rig() -> Rig:
+    """The six-camera pinhole rig shipped with the package (``rig-pinhole6``): the pinhole baselines' 1280x720
+    ideal 90-degree cameras in their input order, with constructed nuScenes-like extrinsics."""
+    path = resources.files("fisheye_infer") / "data" / "rig-pinhole6" / "cameras.json"
+    with resources.as_file(path) as file:
+        return Rig.load(file)
 
 
 def resolve_rig(spec: str | Path | None) -> Rig:

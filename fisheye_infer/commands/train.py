@@ -1,8 +1,9 @@
-"""``fisheye-infer train``: train a FisheyeBEVDet or FisheyePETR on synthetic frames (torch is imported only
-when the command runs).
+"""``fisheye-infer train``: train a FisheyeBEVDet, a FisheyePETR or a BEVDet baseline on synthetic frames (torch
+is imported only when the command runs).
 
 fisheye-infer train --out runs/compact [--until 1000] [--resume]
 fisheye-infer train --arch fisheye-petr --out runs/petr --init-backbone runs/compact/model.pth
+fisheye-infer train --arch pinhole-bevdet --out runs/pinhole
 fisheye-infer train --out runs/tuned --init runs/compact/model.pth --seed 1 --lr 5e-5 --steps 2500
 fisheye-infer train --out runs/qat --init runs/compact/model.pth --qat 0.5 --device cuda --workers 7 --batch-size 8
 """
@@ -11,11 +12,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
 from fisheye_infer.commands.common import NEEDS_EXPORT, missing_extra
 
-__all__ = ["configure", "run"]
+__all__ = ["configure", "run", "ARCHITECTURES"]
+
+#: ``--arch``: ``models.training.loop.TRAINABLE``, named here so that the parser needs no torch.
+ARCHITECTURES = ("fisheye-bevdet", "fisheye-petr", "pinhole-bevdet", "fisheye-bevdet-persp", "fisheye-bevdet-cyl")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -24,13 +27,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--arch",
-        choices=("fisheye-bevdet", "fisheye-petr"),
+        choices=ARCHITECTURES,
         default="fisheye-bevdet",
-        help="the architecture to train (default fisheye-bevdet; --config files name their own)",
+        help="the architecture to train in its compact configuration (default fisheye-bevdet; the BEVDet "
+        "baselines of the paper's Table 2: pinhole-bevdet on the shipped six-camera pinhole rig, "
+        "fisheye-bevdet-persp and fisheye-bevdet-cyl on rectified fisheye images); --config files name their own",
     )
     parser.add_argument("--config", help="mmdet3d-style config to train (default: the compact configuration of --arch)")
     parser.add_argument(
-        "--rig", help="rig file for --config (default: the shipped rig resized to the compact model's 320x320)"
+        "--rig", help="rig file for --config (default: the compact configuration's rig, the shipped one resized by 0.4)"
     )
     parser.add_argument(
         "--resume",
@@ -66,7 +71,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--depth-weight",
         type=float,
         default=3.0,
-        help="FisheyeBEVDet: weight of the depth loss against the frames' true ray depths "
+        help="the BEVDet family: weight of the depth loss against the frames' true ray depths "
         "(default 3, as BEVDepth; 0: the official losses alone); FisheyePETR has no depth head",
     )
     parser.add_argument(
@@ -106,13 +111,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         import torch
 
-        from fisheye_infer.models.training.loop import Trainer
+        from fisheye_infer.models.training.loop import Trainer, read_config_file
         from fisheye_infer.models.training.options import TrainOptions
     except ImportError as exc:
         return missing_extra(NEEDS_EXPORT, exc)
     from fisheye_infer.cameras.rig import Rig
     from fisheye_infer.errors import ConfigError
-    from fisheye_infer.models.training.compact import compact_bevdet_config, compact_petr_config, compact_rig
+    from fisheye_infer.models.training.compact import compact_setup
 
     out = Path(args.out)
     if args.until is not None and args.until < 1:
@@ -128,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
             )
         if not (out / "config.py").is_file() or not (out / "rig.json").is_file():
             raise ConfigError(f"--resume: {out} has no config.py and rig.json; is it a run folder?")
-        config, rig = _config_file(out / "config.py"), Rig.load(out / "rig.json")  # model.type names the arch
+        config, rig = read_config_file(out / "config.py"), Rig.load(out / "rig.json")  # model.type names the arch
     else:
         if (out / "checkpoint.pth").exists():
             raise ConfigError(
@@ -137,9 +142,9 @@ def run(args: argparse.Namespace) -> int:
         if args.rig and not args.config:
             raise ConfigError("--rig needs --config (the compact configuration comes with its own rig)")
         if args.config:
-            config = _config_file(args.config)
+            config = read_config_file(args.config)
         else:
-            config = compact_petr_config() if args.arch == "fisheye-petr" else compact_bevdet_config()
+            config = compact_setup(args.arch)[0]
         if args.rig:
             from fisheye_infer.cameras.rig import resolve_rig
 
@@ -147,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         elif args.config:
             raise ConfigError("--config needs --rig: the rig whose cameras give the configuration's image size")
         else:
-            rig = compact_rig()
+            rig = compact_setup(args.arch)[1]
     options = TrainOptions(
         steps=args.steps,
         batch_size=args.batch_size,
@@ -174,17 +179,3 @@ def run(args: argparse.Namespace) -> int:
         f"--rig {out / 'rig.json'} --out {out / 'model.onnx'}"
     )
     return 0
-
-
-def _config_file(path: str | Path) -> Any:
-    """The configuration of an mmdet3d-style file of a trainable architecture (its ``model.type`` says which)."""
-    from fisheye_infer.errors import ConfigError
-    from fisheye_infer.models import BEVDetConfig, PETRConfig
-    from fisheye_infer.models.mmconfig import read_mmdet3d_config
-
-    model_type = (read_mmdet3d_config(path).get("model") or {}).get("type")
-    if model_type == "PETR":
-        return PETRConfig.from_mmdet3d_config(path)
-    if model_type == "FisheyeBEVDet":
-        return BEVDetConfig.from_mmdet3d_config(path)
-    raise ConfigError(f"{path}: model.type {model_type!r} is not trainable (FisheyeBEVDet or PETR)")

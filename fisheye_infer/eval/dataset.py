@@ -14,12 +14,13 @@ Layout (§3 of the dataset description)::
         dets = detector.detect(frame.image_paths)
 
 The cameras a split is read with are fisheye cameras (the OCam model of ``calib_results.txt``),
-pinhole cameras (``nu_rgb_camera_*``, the official converter's ideal 90-degree pinhole of 1280x720:
-the layout stores no pinhole intrinsics), or both; ``calib_results.txt`` is needed only for fisheye
-cameras. Extrinsics are rebuilt per frame from the CARLA poses of each camera and the lidar at that frame,
-in the "compat" convention the checkpoints were trained with; each ``sensor_metadata.txt`` is
-parsed once per sequence. Label boxes are stored gravity-centred; ``Frame.gt_boxes`` is in the
-runtime layout (z at the bottom face), the same as detector output.
+pinhole cameras (``nu_rgb_camera_*``: the layout stores no pinhole intrinsics, so each takes the
+official converter's ideal 90-degree pinhole at the size of its images, 1280x720 in the dataset),
+or both; ``calib_results.txt`` is needed only for fisheye cameras. Extrinsics are rebuilt per
+frame from the CARLA poses of each camera and the lidar at that frame, in the "compat" convention
+the checkpoints were trained with; each ``sensor_metadata.txt`` is parsed once per sequence. Label
+boxes are stored gravity-centred; ``Frame.gt_boxes`` is in the runtime layout (z at the bottom
+face), the same as detector output.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ __all__ = [
     "SplitEntry",
     "PINHOLE_CAMERAS",
     "PINHOLE_MODEL",
+    "converter_pinhole",
     "read_split",
     "read_labels",
     "camera_name",
@@ -54,8 +56,15 @@ __all__ = [
 ]
 
 IMAGESETS = "ImageSets-2hz"
-#: The pinhole cameras' model, as the official converter builds it: 90 degree hfov, centre at W/2, H/2.
-PINHOLE_MODEL = Pinhole(fx=640.0, fy=640.0, cx=640.0, cy=360.0, width=1280, height=720)
+
+
+def converter_pinhole(width: int, height: int) -> Pinhole:
+    """A pinhole camera's model as the official converter builds it: 90 degree hfov, centre at W/2, H/2."""
+    return Pinhole(fx=width / 2, fy=width / 2, cx=width / 2, cy=height / 2, width=width, height=height)
+
+
+#: The dataset's pinhole cameras' model (1280x720).
+PINHOLE_MODEL = converter_pinhole(1280, 720)
 _SPLIT_FIELDS = ("scene_name", "vehicle_name", "weather", "frame_id", "prev_id", "next_id")
 
 
@@ -196,6 +205,7 @@ class _Sequence:
         if not folder.is_dir():
             raise DatasetError(f"scene {token}: folder {folder} not found")
         self.poses: dict[str, dict[str, CarlaPose]] = {}
+        self.pinholes: dict[str, Pinhole] = {}
         for sensor in ("lidar", *cameras):
             path = folder / sensor / "sensor_metadata.txt"
             if not (folder / sensor).is_dir():
@@ -205,6 +215,21 @@ class _Sequence:
                 self.poses[sensor] = parse_sensor_metadata(path.read_text())
             except OSError as exc:
                 raise DatasetError(f"scene {token}: {path} cannot be read ({exc.strerror})") from exc
+
+    def pinhole(self, camera: str, image: Path, token: str) -> Pinhole:
+        """The converter's pinhole model for ``camera``, at the size of its first image read (a PNG header)."""
+        if camera not in self.pinholes:
+            try:
+                with image.open("rb") as f:
+                    header = f.read(24)
+            except OSError as exc:
+                what = f"frame {token}: camera '{camera}': {image}"
+                raise DatasetError(f"{what} cannot be read ({exc.strerror})") from exc
+            if len(header) < 24 or header[:8] != b"\x89PNG\r\n\x1a\n":
+                raise DatasetError(f"frame {token}: camera '{camera}': {image} is not a PNG image")
+            width, height = int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")
+            self.pinholes[camera] = converter_pinhole(width, height)
+        return self.pinholes[camera]
 
     def cam2lidar(self, camera: str, frame_id: str, token: str, convention: Convention) -> np.ndarray:
         lidar, cam = self.poses["lidar"].get(frame_id), self.poses[camera].get(frame_id)
@@ -293,7 +318,11 @@ class Fisheye3DOD:
 
     def _rig(self, seq: _Sequence, entry: SplitEntry, cameras: Sequence[str]) -> Rig:
         matrices = {c: seq.cam2lidar(c, entry.frame_id, entry.token, self.convention) for c in cameras}
-        models = {c: PINHOLE_MODEL if c in PINHOLE_CAMERAS else self.model for c in cameras}
+        folder = self.root / entry.scene / entry.vehicle
+        models = {
+            c: seq.pinhole(c, folder / c / f"{entry.frame_id}.png", entry.token) if c in PINHOLE_CAMERAS else self.model
+            for c in cameras
+        }
         try:
             return Rig.from_cameras(models, matrices, cameras, name=f"{entry.scene}/{entry.vehicle}@{entry.frame_id}")
         except RigError as exc:

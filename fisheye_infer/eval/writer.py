@@ -34,7 +34,7 @@ from fisheye_infer.cameras.carla_poses import (
     pose_matrix,
 )
 from fisheye_infer.cameras.rig import Rig
-from fisheye_infer.eval.dataset import IMAGESETS, PINHOLE_CAMERAS, PINHOLE_MODEL, DatasetError
+from fisheye_infer.eval.dataset import IMAGESETS, PINHOLE_CAMERAS, DatasetError, converter_pinhole
 from fisheye_infer.runtime.records import CLASSES, bottom_to_gravity
 
 __all__ = ["Fisheye3DODWriter", "pose_from_matrix", "camera_poses", "format_record", "update_split"]
@@ -143,14 +143,15 @@ class Fisheye3DODWriter:
         return path
 
     def _write_models(self, rig: Rig) -> None:
-        """``calib_results.txt`` for the fisheye cameras; pinhole cameras must be
-        :data:`PINHOLE_MODEL`, the reader's."""
+        """``calib_results.txt`` for the fisheye cameras; pinhole cameras must be the converter's 90-degree
+        pinhole of their size (:func:`converter_pinhole`), which the reader rebuilds from the images."""
         fisheye = [c for c in rig.cameras if c.name not in PINHOLE_CAMERAS]
         for cam in rig.cameras:
-            if cam.name in PINHOLE_CAMERAS and cam.model != PINHOLE_MODEL:
+            ideal = converter_pinhole(cam.model.width, cam.model.height)
+            if cam.name in PINHOLE_CAMERAS and cam.model != ideal:
                 raise DatasetError(
                     f"camera '{cam.name}': the layout stores no pinhole intrinsics and its reader takes the official "
-                    f"converter's {PINHOLE_MODEL.width}x{PINHOLE_MODEL.height} 90-degree pinhole; this camera differs"
+                    f"converter's 90-degree pinhole of the images' size ({ideal}); this camera differs ({cam.model})"
                 )
             if cam.name not in PINHOLE_CAMERAS and not isinstance(cam.model, OCamModel):
                 raise DatasetError(

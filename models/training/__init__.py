@@ -1,14 +1,14 @@
-"""fisheye_infer.models.training: training FisheyeBEVDet and FisheyePETR on synthetic frames (needs the
-[export] extra).
+"""fisheye_infer.models.training: training FisheyeBEVDet, FisheyePETR and the BEVDet baselines on synthetic
+frames (needs the [export] extra).
 
     targets.py   Gaussian heatmap target and box code of the TransFusion head
     assign.py    3D IoU and the Hungarian assignment of proposals to ground truth
     losses.py    FisheyeBEVDet's official heatmap, classification and box losses
     petr_loss.py FisheyePETR's official box code, per-layer assignment and losses
-    depth.py     depth targets from the renderer and BEVDepth's depth loss (synthetic frames only)
+    depth.py     depth targets of any LSS lift from the renderer and BEVDepth's depth loss (synthetic frames)
     objectives.py what a step minimises and how the weights start, per architecture
-    compact.py   the compact configurations and the FisheyeBEVDet config file
-    petr_config_file.py  the FisheyePETR config file
+    compact.py   the compact configurations and the rigs they train on
+    config_file.py  the mmdet3d-style config file of a run
     options.py   the run's options, the learning-rate schedule and the training device
     batches.py   what each step trains on (seeded frames and depth targets), rendered ahead
     loop.py      optimiser, checkpoints, --resume, progress and log

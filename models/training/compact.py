@@ -1,5 +1,5 @@
-"""The compact FisheyeBEVDet and FisheyePETR that train on a CPU, and the mmdet3d-style config files that
-describe them.
+"""The compact configurations that train on a CPU: the paper's two detectors and the BEVDet baselines it
+compares FisheyeBEVDet with.
 
 Same architecture as the official ``fisheye_bevdet.py`` (ResNet-18 + FPN, fisheye LSS, SECOND +
 SECONDFPN, TransFusion head) with sizes cut where the measured cost of a training step says so
@@ -10,9 +10,30 @@ square at 0.6 m cells (160 x 160, 80 x 80 at the head), narrower neck, BEV encod
 100 proposals. The compact FisheyePETR has the same rig and image backbone (so it can start from
 the compact FisheyeBEVDet's, ``--init-backbone``), the same 10 x 40 angular key grid, and a
 decoder of the official depth (6 layers) at half width (128 channels, 4 heads, 512 in the FFN)
-with 300 queries. The official full-size configurations stay the default everywhere else.
+with 300 queries.
 
-A trained checkpoint is exported like any other by passing the config file this module writes:
+The baselines of the paper's Table 2 are the official ``nusc_bevdet.py``,
+``fisheye_to_pinhole_bevdet.py`` and ``fisheye_to_cyl_bevdet.py`` cut the same way: the compact
+FisheyeBEVDet's backbone, depth bins, BEV grid, encoder and head, with each input scaled by 0.4
+of the official one, so every model keeps the official ratio of feature cells to the others':
+
+============================ =============================================== ==============
+architecture                 input (official x 0.4)                          feature cells
+============================ =============================================== ==============
+``fisheye-bevdet``           4 fisheye 320 x 320, 10 x 40 angular grid       4 x 400
+``pinhole-bevdet``           6 pinhole 512 x 288, resized to 320 x 180,      6 x 200
+                             rows 20..179 (160 x 320)
+``fisheye-bevdet-persp``     4 fisheye 320 x 320, 2 perspective 160 x 160    8 x 100
+                             views each (110 deg, yaws -55 and 55 deg)
+``fisheye-bevdet-cyl``       4 fisheye 320 x 320, a 160 x 320 cylinder each  4 x 200
+============================ =============================================== ==============
+
+The cylinder spans the intended +-110 deg by +-45 deg (written in radians): the released
+``fisheye_to_cyl_bevdet.py`` writes degrees that its code reads as radians (``cyl_config``).
+The official full-size configurations stay the default everywhere else.
+
+A trained checkpoint is exported like any other by passing the config file the trainer writes
+(``config_file.py``):
 
     fisheye-infer export --ckpt runs/compact/model.pth --config runs/compact/config.py \\
         --rig runs/compact/rig.json --out model.onnx
@@ -20,26 +41,31 @@ A trained checkpoint is exported like any other by passing the config file this 
 
 from __future__ import annotations
 
-from pathlib import Path
+import math
+from collections.abc import Callable
 from typing import Any
 
-from fisheye_infer.cameras.rig import Rig, default_rig
+from fisheye_infer.cameras.rig import Rig, default_rig, pinhole_rig
 from fisheye_infer.scenes.render import resized_rig
 
 __all__ = [
     "COMPACT_SCALE",
     "COMPACT_SECTIONS",
     "COMPACT_PETR_SECTIONS",
+    "COMPACT",
     "compact_bevdet_config",
     "compact_petr_config",
+    "compact_pinhole_bevdet_config",
+    "compact_persp_bevdet_config",
+    "compact_cyl_bevdet_config",
     "compact_rig",
-    "image_trunk_sections",
-    "mmdet3d_config_source",
-    "write_config",
+    "compact_pinhole_rig",
+    "compact_setup",
 ]
 
-#: Image scale of the compact model's rig (800 x 800 -> 320 x 320).
+#: Image scale of the compact models' rigs and views (fisheye 800 x 800 -> 320 x 320).
 COMPACT_SCALE = 0.4
+
 COMPACT_SECTIONS: dict[str, dict[str, Any]] = {
     "image": {"height": 320, "width": 320},
     "backbone": {"base_channels": 32, "neck_in_channels": (128, 256), "neck_out_channels": 64},
@@ -105,125 +131,86 @@ def compact_rig(rig: Rig | None = None) -> Rig:
     return resized_rig(rig or default_rig(), COMPACT_SCALE)
 
 
-def image_trunk_sections(cfg: Any) -> dict[str, Any]:
-    """The config sections every architecture shares: ``data_preprocessor``, ``img_backbone`` and ``img_neck``."""
-    img, bb = cfg.image, cfg.backbone
-    return dict(
-        data_preprocessor=dict(mean=list(img.mean), std=list(img.std), bgr_to_rgb=img.bgr_to_rgb),
-        img_backbone=dict(
-            type="mmdet.ResNet",
-            depth=bb.depth,
-            base_channels=bb.base_channels,
-            strides=list(bb.strides),
-            dilations=list(bb.dilations),
-            out_indices=list(bb.out_indices),
-        ),
-        img_neck=dict(
-            type="mmdet.FPN",
-            in_channels=list(bb.neck_in_channels),
-            out_channels=bb.neck_out_channels,
-            num_outs=bb.neck_num_outs,
-        ),
+def compact_pinhole_rig() -> Rig:
+    """The rig the compact pinhole baseline sees: the shipped six-camera pinhole rig at 512 x 288
+    (``COMPACT_SCALE``), each camera the converter's ideal 90-degree pinhole of that size, as a held-out
+    set in the Fisheye3DOD layout gives it back (the layout stores no pinhole intrinsics)."""
+    from fisheye_infer.eval.dataset import converter_pinhole
+
+    rig = pinhole_rig()
+    model = rig.cameras[0].model
+    scaled = converter_pinhole(round(model.width * COMPACT_SCALE), round(model.height * COMPACT_SCALE))
+    return Rig.from_cameras(
+        {c.name: scaled for c in rig.cameras},
+        {c.name: c.matrix for c in rig.cameras},
+        rig.names,
+        name=f"{rig.name}@x{COMPACT_SCALE:g}",
     )
 
 
-def mmdet3d_config_source(cfg: Any) -> str:
-    """A ``BEVDetConfig`` as an official-style mmdet3d config file (what
-    ``BEVDetConfig.from_mmdet3d_config`` reads back)."""
-    img, vt, enc, hd = cfg.image, cfg.view_transform, cfg.bev_encoder, cfg.head
-    model = dict(
-        type="FisheyeBEVDet",
-        **image_trunk_sections(cfg),
-        view_transform=dict(
-            type="FisheyeLSSTransform",
-            in_channels=vt.in_channels,
-            out_channels=vt.out_channels,
-            image_size=[img.height, img.width],
-            feature_size=list(vt.feature_size),
-            azimuth_range=list(vt.azimuth_range),
-            elevation_range=list(vt.elevation_range),
-            xbound=list(vt.xbound),
-            ybound=list(vt.ybound),
-            zbound=list(vt.zbound),
-            dbound=list(vt.dbound),
-            ocam_fov=vt.ocam_fov,
-            downsample=1,
-        ),
-        pts_backbone=dict(
-            type="SECOND",
-            in_channels=enc.in_channels,
-            out_channels=list(enc.out_channels),
-            layer_nums=list(enc.layer_nums),
-            layer_strides=list(enc.layer_strides),
-            norm_cfg=dict(type="BN", eps=enc.bn_eps, momentum=0.01),
-        ),
-        pts_neck=dict(
-            type="SECONDFPN",
-            in_channels=list(enc.fpn_in_channels),
-            out_channels=list(enc.fpn_out_channels),
-            upsample_strides=list(enc.upsample_strides),
-            use_conv_for_no_stride=enc.use_conv_for_no_stride,
-            norm_cfg=dict(type="BN", eps=enc.bn_eps, momentum=0.01),
-        ),
-        bbox_head=dict(
-            type="TransFusionHead",
-            num_proposals=hd.num_proposals,
-            in_channels=hd.in_channels,
-            hidden_channel=hd.hidden_channel,
-            num_classes=hd.num_classes,
-            nms_kernel_size=hd.nms_kernel_size,
-            num_decoder_layers=hd.num_decoder_layers,
-            decoder_layer=dict(
-                self_attn_cfg=dict(embed_dims=hd.hidden_channel, num_heads=hd.num_heads),
-                ffn_cfg=dict(embed_dims=hd.hidden_channel, feedforward_channels=hd.ffn_channels),
-            ),
-            common_heads={name: list(spec) for name, spec in hd.common_heads},
-            head_conv=hd.head_conv,
-            bbox_coder=dict(
-                type="TransFusionBBoxCoder",
-                pc_range=list(hd.pc_range),
-                post_center_range=list(hd.post_center_range),
-                score_threshold=hd.score_threshold,
-                out_size_factor=hd.out_size_factor,
-                voxel_size=list(hd.voxel_size),
-                code_size=8,
-            ),
-        ),
-        test_cfg=dict(
-            pts=dict(
-                dataset=hd.dataset,
-                grid_size=list(hd.grid_size),
-                out_size_factor=hd.out_size_factor,
-                voxel_size=list(hd.voxel_size),
-                pc_range=list(hd.pc_range),
-                nms_type=hd.nms_type,
-            )
-        ),
-    )
-    pipeline = [dict(type="LoadFisheye3DODMultiViewImageFromFiles", load_cam_names=list(img.camera_names))]
-    return (
-        "# FisheyeBEVDet configuration written by fisheye-infer train (an mmdet3d-style config: read, never executed)\n"
-        f"classes = {list(cfg.class_names)!r}\n"
-        f"test_pipeline = {pipeline!r}\n"
-        f"model = {model!r}\n"
+def _lift(view_size: tuple[int, int], feature_size: tuple[int, int], **fields: Any) -> dict[str, Any]:
+    """The compact FisheyeBEVDet's view transform fields for views of ``view_size`` with ``feature_size`` features."""
+    vt = {k: v for k, v in COMPACT_SECTIONS["view_transform"].items() if k != "feature_size"}
+    return {**vt, "image_size": view_size, "feature_size": feature_size, **fields}
+
+
+def _baseline_sections() -> dict[str, Any]:
+    return {k: v for k, v in COMPACT_SECTIONS.items() if k not in ("image", "view_transform")}
+
+
+def compact_pinhole_bevdet_config() -> Any:
+    """BEVDet on six pinhole cameras (``nusc_bevdet.py``) at compact sizes (a ``PinholeBEVDetConfig``)."""
+    from fisheye_infer.models import PinholeBEVDetConfig
+
+    rig = compact_pinhole_rig()
+    width, height = rig.cameras[0].model.width, rig.cameras[0].model.height
+    return PinholeBEVDetConfig().replace(
+        image={"height": height, "width": width},
+        image_aug={"scale": 0.625, "crop": (0, 20)},  # 512 x 288 -> 320 x 180, rows 20..179
+        view_transform=_lift((160, 320), (10, 20)),
+        **_baseline_sections(),
     )
 
 
-def write_config(cfg: Any, path: str | Path) -> Path:
-    """Write ``cfg`` (a ``BEVDetConfig`` or ``PETRConfig``) as an mmdet3d config file to ``path`` and check that
-    it reads back as ``cfg``."""
-    from fisheye_infer.models import BEVDetConfig, PETRConfig
+def compact_persp_bevdet_config() -> Any:
+    """BEVDet on perspective views of the four fisheye cameras (``fisheye_to_pinhole_bevdet.py``) at compact
+    sizes (a ``PerspBEVDetConfig``)."""
+    from fisheye_infer.models import PerspBEVDetConfig
 
-    from .petr_config_file import petr_config_source
+    return PerspBEVDetConfig().replace(
+        image=COMPACT_SECTIONS["image"],
+        perspective={"size": (160, 160)},
+        view_transform=_lift((160, 160), (10, 10)),
+        **_baseline_sections(),
+    )
 
-    path = Path(path)
-    if type(cfg) is PETRConfig:
-        path.write_text(petr_config_source(cfg))
-    elif type(cfg) is BEVDetConfig:
-        path.write_text(mmdet3d_config_source(cfg))
-    else:
-        raise TypeError(f"no config file format for {type(cfg).__name__}")
-    back = type(cfg).from_mmdet3d_config(path)
-    if back != cfg:
-        raise RuntimeError(f"{path}: the written config does not read back as the configuration it describes")
-    return path
+
+def compact_cyl_bevdet_config() -> Any:
+    """BEVDet on cylindrical images of the four fisheye cameras (``fisheye_to_cyl_bevdet.py``) at compact sizes,
+    with the intended cylinder (a ``BEVDetCylConfig``)."""
+    from fisheye_infer.models import BEVDetCylConfig
+
+    vt = _lift((160, 320), (10, 20), azimuth_range=(-math.radians(110), math.radians(110)))
+    vt = {k: v for k, v in vt.items() if k != "image_size"}
+    return BEVDetCylConfig().replace(
+        image=COMPACT_SECTIONS["image"],
+        cylinder={"height": 160, "width": 320},
+        view_transform={**vt, "elevation_range": (-math.radians(45), math.radians(45))},
+        **_baseline_sections(),
+    )
+
+
+#: Architecture -> its compact configuration and the rig it trains on.
+COMPACT: dict[str, tuple[Callable[[], Any], Callable[[], Rig]]] = {
+    "fisheye-bevdet": (compact_bevdet_config, compact_rig),
+    "fisheye-petr": (compact_petr_config, compact_rig),
+    "pinhole-bevdet": (compact_pinhole_bevdet_config, compact_pinhole_rig),
+    "fisheye-bevdet-persp": (compact_persp_bevdet_config, compact_rig),
+    "fisheye-bevdet-cyl": (compact_cyl_bevdet_config, compact_rig),
+}
+
+
+def compact_setup(arch: str) -> tuple[Any, Rig]:
+    """The compact configuration of ``arch`` and the rig it trains on."""
+    config, rig = COMPACT[arch]
+    return config(), rig()

@@ -43,17 +43,18 @@ from fisheye_infer.scenes.streams import SyntheticFrames
 from fisheye_infer.tools.files import pending_file
 
 from .batches import Batch, StepBatches, step_loader
-from .compact import write_config
+from .config_file import write_config
 from .objectives import objective_for
 from .options import TrainOptions, lr_factor, training_device
 from .qat import FakeQuant
 
-__all__ = ["Trainer", "TRAINABLE", "arch_of"]
+__all__ = ["Trainer", "TRAINABLE", "arch_of", "read_config_file"]
 
 #: What ``init_backbone`` loads: the image backbone and its neck, the same modules in every architecture.
 BACKBONE_PREFIXES = ("img_backbone.", "img_neck.")
-#: The architectures ``Trainer`` trains (each has an objective in ``objectives.py``).
-TRAINABLE = ("fisheye-bevdet", "fisheye-petr")
+#: The architectures ``Trainer`` trains (each has an objective in ``objectives.py`` and a compact configuration
+#: in ``compact.py``): the paper's two detectors and the BEVDet baselines of its Table 2.
+TRAINABLE = ("fisheye-bevdet", "fisheye-petr", "pinhole-bevdet", "fisheye-bevdet-persp", "fisheye-bevdet-cyl")
 
 
 def arch_of(config: Any) -> str:
@@ -66,6 +67,23 @@ def arch_of(config: Any) -> str:
     raise ConfigError(f"no trainable architecture takes a {type(config).__name__} (trainable: {', '.join(TRAINABLE)})")
 
 
+def read_config_file(path: str | Path) -> Any:
+    """The configuration of an mmdet3d-style file of a trainable architecture: the one whose reader takes it."""
+    from fisheye_infer.models import get_model_entry
+
+    read, refusals = [], []
+    for name in TRAINABLE:
+        try:
+            read.append(get_model_entry(name).config_cls.from_mmdet3d_config(path))
+        except ConfigError as exc:
+            refusals.append(f"{name}: {exc}")
+    if len(read) == 1:
+        return read[0]
+    if not read:
+        raise ConfigError(f"{path} is no configuration of a trainable architecture:\n  " + "\n  ".join(refusals))
+    raise ConfigError(f"{path} reads as several architectures ({', '.join(arch_of(c) for c in read)})")
+
+
 def _atomic_save(obj: Any, path: Path) -> None:
     """A checkpoint appears whole or not at all: a run killed mid-save leaves the previous one."""
     with pending_file(path) as pending:
@@ -74,7 +92,7 @@ def _atomic_save(obj: Any, path: Path) -> None:
 
 
 class Trainer:
-    """Trains a model of ``config`` (a FisheyeBEVDet or FisheyePETR configuration) for ``rig`` in the run folder
+    """Trains a model of ``config`` (the configuration of one of ``TRAINABLE``) for ``rig`` in the run folder
     ``out``.
 
     Trainer(compact_bevdet_config(), compact_rig(), "runs/compact", TrainOptions()).run()

@@ -15,8 +15,6 @@ import numpy as np
 import torch
 from torch import nn
 
-from fisheye_infer.geometry.lss import LSSGeometry
-
 from ..fisheye_bevdet import FisheyeBEVDet
 from ..fisheye_petr import FisheyePETR
 from ..view_transform import FisheyeLSS
@@ -93,10 +91,8 @@ class BEVDetObjective:
         self.loss = TransFusionLoss(model.bbox_head, grid)
         (x0, y0), (dx, dy) = grid.pc_range, grid.span
         self.bev_range = (x0, y0, x0 + dx, y0 + dy)
-        vt = model.view_transform
-        assert isinstance(vt.geometry, LSSGeometry)  # the fisheye lift
-        self.depth_targets: DepthTargets | None = DepthTargets(vt.geometry, model.config.view_transform)
-        self.depth_probe = _DepthProbe(vt)
+        self.depth_targets: DepthTargets | None = DepthTargets(model.view_transform.geometry)
+        self.depth_probe = _DepthProbe(model.view_transform)
 
     def init(self, seed: int) -> None:
         _seeded(self.model, seed)

@@ -110,11 +110,22 @@ def test_export_self_check_passed_on_the_kit_checkpoint(exported) -> None:
 
 
 @pytest.fixture(scope="module")
-def reference(exported, rig: Rig) -> Reference:
-    """The float64 model and PyTorch float32 on a frame the export did not check."""
-    model, _ = load_model(exported.arch, exported.ckpt)
-    frames = verification_frames(rig, 1, seed=11)
-    return Reference(model, frames, np.ones(frames.shape[:2], bool))
+def references(rig: Rig) -> dict[str, Reference]:
+    """By architecture: the float64 model and PyTorch float32 on a frame the export did not check, built
+    once for the parity tests and the refusals below (a full-size float64 forward takes a minute)."""
+    return {}
+
+
+def reference_of(exported, references: dict[str, Reference], rig: Rig) -> Reference:
+    if exported.arch not in references:
+        model, _ = load_model(exported.arch, exported.ckpt)
+        references[exported.arch] = Reference(model, verification_frames(rig, 1, seed=11))
+    return references[exported.arch]
+
+
+@pytest.fixture(scope="module")
+def reference(exported, references: dict[str, Reference], rig: Rig) -> Reference:
+    return reference_of(exported, references, rig)
 
 
 @pytest.fixture(scope="module")
@@ -151,8 +162,9 @@ def test_parity_check_catches_a_wrong_box_and_a_wrong_choice(reference: Referenc
     assert not diff.selection_valid and "left out beats a chosen one" in diff.notes[0]
 
 
-def test_self_check_fails_on_a_perturbed_weight(bevdet_export, rig: Rig, tmp_path: Path) -> None:
-    model, _ = load_model(bevdet_export.arch, bevdet_export.ckpt)
+def test_self_check_fails_on_a_perturbed_weight(
+    bevdet_export, references: dict[str, Reference], rig: Rig, tmp_path: Path
+) -> None:
     proto = onnx.load(str(bevdet_export.onnx))
     init = next(i for i in proto.graph.initializer if i.name.endswith("bbox_head.shared_conv.weight"))
     w = numpy_helper.to_array(init).copy()
@@ -160,14 +172,13 @@ def test_self_check_fails_on_a_perturbed_weight(bevdet_export, rig: Rig, tmp_pat
     init.CopyFrom(numpy_helper.from_array(w, init.name))
     bad = tmp_path / "perturbed.onnx"
     onnx.save(proto, str(bad))
-    frames = verification_frames(rig, 1)
-    report = verify(bad, model, frames, threads=(2,))
+    report = verify(bad, reference_of(bevdet_export, references, rig), threads=(2,))
     assert not report.passed
     assert report.max_rank_score_abs_diff > report.tolerance_rank_score or report.unmatched > 0
 
 
 def test_self_check_fails_on_the_interleaved_sine_layout(
-    petr_export, rig: Rig, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    petr_export, references: dict[str, Reference], rig: Rig, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A FisheyePETR file whose key position embedding was built with interleaved sin/cos (the layout
     the official code does not use) is refused, though everything else in it is right."""
@@ -182,8 +193,7 @@ def test_self_check_fails_on_the_interleaved_sine_layout(
     bad = tmp_path / "interleaved.onnx"
     rebake(petr_export.onnx, rig, bad)
     monkeypatch.undo()
-    model, _ = load_model(petr_export.arch, petr_export.ckpt)
-    report = verify(bad, model, verification_frames(rig, 1), threads=(2,))
+    report = verify(bad, reference_of(petr_export, references, rig), threads=(2,))
     assert not report.passed and report.max_box_abs_diff_m > report.tolerance_box_m
 
 
@@ -191,7 +201,7 @@ def test_degraded_mode_matches_pytorch(bevdet_export, rig: Rig) -> None:
     model, _ = load_model(bevdet_export.arch, bevdet_export.ckpt)
     frames = verification_frames(rig, 1, seed=5)
     valid = np.array([[True, False, True, False]])
-    report = verify(bevdet_export.onnx, model, frames, valid, threads=(2,))
+    report = verify(bevdet_export.onnx, Reference(model, frames, valid), threads=(2,))
     assert report.passed, report
     full = run_onnx(bevdet_export.onnx, frames, np.ones_like(valid), 2)
     assert not np.allclose(

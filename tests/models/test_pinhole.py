@@ -367,9 +367,21 @@ def test_pinhole_frames_are_written_and_read_back(pinhole_rig: Rig, tmp_path: Pa
     np.testing.assert_allclose(frame.rig.cam2lidar(), pinhole_rig.cam2lidar(), atol=1e-6)
     np.testing.assert_array_equal(frame.gt_boxes, written.boxes)
     assert frame.image("nu_rgb_camera_rear").shape == (720, 1280, 3)
-    small = resized_rig(pinhole_rig, 0.125)
+    small = resized_rig(pinhole_rig, 0.125)  # scaled about pixel centres: cx = 79.5625, not W/2
     with pytest.raises(DatasetError, match="camera 'nu_rgb_camera_front': the layout stores no pinhole intrinsics"):
         synthesize(small, tmp_path / "small", frames=1)
+
+
+def test_pinhole_frames_of_another_size_read_back_with_the_converters_pinhole_of_that_size(tmp_path: Path) -> None:
+    """The compact pinhole baseline's rig: the converter's 90-degree pinhole at 512x288, which the reader
+    rebuilds from the images' size."""
+    from fisheye_infer.models.training.compact import compact_pinhole_rig
+
+    rig = compact_pinhole_rig()
+    synthesize(rig, tmp_path, frames=1, seed=3)
+    frame = Fisheye3DOD(tmp_path, "val", cameras=PINHOLE_CAMERAS)[0]
+    assert [c.model for c in frame.rig.cameras] == [c.model for c in rig.cameras]
+    assert frame.rig.cameras[0].model.cx == 256.0 and frame.image("nu_rgb_camera_front").shape == (288, 512, 3)
 
 
 # -- architecture from a checkpoint --------------------------------------------------------------

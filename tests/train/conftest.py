@@ -13,7 +13,7 @@ torch = pytest.importorskip("torch")
 
 from fisheye_infer.cameras.rig import default_rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
-from fisheye_infer.models.training.compact import write_config  # noqa: E402
+from fisheye_infer.models.training.config_file import write_config  # noqa: E402
 from fisheye_infer.scenes.render import resized_rig  # noqa: E402
 
 #: A few steps on tiny frames: batch 1, no warm-up damping worth the name at this rate.

@@ -1,4 +1,4 @@
-"""The compact configuration: consistent, written as a config file that reads back, small enough to ship."""
+"""The compact configurations: consistent, written as config files that read back, small enough to ship."""
 
 from __future__ import annotations
 
@@ -6,25 +6,56 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from fisheye_infer.commands.train import ARCHITECTURES  # noqa: E402
 from fisheye_infer.errors import ConfigError  # noqa: E402
-from fisheye_infer.models import BEVDetConfig, create_model  # noqa: E402
-from fisheye_infer.models.training.compact import compact_bevdet_config, compact_rig, write_config  # noqa: E402
+from fisheye_infer.models import BEVDetConfig, create_model, get_model_entry  # noqa: E402
+from fisheye_infer.models.training.compact import COMPACT, compact_setup  # noqa: E402
+from fisheye_infer.models.training.config_file import write_config  # noqa: E402
+from fisheye_infer.models.training.loop import TRAINABLE, read_config_file  # noqa: E402
 
-SHIP_LIMIT_BYTES = 20_000_000
+#: What a shipped checkpoint may weigh (the compact FisheyePETR: 21.6 MB, the BEVDet family: 14.4 MB).
+SHIP_LIMIT_BYTES = 25_000_000
 
 
-@pytest.mark.parametrize("config", [BEVDetConfig(), compact_bevdet_config()], ids=["official", "compact"])
-def test_config_file_reads_back_as_the_configuration(config: BEVDetConfig, tmp_path) -> None:
+def test_every_trainable_architecture_has_a_compact_configuration_and_a_name_on_the_command_line() -> None:
+    assert tuple(COMPACT) == TRAINABLE == ARCHITECTURES
+
+
+@pytest.mark.parametrize("arch", TRAINABLE)
+@pytest.mark.parametrize("size", ["official", "compact"])
+def test_config_file_reads_back_as_the_configuration_of_its_architecture(arch: str, size: str, tmp_path) -> None:
+    config = get_model_entry(arch).config_cls() if size == "official" else compact_setup(arch)[0]
     path = write_config(config, tmp_path / "config.py")
-    assert BEVDetConfig.from_mmdet3d_config(path) == config
+    assert read_config_file(path) == config
 
 
-def test_compact_model_fits_its_rig_and_the_size_limit() -> None:
-    config, rig = compact_bevdet_config(), compact_rig()
-    assert rig.shared_model().width == config.image.width == 320
-    model = create_model("fisheye-bevdet", config, rig)
+@pytest.mark.parametrize("arch", TRAINABLE)
+def test_compact_model_fits_its_rig_and_the_size_limit(arch: str) -> None:
+    config, rig = compact_setup(arch)
+    assert rig.cameras[0].model.width == config.image.width and tuple(rig.names) == config.image.camera_names
+    model = create_model(arch, config, rig)
     size = sum(v.numel() * v.element_size() for v in model.official_state_dict().values())
     assert size < SHIP_LIMIT_BYTES
+
+
+def test_the_baselines_keep_the_official_share_of_feature_cells() -> None:
+    """Each compact input is the official one scaled by 0.4: feature cells per model in the official ratio."""
+
+    def cells(config) -> int:
+        return config.num_views * config.view_transform.feature_size[0] * config.view_transform.feature_size[1]
+
+    compact = {arch: cells(compact_setup(arch)[0]) for arch in TRAINABLE if arch != "fisheye-petr"}
+    official = {arch: cells(get_model_entry(arch).config_cls()) for arch in compact}
+    assert (
+        compact
+        == {a: official[a] * 0.16 for a in official}
+        == {
+            "fisheye-bevdet": 1600,
+            "pinhole-bevdet": 1200,
+            "fisheye-bevdet-persp": 800,
+            "fisheye-bevdet-cyl": 800,
+        }
+    )
 
 
 def test_backbone_width_must_agree_with_the_neck() -> None:

@@ -25,7 +25,7 @@ def setup(small_bevdet_config):
     rig = resized_rig(default_rig(), 0.2)
     model = create_model("fisheye-bevdet", small_bevdet_config, rig)
     vt = small_bevdet_config.view_transform
-    return DepthTargets(model.view_transform.geometry, vt), model.view_transform.geometry, vt, rig
+    return DepthTargets(model.view_transform.geometry), model.view_transform.geometry, vt, rig
 
 
 def _centre_rays(geometry) -> np.ndarray:
