@@ -1,7 +1,8 @@
-"""What a training step minimises, per architecture: the official losses of FisheyeBEVDet and of FisheyePETR.
+"""What a training step minimises, per architecture: the official losses of FisheyeBEVDet (and of the BEVDet
+baselines, which share its head and differ in the lift) and of FisheyePETR.
 
 An objective knows its model's outputs and initialisation, nothing of the optimiser or the run
-folder, so ``loop.Trainer`` trains either architecture the same way:
+folder, so ``loop.Trainer`` trains every architecture the same way:
 
     objective = objective_for(model, options)
     terms = objective(batch, device)      # terms["loss"].backward(); every name in objective.terms
@@ -81,7 +82,8 @@ class _DepthProbe:
 
 
 class BEVDetObjective:
-    """TransFusion's heatmap, classification and box losses (``losses.py``), plus the weighted depth loss."""
+    """TransFusion's heatmap, classification and box losses (``losses.py``), plus the weighted depth loss against
+    the targets of the model's own lift (fisheye, pinhole, perspective or cylindrical)."""
 
     terms: tuple[str, ...] = ("loss", "loss_heatmap", "loss_cls", "loss_bbox", "loss_depth", "matched_iou")
 
