@@ -1,4 +1,4 @@
-"""Seconds per training step of FisheyeBEVDet configurations on this machine, and steps per 3 hours.
+"""Seconds per training step of the BEVDet family's configurations on this machine, and steps per 3 hours.
 
     python benchmarks/train_step.py [--threads 1] [--steps 8] [--cases compact-b1,compact-b2,...] [--quick]
 
@@ -9,6 +9,9 @@ allocates and is left out. Cases:
     compact-b1, compact-b2   the compact configuration (320 x 320), batch 1 / 2
     compact480-b2            the compact configuration at 480 x 480 (rig x 0.6, 15 x 60 angular grid), batch 2
     official-b1              the official full-size configuration (800 x 800), batch 1
+    pinhole-b2, persp-b2, cyl-b2
+                             the compact BEVDet baselines (``--arch pinhole-bevdet``, ``fisheye-bevdet-persp``,
+                             ``fisheye-bevdet-cyl``), batch 2
 
 Each row carries the load average, since figures on a shared machine move with it.
 """
@@ -25,7 +28,7 @@ import torch
 
 from fisheye_infer.cameras.rig import Rig, default_rig
 from fisheye_infer.models import BEVDetConfig
-from fisheye_infer.models.training.compact import COMPACT_SECTIONS, compact_bevdet_config, compact_rig
+from fisheye_infer.models.training.compact import COMPACT_SECTIONS, compact_bevdet_config, compact_rig, compact_setup
 from fisheye_infer.models.training.loop import Trainer
 from fisheye_infer.models.training.options import TrainOptions
 from fisheye_infer.scenes.render import resized_rig
@@ -46,6 +49,9 @@ def cases() -> dict[str, tuple[BEVDetConfig, Rig, int]]:
         "compact-b2": (compact_bevdet_config(), compact_rig(), 2),
         "compact480-b2": (*_compact_at(480, (15, 60)), 2),
         "official-b1": (BEVDetConfig(), default_rig(), 1),
+        "pinhole-b2": (*compact_setup("pinhole-bevdet"), 2),
+        "persp-b2": (*compact_setup("fisheye-bevdet-persp"), 2),
+        "cyl-b2": (*compact_setup("fisheye-bevdet-cyl"), 2),
     }
 
 
