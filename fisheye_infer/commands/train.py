@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
             )
         if not (out / "config.py").is_file() or not (out / "rig.json").is_file():
             raise ConfigError(f"--resume: {out} has no config.py and rig.json; is it a run folder?")
-        config, rig = read_config_file(out / "config.py"), Rig.load(out / "rig.json")  # model.type names the arch
+        config, rig = read_config_file(out / "config.py"), Rig.load(out / "rig.json")
     else:
         if (out / "checkpoint.pth").exists():
             raise ConfigError(

@@ -110,13 +110,14 @@ def test_export_self_check_passed_on_the_kit_checkpoint(exported) -> None:
 
 
 @pytest.fixture(scope="module")
-def references(rig: Rig) -> dict[str, Reference]:
+def references() -> dict[str, Reference]:
     """By architecture: the float64 model and PyTorch float32 on a frame the export did not check, built
     once for the parity tests and the refusals below (a full-size float64 forward takes a minute)."""
     return {}
 
 
 def reference_of(exported, references: dict[str, Reference], rig: Rig) -> Reference:
+    """The reference of ``exported``'s architecture, built at its first use."""
     if exported.arch not in references:
         model, _ = load_model(exported.arch, exported.ckpt)
         references[exported.arch] = Reference(model, verification_frames(rig, 1, seed=11))
