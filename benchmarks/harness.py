@@ -185,7 +185,9 @@ def format_value(value: Any) -> str:
 
 def markdown_table(rows: Sequence[Row]) -> str:
     """A Markdown table of ``rows``; its columns are the rows' keys in the order they first appear. Markdown's
-    characters in the cells are escaped, so that a node name or a flag shows as it is."""
+    characters in the cells are escaped, so that a node name or a flag shows as it is. No rows: a line that says so."""
+    if not rows:
+        return "(no rows)"
     columns = list(dict.fromkeys(key for row in rows for key in row))
     cell = lambda value: re.sub(r"([\\`*_\[\]|])", r"\\\1", format_value(value)).replace("<", "&lt;").replace("\n", " ")
     lines = ["| " + " | ".join(cell(c) for c in columns) + " |", "|" + "---|" * len(columns)]

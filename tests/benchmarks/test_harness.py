@@ -228,6 +228,7 @@ def test_format_value(value: Any, text: str) -> None:
 def test_markdown_table_columns_and_escaping() -> None:
     table = harness.markdown_table([{"a": 1, "b": "x|y"}, {"a": 2, "c": "< 0.05"}])
     assert table.splitlines() == ["| a | b | c |", "|---|---|---|", "| 1 | x\\|y | - |", "| 2 | - | &lt; 0.05 |"]
+    assert harness.markdown_table([]) == "(no rows)"  # not an empty header
 
 
 def test_report_tables_carry_the_figures_command_machine_and_date(tmp_path: Path) -> None:
