@@ -148,10 +148,9 @@ def compact_pinhole_rig() -> Rig:
     )
 
 
-def _lift(view_size: tuple[int, int], feature_size: tuple[int, int], **fields: Any) -> dict[str, Any]:
-    """The compact FisheyeBEVDet's view transform fields for views of ``view_size`` with ``feature_size`` features."""
-    vt = {k: v for k, v in COMPACT_SECTIONS["view_transform"].items() if k != "feature_size"}
-    return {**vt, "image_size": view_size, "feature_size": feature_size, **fields}
+def _lift(feature_size: tuple[int, int], **fields: Any) -> dict[str, Any]:
+    """The compact FisheyeBEVDet's view transform fields with ``feature_size`` features and ``fields`` on top."""
+    return {**COMPACT_SECTIONS["view_transform"], "feature_size": feature_size, **fields}
 
 
 def _baseline_sections() -> dict[str, Any]:
@@ -167,7 +166,7 @@ def compact_pinhole_bevdet_config() -> Any:
     return PinholeBEVDetConfig().replace(
         image={"height": height, "width": width},
         image_aug={"scale": 0.625, "crop": (0, 20)},  # 512 x 288 -> 320 x 180, rows 20..179
-        view_transform=_lift((160, 320), (10, 20)),
+        view_transform=_lift((10, 20), image_size=(160, 320)),
         **_baseline_sections(),
     )
 
@@ -180,7 +179,7 @@ def compact_persp_bevdet_config() -> Any:
     return PerspBEVDetConfig().replace(
         image=COMPACT_SECTIONS["image"],
         perspective={"size": (160, 160)},
-        view_transform=_lift((160, 160), (10, 10)),
+        view_transform=_lift((10, 10), image_size=(160, 160)),
         **_baseline_sections(),
     )
 
@@ -190,12 +189,14 @@ def compact_cyl_bevdet_config() -> Any:
     with the intended cylinder (a ``BEVDetCylConfig``)."""
     from fisheye_infer.models import BEVDetCylConfig
 
-    vt = _lift((160, 320), (10, 20), azimuth_range=(-math.radians(110), math.radians(110)))
-    vt = {k: v for k, v in vt.items() if k != "image_size"}
     return BEVDetCylConfig().replace(
         image=COMPACT_SECTIONS["image"],
         cylinder={"height": 160, "width": 320},
-        view_transform={**vt, "elevation_range": (-math.radians(45), math.radians(45))},
+        view_transform=_lift(
+            (10, 20),
+            azimuth_range=(-math.radians(110), math.radians(110)),
+            elevation_range=(-math.radians(45), math.radians(45)),
+        ),
         **_baseline_sections(),
     )
 
