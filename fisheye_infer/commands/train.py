@@ -45,15 +45,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--steps",
         type=int,
-        default=8000,
         help="total optimiser steps (default 8000: the shipped model's first run, "
         "continued with --resume --steps 14000)",
     )
-    parser.add_argument("--batch-size", type=int, default=2, help="frames per step (default 2)")
-    parser.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of AdamW (default 2e-4)")
-    parser.add_argument(
-        "--seed", type=int, default=0, help="seed of the weights and of the training frames (default 0)"
-    )
+    parser.add_argument("--batch-size", type=int, help="frames per step (default 2)")
+    parser.add_argument("--lr", type=float, help="peak learning rate of AdamW (default 2e-4)")
+    parser.add_argument("--seed", type=int, help="seed of the weights and of the training frames (default 0)")
     parser.add_argument(
         "--threads",
         type=int,
@@ -63,21 +60,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--until", type=int, help="stop after this step (checkpointed) and continue later with --resume"
     )
-    parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
-    parser.add_argument(
-        "--val-frames", type=int, default=4, help="validation frames scored at each checkpoint (default 4)"
-    )
+    parser.add_argument("--checkpoint-every", type=int, help="steps between checkpoints (default 100)")
+    parser.add_argument("--val-frames", type=int, help="validation frames scored at each checkpoint (default 4)")
     parser.add_argument(
         "--depth-weight",
         type=float,
-        default=3.0,
         help="the BEVDet family: weight of the depth loss against the frames' true ray depths "
         "(default 3, as BEVDepth; 0: the official losses alone); FisheyePETR has no depth head",
     )
     parser.add_argument(
         "--qat",
         type=float,
-        default=0.0,
         help="share of steps whose forward rounds weights and activations as the int8 file will "
         "(quantization-aware training; default 0: float only)",
     )
@@ -101,6 +94,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--freeze-backbone",
         action="store_true",
+        default=None,
         help="keep the image backbone and neck as they start (from --init-backbone or --init): "
         "their weights and BatchNorm statistics; a step skips their backward",
     )
@@ -111,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         import torch
 
-        from fisheye_infer.models.training.loop import Trainer, read_config_file
+        from fisheye_infer.models.training.loop import Trainer, read_config_file, saved_options
         from fisheye_infer.models.training.options import TrainOptions
     except ImportError as exc:
         return missing_extra(NEEDS_EXPORT, exc)
@@ -153,19 +147,22 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--config needs --rig: the rig whose cameras give the configuration's image size")
         else:
             rig = compact_setup(args.arch)[1]
-    options = TrainOptions(
-        steps=args.steps,
-        batch_size=args.batch_size,
-        lr=args.lr,
-        seed=args.seed,
-        checkpoint_every=args.checkpoint_every,
-        val_frames=args.val_frames,
-        depth_weight=args.depth_weight,
-        init=args.init or "",
-        qat=args.qat,
-        init_backbone=args.init_backbone or "",
-        freeze_backbone=args.freeze_backbone,
-    )
+    given = {
+        "steps": args.steps,
+        "batch_size": args.batch_size,
+        "lr": args.lr,
+        "seed": args.seed,
+        "checkpoint_every": args.checkpoint_every,
+        "val_frames": args.val_frames,
+        "depth_weight": args.depth_weight,
+        "init": args.init,
+        "qat": args.qat,
+        "init_backbone": args.init_backbone,
+        "freeze_backbone": args.freeze_backbone,
+    }
+    # a resumed run keeps the options it was started with; those given again must match them (but --steps)
+    start = saved_options(out) if args.resume else {}
+    options = TrainOptions(**{**start, **{k: v for k, v in given.items() if v is not None}})
     previous = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:

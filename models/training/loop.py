@@ -48,7 +48,7 @@ from .objectives import objective_for
 from .options import TrainOptions, lr_factor, training_device
 from .qat import FakeQuant
 
-__all__ = ["Trainer", "TRAINABLE", "arch_of", "read_config_file"]
+__all__ = ["Trainer", "TRAINABLE", "arch_of", "read_config_file", "saved_options"]
 
 #: What ``init_backbone`` loads: the image backbone and its neck, the same modules in every architecture.
 BACKBONE_PREFIXES = ("img_backbone.", "img_neck.")
@@ -82,6 +82,21 @@ def read_config_file(path: str | Path) -> Any:
     if not read:
         raise ConfigError(f"{path} is no configuration of a trainable architecture:\n  " + "\n  ".join(refusals))
     raise ConfigError(f"{path} reads as several architectures ({', '.join(arch_of(c) for c in read)})")
+
+
+def saved_options(folder: Path) -> dict[str, Any]:
+    """The options the run in ``folder`` was started with (its ``checkpoint.pth``), so that ``--resume``
+    need repeat none of them; ``{}`` when the folder has no checkpoint yet."""
+    path = folder / "checkpoint.pth"
+    if not path.is_file():
+        return {}
+    return _saved_options(torch.load(path, map_location="cpu", weights_only=True).get("meta", {}))
+
+
+def _saved_options(meta: dict[str, Any]) -> dict[str, Any]:
+    # runs made before fine-tuning, int8 simulation and backbone initialisation existed lack those fields
+    saved = {"init": "", "qat": 0.0, "init_backbone": "", "freeze_backbone": False, **meta.get("train_options", {})}
+    return {field.name: saved[field.name] for field in dataclasses.fields(TrainOptions) if field.name in saved}
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
@@ -172,12 +187,11 @@ class Trainer:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
         meta = ckpt.get("meta", {})
         self._check_origin(meta, f"--resume: {path}", recorded=True)
-        # runs made before fine-tuning, int8 simulation and backbone initialisation existed
-        saved = {"init": "", "qat": 0.0, "init_backbone": "", "freeze_backbone": False, **meta.get("train_options", {})}
+        saved = _saved_options(meta)
         mine = dataclasses.asdict(self.options)
         starts = ("init", "init_backbone")  # where the run's weights started; checkpoint.pth holds them now
         differ = [
-            f"{k}: saved {saved.get(k)!r}, given {v!r}"
+            f"--{k.replace('_', '-')}: saved {saved.get(k)!r}, given {v!r}"
             for k, v in mine.items()
             if k not in ("steps", *starts) and saved.get(k) != v
         ]

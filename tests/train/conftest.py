@@ -44,8 +44,9 @@ def small_inputs(tmp_path_factory: pytest.TempPathFactory, small_bevdet_config) 
 def train(
     out: Path, inputs: tuple[Path, Path] | None, steps: int, resume: bool = False, until: int | None = None
 ) -> Run:
-    argv = ["train", "--out", str(out), "--steps", str(steps), *STEPS] + (["--until", str(until)] if until else [])
-    argv += ["--resume"] if resume else ["--config", str(inputs[0]), "--rig", str(inputs[1])]  # type: ignore[index]
+    argv = ["train", "--out", str(out), "--steps", str(steps)] + (["--until", str(until)] if until else [])
+    # a resumed run is given none of its options again: it keeps those it was started with
+    argv += ["--resume"] if resume else [*STEPS, "--config", str(inputs[0]), "--rig", str(inputs[1])]  # type: ignore[index]
     assert main(argv) == 0
     return Run(out)
 
