@@ -109,11 +109,6 @@ class PinholePETRConfig(PETRConfig):
         return _pinhole_petr_params(self, self.views())
 
     @classmethod
-    def _image_size(cls, head: Section, d: PETRConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
-        """The raw camera size: ``ResizeCropFlipImage``'s ``H`` and ``W`` where the file has them, else 1280x720."""
-        return d.image.height, d.image.width
-
-    @classmethod
     def _read_head(cls, head: Section, cfg: Mapping[str, Any], d: PETRConfig) -> dict[str, Any]:
         """``head`` (a ``PETRHead``) and ``image_aug`` from the test pipeline's ``ResizeCropFlipImage``."""
         if pipeline_steps(cfg, PERSPECTIVE_STEP):
@@ -134,11 +129,12 @@ class PinholePETRConfig(PETRConfig):
             )
         conf = step.sub("data_aug_conf")
         fh, fw = conf.numbers("final_dim", 2, int)
-        height, width = int(conf.get("H", d.image.height)), int(conf.get("W", d.image.width))
-        if (height, width) != (d.image.height, d.image.width):
+        cameras = cls._image_size(head, d, cfg)
+        height, width = int(conf.get("H", cameras[0])), int(conf.get("W", cameras[1]))
+        if (height, width) != cameras:
             raise ConfigError(
                 f"{head.source}: {conf.where('H')}/{conf.where('W')}={height}x{width}: the pinhole cameras are "
-                f"{d.image.height}x{d.image.width} (the official converter's size)"
+                f"{cameras[0]}x{cameras[1]} (the file's image_size, else the official converter's size)"
             )
         aug = test_mode_crop(
             max(fh / height, fw / width), width, height, (fh, fw), range_mean(conf, "bot_pct_lim", (0.0, 0.0))

@@ -18,7 +18,16 @@ from fisheye_infer.commands.common import NEEDS_EXPORT, missing_extra
 __all__ = ["configure", "run", "ARCHITECTURES"]
 
 #: ``--arch``: ``models.training.loop.TRAINABLE``, named here so that the parser needs no torch.
-ARCHITECTURES = ("fisheye-bevdet", "fisheye-petr", "pinhole-bevdet", "fisheye-bevdet-persp", "fisheye-bevdet-cyl")
+ARCHITECTURES = (
+    "fisheye-bevdet",
+    "fisheye-petr",
+    "pinhole-bevdet",
+    "fisheye-bevdet-persp",
+    "fisheye-bevdet-cyl",
+    "pinhole-petr",
+    "fisheye-petr-persp",
+    "fisheye-petr-cyl",
+)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -58,6 +58,9 @@ __all__ = [
     "compact_pinhole_bevdet_config",
     "compact_persp_bevdet_config",
     "compact_cyl_bevdet_config",
+    "compact_pinhole_petr_config",
+    "compact_persp_petr_config",
+    "compact_cyl_petr_config",
     "compact_rig",
     "compact_pinhole_rig",
     "compact_setup",
@@ -65,6 +68,9 @@ __all__ = [
 
 #: Image scale of the compact models' rigs and views (fisheye 800 x 800 -> 320 x 320).
 COMPACT_SCALE = 0.4
+#: The compact cylinders' span (radians): the +-110 by +-45 degrees the released files intend.
+CYLINDER_AZIMUTH = (-math.radians(110), math.radians(110))
+CYLINDER_ELEVATION = (-math.radians(45), math.radians(45))
 
 COMPACT_SECTIONS: dict[str, dict[str, Any]] = {
     "image": {"height": 320, "width": 320},
@@ -194,10 +200,58 @@ def compact_cyl_bevdet_config() -> Any:
         cylinder={"height": 160, "width": 320},
         view_transform=_lift(
             (10, 20),
-            azimuth_range=(-math.radians(110), math.radians(110)),
-            elevation_range=(-math.radians(45), math.radians(45)),
+            azimuth_range=CYLINDER_AZIMUTH,
+            elevation_range=CYLINDER_ELEVATION,
         ),
         **_baseline_sections(),
+    )
+
+
+def _petr_head(**fields: Any) -> dict[str, Any]:
+    """The compact FisheyePETR's decoder (width, heads, queries) with the key grid of ``fields``; the spherical
+    head's own fields (its angular grid and depth bins) stay out."""
+    decoder = {k: v for k, v in COMPACT_PETR_SECTIONS["head"].items() if k not in ("feature_size", "dbound")}
+    return {**decoder, **fields}
+
+
+def compact_pinhole_petr_config() -> Any:
+    """PETR on six pinhole cameras (``nusc_petr.py``) at compact sizes (a ``PinholePETRConfig``): the compact
+    pinhole BEVDet's input and the compact FisheyePETR's backbone and decoder."""
+    from fisheye_infer.models import PinholePETRConfig
+
+    rig = compact_pinhole_rig()
+    width, height = rig.cameras[0].model.width, rig.cameras[0].model.height
+    return PinholePETRConfig().replace(
+        image={"height": height, "width": width},
+        image_aug={"scale": 0.625, "crop": (0, 20)},  # 512 x 288 -> 320 x 180, rows 20..179
+        backbone=COMPACT_SECTIONS["backbone"],
+        head=_petr_head(image_size=(160, 320), feature_size=(10, 20)),
+    )
+
+
+def compact_persp_petr_config() -> Any:
+    """PETR on perspective views of the four fisheye cameras (``fisheye_to_pinhole_petr.py``) at compact sizes
+    (a ``PerspPETRConfig``)."""
+    from fisheye_infer.models import PerspPETRConfig
+
+    return PerspPETRConfig().replace(
+        image=COMPACT_SECTIONS["image"],
+        backbone=COMPACT_SECTIONS["backbone"],
+        perspective={"size": (160, 160)},
+        head=_petr_head(image_size=(160, 160), feature_size=(10, 10)),
+    )
+
+
+def compact_cyl_petr_config() -> Any:
+    """PETR on cylindrical images of the four fisheye cameras (``fisheye_to_cyl_petr.py``) at compact sizes, with
+    the intended cylinder (a ``CylPETRConfig``)."""
+    from fisheye_infer.models import CylPETRConfig
+
+    return CylPETRConfig().replace(
+        image=COMPACT_SECTIONS["image"],
+        backbone=COMPACT_SECTIONS["backbone"],
+        cylinder={"height": 160, "width": 320},
+        head=_petr_head(feature_size=(10, 20), azimuth_range=CYLINDER_AZIMUTH, elevation_range=CYLINDER_ELEVATION),
     )
 
 
@@ -208,6 +262,9 @@ COMPACT: dict[str, tuple[Callable[[], Any], Callable[[], Rig]]] = {
     "pinhole-bevdet": (compact_pinhole_bevdet_config, compact_pinhole_rig),
     "fisheye-bevdet-persp": (compact_persp_bevdet_config, compact_rig),
     "fisheye-bevdet-cyl": (compact_cyl_bevdet_config, compact_rig),
+    "pinhole-petr": (compact_pinhole_petr_config, compact_pinhole_rig),
+    "fisheye-petr-persp": (compact_persp_petr_config, compact_rig),
+    "fisheye-petr-cyl": (compact_cyl_petr_config, compact_rig),
 }
 
 

@@ -1,6 +1,6 @@
 """The mmdet3d-style config files ``fisheye-infer train`` writes beside a run's checkpoints, in the
-official files' layout (``fisheye_bevdet.py``, ``nusc_bevdet.py``, ``fisheye_to_pinhole_bevdet.py``,
-``fisheye_to_cyl_bevdet.py``, ``fisheye_petr.py``): what ``fisheye-infer export --config`` and the
+official files' layout (``fisheye_bevdet.py``, ``fisheye_petr.py`` and the baselines' ``nusc_*.py``,
+``fisheye_to_pinhole_*.py`` and ``fisheye_to_cyl_*.py``): what ``fisheye-infer export --config`` and the
 configuration classes' ``from_mmdet3d_config`` read back.
 
 Only the model and the test pipeline's steps that define the model's input are written. The
@@ -17,6 +17,7 @@ from typing import Any
 __all__ = ["image_trunk_sections", "bevdet_config_source", "petr_config_source", "write_config"]
 
 LOAD_STEP = "LoadFisheye3DODMultiViewImageFromFiles"
+RESIZE_CROP_STEP = "ResizeCropFlipImage"
 
 
 def image_trunk_sections(cfg: Any) -> dict[str, Any]:
@@ -114,7 +115,6 @@ def bevdet_config_source(cfg: Any) -> str:
 def _bevdet_input(cfg: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The view transform section of a BEVDet-family configuration and the test pipeline's steps after loading
     that make its input (resize and crop, perspective or cylindrical rectification)."""
-    from fisheye_infer.geometry.views import ResizeCrop
     from fisheye_infer.models import BEVDetCylConfig, PerspBEVDetConfig, PinholeBEVDetConfig
 
     img, vt = cfg.image, cfg.view_transform
@@ -130,40 +130,15 @@ def _bevdet_input(cfg: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     )
     if isinstance(cfg, PinholeBEVDetConfig):
         h, w = vt.image_size
-        aug = cfg.image_aug
-        _, resized_h = ResizeCrop(scale=aug.scale).resized_size(img.width, img.height)
-        bottom = (resized_h - aug.crop[1] - h) / resized_h  # the official test-mode crop's bot_pct_lim
-        image_aug = dict(
-            type="ImageAug3D",
-            final_dim=[h, w],
-            resize_lim=[aug.scale, aug.scale],
-            bot_pct_lim=[bottom, bottom],
-            rot_lim=[0, 0],
-            rand_flip=False,
-            is_train=False,
-        )
+        image_aug = dict(type="ImageAug3D", **_resize_crop_fields(cfg, (h, w)), rot_lim=[0, 0], is_train=False)
         return dict(type="LSSTransform", image_size=[h, w], **common), [image_aug]
     if isinstance(cfg, PerspBEVDetConfig):
-        (h, w), views = vt.image_size, cfg.perspective
-        steps: list[dict[str, Any]] = [
-            dict(
-                type="MultiViewFisheyePerspectiveProjection",
-                image_size=[views.size[1], views.size[0]],  # (W, H)
-                perspective_fov=views.fov,
-                num_imgs_of_per_view=len(views.yaws),
-                camera_orientation=list(views.yaws),
-            )
-        ]
-        if views.truncate:  # the uint8 cast of an identity ImageAug3D
-            steps.append(dict(type="ImageAug3D", final_dim=[h, w], resize_lim=[1, 1], bot_pct_lim=[0.0, 0.0]))
-        return dict(type="LSSTransform", image_size=[h, w], **common), steps
+        h, w = vt.image_size
+        return dict(type="LSSTransform", image_size=[h, w], **common), _perspective_steps(cfg.perspective)
     if isinstance(cfg, BEVDetCylConfig):
-        size, ranges = (
-            cfg.cylinder,
-            dict(horizontal_range=list(vt.azimuth_range), vertical_range=list(vt.elevation_range)),
-        )
-        rectify = dict(type="MultiViewFisheyeCylindricalProjection", image_size=[size.width, size.height], **ranges)
-        return dict(type="CylindricalLSSTransform", image_size=[size.height, size.width], **common, **ranges), [rectify]
+        size, ranges = cfg.cylinder, _cylinder_ranges(vt.azimuth_range, vt.elevation_range)
+        view_transform = dict(type="CylindricalLSSTransform", image_size=[size.height, size.width], **common, **ranges)
+        return view_transform, [_cylinder_step(size, ranges)]
     return dict(
         type="FisheyeLSSTransform",
         image_size=[img.height, img.width],
@@ -175,14 +150,17 @@ def _bevdet_input(cfg: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
 
 
 def petr_config_source(cfg: Any) -> str:
-    """A ``PETRConfig`` as an mmdet3d config file's source."""
+    """A ``PETRConfig`` (FisheyePETR) or one of its baselines' (``PinholePETRConfig``, ``PerspPETRConfig``,
+    ``CylPETRConfig``) as an mmdet3d config file's source."""
     img, bb, hd = cfg.image, cfg.backbone, cfg.head
+    head_type, head_own, steps = _petr_input(cfg)
     layer_attn = dict(type="MultiheadAttention", embed_dims=hd.embed_dims, num_heads=hd.num_heads)
     model = dict(
         type="PETR",
         **image_trunk_sections(cfg),
         pts_bbox_head=dict(
-            type="FisheyePETRHead",
+            type=head_type,
+            **head_own,
             num_classes=len(cfg.class_names),
             code_size=hd.code_size,
             in_channels=bb.neck_out_channels,
@@ -192,11 +170,6 @@ def petr_config_source(cfg: Any) -> str:
             depth_start=hd.depth_start,
             position_range=list(hd.position_range),
             num_reg_fcs=hd.num_reg_fcs,
-            ocam_fov=hd.cam_fov,
-            feature_size=list(hd.feature_size),
-            dbound=list(hd.dbound),
-            azimuth_range=list(hd.azimuth_range),
-            elevation_range=list(hd.elevation_range),
             transformer=dict(
                 type="PETRTransformer",
                 decoder=dict(
@@ -226,14 +199,81 @@ def petr_config_source(cfg: Any) -> str:
             ),
         ),
     )
-    pipeline = [dict(type=LOAD_STEP, load_cam_names=list(img.camera_names))]
+    pipeline = [dict(type=LOAD_STEP, load_cam_names=list(img.camera_names)), *steps]
     return (
-        "# FisheyePETR configuration written by fisheye-infer train (an mmdet3d-style config: read, never executed)\n"
+        f"# {type(cfg).__name__} written by fisheye-infer train (an mmdet3d-style config: read, never executed)\n"
         f"classes = {list(cfg.class_names)!r}\n"
         f"image_size = {[img.height, img.width]!r}\n"
         f"test_pipeline = {pipeline!r}\n"
         f"model = {model!r}\n"
     )
+
+
+def _petr_input(cfg: Any) -> tuple[str, dict[str, Any], list[dict[str, Any]]]:
+    """The head type of a PETR-family configuration, the head fields only that type has, and the test pipeline's
+    steps after loading that make its input."""
+    from fisheye_infer.models import CylPETRConfig, PerspPETRConfig, PinholePETRConfig
+
+    hd = cfg.head
+    if isinstance(cfg, PinholePETRConfig):
+        conf = dict(_resize_crop_fields(cfg, hd.image_size), rot_lim=[0.0, 0.0], H=cfg.image.height, W=cfg.image.width)
+        resize_crop = dict(type=RESIZE_CROP_STEP, data_aug_conf=conf, training=False)
+        return "PETRHead", {}, [resize_crop]
+    if isinstance(cfg, PerspPETRConfig):
+        return "PETRHead", {}, _perspective_steps(cfg.perspective)
+    if isinstance(cfg, CylPETRConfig):
+        ranges = _cylinder_ranges(hd.azimuth_range, hd.elevation_range)
+        return "CylindricalPETRHead", ranges, [_cylinder_step(cfg.cylinder, ranges)]
+    spherical = dict(
+        ocam_fov=hd.cam_fov,
+        feature_size=list(hd.feature_size),
+        dbound=list(hd.dbound),
+        azimuth_range=list(hd.azimuth_range),
+        elevation_range=list(hd.elevation_range),
+    )
+    return "FisheyePETRHead", spherical, []
+
+
+# -- the test pipeline's steps that make a baseline's input ------------------------------------------
+
+
+def _resize_crop_fields(cfg: Any, final: tuple[int, int]) -> dict[str, Any]:
+    """The resize and test-mode crop of pinhole cameras (the fields ``ImageAug3D`` and ``ResizeCropFlipImage``
+    share):
+    ``bot_pct_lim`` is the official crop's, the share of resized rows below the crop."""
+    from fisheye_infer.geometry.views import ResizeCrop
+
+    img, aug, (h, w) = cfg.image, cfg.image_aug, final
+    _, resized_h = ResizeCrop(scale=aug.scale).resized_size(img.width, img.height)
+    bottom = (resized_h - aug.crop[1] - h) / resized_h
+    return dict(final_dim=[h, w], resize_lim=[aug.scale, aug.scale], bot_pct_lim=[bottom, bottom], rand_flip=False)
+
+
+def _perspective_steps(views: Any) -> list[dict[str, Any]]:
+    """``MultiViewFisheyePerspectiveProjection`` of a ``PerspectiveConfig``, and the identity ``ImageAug3D`` whose
+    uint8 cast truncates the views where the configuration says so."""
+    h, w = views.size
+    steps: list[dict[str, Any]] = [
+        dict(
+            type="MultiViewFisheyePerspectiveProjection",
+            image_size=[w, h],
+            perspective_fov=views.fov,
+            num_imgs_of_per_view=len(views.yaws),
+            camera_orientation=list(views.yaws),
+        )
+    ]
+    if views.truncate:
+        steps.append(dict(type="ImageAug3D", final_dim=[h, w], resize_lim=[1, 1], bot_pct_lim=[0.0, 0.0]))
+    return steps
+
+
+def _cylinder_ranges(azimuth: tuple[float, float], elevation: tuple[float, float]) -> dict[str, list[float]]:
+    return dict(horizontal_range=list(azimuth), vertical_range=list(elevation))
+
+
+def _cylinder_step(size: Any, ranges: dict[str, list[float]]) -> dict[str, Any]:
+    """``MultiViewFisheyeCylindricalProjection`` onto a ``CylinderConfig`` (the step writes (W, H))."""
+    return dict(type="MultiViewFisheyeCylindricalProjection", image_size=[size.width, size.height], **ranges)
 
 
 def write_config(cfg: Any, path: str | Path) -> Path:
@@ -242,7 +282,7 @@ def write_config(cfg: Any, path: str | Path) -> Path:
     from fisheye_infer.models import BEVDetConfig, PETRConfig
 
     path = Path(path)
-    if type(cfg) is PETRConfig:
+    if isinstance(cfg, PETRConfig):
         path.write_text(petr_config_source(cfg))
     elif isinstance(cfg, BEVDetConfig):
         path.write_text(bevdet_config_source(cfg))

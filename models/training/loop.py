@@ -53,8 +53,17 @@ __all__ = ["Trainer", "TRAINABLE", "arch_of", "read_config_file", "saved_options
 #: What ``init_backbone`` loads: the image backbone and its neck, the same modules in every architecture.
 BACKBONE_PREFIXES = ("img_backbone.", "img_neck.")
 #: The architectures ``Trainer`` trains (each has an objective in ``objectives.py`` and a compact configuration
-#: in ``compact.py``): the paper's two detectors and the BEVDet baselines of its Table 2.
-TRAINABLE = ("fisheye-bevdet", "fisheye-petr", "pinhole-bevdet", "fisheye-bevdet-persp", "fisheye-bevdet-cyl")
+#: in ``compact.py``): the paper's two detectors and the baselines of its Table 2.
+TRAINABLE = (
+    "fisheye-bevdet",
+    "fisheye-petr",
+    "pinhole-bevdet",
+    "fisheye-bevdet-persp",
+    "fisheye-bevdet-cyl",
+    "pinhole-petr",
+    "fisheye-petr-persp",
+    "fisheye-petr-cyl",
+)
 
 
 def arch_of(config: Any) -> str:

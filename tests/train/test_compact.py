@@ -42,18 +42,23 @@ def test_the_baselines_keep_the_official_share_of_feature_cells() -> None:
     """Each compact input is the official one scaled by 0.4: feature cells per model in the official ratio."""
 
     def cells(config) -> int:
-        return config.num_views * config.view_transform.feature_size[0] * config.view_transform.feature_size[1]
+        grid = config.view_transform if hasattr(config, "view_transform") else config.head  # the lift or the keys
+        return config.num_views * grid.feature_size[0] * grid.feature_size[1]
 
-    compact = {arch: cells(compact_setup(arch)[0]) for arch in TRAINABLE if arch != "fisheye-petr"}
+    compact = {arch: cells(compact_setup(arch)[0]) for arch in TRAINABLE}
     official = {arch: cells(get_model_entry(arch).config_cls()) for arch in compact}
     assert (
         compact
         == {a: official[a] * 0.16 for a in official}
         == {
             "fisheye-bevdet": 1600,
+            "fisheye-petr": 1600,
             "pinhole-bevdet": 1200,
             "fisheye-bevdet-persp": 800,
             "fisheye-bevdet-cyl": 800,
+            "pinhole-petr": 1200,
+            "fisheye-petr-persp": 800,
+            "fisheye-petr-cyl": 800,
         }
     )
 
