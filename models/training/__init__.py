@@ -1,5 +1,5 @@
-"""fisheye_infer.models.training: training FisheyeBEVDet, FisheyePETR and the BEVDet baselines on synthetic
-frames (needs the [export] extra).
+"""fisheye_infer.models.training: training FisheyeBEVDet, FisheyePETR and the baselines of the paper's Table 2
+on synthetic frames (needs the [export] extra).
 
     targets.py   Gaussian heatmap target and box code of the TransFusion head
     assign.py    3D IoU and the Hungarian assignment of proposals to ground truth

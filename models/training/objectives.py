@@ -1,5 +1,6 @@
 """What a training step minimises, per architecture: the official losses of FisheyeBEVDet (and of the BEVDet
-baselines, which share its head and differ in the lift) and of FisheyePETR.
+baselines, which share its head and differ in the lift) and of FisheyePETR (and of the PETR baselines, which
+share its decoder and differ in the keys).
 
 An objective knows its model's outputs and initialisation, nothing of the optimiser or the run
 folder, so ``loop.Trainer`` trains every architecture the same way:
