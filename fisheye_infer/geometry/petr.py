@@ -171,9 +171,11 @@ class PETRParams(Params):
 
 
 def _conv_mlp(x: np.ndarray, w1: np.ndarray, b1: np.ndarray, w2: np.ndarray, b2: np.ndarray) -> np.ndarray:
-    """Conv1x1 -> ReLU -> Conv1x1 over (N, Cin, H, W), in float64, as matrix products."""
-    hidden = np.maximum(np.einsum("oc,nchw->nohw", w1.reshape(w1.shape[0], -1), x) + b1[None, :, None, None], 0.0)
-    return np.einsum("oc,nchw->nohw", w2.reshape(w2.shape[0], -1), hidden) + b2[None, :, None, None]
+    """Conv1x1 -> ReLU -> Conv1x1 over (N, Cin, H, W), in float64, as matrix products (BLAS, which ``np.einsum``
+    does not call for this contraction)."""
+    n, c, h, w = x.shape
+    hidden = np.maximum(w1.reshape(w1.shape[0], -1) @ x.reshape(n, c, h * w) + b1[None, :, None], 0.0)
+    return (w2.reshape(w2.shape[0], -1) @ hidden + b2[None, :, None]).reshape(n, -1, h, w)
 
 
 def key_coords(cam2lidar: np.ndarray, params: KeyParams) -> np.ndarray:
