@@ -29,9 +29,10 @@ batch axis).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -157,17 +158,23 @@ class _Exact:
 class _Head:
     """A model's ranking head, with the inputs it received for each frame in one full run.
 
-    The trunk runs once per frame; every replay of a ranking runs the head alone.
+    The trunk runs once per frame; every replay of a ranking runs the head alone, and of the head only
+    what follows the ranking (``_BeforeRanking``): PETR's decoder, which comes before it, runs once.
     """
 
     def __init__(self, model: nn.Module, frames: np.ndarray, valid: np.ndarray) -> None:
         self.module = _ranking_head(model)
         self.inputs: list[tuple[tuple, dict]] = []
+        self.before_ranking: list[_BeforeRanking] = []
         hook = self.module.register_forward_pre_hook(
             lambda _, args, kwargs: self.inputs.append((args, kwargs)), with_kwargs=True
         )
         try:
-            self.outputs = [run_torch(model, frames[i : i + 1], valid[i : i + 1]) for i in range(len(frames))]
+            self.outputs = []
+            for i in range(len(frames)):
+                with _BeforeRanking(self.module) as before:
+                    self.outputs.append(run_torch(model, frames[i : i + 1], valid[i : i + 1]))
+                self.before_ranking.append(before)
         finally:
             hook.remove()
 
@@ -176,11 +183,78 @@ class _Head:
         args, kwargs = self.inputs[frame]
         dtype = next(self.module.parameters()).dtype
         d = torch.from_numpy(np.ascontiguousarray(dense[None])).to(dtype)
-        with replay_ranking(self.module, d, torch.from_numpy(np.ascontiguousarray(indices[None], np.int64))) as step:
+        chosen = torch.from_numpy(np.ascontiguousarray(indices[None], np.int64))
+        with replay_ranking(self.module, d, chosen) as step, self.before_ranking[frame].reused():
             out = self.module(*args, **kwargs)
         if step.own_dense is None:
             raise ExportError("the parity check's replay of the ranking produced no dense scores")
         return _Exact({k: out[k].cpu().numpy() for k in PROBE}, step.own_dense.cpu().numpy()[0], step.problem)
+
+
+class _BeforeRanking:
+    """What a ranking head computes before its ranking step, recorded in one run and handed back in replays.
+
+    A replay changes the ranking's scores and choice only, so every submodule that returned before the
+    ranking step first read its scores gives the same output again. Recorded: the outermost of those
+    called once in the run (a module called several times keeps running); ``reused()`` makes each return
+    a copy of its recorded output instead of running.
+    """
+
+    def __init__(self, head: nn.Module) -> None:
+        self.head = head
+        (self.step,) = [m for m in head.modules() if isinstance(m, TopK)]
+        self.outputs: dict[str, object] = {}
+        self.calls: dict[str, int] = {}
+        self._ranked = False
+
+    def __enter__(self) -> _BeforeRanking:
+        owners = {name for name, m in self.head.named_modules() if any(c is self.step for c in m.modules())}
+        self._hooks = [
+            m.register_forward_hook(self._keep(name)) for name, m in self.head.named_modules() if name not in owners
+        ]
+        dense = self.step.dense
+        self.step.dense = lambda scores: (setattr(self, "_ranked", True), dense(scores))[1]  # type: ignore[method-assign]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for hook in self._hooks:
+            hook.remove()
+        del self.step.dense  # the class's method again
+        once = {name for name, count in self.calls.items() if count == 1 and name in self.outputs}
+        outermost = {n for n in once if not any(n.startswith(f"{m}.") for m in once)}
+        self.outputs = {n: v for n, v in self.outputs.items() if n in outermost}
+
+    def _keep(self, name: str):  # noqa: ANN202
+        def hook(module: nn.Module, args: object, output: object) -> None:
+            self.calls[name] = self.calls.get(name, 0) + 1
+            if not self._ranked:
+                self.outputs[name] = _copy(output)  # as returned, whatever the run does with it afterwards
+
+        return hook
+
+    @contextlib.contextmanager
+    def reused(self) -> Iterator[None]:
+        modules = dict(self.head.named_modules())
+        for name, output in self.outputs.items():
+            modules[name].forward = lambda *_, _out=output, **__: _copy(_out)  # type: ignore[method-assign]
+        try:
+            yield
+        finally:
+            for name in self.outputs:
+                del modules[name].forward
+
+
+def _copy(value: object) -> object:
+    """Tensors cloned (a replay may write into what a module returns), containers rebuilt, the rest as is."""
+    if isinstance(value, torch.Tensor):
+        return value.clone()
+    if isinstance(value, tuple) and hasattr(value, "_fields"):  # a named tuple
+        return type(value)(*(_copy(v) for v in value))
+    if isinstance(value, (tuple, list)):
+        return type(value)(_copy(v) for v in value)
+    if isinstance(value, dict):
+        return {k: _copy(v) for k, v in value.items()}
+    return value
 
 
 class Reference:
