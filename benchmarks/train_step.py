@@ -1,4 +1,4 @@
-"""Seconds per training step of the BEVDet family's configurations on this machine, and steps per 3 hours.
+"""Seconds per training step of the compact configurations on this machine, and steps per 3 hours.
 
     python benchmarks/train_step.py [--threads 1] [--steps 8] [--cases compact-b1,compact-b2,...] [--quick]
 
@@ -12,6 +12,9 @@ allocates and is left out. Cases:
     pinhole-b2, persp-b2, cyl-b2
                              the compact BEVDet baselines (``--arch pinhole-bevdet``, ``fisheye-bevdet-persp``,
                              ``fisheye-bevdet-cyl``), batch 2
+    petr-b2, pinhole-petr-b2, persp-petr-b2, cyl-petr-b2
+                             the compact FisheyePETR and PETR baselines with the backbone frozen, as their
+                             recipe trains them (``--freeze-backbone``), batch 2
 
 Each row carries the load average, since figures on a shared machine move with it.
 """
@@ -43,15 +46,21 @@ def _compact_at(side: int, feature_size: tuple[int, int]) -> tuple[BEVDetConfig,
     return BEVDetConfig().replace(**sections), resized_rig(default_rig(), side / 800)
 
 
-def cases() -> dict[str, tuple[BEVDetConfig, Rig, int]]:
+def cases() -> dict[str, tuple[Any, Rig, TrainOptions]]:
+    """Case -> configuration, rig and options (a frozen backbone times the same whatever its weights)."""
+    two, frozen = TrainOptions(batch_size=2), TrainOptions(batch_size=2, freeze_backbone=True)
     return {
-        "compact-b1": (compact_bevdet_config(), compact_rig(), 1),
-        "compact-b2": (compact_bevdet_config(), compact_rig(), 2),
-        "compact480-b2": (*_compact_at(480, (15, 60)), 2),
-        "official-b1": (BEVDetConfig(), default_rig(), 1),
-        "pinhole-b2": (*compact_setup("pinhole-bevdet"), 2),
-        "persp-b2": (*compact_setup("fisheye-bevdet-persp"), 2),
-        "cyl-b2": (*compact_setup("fisheye-bevdet-cyl"), 2),
+        "compact-b1": (compact_bevdet_config(), compact_rig(), TrainOptions(batch_size=1)),
+        "compact-b2": (compact_bevdet_config(), compact_rig(), two),
+        "compact480-b2": (*_compact_at(480, (15, 60)), two),
+        "official-b1": (BEVDetConfig(), default_rig(), TrainOptions(batch_size=1)),
+        "pinhole-b2": (*compact_setup("pinhole-bevdet"), two),
+        "persp-b2": (*compact_setup("fisheye-bevdet-persp"), two),
+        "cyl-b2": (*compact_setup("fisheye-bevdet-cyl"), two),
+        "petr-b2": (*compact_setup("fisheye-petr"), frozen),
+        "pinhole-petr-b2": (*compact_setup("pinhole-petr"), frozen),
+        "persp-petr-b2": (*compact_setup("fisheye-petr-persp"), frozen),
+        "cyl-petr-b2": (*compact_setup("fisheye-petr-cyl"), frozen),
     }
 
 
@@ -67,14 +76,14 @@ def main(argv: list[str] | None = None) -> int:
     table = cases()
     rows = []
     for name in args.cases.split(","):
-        config, rig, batch = table[name]
+        config, rig, options = table[name]
         with tempfile.TemporaryDirectory() as folder:
-            trainer = Trainer(config, rig, folder, TrainOptions(batch_size=batch))
+            trainer = Trainer(config, rig, folder, options)
             seconds = harness.Stats(tuple(trainer.train_step()["seconds"] for _ in range(max(args.steps, 2)))[1:])
         rows.append(
             {
                 "case": name,
-                "batch": batch,
+                "batch": options.batch_size,
                 **seconds.row("s/step"),
                 "steps in 3 h": BUDGET_S / seconds.median,
                 "load average": os.getloadavg()[0],
