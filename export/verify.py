@@ -32,9 +32,10 @@ from __future__ import annotations
 import contextlib
 import copy
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import onnx
@@ -213,7 +214,12 @@ class _BeforeRanking:
             m.register_forward_hook(self._keep(name)) for name, m in self.head.named_modules() if name not in owners
         ]
         dense = self.step.dense
-        self.step.dense = lambda scores: (setattr(self, "_ranked", True), dense(scores))[1]  # type: ignore[method-assign]
+
+        def ranked(scores: torch.Tensor) -> torch.Tensor:
+            self._ranked = True
+            return dense(scores)
+
+        self.step.dense = ranked  # type: ignore[method-assign]
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -224,7 +230,7 @@ class _BeforeRanking:
         outermost = {n for n in once if not any(n.startswith(f"{m}.") for m in once)}
         self.outputs = {n: v for n, v in self.outputs.items() if n in outermost}
 
-    def _keep(self, name: str):  # noqa: ANN202
+    def _keep(self, name: str) -> Callable[[nn.Module, object, object], None]:
         def hook(module: nn.Module, args: object, output: object) -> None:
             self.calls[name] = self.calls.get(name, 0) + 1
             if not self._ranked:
@@ -236,7 +242,7 @@ class _BeforeRanking:
     def reused(self) -> Iterator[None]:
         modules = dict(self.head.named_modules())
         for name, output in self.outputs.items():
-            modules[name].forward = lambda *_, _out=output, **__: _copy(_out)  # type: ignore[method-assign]
+            modules[name].forward = lambda *_, _out=output, **__: _copy(_out)
         try:
             yield
         finally:
@@ -249,9 +255,10 @@ def _copy(value: object) -> object:
     if isinstance(value, torch.Tensor):
         return value.clone()
     if isinstance(value, tuple) and hasattr(value, "_fields"):  # a named tuple
-        return type(value)(*(_copy(v) for v in value))
+        named: Any = type(value)
+        return named(*[_copy(v) for v in value])
     if isinstance(value, (tuple, list)):
-        return type(value)(_copy(v) for v in value)
+        return type(value)([_copy(v) for v in value])
     if isinstance(value, dict):
         return {k: _copy(v) for k, v in value.items()}
     return value
