@@ -49,7 +49,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--resume",
         action="store_true",
-        help="continue the run in --out from its checkpoint.pth (config and rig from the folder)",
+        help="continue the run in --out from its checkpoint.pth (config, rig and the options it was started with "
+        "from the folder; an option given again must match, but --steps)",
     )
     parser.add_argument(
         "--steps",
