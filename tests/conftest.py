@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import os
 import pickle
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -110,7 +112,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 @dataclass(frozen=True)
 class Exported:
-    """A checkpoint and its verified ONNX export for the shipped rig."""
+    """A checkpoint and its verified ONNX export."""
 
     arch: str
     ckpt: Path
@@ -118,28 +120,65 @@ class Exported:
     result: object  # fisheye_infer.export.exporter.ExportResult
 
 
-def _export(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
-    """The kit's checkpoint of ``arch`` exported once per run: under several workers the first to ask
+def _shared(name: str, tmp_path_factory: pytest.TempPathFactory, make: Callable[[Path], tuple[Path, Any]]) -> Exported:
+    """``make(folder)`` (-> checkpoint, ExportResult) run once per run: under several workers the first to ask
     exports into the run's shared temporary folder and the others wait for it and read its result."""
-    pytest.importorskip("torch")
-    from checkpoint_kit import kit_checkpoint
     from filelock import FileLock
 
-    from fisheye_infer.export.exporter import export
-
     if os.environ.get("PYTEST_XDIST_WORKER"):
-        folder = tmp_path_factory.getbasetemp().parent / f"shared-{arch}"  # the workers' common parent
+        folder = tmp_path_factory.getbasetemp().parent / f"shared-{name}"  # the workers' common parent
     else:
-        folder = tmp_path_factory.mktemp(arch)
-    ckpt, out, done = folder / f"{arch}.pth", folder / f"{arch}.onnx", folder / "result.pkl"
+        folder = tmp_path_factory.mktemp(name)
+    done = folder / "result.pkl"
     with FileLock(f"{folder}.lock"):
         if not done.is_file():
             folder.mkdir(exist_ok=True)
-            result = export(
-                kit_checkpoint(arch, ckpt), out, frames=1, verify_images=SAMPLE_FRAME, progress=lambda _: None
-            )
-            done.write_bytes(pickle.dumps(result))  # an ExportResult: its classes import by their module's name
-    return Exported(arch, ckpt, out, pickle.loads(done.read_bytes()))
+            ckpt, result = make(folder)
+            done.write_bytes(pickle.dumps((ckpt, result)))  # an ExportResult: its classes import by their module's name
+    ckpt, result = pickle.loads(done.read_bytes())
+    return Exported(name.removeprefix("small-"), ckpt, result.path, result)
+
+
+def _export(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
+    """The kit's checkpoint of ``arch`` exported once per run."""
+    pytest.importorskip("torch")
+    from checkpoint_kit import kit_checkpoint
+
+    from fisheye_infer.export.exporter import export
+
+    def make(folder: Path) -> tuple[Path, Any]:
+        ckpt = kit_checkpoint(arch, folder / f"{arch}.pth")
+        return ckpt, export(
+            ckpt, folder / f"{arch}.onnx", frames=1, verify_images=SAMPLE_FRAME, progress=lambda _: None
+        )
+
+    return _shared(arch, tmp_path_factory, make)
+
+
+def small_export_of(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
+    """The reduced configuration of ``arch`` (``small_configs``) with seeded weights, exported once per run
+    for its reduced rig (self-check on one frame at one thread): what the tests of a whole export path share."""
+    pytest.importorskip("torch")
+    from small_configs import small_configs
+
+    from fisheye_infer.export.exporter import export
+    from fisheye_infer.models import make_checkpoint
+
+    config, rig = small_configs()[arch]
+
+    def make(folder: Path) -> tuple[Path, Any]:
+        ckpt = folder / f"{arch}.pth"
+        make_checkpoint(arch, seed=2, path=ckpt, config=config, rig=rig)
+        quiet = {"frames": 1, "threads": (1,), "progress": lambda _: None}
+        return ckpt, export(ckpt, folder / f"{arch}.onnx", config=config, rig=rig, **quiet)
+
+    return _shared(f"small-{arch}", tmp_path_factory, make)
+
+
+@pytest.fixture(scope="session")
+def small_exports(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Exported]:
+    """``small_exports(arch)``: the run's export of the reduced ``arch`` (``small_export_of``)."""
+    return lambda arch: small_export_of(arch, tmp_path_factory)
 
 
 @pytest.fixture(scope="session")

@@ -39,21 +39,18 @@ def _initializers(graph: onnx.GraphProto) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.parametrize("arch", ["fisheye-bevdet", "fisheye-petr"])
-def test_rebaked_file_equals_a_fresh_export(arch: str, tmp_path: Path) -> None:
+def test_rebaked_file_equals_a_fresh_export(arch: str, tmp_path: Path, small_exports) -> None:  # noqa: ANN001
     """On the reduced configurations: the same code path as full size, in a fraction of the time."""
     pytest.importorskip("torch")
     from fisheye_infer.export.exporter import export
-    from fisheye_infer.models import make_checkpoint
 
     config, rig = small_configs()[arch]
     moved_rig = move_rig(rig)
-    ckpt = tmp_path / "model.pth"
-    make_checkpoint(arch, seed=4, path=ckpt, config=config, rig=rig)
-    quiet = {"frames": 1, "threads": (2,), "progress": lambda _: None}
-    exported = export(ckpt, tmp_path / "model.onnx", config=config, rig=rig, **quiet)
+    exported = small_exports(arch)
     rebaked = tmp_path / "rebaked.onnx"
-    meta = rebake(exported.path, moved_rig, rebaked)
-    fresh = export(ckpt, tmp_path / "fresh.onnx", config=config, rig=moved_rig, geometry="rig", **quiet)
+    meta = rebake(exported.onnx, moved_rig, rebaked)
+    quiet = {"frames": 1, "threads": (1,), "progress": lambda _: None}  # as the shared export's
+    fresh = export(exported.ckpt, tmp_path / "fresh.onnx", config=config, rig=moved_rig, geometry="rig", **quiet)
     mine, theirs = onnx.load(str(rebaked)).graph, onnx.load(str(fresh.path)).graph
     assert _nodes(mine) == _nodes(theirs)  # the same graph ...
     a, b = _initializers(mine), _initializers(theirs)
@@ -61,7 +58,7 @@ def test_rebaked_file_equals_a_fresh_export(arch: str, tmp_path: Path) -> None:
     for name in a:  # ... holding the same weights and the same geometry tables, bit for bit
         assert a[name].dtype == b[name].dtype, name
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
-    assert any(not np.array_equal(a[n], v) for n, v in _geometry(exported.path).items())  # the rig really changed
+    assert any(not np.array_equal(a[n], v) for n, v in _geometry(exported.onnx).items())  # the rig really changed
     assert meta.rig_hash == moved_rig.hash == fresh.meta.rig_hash and meta.model_id == fresh.meta.model_id
     assert read_meta(rebaked).model_dump(exclude={"parity"}) == fresh.meta.model_dump(exclude={"parity"})
     assert read_meta(rebaked).parity is None  # re-baking runs no PyTorch comparison; it claims none

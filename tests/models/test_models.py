@@ -15,7 +15,7 @@ from small_configs import small_configs  # noqa: E402
 
 from fisheye_infer.cameras.rig import default_rig
 from fisheye_infer.errors import CheckpointError
-from fisheye_infer.export.exporter import export, infer_architecture
+from fisheye_infer.export.exporter import infer_architecture
 from fisheye_infer.models import create_model, get_model_entry, list_models, load_model, make_checkpoint
 from fisheye_infer.runtime.artifact import read_meta
 
@@ -71,11 +71,9 @@ def test_strict_load_and_forward(built) -> None:  # noqa: ANN001
 
 
 @pytest.mark.slow  # a whole export: make test-fast leaves it out
-def test_export_is_verified_and_described(built, tmp_path: Path) -> None:  # noqa: ANN001
-    arch, ckpt, config, rig = built
-    result = export(
-        ckpt, tmp_path / f"{arch}.onnx", config=config, rig=rig, frames=1, threads=(1,), progress=lambda _: None
-    )
+def test_export_is_verified_and_described(built, small_exports) -> None:  # noqa: ANN001
+    arch, _, config, rig = built
+    result = small_exports(arch).result  # the same reduced configuration, rig and seed as ``built``
     assert result.parity.passed and result.path is not None
     meta = read_meta(result.path)
     model = create_model(arch, config, rig)

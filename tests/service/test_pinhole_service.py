@@ -21,24 +21,8 @@ ARCH = "pinhole-bevdet"
 
 
 @pytest.fixture(scope="module")
-def pinhole_model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
-    pytest.importorskip("torch")
-    from fisheye_infer.export.exporter import export
-    from fisheye_infer.models import make_checkpoint
-
-    config, rig = small_configs()[ARCH]
-    folder = tmp_path_factory.mktemp("pinhole")
-    make_checkpoint(ARCH, seed=4, path=folder / "small.pth", config=config, rig=rig)
-    result = export(
-        folder / "small.pth",
-        folder / "small.onnx",
-        config=config,
-        rig=rig,
-        frames=1,
-        threads=(1,),
-        progress=lambda _: None,
-    )
-    return result.path, rig
+def pinhole_model(small_exports) -> tuple[Path, object]:  # noqa: ANN001
+    return small_exports(ARCH).onnx, small_configs()[ARCH][1]
 
 
 @pytest.fixture(scope="module")
