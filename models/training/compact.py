@@ -1,5 +1,5 @@
-"""The compact configurations that train on a CPU: the paper's two detectors and the BEVDet baselines it
-compares FisheyeBEVDet with.
+"""The compact configurations that train on a CPU: the paper's two detectors and the baselines it compares
+them with.
 
 Same architecture as the official ``fisheye_bevdet.py`` (ResNet-18 + FPN, fisheye LSS, SECOND +
 SECONDFPN, TransFusion head) with sizes cut where the measured cost of a training step says so
@@ -12,10 +12,12 @@ the compact FisheyeBEVDet's, ``--init-backbone``), the same 10 x 40 angular key 
 decoder of the official depth (6 layers) at half width (128 channels, 4 heads, 512 in the FFN)
 with 300 queries.
 
-The baselines of the paper's Table 2 are the official ``nusc_bevdet.py``,
+The BEVDet baselines of the paper's Table 2 are the official ``nusc_bevdet.py``,
 ``fisheye_to_pinhole_bevdet.py`` and ``fisheye_to_cyl_bevdet.py`` cut the same way: the compact
 FisheyeBEVDet's backbone, depth bins, BEV grid, encoder and head, with each input scaled by 0.4
-of the official one, so every model keeps the official ratio of feature cells to the others':
+of the official one, so every model keeps the official ratio of feature cells to the others'.
+The PETR baselines (``nusc_petr.py``, ``fisheye_to_pinhole_petr.py``, ``fisheye_to_cyl_petr.py``)
+take the same inputs with the compact FisheyePETR's backbone and decoder; their keys are the cells:
 
 ============================ =============================================== ==============
 architecture                 input (official x 0.4)                          feature cells
@@ -26,6 +28,7 @@ architecture                 input (official x 0.4)                          fea
 ``fisheye-bevdet-persp``     4 fisheye 320 x 320, 2 perspective 160 x 160    8 x 100
                              views each (110 deg, yaws -55 and 55 deg)
 ``fisheye-bevdet-cyl``       4 fisheye 320 x 320, a 160 x 320 cylinder each  4 x 200
+``pinhole-petr``, ``fisheye-petr-persp``, ``fisheye-petr-cyl``: the inputs of their BEVDet rows
 ============================ =============================================== ==============
 
 The cylinder spans the intended +-110 deg by +-45 deg (written in radians): the released
