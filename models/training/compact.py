@@ -28,8 +28,10 @@ architecture                 input (official x 0.4)                          fea
 ``fisheye-bevdet-persp``     4 fisheye 320 x 320, 2 perspective 160 x 160    8 x 100
                              views each (110 deg, yaws -55 and 55 deg)
 ``fisheye-bevdet-cyl``       4 fisheye 320 x 320, a 160 x 320 cylinder each  4 x 200
-``pinhole-petr``, ``fisheye-petr-persp``, ``fisheye-petr-cyl``: the inputs of their BEVDet rows
 ============================ =============================================== ==============
+
+``fisheye-petr``, ``pinhole-petr``, ``fisheye-petr-persp`` and ``fisheye-petr-cyl`` take the inputs of
+the BEVDet row of the same cameras.
 
 The cylinder spans the intended +-110 deg by +-45 deg (written in radians): the released
 ``fisheye_to_cyl_bevdet.py`` writes degrees that its code reads as radians (``cyl_config``).
