@@ -17,7 +17,7 @@ The BEVDet baselines of the paper's Table 2 are the official ``nusc_bevdet.py``,
 FisheyeBEVDet's backbone, depth bins, BEV grid, encoder and head, with each input scaled by 0.4
 of the official one, so every model keeps the official ratio of feature cells to the others'.
 The PETR baselines (``nusc_petr.py``, ``fisheye_to_pinhole_petr.py``, ``fisheye_to_cyl_petr.py``)
-take the same inputs with the compact FisheyePETR's backbone and decoder; their keys are the cells:
+take the same inputs with the compact FisheyePETR's backbone and decoder (their keys are the feature cells):
 
 ============================ =============================================== ==============
 architecture                 input (official x 0.4)                          feature cells
