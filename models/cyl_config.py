@@ -35,6 +35,7 @@ from .petr_config import PETRConfig, PETRHeadConfig, head_fields
 __all__ = [
     "RELEASED_HORIZONTAL_RANGE",
     "RELEASED_VERTICAL_RANGE",
+    "CYLINDER_STEP",
     "CylViewTransformConfig",
     "BEVDetCylConfig",
     "CylPETRHeadConfig",
@@ -44,7 +45,8 @@ __all__ = [
 #: The released configs' ranges, which their code uses as radians (see the module docstring).
 RELEASED_HORIZONTAL_RANGE = (-110.0, 110.0)
 RELEASED_VERTICAL_RANGE = (-45.0, 45.0)
-_PIPELINE_STEP = "MultiViewFisheyeCylindricalProjection"
+#: The official test pipeline's step that rectifies each fisheye image onto its cylinder.
+CYLINDER_STEP = "MultiViewFisheyeCylindricalProjection"
 # The constructors' own defaults, used when a config leaves a range out.
 _DEFAULT_HORIZONTAL = (-math.radians(110.0), math.radians(110.0))
 _DEFAULT_VERTICAL = (-math.radians(45.0), math.radians(45.0))
@@ -242,10 +244,10 @@ def _agree_with_pipeline(
     model_section: Section,
 ) -> tuple[tuple[int, int] | None, tuple[float, float], tuple[float, float]]:
     """Check the test pipeline's rectification step against the model's values; returns (H, W), ranges."""
-    steps = [s for s in cfg.get("test_pipeline") or [] if isinstance(s, Mapping) and s.get("type") == _PIPELINE_STEP]
+    steps = [s for s in cfg.get("test_pipeline") or [] if isinstance(s, Mapping) and s.get("type") == CYLINDER_STEP]
     if not steps:
         return size, hr, vr  # type: ignore[return-value]
-    step = Section(steps[0], f"test_pipeline.{_PIPELINE_STEP}", model_section.source)
+    step = Section(steps[0], f"test_pipeline.{CYLINDER_STEP}", model_section.source)
     p_hr, p_vr = _ranges(step)
     for name, ours, theirs in (("horizontal_range", hr, p_hr), ("vertical_range", vr, p_vr)):
         if not all(math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12) for a, b in zip(ours, theirs)):

@@ -14,10 +14,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ..cyl_config import CYLINDER_STEP
+from ..pinhole_views import IMAGE_AUG_STEP, PERSPECTIVE_STEP, RESIZE_CROP_STEP
+
 __all__ = ["image_trunk_sections", "bevdet_config_source", "petr_config_source", "write_config"]
 
 LOAD_STEP = "LoadFisheye3DODMultiViewImageFromFiles"
-RESIZE_CROP_STEP = "ResizeCropFlipImage"
 
 
 def image_trunk_sections(cfg: Any) -> dict[str, Any]:
@@ -130,7 +132,7 @@ def _bevdet_input(cfg: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     )
     if isinstance(cfg, PinholeBEVDetConfig):
         h, w = vt.image_size
-        image_aug = dict(type="ImageAug3D", **_resize_crop_fields(cfg, (h, w)), rot_lim=[0, 0], is_train=False)
+        image_aug = dict(type=IMAGE_AUG_STEP, **_resize_crop_fields(cfg, (h, w)), rot_lim=[0, 0], is_train=False)
         return dict(type="LSSTransform", image_size=[h, w], **common), [image_aug]
     if isinstance(cfg, PerspBEVDetConfig):
         h, w = vt.image_size
@@ -255,7 +257,7 @@ def _perspective_steps(views: Any) -> list[dict[str, Any]]:
     h, w = views.size
     steps: list[dict[str, Any]] = [
         dict(
-            type="MultiViewFisheyePerspectiveProjection",
+            type=PERSPECTIVE_STEP,
             image_size=[w, h],
             perspective_fov=views.fov,
             num_imgs_of_per_view=len(views.yaws),
@@ -263,7 +265,7 @@ def _perspective_steps(views: Any) -> list[dict[str, Any]]:
         )
     ]
     if views.truncate:
-        steps.append(dict(type="ImageAug3D", final_dim=[h, w], resize_lim=[1, 1], bot_pct_lim=[0.0, 0.0]))
+        steps.append(dict(type=IMAGE_AUG_STEP, final_dim=[h, w], resize_lim=[1, 1], bot_pct_lim=[0.0, 0.0]))
     return steps
 
 
@@ -273,7 +275,7 @@ def _cylinder_ranges(azimuth: tuple[float, float], elevation: tuple[float, float
 
 def _cylinder_step(size: Any, ranges: dict[str, list[float]]) -> dict[str, Any]:
     """``MultiViewFisheyeCylindricalProjection`` onto a ``CylinderConfig`` (the step writes (W, H))."""
-    return dict(type="MultiViewFisheyeCylindricalProjection", image_size=[size.width, size.height], **ranges)
+    return dict(type=CYLINDER_STEP, image_size=[size.width, size.height], **ranges)
 
 
 def write_config(cfg: Any, path: str | Path) -> Path:
