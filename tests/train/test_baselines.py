@@ -72,7 +72,7 @@ def test_the_written_config_reads_back_as_its_architecture(inputs: tuple[str, Pa
     assert read_config_file(path) == _small(arch)[0]
 
 
-def test_a_resumed_run_logs_every_step_with_its_family_s_terms(inputs: tuple[str, Path, Path], run: Path) -> None:
+def test_a_resumed_run_logs_every_step_with_its_family_terms(inputs: tuple[str, Path, Path], run: Path) -> None:
     rows = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     steps = [r for r in rows if "split" not in r]
     assert [r["step"] for r in steps] == [1, 2, 3, 4] and all(np.isfinite(r["loss"]) for r in steps)
