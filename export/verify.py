@@ -209,7 +209,9 @@ class _BeforeRanking:
         self._ranked = False
 
     def __enter__(self) -> _BeforeRanking:
-        owners = {name for name, m in self.head.named_modules() if any(c is self.step for c in m.modules())}
+        (step_name,) = [name for name, m in self.head.named_modules() if m is self.step]
+        parts = step_name.split(".")
+        owners = {".".join(parts[:i]) for i in range(len(parts) + 1)}  # the step and the modules that hold it
         self._hooks = [
             m.register_forward_hook(self._keep(name)) for name, m in self.head.named_modules() if name not in owners
         ]

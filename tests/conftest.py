@@ -120,9 +120,11 @@ class Exported:
     result: object  # fisheye_infer.export.exporter.ExportResult
 
 
-def _shared(name: str, tmp_path_factory: pytest.TempPathFactory, make: Callable[[Path], tuple[Path, Any]]) -> Exported:
-    """``make(folder)`` (-> checkpoint, ExportResult) run once per run: under several workers the first to ask
-    exports into the run's shared temporary folder and the others wait for it and read its result."""
+def _shared(
+    arch: str, name: str, tmp_path_factory: pytest.TempPathFactory, make: Callable[[Path], tuple[Path, Any]]
+) -> Exported:
+    """``make(folder)`` (-> checkpoint, ExportResult) run once per run under ``name``: under several workers the
+    first to ask exports into the run's shared temporary folder and the others wait for it and read its result."""
     from filelock import FileLock
 
     if os.environ.get("PYTEST_XDIST_WORKER"):
@@ -136,7 +138,7 @@ def _shared(name: str, tmp_path_factory: pytest.TempPathFactory, make: Callable[
             ckpt, result = make(folder)
             done.write_bytes(pickle.dumps((ckpt, result)))  # an ExportResult: its classes import by their module's name
     ckpt, result = pickle.loads(done.read_bytes())
-    return Exported(name.removeprefix("small-"), ckpt, result.path, result)
+    return Exported(arch, ckpt, result.path, result)
 
 
 def _export(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
@@ -152,7 +154,7 @@ def _export(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
             ckpt, folder / f"{arch}.onnx", frames=1, verify_images=SAMPLE_FRAME, progress=lambda _: None
         )
 
-    return _shared(arch, tmp_path_factory, make)
+    return _shared(arch, arch, tmp_path_factory, make)
 
 
 def small_export_of(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
@@ -172,7 +174,7 @@ def small_export_of(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Expo
         quiet = {"frames": 1, "threads": (1,), "progress": lambda _: None}
         return ckpt, export(ckpt, folder / f"{arch}.onnx", config=config, rig=rig, **quiet)
 
-    return _shared(f"small-{arch}", tmp_path_factory, make)
+    return _shared(arch, f"small-{arch}", tmp_path_factory, make)
 
 
 @pytest.fixture(scope="session")

@@ -99,7 +99,8 @@ def saved_options(folder: Path) -> dict[str, Any]:
     path = folder / "checkpoint.pth"
     if not path.is_file():
         return {}
-    return _saved_options(torch.load(path, map_location="cpu", weights_only=True).get("meta", {}))
+    # memory-mapped: only the metadata is read here; ``Trainer.resume`` loads the weights
+    return _saved_options(torch.load(path, map_location="cpu", weights_only=True, mmap=True).get("meta", {}))
 
 
 def _saved_options(meta: dict[str, Any]) -> dict[str, Any]:
