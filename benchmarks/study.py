@@ -6,12 +6,14 @@ Each ``--model`` is a shipped model's name or a trained checkpoint (``config.py`
 beside it); the default is every shipped model. Every model is scored on the same scenes: the
 validation stream's first ``--frames`` frames (``fisheye-infer synth --stream val``), rendered
 through that model's own rig, so a fisheye and a pinhole model see the same objects, lighting and
-ground. The tables, each row beside the paper's figure where the paper has one:
+ground. A model trained on some of its rig's cameras (``fisheye-infer train --cameras``) is that
+reduced layout retrained, as the paper trained each. The tables, each row beside the paper's figure
+where the paper has one:
 
-- Table 2 (RQ1/RQ2): every model with all its cameras, 0-48 m;
-- Table 3 (RF1/RF2): the paper's layouts at run time (degraded mode, no retraining; the paper
-  retrained each): front + rear and left + right of a four-fisheye rig, a six-pinhole rig without
-  its front and rear cameras;
+- Table 2 (RQ1/RQ2): every model trained with all its cameras, 0-48 m;
+- Table 3 (RF1/RF2): the paper's reduced layouts, at run time (degraded mode: the model trained with
+  every camera sees only some) and retrained: front + rear and left + right of a four-fisheye rig,
+  a six-pinhole rig without its front and rear cameras;
 - Table 4 (RF3): 0-30 m against 0-48 m;
 - the paper's findings, each with its direction in the paper and in ours.
 """
@@ -27,20 +29,33 @@ import harness
 import paper
 from model_card import RANGES, heldout, run
 
-from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
 from fisheye_infer.eval.metrics import MetricsReport
 from fisheye_infer.runtime.detector import Detector
 
 Row = dict[str, Any]
-FAR = RANGES[1]
+#: A score's key: (architecture, cameras, how reduced); see ``_scores``.
+Key = tuple[str, str, str]
+NEAR, FAR = RANGES
+ALL = "all"
+#: How a reduced layout's row came about: the model trained with every camera, some missing at run time,
+#: or a model trained on those cameras alone.
+RUN_TIME, RETRAINED = "run time", "retrained"
+#: The paper's families: (spherical detector, perspective-rectified, cylindrically rectified, six pinhole cameras).
+FAMILIES = (
+    ("fisheye-bevdet", "fisheye-bevdet-persp", "fisheye-bevdet-cyl", "pinhole-bevdet"),
+    ("fisheye-petr", "fisheye-petr-persp", "fisheye-petr-cyl", "pinhole-petr"),
+)
 
 
 @dataclass(frozen=True)
 class Studied:
-    """One model's results: all cameras, and each layout of the paper its rig has."""
+    """One model's results: with all the cameras it was trained for, and (for a whole rig) each of the paper's
+    layouts at run time."""
 
     name: str
     arch: str
+    layout: str  # ALL, or the reduced layout the model was trained for ("front + rear", ...)
     full: MetricsReport
     layouts: dict[str, MetricsReport]
 
@@ -59,6 +74,18 @@ def paper_layouts(cameras: tuple[str, ...]) -> dict[str, list[str]]:
     return {"without front and rear": [c for c in cameras if c not in centre]} if centre else {}
 
 
+def trained_layout(arch: str, cameras: tuple[str, ...]) -> str:
+    """``ALL`` for a model of a whole rig; for one trained on some of the paper's rig (the six pinhole cameras for
+    ``pinhole-*``, else the four fisheye cameras), the paper's name of that layout, else its cameras."""
+    paper_rig = PINHOLE_CAMERAS if arch.startswith("pinhole-") else FISHEYE3DOD_CAMERAS
+    if not set(cameras) < set(paper_rig):
+        return ALL
+    for label, used in paper_layouts(paper_rig).items():
+        if set(used) == set(cameras):
+            return label
+    return " + ".join(cameras)
+
+
 def model_files(spec: str) -> tuple[str, Path, Path, Path]:
     """(name, checkpoint, config, rig) of a shipped model's name or a checkpoint path."""
     from fisheye_infer.models.pretrained import PRETRAINED
@@ -75,7 +102,8 @@ def model_files(spec: str) -> tuple[str, Path, Path, Path]:
 
 
 def study(spec: str, work: Path, frames: int, seed: int, threads: int) -> Studied:
-    """Export one model and score it on the held-out scenes through its rig, with all cameras and each layout."""
+    """Export one model and score it on the held-out scenes through its rig, with all its cameras and, for a whole
+    rig, each of the paper's layouts."""
     from fisheye_infer.export.exporter import export
 
     name, ckpt, config, rig_file = model_files(spec)
@@ -83,9 +111,23 @@ def study(spec: str, work: Path, frames: int, seed: int, threads: int) -> Studie
     data = heldout(rig, work / f"heldout-{rig.hash}", frames, seed)
     exported = export(ckpt, work / f"{name}.onnx", config=config, rig=rig, progress=lambda _: None)
     detector = Detector(exported.path, threads=threads)
-    cameras = detector.info.cameras
-    layouts = {label: run(detector, data, used)[0] for label, used in paper_layouts(cameras).items() if used}
-    return Studied(name, detector.info.architecture, run(detector, data, list(cameras))[0], layouts)
+    cameras, arch = detector.info.cameras, detector.info.architecture
+    layout = trained_layout(arch, cameras)
+    runtime = paper_layouts(cameras) if layout == ALL else {}
+    layouts = {label: run(detector, data, used)[0] for label, used in runtime.items() if used}
+    return Studied(name, arch, layout, run(detector, data, list(cameras))[0], layouts)
+
+
+def one_per_layout(models: list[Studied]) -> None:
+    """Refuse two models of the same architecture and layout: each finding compares one model with another."""
+    seen: dict[tuple[str, str], str] = {}
+    for m in models:
+        other = seen.setdefault((m.arch, m.layout), m.name)
+        if other != m.name:
+            raise SystemExit(
+                f"--model {other} and --model {m.name} are both {m.arch} trained with {m.layout} cameras; "
+                "study one model of each architecture and layout at a time"
+            )
 
 
 def _paper(values: tuple[float, ...] | None, index: int) -> float | None:
@@ -95,6 +137,8 @@ def _paper(values: tuple[float, ...] | None, index: int) -> float | None:
 def table2(models: list[Studied]) -> list[Row]:
     rows = []
     for m in models:
+        if m.layout != ALL:
+            continue
         s = m.full.distance[FAR]
         method, cameras = paper.METHOD.get(m.arch, (m.arch, ""))
         ref = paper.TABLE2.get(m.arch)
@@ -114,16 +158,24 @@ def table2(models: list[Studied]) -> list[Row]:
     return rows
 
 
+def _layout_rows(m: Studied) -> list[tuple[str, str, MetricsReport]]:
+    """(cameras, how, report) of a model's rows in Table 3."""
+    if m.layout != ALL:
+        return [(m.layout, RETRAINED, m.full)]
+    return [*((label, RUN_TIME, report) for label, report in m.layouts.items()), (ALL, "-", m.full)]
+
+
 def table3(models: list[Studied]) -> list[Row]:
     rows = []
     for m in models:
         ref = paper.TABLE3.get(m.arch, {})
-        for label, report in {**m.layouts, "all": m.full}.items():
+        for label, how, report in _layout_rows(m):
             s = report.distance[FAR]
             rows.append(
                 {
                     "model": m.name,
                     "cameras": label,
+                    "reduced": how,
                     "FDS": s.FDS,
                     "mAP": s.mAP,
                     "paper FDS": _paper(ref.get(label), 0),
@@ -136,6 +188,8 @@ def table3(models: list[Studied]) -> list[Row]:
 def table4(models: list[Studied]) -> list[Row]:
     rows = []
     for m in models:
+        if m.layout != ALL:
+            continue
         ref = paper.TABLE4.get(m.arch, {})
         for label in RANGES:
             s = m.full.distance[label]
@@ -152,65 +206,89 @@ def table4(models: list[Studied]) -> list[Row]:
     return rows
 
 
-def findings(models: list[Studied]) -> list[Row]:
-    """Each of the paper's comparisons that the studied models allow: which side wins (FDS, 0-48 m) in the paper
-    and here."""
-    fds = {m.arch: m.full.distance[FAR].FDS for m in models}
-    layouts = {m.arch: {k: r.distance[FAR].FDS for k, r in m.layouts.items()} for m in models}
-    pairs: list[tuple[str, float | None, float | None, float, float]] = []
+def _scores(models: list[Studied]) -> dict[Key, float]:
+    """FDS at 0-48 m by (architecture, cameras, how reduced): (arch, ALL, ALL) for all cameras, (arch, layout,
+    RUN_TIME) or (arch, layout, RETRAINED) for a reduced layout, and (arch, ALL, NEAR) at 0-30 m."""
+    out: dict[Key, float] = {}
+    for m in models:
+        if m.layout != ALL:
+            out[(m.arch, m.layout, RETRAINED)] = m.full.distance[FAR].FDS
+            continue
+        out[(m.arch, ALL, ALL)] = m.full.distance[FAR].FDS
+        out[(m.arch, ALL, NEAR)] = m.full.distance[NEAR].FDS
+        for label, report in m.layouts.items():
+            out[(m.arch, label, RUN_TIME)] = report.distance[FAR].FDS
+    return out
 
-    def compare(what: str, ours: tuple[float, float] | None, theirs: tuple[float, float] | None) -> None:
-        if ours is not None:
-            pairs.append((what, *(theirs or (None, None)), *ours))  # type: ignore[arg-type]
 
-    for spherical, persp, cyl, pinhole in (
-        ("fisheye-bevdet", "fisheye-bevdet-persp", "fisheye-bevdet-cyl", "pinhole-bevdet"),
-        ("fisheye-petr", "fisheye-petr-persp", "fisheye-petr-cyl", "pinhole-petr"),
-    ):
-        for other in (persp, cyl, pinhole):
-            if spherical in fds and other in fds:
-                compare(
-                    f"{paper.METHOD[spherical][0]} vs {paper.METHOD[other][0]} {paper.METHOD[other][1]}",
-                    (fds[spherical], fds[other]),
-                    (paper.TABLE2[spherical][0], paper.TABLE2[other][0]),
+def _paper_scores() -> dict[Key, float]:
+    """The paper's FDS under ``_scores``' keys (its reduced layouts were retrained; run-time rows compare with them)."""
+    out: dict[Key, float] = {}
+    for arch, row in paper.TABLE2.items():
+        out[(arch, ALL, ALL)] = row[0]
+    for arch, ranges in paper.TABLE4.items():
+        out[(arch, ALL, NEAR)] = ranges[NEAR][0]
+    for arch, layouts in paper.TABLE3.items():
+        for label, (fds, _map) in layouts.items():
+            if label != ALL:
+                out[(arch, label, RUN_TIME)] = out[(arch, label, RETRAINED)] = fds
+    return out
+
+
+def _comparisons() -> list[tuple[str, tuple[Key, Key], tuple[Key, Key] | None]]:
+    """Each of the paper's comparisons: (what, (first, second), None) for FDS against FDS, or
+    (what, (all, reduced), (all, reduced)) for the FDS lost by one rig against that lost by another."""
+    out: list[tuple[str, tuple[Key, Key], tuple[Key, Key] | None]] = []
+
+    def name(arch: str) -> str:
+        method, cameras = paper.METHOD[arch]
+        return method if method.startswith("Fisheye") else f"{method} {cameras}"
+
+    for spherical, persp, cyl, pinhole in FAMILIES:
+        whole = {arch: (arch, ALL, ALL) for arch in (spherical, persp, cyl, pinhole)}
+        for rectified in (persp, cyl):  # RQ1: pinhole-based detectors on rectified fisheye images
+            out.append((f"{name(pinhole)} vs {name(rectified)}", (whole[pinhole], whole[rectified]), None))
+        for other in (persp, cyl, pinhole):  # RQ2: the spherical model against the rest
+            out.append((f"{name(spherical)} vs {name(other)}", (whole[spherical], whole[other]), None))
+        for how in (RUN_TIME, RETRAINED):
+            front_rear, left_right = (spherical, "front + rear", how), (spherical, "left + right", how)
+            out.append((f"{name(spherical)}: front + rear vs left + right, {how}", (front_rear, left_right), None))
+            out.append((f"{name(spherical)}: all four vs front + rear, {how}", (whole[spherical], front_rear), None))
+            out.append(
+                (
+                    f"FDS lost without front and rear: {name(pinhole)} vs {name(spherical)} left + right, {how}",
+                    (whole[pinhole], (pinhole, "without front and rear", how)),
+                    (whole[spherical], left_right),
                 )
-        split = layouts.get(spherical, {})
-        if {"front + rear", "left + right"} <= set(split):
-            ref = paper.TABLE3[spherical]
-            compare(
-                f"{paper.METHOD[spherical][0]}: front + rear vs left + right",
-                (split["front + rear"], split["left + right"]),
-                (ref["front + rear"][0], ref["left + right"][0]),
             )
-            compare(
-                f"{paper.METHOD[spherical][0]}: all four vs front + rear",
-                (fds[spherical], split["front + rear"]),
-                (ref["all"][0], ref["front + rear"][0]),
-            )
-        near = {m.arch: m.full.distance[RANGES[0]].FDS for m in models}
-        if spherical in near:
-            ref4 = paper.TABLE4[spherical]
-            compare(
-                f"{paper.METHOD[spherical][0]}: 0-30 m vs 0-48 m",
-                (near[spherical], fds[spherical]),
-                (ref4["0-30 m"][0], ref4["0-48 m"][0]),
-            )
-    if "fisheye-bevdet" in fds and "fisheye-petr" in fds:
-        compare(
-            "FisheyeBEVDet vs FisheyePETR",
-            (fds["fisheye-bevdet"], fds["fisheye-petr"]),
-            (paper.TABLE2["fisheye-bevdet"][0], paper.TABLE2["fisheye-petr"][0]),
-        )
+        out.append((f"{name(spherical)}: 0-30 m vs 0-48 m", ((spherical, ALL, NEAR), whole[spherical]), None))
+    out.append(("FisheyeBEVDet vs FisheyePETR", (("fisheye-bevdet", ALL, ALL), ("fisheye-petr", ALL, ALL)), None))
+    return out
+
+
+def findings(models: list[Studied]) -> list[Row]:
+    """Each of the paper's comparisons that the studied models allow: which side is larger (FDS, 0-48 m, or the
+    FDS a rig loses) in the paper and here."""
+    ours, theirs = _scores(models), _paper_scores()
+
+    def value(scores: dict[Key, float], pair: tuple[Key, Key], lost: tuple[Key, Key] | None) -> tuple[float, float]:
+        if lost is None:
+            return scores[pair[0]], scores[pair[1]]
+        return scores[pair[0]] - scores[pair[1]], scores[lost[0]] - scores[lost[1]]
+
     rows = []
-    for what, p_first, p_second, first, second in pairs:
-        paper_says = None if p_first is None else ("first" if p_first > p_second else "second")  # type: ignore[operator]
-        ours = "first" if first > second else "second"
+    for what, pair, lost in _comparisons():
+        needed = [*pair, *(lost or ())]
+        if not all(key in ours for key in needed):
+            continue
+        first, second = value(ours, pair, lost)
+        said = value(theirs, pair, lost) if all(key in theirs for key in needed) else None
         rows.append(
             {
                 "comparison (FDS, 0-48 m)": what,
-                "paper": f"{p_first:.3f} vs {p_second:.3f}" if p_first is not None else None,
+                "paper": f"{said[0]:.3f} vs {said[1]:.3f}" if said else None,
                 "ours": f"{first:.3f} vs {second:.3f}",
-                "same direction": None if paper_says is None else paper_says == ours,
+                "same direction": (said[0] > said[1]) == (first > second) if said else None,
             }
         )
     return rows
@@ -231,18 +309,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.frames = 20
     specs = args.model or [m.name for m in PRETRAINED]
-    models = [study(spec, Path(args.work_dir), args.frames, args.seed, args.threads) for spec in specs]
+    models: list[Studied] = []
+    for spec in specs:
+        models.append(study(spec, Path(args.work_dir), args.frames, args.seed, args.threads))
+        one_per_layout(models)
     bench.save(
         args,
         {
             f"Table 2 (RQ1/RQ2): every model with all its cameras, 0-48 m, {args.frames} held-out scenes": table2(
                 models
             ),
-            "Table 3 (RF1/RF2): reduced layouts at run time (degraded mode; the paper retrained each), 0-48 m": table3(
-                models
-            ),
+            "Table 3 (RF1/RF2): reduced layouts, at run time (degraded mode) or retrained, 0-48 m": table3(models),
             "Table 4 (RF3): 0-30 m against 0-48 m": table4(models),
-            "The paper's findings: which side wins, in the paper and here": findings(models),
+            "The paper's findings: which side is larger, in the paper and here": findings(models),
         },
     )
     return 0

@@ -287,6 +287,17 @@ class Rig(BaseModel):
                 return cam
         raise RigError(f"camera '{name}': not in the rig (cameras: {', '.join(self.names)})")
 
+    def subset(self, names: Sequence[str]) -> Rig:
+        """The rig of ``names`` alone, in that order: a reduced layout (two of four fisheye cameras, say) that a
+        model is trained for, rather than one it loses cameras from at run time."""
+        if not names:
+            raise RigError(f"cameras: expected at least one of {', '.join(self.names)}")
+        repeated = sorted({n for n in names if list(names).count(n) > 1})
+        if repeated:
+            raise RigError(f"cameras: {', '.join(repeated)} named more than once")
+        cameras = tuple(self.camera(name) for name in names)
+        return self.model_copy(update={"cameras": cameras, "name": f"{self.name}[{'+'.join(names)}]"})
+
     def cam2lidar(self) -> np.ndarray:
         """(N, 4, 4) float64 in camera order."""
         return np.stack([c.matrix for c in self.cameras])

@@ -12,8 +12,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from fisheye_infer.commands.common import NEEDS_EXPORT, missing_extra
+
+if TYPE_CHECKING:
+    from fisheye_infer.cameras.rig import Rig
 
 __all__ = ["configure", "run", "ARCHITECTURES"]
 
@@ -45,6 +49,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="mmdet3d-style config to train (default: the compact configuration of --arch)")
     parser.add_argument(
         "--rig", help="rig file for --config (default: the compact configuration's rig, the shipped one resized by 0.4)"
+    )
+    parser.add_argument(
+        "--cameras",
+        help="comma-separated cameras of the rig to train on, in this order (default: all of them): a reduced "
+        "layout trained as such, e.g. fisheye_camera_front,fisheye_camera_rear (the paper's Table 3 retrained)",
     )
     parser.add_argument(
         "--resume",
@@ -131,9 +140,9 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:
         if args.init:
             raise ConfigError("--resume continues from the run folder's checkpoint.pth; leave out --init")
-        if args.config or args.rig:
+        if args.config or args.rig or args.cameras:
             raise ConfigError(
-                "--resume takes the configuration and rig from the run folder; leave out --config and --rig"
+                "--resume takes the configuration and rig from the run folder; leave out --config, --rig and --cameras"
             )
         if not (out / "config.py").is_file() or not (out / "rig.json").is_file():
             raise ConfigError(f"--resume: {out} has no config.py and rig.json; is it a run folder?")
@@ -157,6 +166,8 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--config needs --rig: the rig whose cameras give the configuration's image size")
         else:
             rig = compact_setup(args.arch)[1]
+        if args.cameras:
+            config, rig = only_cameras(config, rig, args.cameras)
     given = {
         "steps": args.steps,
         "batch_size": args.batch_size,
@@ -186,3 +197,10 @@ def run(args: argparse.Namespace) -> int:
         f"--rig {out / 'rig.json'} --out {out / 'model.onnx'}"
     )
     return 0
+
+
+def only_cameras(config: Any, rig: Rig, cameras: str) -> tuple[Any, Rig]:
+    """The configuration and rig reduced to ``--cameras`` (comma-separated names of the rig's cameras)."""
+    names = [name.strip() for name in cameras.split(",") if name.strip()]
+    reduced = rig.subset(names)  # names each camera the rig lacks
+    return config.replace(image={"camera_names": tuple(names)}), reduced

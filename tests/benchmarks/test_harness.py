@@ -261,16 +261,18 @@ def test_report_writes_pages_and_removes_stale_generated_ones(tmp_path: Path) ->
     (docs / "gone-machine.md").write_text(f"# old\n\n{report.NOTICE}\n")
     (docs / "notes.md").write_text("# written by hand\n")
     card = tmp_path / "MODEL_CARD.md"
-    card.write_text(f"# card\n\n{report.CARD_BEGIN}\n{report.CARD_END}\n")
+    empty = f"# card\n\n{report.card_begin(report.CARD_COMMAND)}\n{report.CARD_END}\n"
+    card.write_text(empty)
     saved(tmp_path, {"T": [{"v": 1.0}]})
     argv = ["--results", str(tmp_path / "results"), "--docs", str(docs), "--card", f"{report.CARD_COMMAND}={card}"]
     assert report.main(argv) == 0
     assert sorted(p.name for p in docs.glob("*.md")) == sorted(["index.md", f"{HOST['slug']}.md", "notes.md"])
-    assert card.read_text() == f"# card\n\n{report.CARD_BEGIN}\n{report.CARD_END}\n"  # no model_card result: unchanged
+    assert card.read_text() == empty  # no model_card result: unchanged
 
 
 def test_model_card_figures_come_from_the_latest_model_card_result(tmp_path: Path) -> None:
-    card = f"# card\n\n## Figures\n\n{report.CARD_BEGIN}\nold tables\n{report.CARD_END}\n\n## Limitations\n"
+    begin = report.card_begin(report.CARD_COMMAND)
+    card = f"# card\n\n## Figures\n\n{begin}\nold tables\n{report.CARD_END}\n\n## Limitations\n"
     result = {
         "command": report.CARD_COMMAND,
         "machine": HOST,
@@ -280,12 +282,33 @@ def test_model_card_figures_come_from_the_latest_model_card_result(tmp_path: Pat
     older = {**result, "date": "2025-01-01T00:00:00Z", "measurements": {"Sensor failure": [{"FDS 0-30 m": 0.1}]}}
     quick = {**result, "command": f"{report.CARD_COMMAND} --quick", "date": "2025-02-01T00:00:00Z"}
     text = report.card_figures([older, result, quick], card)
-    block = text[text.index(report.CARD_BEGIN) : text.index(report.CARD_END)]
+    block = text[text.index(begin) : text.index(report.CARD_END)]
     assert "### Sensor failure" in block and "| front + rear | 0.335 |" in block and "old tables" not in block
     assert f"`{report.CARD_COMMAND}`" in block and "| 0.100 |" not in block and "--quick" not in block
     assert text.startswith("# card\n\n## Figures") and text.endswith(f"{report.CARD_END}\n\n## Limitations\n")
     with pytest.raises(ValueError, match="no"):
         report.card_figures([result], "# a card without the markers\n")
+
+
+def test_a_page_holds_the_blocks_of_several_commands() -> None:
+    """Each command's latest result fills its own block; the others are left as they are."""
+    first, second = "python benchmarks/study.py", "python benchmarks/study.py --model runs/a/model.pth"
+    page = (
+        f"# study\n\n{report.card_begin(first)}\nold first\n{report.CARD_END}\n\n## Runs\n\n"
+        f"{report.card_begin(second)}\nold second\n{report.CARD_END}\n"
+    )
+    result = {
+        "command": second,
+        "machine": HOST,
+        "date": "2025-01-02T03:04:05Z",
+        "measurements": {"Table 2": [{"model": "a", "FDS": 0.25}]},
+    }
+    text = report.card_figures([result], page, second)
+    assert "old first" in text and "old second" not in text and "| a | 0.25 |" in text
+    assert text.index("## Runs") < text.index("| a | 0.25 |")
+    assert report.card_figures([result], text, first) == text  # no result of the first command: unchanged
+    with pytest.raises(ValueError, match="no"):
+        report.card_figures([result], page, "python benchmarks/study.py --frames 20")
 
 
 def test_committed_pages_are_what_the_report_generates() -> None:

@@ -102,6 +102,20 @@ def test_require_names_order_and_image_size(rig: Rig) -> None:
         rig.require(list(reversed(FISHEYE3DOD_CAMERAS)))
 
 
+def test_subset_keeps_the_cameras_named_in_their_order(rig: Rig, tmp_path: Path) -> None:
+    front, left, right, rear = FISHEYE3DOD_CAMERAS
+    pair = rig.subset([rear, front])
+    assert pair.names == [rear, front] and pair.camera(front) == rig.camera(front)
+    np.testing.assert_array_equal(pair.cam2lidar(), rig.cam2lidar()[[3, 0]])
+    assert Rig.load(pair.save(tmp_path / "pair.json")) == pair and pair.hash != rig.hash
+    with pytest.raises(RigError, match="camera 'front': not in the rig"):
+        rig.subset([front, "front"])
+    with pytest.raises(RigError, match=f"cameras: {left} named more than once"):
+        rig.subset([left, right, left])
+    with pytest.raises(RigError, match="cameras: expected at least one of"):
+        rig.subset([])
+
+
 def test_extrinsics_json_errors(rig: Rig, tmp_path: Path, data_dir: Path) -> None:
     calib = tmp_path / "calib_results.txt"
     calib.write_text(rig.shared_model().to_text())

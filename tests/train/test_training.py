@@ -131,3 +131,28 @@ def test_resume_with_other_options_is_refused(resumed_run: tuple[Run, Run], caps
     _, resumed = resumed_run
     assert main(["train", "--out", str(resumed.folder), "--resume", "--steps", "5", "--batch-size", "2"]) == 1
     assert "--batch-size: saved 1, given 2" in capsys.readouterr().err
+
+
+def test_a_reduced_layout_trains_on_the_cameras_named(
+    tmp_path: Path, small_inputs: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--cameras: the paper's two-camera layouts retrained, the rig and the config file of those cameras alone."""
+    config_file, rig_file = small_inputs
+    front_rear = ["fisheye_camera_front", "fisheye_camera_rear"]
+    out = tmp_path / "run"
+    argv = ["train", "--out", str(out), "--steps", "2", "--batch-size", "1", "--val-frames", "1"]
+    argv += ["--config", str(config_file), "--rig", str(rig_file)]
+    assert main([*argv, "--cameras", ",".join(front_rear)]) == 0
+    rig, full = Rig.load(out / "rig.json"), Rig.load(rig_file)
+    assert rig.names == front_rear and all(rig.camera(c) == full.camera(c) for c in front_rear)
+    config = BEVDetConfig.from_mmdet3d_config(out / "config.py")
+    assert list(config.image.camera_names) == front_rear
+    state_dict, _ = load_checkpoint(out / "model.pth")
+    expected = create_model("fisheye-bevdet", config, rig).official_keys()
+    assert list(state_dict) == list(expected) and all(tuple(v.shape) == expected[k][0] for k, v in state_dict.items())
+    assert main(["train", "--out", str(out), "--resume", "--steps", "3", "--cameras", "fisheye_camera_front"]) == 1
+    assert "leave out --config, --rig and --cameras" in capsys.readouterr().err
+    assert main([*argv[:2], str(tmp_path / "other"), *argv[3:], "--cameras", "fisheye_camera_front,front"]) == 1
+    assert (
+        "camera 'front': not in the rig (cameras: fisheye_camera_front, fisheye_camera_left" in capsys.readouterr().err
+    )
