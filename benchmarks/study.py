@@ -15,7 +15,9 @@ where the paper has one:
   every camera sees only some) and retrained: front + rear and left + right of a four-fisheye rig,
   a six-pinhole rig without its front and rear cameras;
 - Table 4 (RF3): 0-30 m against 0-48 m;
-- the paper's findings, each with its direction in the paper and in ours.
+- the paper's findings, each with its direction in the paper and in ours, and whether the held-out
+  scenes resolve ours: a paired bootstrap over the scenes (``--draws`` resamples, the same for every
+  model) gives the 90% interval of our difference; one that holds 0 is "not resolved".
 """
 
 from __future__ import annotations
@@ -26,11 +28,15 @@ from pathlib import Path
 from typing import Any
 
 import harness
+import numpy as np
 import paper
 from model_card import RANGES, heldout, run
 
 from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
-from fisheye_infer.eval.metrics import MetricsReport
+from fisheye_infer.eval.bootstrap import frame_draws, interval, resampled_fds, resolved
+from fisheye_infer.eval.eval_boxes import EvalBoxes
+from fisheye_infer.eval.evaluate import breakdown_label, evaluate_results
+from fisheye_infer.eval.metrics import EvalConfig, MetricsReport
 from fisheye_infer.runtime.detector import Detector
 
 Row = dict[str, Any]
@@ -48,6 +54,31 @@ FAMILIES = (
 )
 
 
+#: The share of the resampled differences a finding's interval holds.
+LEVEL = 0.9
+
+
+@dataclass(frozen=True)
+class Scored:
+    """A model's detections on the held-out scenes with some of its cameras: the metric's report, and the boxes it
+    scored with their samples in token order, the same scenes in the same order for every model (resamples pair
+    them)."""
+
+    report: MetricsReport
+    gt: EvalBoxes
+    pred: EvalBoxes
+
+    @classmethod
+    def of(cls, gt: dict[str, Any], pred: dict[str, Any]) -> Scored:
+        """From the records the detector wrote: ``{sample_token: [record, ...]}`` for ground truth and predictions."""
+        tokens, names = sorted(gt), EvalConfig().class_names
+        return cls(
+            evaluate_results(gt, pred),
+            EvalBoxes.from_records(gt, names, tokens, ground_truth=True),
+            EvalBoxes.from_records(pred, names, tokens),
+        )
+
+
 @dataclass(frozen=True)
 class Studied:
     """One model's results: with all the cameras it was trained for, and (for a whole rig) each of the paper's
@@ -56,8 +87,8 @@ class Studied:
     name: str
     arch: str
     layout: str  # ALL, or the reduced layout the model was trained for ("front + rear", ...)
-    full: MetricsReport
-    layouts: dict[str, MetricsReport]
+    full: Scored
+    layouts: dict[str, Scored]
 
 
 def paper_layouts(cameras: tuple[str, ...]) -> dict[str, list[str]]:
@@ -114,12 +145,13 @@ def study(spec: str, work: Path, frames: int, seed: int, threads: int) -> Studie
     cameras, arch = detector.info.cameras, detector.info.architecture
     layout = trained_layout(arch, cameras)
     runtime = paper_layouts(cameras) if layout == ALL else {}
-    layouts = {label: run(detector, data, used)[0] for label, used in runtime.items() if used}
-    return Studied(name, arch, layout, run(detector, data, list(cameras))[0], layouts)
+    layouts = {label: Scored.of(*run(detector, data, used)[1]) for label, used in runtime.items() if used}
+    return Studied(name, arch, layout, Scored.of(*run(detector, data, list(cameras))[1]), layouts)
 
 
-def one_per_layout(models: list[Studied]) -> None:
-    """Refuse two models of the same architecture and layout: each finding compares one model with another."""
+def comparable(models: list[Studied]) -> None:
+    """Refuse two models of the same architecture and layout (each finding compares one model with another) and
+    models scored on different scenes (a finding's resamples pair them scene by scene)."""
     seen: dict[tuple[str, str], str] = {}
     for m in models:
         other = seen.setdefault((m.arch, m.layout), m.name)
@@ -127,6 +159,11 @@ def one_per_layout(models: list[Studied]) -> None:
             raise SystemExit(
                 f"--model {other} and --model {m.name} are both {m.arch} trained with {m.layout} cameras; "
                 "study one model of each architecture and layout at a time"
+            )
+        if m.full.gt.tokens != models[0].full.gt.tokens:
+            raise SystemExit(
+                f"--model {models[0].name} and --model {m.name} were scored on different scenes "
+                f"({len(models[0].full.gt.tokens)} and {len(m.full.gt.tokens)} frames); a finding pairs them by scene"
             )
 
 
@@ -139,7 +176,7 @@ def table2(models: list[Studied]) -> list[Row]:
     for m in models:
         if m.layout != ALL:
             continue
-        s = m.full.distance[FAR]
+        s = m.full.report.distance[FAR]
         method, cameras = paper.METHOD.get(m.arch, (m.arch, ""))
         ref = paper.TABLE2.get(m.arch)
         rows.append(
@@ -161,8 +198,8 @@ def table2(models: list[Studied]) -> list[Row]:
 def _layout_rows(m: Studied) -> list[tuple[str, str, MetricsReport]]:
     """(cameras, how, report) of a model's rows in Table 3."""
     if m.layout != ALL:
-        return [(m.layout, RETRAINED, m.full)]
-    return [*((label, RUN_TIME, report) for label, report in m.layouts.items()), (ALL, "-", m.full)]
+        return [(m.layout, RETRAINED, m.full.report)]
+    return [*((label, RUN_TIME, scored.report) for label, scored in m.layouts.items()), (ALL, "-", m.full.report)]
 
 
 def table3(models: list[Studied]) -> list[Row]:
@@ -192,7 +229,7 @@ def table4(models: list[Studied]) -> list[Row]:
             continue
         ref = paper.TABLE4.get(m.arch, {})
         for label in RANGES:
-            s = m.full.distance[label]
+            s = m.full.report.distance[label]
             rows.append(
                 {
                     "model": m.name,
@@ -206,19 +243,38 @@ def table4(models: list[Studied]) -> list[Row]:
     return rows
 
 
-def _scores(models: list[Studied]) -> dict[Key, float]:
-    """FDS at 0-48 m by (architecture, cameras, how reduced): (arch, ALL, ALL) for all cameras, (arch, layout,
-    RUN_TIME) or (arch, layout, RETRAINED) for a reduced layout, and (arch, ALL, NEAR) at 0-30 m."""
-    out: dict[Key, float] = {}
+def _scores(models: list[Studied]) -> dict[Key, tuple[Scored, str]]:
+    """What is scored and at which range (FAR: 0-48 m) by (architecture, cameras, how reduced): (arch, ALL, ALL) for
+    all cameras, (arch, layout, RUN_TIME) or (arch, layout, RETRAINED) for a reduced layout, and (arch, ALL, NEAR)
+    at 0-30 m."""
+    out: dict[Key, tuple[Scored, str]] = {}
     for m in models:
         if m.layout != ALL:
-            out[(m.arch, m.layout, RETRAINED)] = m.full.distance[FAR].FDS
+            out[(m.arch, m.layout, RETRAINED)] = (m.full, FAR)
             continue
-        out[(m.arch, ALL, ALL)] = m.full.distance[FAR].FDS
-        out[(m.arch, ALL, NEAR)] = m.full.distance[NEAR].FDS
-        for label, report in m.layouts.items():
-            out[(m.arch, label, RUN_TIME)] = report.distance[FAR].FDS
+        out[(m.arch, ALL, ALL)] = (m.full, FAR)
+        out[(m.arch, ALL, NEAR)] = (m.full, NEAR)
+        for label, scored in m.layouts.items():
+            out[(m.arch, label, RUN_TIME)] = (scored, FAR)
     return out
+
+
+class Resampled:
+    """The FDS of each scored key on one set of resamples of the held-out scenes (``comparable`` models share their
+    scenes), computed when first asked."""
+
+    def __init__(self, scores: dict[Key, tuple[Scored, str]], draws: int) -> None:
+        self.scores = scores
+        frames = len(next(iter(scores.values()))[0].gt.tokens) if scores else 1
+        self.draws = frame_draws(frames, draws)
+        self.ranges = {breakdown_label(r): r for r in EvalConfig().distance_breakdown}
+        self.cache: dict[Key, np.ndarray] = {}
+
+    def __getitem__(self, key: Key) -> np.ndarray:
+        if key not in self.cache:
+            scored, label = self.scores[key]
+            self.cache[key] = resampled_fds(scored.gt, scored.pred, self.draws, ref_range=self.ranges[label])
+        return self.cache[key]
 
 
 def _paper_scores() -> dict[Key, float]:
@@ -266,15 +322,24 @@ def _comparisons() -> list[tuple[str, tuple[Key, Key], tuple[Key, Key] | None]]:
     return out
 
 
-def findings(models: list[Studied]) -> list[Row]:
-    """Each of the paper's comparisons that the studied models allow: which side is larger (FDS, 0-48 m, or the
-    FDS a rig loses) in the paper and here."""
-    ours, theirs = _scores(models), _paper_scores()
+def _verdict(paper_first_larger: bool, low: float, high: float) -> str:
+    if not resolved(low, high):
+        return "not resolved"
+    return "yes" if paper_first_larger == (low > 0) else "no"
 
-    def value(scores: dict[Key, float], pair: tuple[Key, Key], lost: tuple[Key, Key] | None) -> tuple[float, float]:
+
+def findings(models: list[Studied], draws: int = 200) -> list[Row]:
+    """Each of the paper's comparisons that the studied models allow: which side is larger (FDS, 0-48 m, or the
+    FDS a rig loses) in the paper and here, our difference's interval over ``draws`` resamples of the scenes, and
+    whether ours goes the paper's way ("not resolved" when the interval holds 0)."""
+    scores, theirs = _scores(models), _paper_scores()
+    resampled = Resampled(scores, draws)
+    ours = {key: scored.report.distance[label].FDS for key, (scored, label) in scores.items()}
+
+    def value(values: Any, pair: tuple[Key, Key], lost: tuple[Key, Key] | None) -> tuple[Any, Any]:
         if lost is None:
-            return scores[pair[0]], scores[pair[1]]
-        return scores[pair[0]] - scores[pair[1]], scores[lost[0]] - scores[lost[1]]
+            return values[pair[0]], values[pair[1]]
+        return values[pair[0]] - values[pair[1]], values[lost[0]] - values[lost[1]]
 
     rows = []
     for what, pair, lost in _comparisons():
@@ -282,13 +347,16 @@ def findings(models: list[Studied]) -> list[Row]:
         if not all(key in ours for key in needed):
             continue
         first, second = value(ours, pair, lost)
+        first_drawn, second_drawn = value(resampled, pair, lost)
+        low, high = interval(first_drawn - second_drawn, LEVEL)
         said = value(theirs, pair, lost) if all(key in theirs for key in needed) else None
         rows.append(
             {
                 "comparison (FDS, 0-48 m)": what,
                 "paper": f"{said[0]:.3f} vs {said[1]:.3f}" if said else None,
                 "ours": f"{first:.3f} vs {second:.3f}",
-                "same direction": (said[0] > said[1]) == (first > second) if said else None,
+                f"ours, difference ({LEVEL:.0%} interval)": f"{first - second:+.3f} ({low:+.3f} to {high:+.3f})",
+                "same direction": _verdict(said[0] > said[1], low, high) if said else None,
             }
         )
     return rows
@@ -305,6 +373,9 @@ def main(argv: list[str] | None = None) -> int:
     bench.parser.add_argument("--seed", type=int, default=0, help="seed of the validation stream (default 0)")
     bench.parser.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads (default 2)")
     bench.parser.add_argument("--work-dir", default="artifacts/study", help="folder for the frames and the files")
+    bench.parser.add_argument(
+        "--draws", type=int, default=200, help="resamples of the scenes behind each finding's interval (default 200)"
+    )
     args = bench.parse(argv)
     if args.quick:
         args.frames = 20
@@ -312,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
     models: list[Studied] = []
     for spec in specs:
         models.append(study(spec, Path(args.work_dir), args.frames, args.seed, args.threads))
-        one_per_layout(models)
+        comparable(models)
     bench.save(
         args,
         {
@@ -321,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
             ),
             "Table 3 (RF1/RF2): reduced layouts, at run time (degraded mode) or retrained, 0-48 m": table3(models),
             "Table 4 (RF3): 0-30 m against 0-48 m": table4(models),
-            "The paper's findings: which side is larger, in the paper and here": findings(models),
+            "The paper's findings: which side is larger, in the paper and here": findings(models, args.draws),
         },
     )
     return 0

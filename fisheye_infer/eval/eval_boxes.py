@@ -9,7 +9,7 @@ are broken by position), so rows stay in sample order, then in per-sample record
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -134,6 +134,21 @@ class EvalBoxes:
             self.yaw[index],
             self.score[index],
         )
+
+    def take(self, frames: Sequence[int] | np.ndarray) -> EvalBoxes:
+        """The boxes of the samples ``frames`` (indices into ``tokens``), in that order, each draw a sample of its
+        own: a frame drawn twice counts twice, as a bootstrap resample needs. Tokens become ``token#draw``."""
+        frames = np.asarray(frames, np.int64).reshape(-1)
+        if len(frames) and (frames.min() < 0 or frames.max() >= len(self.tokens)):
+            raise ValueError(f"frames: indices must lie in [0, {len(self.tokens)})")
+        order = np.argsort(self.sample, kind="stable")  # rows by sample, each sample's rows in their order
+        counts = self.counts()
+        starts = np.concatenate([[0], np.cumsum(counts)])[frames]
+        n = counts[frames]
+        first = np.repeat(np.cumsum(n) - n, n)  # where each drawn sample's rows begin in the output
+        rows = order[np.repeat(starts, n) + np.arange(int(n.sum())) - first]
+        tokens = tuple(f"{self.tokens[f]}#{i}" for i, f in enumerate(frames))
+        return replace(self[rows], tokens=tokens, sample=np.repeat(np.arange(len(frames)), n))
 
     @property
     def ego_dist(self) -> np.ndarray:
