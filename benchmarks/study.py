@@ -377,6 +377,8 @@ def main(argv: list[str] | None = None) -> int:
         "--draws", type=int, default=200, help="resamples of the scenes behind each finding's interval (default 200)"
     )
     args = bench.parse(argv)
+    if args.draws < 1:
+        bench.parser.error(f"--draws: expected at least 1 resample, got {args.draws}")
     if args.quick:
         args.frames = 20
     specs = args.model or [m.name for m in PRETRAINED]

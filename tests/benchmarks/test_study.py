@@ -175,3 +175,9 @@ def test_a_difference_the_scenes_split_on_is_not_resolved() -> None:
     low, high = (float(v) for v in row["ours, difference (90% interval)"].split("(")[1].rstrip(")").split(" to "))
     assert low < 0 < high
     assert row["same direction"] == "not resolved"
+
+
+def test_no_resamples_is_refused_before_any_work(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        study.main(["--draws", "0", "--frames", "1"])
+    assert "--draws: expected at least 1 resample, got 0" in capsys.readouterr().err
