@@ -91,30 +91,41 @@ class Studied:
     layouts: dict[str, Scored]
 
 
+#: The paper's two-camera layouts of a four-camera rig, by the words their cameras' names end in.
+PAIRS = {"front + rear": ("front", "rear"), "left + right": ("left", "right")}
+
+
+def _end(camera: str) -> str:
+    """Which of front, rear, back, left and right ``camera``'s name ends in ("" for none)."""
+    low = camera.lower()
+    return next((word for word in ("front", "rear", "back", "left", "right") if low.endswith(word)), "")
+
+
 def paper_layouts(cameras: tuple[str, ...]) -> dict[str, list[str]]:
-    """The paper's reduced layouts of a rig, by its camera names: a four-camera rig's front + rear and left + right,
-    a six-camera rig without its front and rear cameras."""
-    named = {c: c.lower() for c in cameras}
-
-    def has(word: str) -> list[str]:
-        return [c for c, low in named.items() if low.endswith(word)]
-
+    """The paper's reduced layouts of a rig, by its camera names (those of the paper's rigs, or of a user's rig
+    named alike): a four-camera rig's front + rear and left + right, each where two cameras' names end so, and a
+    six-camera rig without its front and rear cameras."""
     if len(cameras) == 4:
-        return {"front + rear": has("front") + has("rear"), "left + right": has("left") + has("right")}
-    centre = [c for c, low in named.items() if low.endswith(("front", "rear", "back"))]
+        pairs = {label: [c for word in words for c in cameras if _end(c) == word] for label, words in PAIRS.items()}
+        return {label: used for label, used in pairs.items() if len(used) == 2}
+    centre = [c for c in cameras if _end(c) in ("front", "rear", "back")]
     return {"without front and rear": [c for c in cameras if c not in centre]} if centre else {}
 
 
 def trained_layout(arch: str, cameras: tuple[str, ...]) -> str:
     """``ALL`` for a model of a whole rig; for one trained on some of the paper's rig (the six pinhole cameras for
-    ``pinhole-*``, else the four fisheye cameras), the paper's name of that layout, else its cameras."""
+    ``pinhole-*``, else the four fisheye cameras), the paper's name of that layout, else its cameras. A model of
+    another rig is of a whole rig unless it has two fisheye cameras whose names give one of ``PAIRS`` (``--cameras
+    cam_front,cam_rear`` of a user's four-camera rig)."""
     paper_rig = PINHOLE_CAMERAS if arch.startswith("pinhole-") else FISHEYE3DOD_CAMERAS
-    if not set(cameras) < set(paper_rig):
-        return ALL
-    for label, used in paper_layouts(paper_rig).items():
-        if set(used) == set(cameras):
-            return label
-    return " + ".join(cameras)
+    if set(cameras) < set(paper_rig):
+        for label, used in paper_layouts(paper_rig).items():
+            if set(used) == set(cameras):
+                return label
+        return " + ".join(cameras)
+    ends = tuple(sorted(_end(c) for c in cameras))
+    pairs = [label for label, words in PAIRS.items() if ends == words and not arch.startswith("pinhole-")]
+    return pairs[0] if pairs else ALL
 
 
 def model_files(spec: str) -> tuple[str, Path, Path, Path]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from fisheye_infer._version import __version__
@@ -25,7 +26,7 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
     ("export", "export", "export a checkpoint to one self-contained, verified ONNX file"),
     ("rebake", "rebake", "recompute an ONNX file's geometry tables for a new rig (no torch)"),
     ("make-checkpoint", "make_checkpoint", "write a seeded random-weight checkpoint (demos and tests)"),
-    ("train", "train", "train a FisheyeBEVDet on synthetic frames (default: the compact model)"),
+    ("train", "train", "train a detector of the paper on synthetic frames (default: the compact FisheyeBEVDet)"),
     ("detect", "detect", "run a model on frames; write results JSON and pictures"),
     ("replay", "replay", "run a model on a recorded ROS bag; write an MCAP file for ROS 2 tools and Foxglove"),
     ("serve", "serve", "serve a model over HTTP and WebSocket"),
@@ -57,6 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     except FisheyeInferError as exc:
         print(f"fisheye-infer {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:
+        # the reader of the output went away (`fisheye-infer rig show | head -3`): stop quietly, as Unix tools do;
+        # the interpreter's last flush of stdout at exit would raise again, so stdout becomes /dev/null
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, the status a shell reports for a tool stopped so
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ is imported only when the command runs).
 fisheye-infer train --out runs/compact [--until 1000] [--resume]
 fisheye-infer train --arch fisheye-petr --out runs/petr --init-backbone runs/compact/model.pth
 fisheye-infer train --arch pinhole-bevdet --out runs/pinhole
+fisheye-infer train --arch fisheye-bevdet --rig my_rig.json --out runs/mine
 fisheye-infer train --out runs/tuned --init runs/compact/model.pth --seed 1 --lr 5e-5 --steps 2500
 fisheye-infer train --out runs/qat --init runs/compact/model.pth --qat 0.5 --device cuda --workers 7 --batch-size 8
 """
@@ -48,7 +49,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--config", help="mmdet3d-style config to train (default: the compact configuration of --arch)")
     parser.add_argument(
-        "--rig", help="rig file for --config (default: the compact configuration's rig, the shipped one resized by 0.4)"
+        "--rig",
+        help="the rig to train for: with --config, as given (its image size the configuration's); without, "
+        "a fisheye --arch in its compact configuration for this rig, its images scaled by 0.4 as the shipped "
+        "rig's are (one OCam model shared by the cameras; default: the shipped rig)",
     )
     parser.add_argument(
         "--cameras",
@@ -128,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         from fisheye_infer.models.training.options import TrainOptions
     except ImportError as exc:
         return missing_extra(NEEDS_EXPORT, exc)
-    from fisheye_infer.cameras.rig import Rig
+    from fisheye_infer.cameras.rig import Rig, resolve_rig
     from fisheye_infer.errors import ConfigError
     from fisheye_infer.models.training.compact import compact_setup
 
@@ -152,20 +156,12 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--out {out} already holds a run; pass --resume to continue it, or choose another folder"
             )
-        if args.rig and not args.config:
-            raise ConfigError("--rig needs --config (the compact configuration comes with its own rig)")
         if args.config:
-            config = read_config_file(args.config)
+            if not args.rig:
+                raise ConfigError("--config needs --rig: the rig whose cameras give the configuration's image size")
+            config, rig = read_config_file(args.config), resolve_rig(args.rig)
         else:
-            config = compact_setup(args.arch)[0]
-        if args.rig:
-            from fisheye_infer.cameras.rig import resolve_rig
-
-            rig = resolve_rig(args.rig)
-        elif args.config:
-            raise ConfigError("--config needs --rig: the rig whose cameras give the configuration's image size")
-        else:
-            rig = compact_setup(args.arch)[1]
+            config, rig = compact_setup(args.arch, resolve_rig(args.rig) if args.rig else None)
         if args.cameras:
             config, rig = only_cameras(config, rig, args.cameras)
     given = {

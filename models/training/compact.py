@@ -50,7 +50,9 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from fisheye_infer.cameras.camera_models import OCamModel
 from fisheye_infer.cameras.rig import Rig, default_rig, pinhole_rig
+from fisheye_infer.errors import ConfigError
 from fisheye_infer.scenes.render import resized_rig
 
 __all__ = [
@@ -273,7 +275,33 @@ COMPACT: dict[str, tuple[Callable[[], Any], Callable[[], Rig]]] = {
 }
 
 
-def compact_setup(arch: str) -> tuple[Any, Rig]:
-    """The compact configuration of ``arch`` and the rig it trains on."""
-    config, rig = COMPACT[arch]
-    return config(), rig()
+def compact_setup(arch: str, rig: Rig | None = None) -> tuple[Any, Rig]:
+    """The compact configuration of ``arch`` and the rig it trains on: by default the shipped rig's, or, for a
+    fisheye architecture, ``rig`` (a user's own: its cameras, their poses and its one shared lens model) with
+    its images scaled by ``COMPACT_SCALE`` as the shipped rig's are, the configuration's images and cameras
+    taken from it. The compact pinhole baselines take the shipped pinhole rig only: their resize and crop are
+    those of its 512 x 288 images, and a held-out set in the Fisheye3DOD layout keeps no pinhole intrinsics
+    to score another rig on."""
+    make_config, make_rig = COMPACT[arch]
+    if rig is None:
+        return make_config(), make_rig()
+    if make_rig is compact_pinhole_rig:
+        raise ConfigError(
+            f"--rig: the compact {arch} takes the shipped six-camera pinhole rig only (its resize and crop are "
+            "those of 512x288 images); train another pinhole rig with --config and --rig"
+        )
+    lens = rig.shared_model()  # names the camera whose calibration differs
+    if not isinstance(lens, OCamModel):
+        raise ConfigError(
+            f"--rig: the compact {arch} takes fisheye cameras of an OCam model (`fisheye-infer rig import --ocam` "
+            f"fits one); camera '{rig.names[0]}' has a {lens.type} model"
+        )
+    try:
+        seen = compact_rig(rig)
+    except ValueError as exc:  # a size that 0.4 does not scale to whole pixels at the same aspect
+        raise ConfigError(
+            f"--rig: the compact {arch} sees the rig's images scaled by {COMPACT_SCALE:g}: {exc}"
+        ) from exc
+    width, height = seen.cameras[0].model.width, seen.cameras[0].model.height
+    image = {"height": height, "width": width, "camera_names": tuple(seen.names)}
+    return make_config().replace(image=image), seen

@@ -64,10 +64,28 @@ def test_reports_rank_by_shift() -> None:
             "without front and rear",
         ),
         ("fisheye-bevdet", ("cam_a", "cam_b"), study.ALL),  # a user's own rig is a whole rig
+        ("fisheye-bevdet", ("cam_a", "cam_b", "cam_c", "cam_d"), study.ALL),
+        ("fisheye-petr", ("cam_rear", "cam_front"), "front + rear"),  # unless named as a paper's layout
+        ("fisheye-bevdet-cyl", ("Left", "Right"), "left + right"),
+        ("fisheye-bevdet", ("cam_front", "cam_left"), study.ALL),
     ],
 )
 def test_trained_layout_names_the_papers_reduced_layouts(arch: str, cameras: tuple[str, ...], layout: str) -> None:
     assert study.trained_layout(arch, cameras) == layout
+
+
+@pytest.mark.parametrize(
+    ("cameras", "layouts"),
+    [
+        (FISHEYE3DOD_CAMERAS, {"front + rear": [FRONT, REAR], "left + right": [LEFT, RIGHT]}),
+        (("a_front", "b_left", "c_right", "d_back"), {"left + right": ["b_left", "c_right"]}),
+        (("a", "b", "c", "d"), {}),
+        (PINHOLE_CAMERAS, {"without front and rear": [c for c in PINHOLE_CAMERAS if c.endswith(("left", "right"))]}),
+    ],
+)
+def test_the_papers_layouts_are_found_by_camera_names(cameras: tuple[str, ...], layouts: dict) -> None:
+    """Run-time layouts of a rig: a pair only where two cameras' names end in its words."""
+    assert study.paper_layouts(cameras) == layouts
 
 
 def test_retrained_layouts_are_rows_of_table_3_only() -> None:

@@ -55,6 +55,17 @@ def test_bad_rig_is_a_clear_error_not_a_traceback(tmp_path: Path) -> None:
     assert "error: rig file" in result.stderr and "Traceback" not in result.stderr
 
 
+def test_output_into_a_closed_pipe_stops_quietly() -> None:
+    """``fisheye-infer rig show | head -1`` with the reader gone before the first line: exit 141, no traceback."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "fisheye_infer", "rig", "show"], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    assert process.stdout is not None and process.stderr is not None
+    process.stdout.close()  # before the interpreter has even started: every write meets a closed pipe
+    stderr = process.stderr.read().decode()
+    assert process.wait(timeout=120) == 141 and stderr == ""
+
+
 @pytest.mark.slow  # whole exports: make test-fast leaves it out
 def test_demo_runs_on_defaults(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["demo", "--out", str(tmp_path)]) == 0

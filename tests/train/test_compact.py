@@ -6,12 +6,14 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from fisheye_infer.cameras.rig import Rig, default_rig  # noqa: E402
 from fisheye_infer.commands.train import ARCHITECTURES  # noqa: E402
 from fisheye_infer.errors import ConfigError  # noqa: E402
 from fisheye_infer.models import BEVDetConfig, create_model, get_model_entry  # noqa: E402
 from fisheye_infer.models.training.compact import COMPACT, compact_setup  # noqa: E402
 from fisheye_infer.models.training.config_file import write_config  # noqa: E402
 from fisheye_infer.models.training.loop import TRAINABLE, read_config_file  # noqa: E402
+from fisheye_infer.scenes.render import resized_rig  # noqa: E402
 
 #: What a shipped checkpoint may weigh (the compact FisheyePETR: 21.6 MB, the BEVDet family: 14.4 MB).
 SHIP_LIMIT_BYTES = 25_000_000
@@ -36,6 +38,19 @@ def test_compact_model_fits_its_rig_and_the_size_limit(arch: str) -> None:
     model = create_model(arch, config, rig)
     size = sum(v.numel() * v.element_size() for v in model.official_state_dict().values())
     assert size < SHIP_LIMIT_BYTES
+
+
+@pytest.mark.parametrize("arch", [a for a in TRAINABLE if not a.startswith("pinhole")])
+def test_a_fisheye_architecture_takes_a_rig_of_ones_own(arch: str, moved_rig: Rig) -> None:
+    """``compact_setup(arch, rig)``: the rig's images scaled by 0.4 and its cameras in the configuration; the shipped
+    rig given so is the default."""
+    mine = resized_rig(moved_rig, 0.5)
+    config, rig = compact_setup(arch, mine)
+    assert rig.hash == resized_rig(mine, 0.4).hash
+    assert (config.image.width, config.image.height) == (160, 160) and config.image.camera_names == tuple(rig.names)
+    assert create_model(arch, config, rig).geometry_tables()  # the tables of this rig
+    (default_config, default), (given_config, given) = compact_setup(arch), compact_setup(arch, default_rig())
+    assert default_config == given_config and default.hash == given.hash
 
 
 def test_the_baselines_keep_the_official_share_of_feature_cells() -> None:

@@ -11,11 +11,12 @@ torch = pytest.importorskip("torch")
 
 from typing import Any  # noqa: E402
 
-from fisheye_infer.cameras.rig import Rig  # noqa: E402
+from fisheye_infer.cameras.rig import Rig, pinhole_rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
 from fisheye_infer.models import BEVDetConfig, create_model, load_checkpoint  # noqa: E402
 from fisheye_infer.models.training.options import lr_factor  # noqa: E402
 from fisheye_infer.runtime.artifact import read_meta  # noqa: E402
+from fisheye_infer.scenes.render import resized_rig  # noqa: E402
 
 Run = Any
 
@@ -109,7 +110,7 @@ def test_resume_drops_the_lines_logged_after_the_checkpoint(resumed_run: tuple[R
     ("argv", "message"),
     [
         (["--resume"], "has no config.py and rig.json"),
-        (["--rig", "x.json"], "--rig needs --config"),
+        (["--config", "x.py"], "--config needs --rig"),
         (["--steps", "0"], "--steps: expected at least 1"),
         (["--until", "0"], "--until: expected a step of at least 1"),
         (["--threads", "0"], "--threads: expected at least 1"),
@@ -156,3 +157,55 @@ def test_a_reduced_layout_trains_on_the_cameras_named(
     assert (
         "camera 'front': not in the rig (cameras: fisheye_camera_front, fisheye_camera_left" in capsys.readouterr().err
     )
+
+
+def test_the_compact_configuration_trains_for_a_rig_of_ones_own(tmp_path: Path, moved_rig: Rig) -> None:
+    """--rig without --config: the compact FisheyeBEVDet for another rig (every camera moved, images half the
+    shipped size), its images scaled by 0.4 as the shipped rig's are."""
+    mine = resized_rig(moved_rig, 0.5)
+    mine.save(tmp_path / "mine.json")
+    out = tmp_path / "run"
+    argv = ["train", "--out", str(out), "--rig", str(tmp_path / "mine.json"), "--steps", "1", "--val-frames", "0"]
+    assert main(argv) == 0
+    rig = Rig.load(out / "rig.json")
+    assert rig.hash == resized_rig(mine, 0.4).hash and rig.names == mine.names
+    config = BEVDetConfig.from_mmdet3d_config(out / "config.py")
+    assert (config.image.width, config.image.height) == (160, 160) and list(config.image.camera_names) == rig.names
+    state_dict, _ = load_checkpoint(out / "model.pth")
+    assert list(state_dict) == list(create_model("fisheye-bevdet", config, rig).official_keys())
+
+
+def _two_lenses(rig: Rig) -> Rig:
+    """``rig`` with its left camera's image centre moved by a pixel: a calibration of its own."""
+    data = rig.model_dump(mode="json")
+    data["cameras"][1]["model"]["center_col"] += 1.0
+    return Rig.from_dict(data)
+
+
+def _five_by_four(rig: Rig) -> Rig:
+    """``rig`` with 1280x1024 images, which 0.4 does not scale to whole pixels at the same aspect."""
+    data = rig.model_dump(mode="json")
+    for camera in data["cameras"]:
+        camera["model"].update(width=1280, height=1024)
+    return Rig.from_dict(data)
+
+
+@pytest.mark.parametrize(
+    ("arch", "make", "message"),
+    [
+        (
+            "fisheye-bevdet-persp",
+            _five_by_four,
+            "does not give a whole image with the same aspect (1280x1024 -> 512x410)",
+        ),
+        ("pinhole-bevdet", lambda rig: rig, "the compact pinhole-bevdet takes the shipped six-camera pinhole rig only"),
+        ("fisheye-bevdet", lambda _: pinhole_rig(), "camera 'nu_rgb_camera_front' has a pinhole model"),
+        ("fisheye-petr", _two_lenses, "camera 'fisheye_camera_left': its camera model differs"),
+    ],
+)
+def test_a_rig_the_compact_configuration_cannot_take_is_named(
+    arch: str, make: Any, message: str, rig: Rig, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    make(rig).save(tmp_path / "rig.json")
+    assert main(["train", "--arch", arch, "--rig", str(tmp_path / "rig.json"), "--out", str(tmp_path / "run")]) == 1
+    assert message in capsys.readouterr().err and not (tmp_path / "run").exists()
