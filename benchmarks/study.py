@@ -2,13 +2,13 @@
 
     python benchmarks/study.py [--model fisheye-bevdet-compact --model runs/pinhole/model.pth ...] [--frames 200]
 
-Each ``--model`` is a shipped model's name or a trained checkpoint (``config.py`` and ``rig.json``
-beside it); the default is every shipped model. Every model is scored on the same scenes: the
-validation stream's first ``--frames`` frames (``fisheye-infer synth --stream val``), rendered
-through that model's own rig, so a fisheye and a pinhole model see the same objects, lighting and
-ground. A model trained on some of its rig's cameras (``fisheye-infer train --cameras``) is that
-reduced layout retrained, as the paper trained each. The tables, each row beside the paper's figure
-where the paper has one:
+Each ``--model`` is a shipped model's name, a run folder of ``fisheye-infer train`` or a checkpoint in
+one (``config.py`` and ``rig.json`` beside it); the default is every shipped model. Every model is
+scored on the same scenes: the validation stream's first ``--frames`` frames (``fisheye-infer synth
+--stream val``), rendered through that model's own rig, so a fisheye and a pinhole model see the same
+objects, lighting and ground. A model trained on some of its rig's cameras (``fisheye-infer train
+--cameras``) is that reduced layout retrained, as the paper trained each. The tables, each row beside
+the paper's figure where the paper has one:
 
 - Table 2 (RQ1/RQ2): every model trained with all its cameras, 0-48 m;
 - Table 3 (RF1/RF2): the paper's reduced layouts, at run time (degraded mode: the model trained with
@@ -23,6 +23,7 @@ where the paper has one:
 from __future__ import annotations
 
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -129,18 +130,28 @@ def trained_layout(arch: str, cameras: tuple[str, ...]) -> str:
 
 
 def model_files(spec: str) -> tuple[str, Path, Path, Path]:
-    """(name, checkpoint, config, rig) of a shipped model's name or a checkpoint path."""
+    """(name, checkpoint, config, rig) of a shipped model's name, a run folder or a checkpoint in one; a checkpoint
+    without the ``config.py`` and ``rig.json`` of its run beside it is refused, before any work."""
     from fisheye_infer.models.pretrained import PRETRAINED
 
     for shipped in PRETRAINED:
         if spec == shipped.name:
             return shipped.name, shipped.checkpoint, shipped.config, shipped.rig
-    ckpt = Path(spec)
+    path = Path(spec)
+    ckpt = path / "model.pth" if path.is_dir() else path
     if not ckpt.is_file():
         raise SystemExit(
-            f"--model {spec}: neither a shipped model ({', '.join(m.name for m in PRETRAINED)}) nor a file"
+            f"--model {spec}: neither a shipped model ({', '.join(m.name for m in PRETRAINED)}), a run folder with "
+            "a model.pth, nor a file"
         )
-    return ckpt.parent.name, ckpt, ckpt.with_name("config.py"), ckpt.with_name("rig.json")
+    config, rig = ckpt.with_name("config.py"), ckpt.with_name("rig.json")
+    missing = [p.name for p in (config, rig) if not p.is_file()]
+    if missing:
+        raise SystemExit(
+            f"--model {spec}: no {' and no '.join(missing)} beside {ckpt.name}; the study takes a checkpoint in the "
+            "run folder `fisheye-infer train` wrote, with its configuration and rig"
+        )
+    return ckpt.parent.name, ckpt, config, rig
 
 
 def study(spec: str, work: Path, frames: int, seed: int, threads: int) -> Studied:
@@ -148,6 +159,7 @@ def study(spec: str, work: Path, frames: int, seed: int, threads: int) -> Studie
     rig, each of the paper's layouts."""
     from fisheye_infer.export.exporter import export
 
+    start = time.perf_counter()
     name, ckpt, config, rig_file = model_files(spec)
     rig = Rig.load(rig_file)
     data = heldout(rig, work / f"heldout-{rig.hash}", frames, seed)
@@ -157,7 +169,14 @@ def study(spec: str, work: Path, frames: int, seed: int, threads: int) -> Studie
     layout = trained_layout(arch, cameras)
     runtime = paper_layouts(cameras) if layout == ALL else {}
     layouts = {label: Scored.of(*run(detector, data, used)[1]) for label, used in runtime.items() if used}
-    return Studied(name, arch, layout, Scored.of(*run(detector, data, list(cameras))[1]), layouts)
+    full = Scored.of(*run(detector, data, list(cameras))[1])
+    print(
+        f"{name}: {arch}, {layout} cameras, FDS {full.report.distance[FAR].FDS:.3f} at {FAR}"
+        + (f"; at run time {', '.join(layouts)}" if layouts else "")
+        + f" ({time.perf_counter() - start:.0f} s)",
+        file=sys.stderr,
+    )
+    return Studied(name, arch, layout, full, layouts)
 
 
 def comparable(models: list[Studied]) -> None:
@@ -378,7 +397,9 @@ def main(argv: list[str] | None = None) -> int:
 
     bench = harness.Benchmark(__file__, __doc__, quick="20 held-out frames")
     bench.parser.add_argument(
-        "--model", action="append", help="a shipped model's name or a checkpoint (default: every shipped model)"
+        "--model",
+        action="append",
+        help="a shipped model's name, a run folder or a checkpoint in one (default: every shipped model)",
     )
     bench.parser.add_argument("--frames", type=int, default=200, help="held-out frames (default 200)")
     bench.parser.add_argument("--seed", type=int, default=0, help="seed of the validation stream (default 0)")
@@ -393,6 +414,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.frames = 20
     specs = args.model or [m.name for m in PRETRAINED]
+    for spec in specs:
+        model_files(spec)
     models: list[Studied] = []
     for spec in specs:
         models.append(study(spec, Path(args.work_dir), args.frames, args.seed, args.threads))

@@ -21,6 +21,7 @@ from fisheye_infer.geometry.frustum import (
 from fisheye_infer.geometry.grids import (
     BilinearTaps,
     bilinear_taps,
+    cells_inside_lens,
     cylindrical_grid,
     cylindrical_image_grid,
     cylindrical_remap,
@@ -57,6 +58,7 @@ __all__ = [
     "PinholePETRParams",
     "PoolingPlan",
     "build_pooling_plan",
+    "cells_inside_lens",
     "cylindrical_frustum",
     "cylindrical_grid",
     "cylindrical_image_grid",

@@ -14,7 +14,7 @@ import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import cylindrical_frustum, frustum_to_lidar, linspace_depth_bins
-from fisheye_infer.geometry.grids import cylindrical_image_grid
+from fisheye_infer.geometry.grids import cells_inside_lens, cylindrical_image_grid
 from fisheye_infer.geometry.lss import LSSParams
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import RECTIFY, CylParams, pool_tables, sampling_tables
@@ -53,6 +53,8 @@ class CylLSSGeometry:
     cam2lidar: np.ndarray  # N x 4 x 4 float64
     plan: PoolingPlan
     source: str = "rig"  # where the frustum came from: "rig" or "checkpoint"
+    #: (1, H, W) bool, the cylindrical images' feature cells that show the fisheye lens (``cells_inside_lens``).
+    inside_lens: np.ndarray | None = None
 
     @classmethod
     def from_rig(cls, rig: Rig, params: CylLSSParams) -> CylLSSGeometry:
@@ -60,9 +62,9 @@ class CylLSSGeometry:
         frustum = np.ascontiguousarray(params.frustum(), dtype=np.float32)
         cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
         plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), params.bev_grid, params.bucket_sizes)
-        return cls(
-            params=params, image_grid=cyl_image_grid(rig, params), frustum=frustum, cam2lidar=cam2lidar, plan=plan
-        )
+        grid = cyl_image_grid(rig, params)
+        inside = cells_inside_lens(rig.shared_model(), grid, 1, params.feature_size)
+        return cls(params=params, image_grid=grid, frustum=frustum, cam2lidar=cam2lidar, plan=plan, inside_lens=inside)
 
     @property
     def bev_grid(self) -> BevGrid:

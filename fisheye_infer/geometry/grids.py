@@ -37,6 +37,7 @@ __all__ = [
     "remap_taps",
     "sample_bilinear",
     "invalid_mask",
+    "cells_inside_lens",
 ]
 
 #: +-110 degrees: the half field of view of the Fisheye3DOD lenses.
@@ -282,3 +283,23 @@ def invalid_mask(camera: OCamModel, grid: np.ndarray) -> np.ndarray:
     """
     valid = camera.valid_area().astype(np.float32) / np.float32(255.0)
     return np.float32(1.0) - sample_bilinear(valid, grid)
+
+
+def cells_inside_lens(
+    camera: OCamModel, image_grid: np.ndarray, views: int, feature_size: tuple[int, int]
+) -> np.ndarray:
+    """(views, fH, fW) bool: the feature cells of ``views`` images resampled from the fisheye ``camera`` with
+    ``image_grid`` (the images stacked by rows, (views * H, W, 2)) whose pixels mostly show the lens's field of view,
+    not the black beyond it.
+
+    A rectified view wider than the lens holds such cells; a depth target there would teach the depth head what
+    lies behind black pixels. Each feature cell covers the block of pixels of the backbone's stride (pixel row r
+    in cell row ``r * fH // H``, columns alike).
+    """
+    fh, fw = feature_size
+    valid = (np.float32(1.0) - invalid_mask(camera, image_grid)).reshape(views, -1, image_grid.shape[1])
+    _, h, w = valid.shape
+    rows = ((np.arange(h) * fh) // h)[None, :] == np.arange(fh)[:, None]  # fH x H: the pixel rows of each cell row
+    cols = ((np.arange(w) * fw) // w)[None, :] == np.arange(fw)[:, None]  # fW x W
+    share = rows.astype(np.float64) @ valid.astype(np.float64) @ cols.T.astype(np.float64)
+    return share / np.outer(rows.sum(axis=1), cols.sum(axis=1)) > 0.5

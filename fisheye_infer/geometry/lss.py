@@ -68,6 +68,11 @@ class LSSGeometry:
     def bev_grid(self) -> BevGrid:
         return self.params.bev_grid
 
+    @property
+    def inside_lens(self) -> np.ndarray:
+        """(1, H, W) bool: the grid's cells that mostly sample the lens's field of view (``valid_fov_mask``)."""
+        return self.valid_fov_mask[0] > 0.5
+
     def with_tables(
         self, *, grid: np.ndarray | None = None, frustum: np.ndarray | None = None, source: str = "checkpoint"
     ) -> LSSGeometry:

@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import depth_bins
+from fisheye_infer.geometry.grids import cells_inside_lens
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, pool_tables
 from fisheye_infer.geometry.views import (
@@ -114,14 +115,20 @@ class PinholeLSSGeometry:
     plan: PoolingPlan
     image_grid: np.ndarray | None  # (Y * Hv, Wv, 2) remap grid of the perspective views; None for pinhole cameras
     source: str = "rig"  # where the frustum came from: "rig" or "checkpoint"
+    #: (Y, H, W) bool, the perspective views' feature cells that show the fisheye lens (``cells_inside_lens``), the
+    #: same for every camera; None for pinhole cameras.
+    inside_lens: np.ndarray | None = None
 
     @classmethod
     def from_rig(cls, rig: Rig, params: PinholeLSSParams) -> PinholeLSSGeometry:
         views = views_of(rig, params.views)
         frustum = params.frustum()
         plan = build_pooling_plan(view_points(frustum, views), params.bev_grid, params.bucket_sizes)
-        grid = perspective_image_grid(rig, params.views) if isinstance(params.views, Perspective) else None
-        return cls(params=params, views=views, frustum=frustum, plan=plan, image_grid=grid)
+        if not isinstance(params.views, Perspective):
+            return cls(params=params, views=views, frustum=frustum, plan=plan, image_grid=None)
+        grid = perspective_image_grid(rig, params.views)
+        inside = cells_inside_lens(rig.shared_model(), grid, len(params.views.yaws), params.feature_size)
+        return cls(params=params, views=views, frustum=frustum, plan=plan, image_grid=grid, inside_lens=inside)
 
     @property
     def bev_grid(self) -> BevGrid:

@@ -19,8 +19,8 @@ of the nearest lidar point in a patch, with objects first: each cell is sampled 
 cell's target is the nearest box hit (nearest in the geometry's own depth: along the optical axis
 for a pinhole view), otherwise the distance at which its centre ray meets the ground; the bin is
 the one whose point on the centre ray lies nearest that depth. A cell whose rays meet nothing
-within the bins, or that lies outside the lens's field of view (the fisheye LSS's mask), carries
-no target (-1).
+within the bins, or whose pixels lie mostly outside the lens's field of view (the fisheye LSS's mask,
+or the black beyond the lens in a rectified view wider than it), carries no target (-1).
 """
 
 from __future__ import annotations
@@ -31,7 +31,6 @@ import numpy as np
 import torch
 
 from fisheye_infer.geometry.frustum import frustum_to_lidar
-from fisheye_infer.geometry.lss import LSSGeometry
 from fisheye_infer.geometry.pinhole_lss import PinholeLSSGeometry, view_points
 from fisheye_infer.scenes.render import Renderer
 from fisheye_infer.scenes.scene import Scene
@@ -50,6 +49,17 @@ def lidar_frustum(geometry: Any, feature_size: tuple[int, int] | None = None) ->
         return view_points(frustum, geometry.views).astype(np.float64), geometry.views.cam2lidar[:, :3, 3]
     cam2lidar = np.asarray(geometry.cam2lidar, np.float64)
     return frustum_to_lidar(frustum, cam2lidar).astype(np.float64), cam2lidar[:, :3, 3]
+
+
+def _inside_lens(geometry: Any, views: int) -> np.ndarray:
+    """(V, H*W) bool: the cells of each of the V views that show the lens (every cell of a pinhole camera's view).
+    A geometry's ``inside_lens`` holds one mask per view of a camera, the same for every camera (one shared lens)."""
+    h, w = geometry.params.feature_size
+    inside = geometry.inside_lens
+    if inside is None:
+        return np.ones((views, h * w), bool)
+    per_camera = np.asarray(inside, bool).reshape(len(inside), h * w)
+    return np.tile(per_camera, (views // len(per_camera), 1))
 
 
 class DepthTargets:
@@ -77,10 +87,7 @@ class DepthTargets:
         fine = fine.reshape(v, h, k, w, k, 3).transpose(0, 1, 3, 2, 4, 5).reshape(v, -1, 3)
         self.fine_first = np.linalg.norm(fine, axis=-1)
         self.fine = fine / self.fine_first[..., None]
-        if isinstance(geometry, LSSGeometry):  # the fisheye lift samples the lens's circle and beyond it
-            self.inside = np.asarray(geometry.valid_fov_mask, np.float32).reshape(-1) > 0.5
-        else:
-            self.inside = np.ones(h * w, bool)
+        self.inside = _inside_lens(geometry, v)
         self.origins, self.shape, self.k2 = origins, (h, w), k * k
         self.renderer = Renderer()
 
@@ -96,7 +103,7 @@ class DepthTargets:
             nearest_box = depth.reshape(-1, self.k2).min(axis=1) * self.first[n]  # along the cell's centre ray
             t = np.where(np.isfinite(nearest_box), nearest_box, self.renderer.ray_depth(o, self.centre[n].T, scene))
             bins = (t[None] > self.edges[n]).sum(axis=0)
-            ok = np.isfinite(t) & (t >= self.lowest[n]) & (t < self.highest[n]) & self.inside
+            ok = np.isfinite(t) & (t >= self.lowest[n]) & (t < self.highest[n]) & self.inside[n]
             out[n, ok] = bins[ok]
         return out.reshape(len(self.origins), *self.shape)
 

@@ -199,3 +199,24 @@ def test_no_resamples_is_refused_before_any_work(capsys: pytest.CaptureFixture[s
     with pytest.raises(SystemExit):
         study.main(["--draws", "0", "--frames", "1"])
     assert "--draws: expected at least 1 resample, got 0" in capsys.readouterr().err
+
+
+def test_a_run_folder_names_its_checkpoint(tmp_path: Path) -> None:
+    run = tmp_path / "mine-cyl"
+    run.mkdir()
+    for name in ("model.pth", "config.py", "rig.json"):
+        (run / name).write_bytes(b"")
+    assert study.model_files(str(run)) == ("mine-cyl", run / "model.pth", run / "config.py", run / "rig.json")
+    assert study.model_files(str(run / "model.pth")) == study.model_files(str(run))
+
+
+def test_a_checkpoint_without_its_run_files_is_refused_before_any_work(tmp_path: Path) -> None:
+    (tmp_path / "model.pth").write_bytes(b"")
+    (tmp_path / "config.py").write_text("")
+    work = tmp_path / "work"
+    argv = ["--model", "fisheye-bevdet-compact", "--model", str(tmp_path / "model.pth"), "--work-dir", str(work)]
+    with pytest.raises(SystemExit, match=r"no rig.json beside model.pth"):
+        study.main([*argv, "--frames", "1"])
+    assert not work.exists()  # the first model was neither rendered for nor exported
+    with pytest.raises(SystemExit, match="neither a shipped model"):
+        study.model_files(str(tmp_path / "elsewhere"))

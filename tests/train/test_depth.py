@@ -75,3 +75,42 @@ def test_depth_loss_is_small_for_the_right_bin_and_ignores_cells_without_target(
         torch.log(probs[0, 3, 0, 0]) + torch.log(1 - probs[0, :, 0, 0]).sum() - torch.log(1 - probs[0, 3, 0, 0])
     )
     assert math.isclose(float(depth_loss(probs, target)), float(expected), rel_tol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def rectified() -> dict:
+    """The compact perspective- and cylindrically-rectified BEVDet geometries, and their rig."""
+    from fisheye_infer.models.training.compact import compact_setup
+
+    out = {}
+    for arch in ("fisheye-bevdet-persp", "fisheye-bevdet-cyl"):
+        config, rig = compact_setup(arch)
+        out[arch] = create_model(arch, config, rig).view_transform.geometry, rig
+    return out
+
+
+def test_the_compact_rectified_views_show_the_lens_in_every_cell(rectified) -> None:
+    for geometry, _ in rectified.values():
+        assert geometry.inside_lens.all()
+
+
+def test_a_view_wider_than_the_lens_has_no_target_beyond_it(rectified) -> None:
+    """170-degree views turned 55 degrees reach 140 degrees off the fisheye's axis, past its 110: their outer
+    columns show black, where no depth is taught; every other cell keeps its target."""
+    from dataclasses import replace
+
+    from fisheye_infer.geometry.pinhole_lss import PinholeLSSGeometry
+    from fisheye_infer.geometry.views import Perspective
+
+    compact, rig = rectified["fisheye-bevdet-persp"]
+    views = Perspective(size=compact.params.views.size, fov=170.0, yaws=compact.params.views.yaws)
+    wide = PinholeLSSGeometry.from_rig(rig, compact.params.model_copy(update={"views": views}))
+    inside = wide.inside_lens  # yaws x H x W
+    assert not inside.all() and inside[:, :, inside.shape[2] // 2].all()  # the centre column shows the lens
+    assert not inside[0, :, 0].any() and not inside[1, :, -1].any()  # the outer edges of the two views do not
+    scene = Scene(CUBE, np.zeros(1, np.int64), GROUND)
+    bins = DepthTargets(wide)(scene)  # views (camera by camera, each camera's yaws) x H x W
+    unmasked = DepthTargets(replace(wide, inside_lens=None))(scene)
+    per_view = np.tile(inside, (len(rig.names), 1, 1))
+    assert (bins[~per_view] == -1).all() and (unmasked[~per_view] >= 0).any()
+    assert np.array_equal(bins[per_view], unmasked[per_view])
