@@ -20,7 +20,13 @@ from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import CheckpointError, ConfigError
 from fisheye_infer.geometry.cyl_lss import CylLSSParams, cyl_image_grid
 from fisheye_infer.geometry.cyl_petr import CylPETRParams, cyl_petr_directions
-from fisheye_infer.geometry.grids import cylindrical_directions, cylindrical_remap, remap_grid, remap_taps
+from fisheye_infer.geometry.grids import (
+    cylindrical_directions,
+    cylindrical_remap,
+    invalid_mask,
+    remap_grid,
+    remap_taps,
+)
 from fisheye_infer.geometry.kinds import tables_for
 from fisheye_infer.geometry.petr import lid_depths, position_coords
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES
@@ -254,6 +260,16 @@ def test_released_image_grid_steps_radians_per_column(rig: Rig, full_bevdet) -> 
     grid = full_bevdet.view_transform.geometry.image_grid
     one_step = 2.0 / (camera.width - 1) / 32  # an ulp of difference may tip a 1/32 px rounding
     np.testing.assert_allclose(grid, expected, rtol=0, atol=1.01 * one_step)
+
+
+def test_released_images_black_cells_are_outside_the_lens(rig: Rig, full_bevdet) -> None:  # noqa: ANN001
+    """The released cylinder's rays past the lens leave a quarter of its stride-16 cells mostly black: those are the
+    cells without a depth target (``inside_lens``), each the mean of its 16 x 16 pixels' lens validity."""
+    g = full_bevdet.view_transform.geometry
+    valid = 1.0 - invalid_mask(rig.shared_model(), g.image_grid)  # 400 x 800
+    blocks = valid.reshape(25, 16, 50, 16).mean(axis=(1, 3))
+    np.testing.assert_array_equal(g.inside_lens, blocks[None] > 0.5)
+    assert 0.2 < 1.0 - g.inside_lens.mean() < 0.3
 
 
 def test_released_frustum(full_bevdet) -> None:  # noqa: ANN001
