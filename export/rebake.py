@@ -5,9 +5,10 @@
 The metadata of an exported file records the parameters of its geometry tables (and, for
 FisheyePETR, the position-encoder weights the key embedding needs), so every ``geom.*``
 initializer can be recomputed without torch. The graph itself is unchanged: it was traced with
-table sizes symbolic. The TensorRT check is run again on the new file (the tables' sizes are part
-of what it reads). The input file is never modified. A rig whose camera names, order or image
-size do not fit the graph is refused.
+the pooling tables' sizes symbolic; every other table keeps its shape (a file whose tables this
+version computes in another shape is refused, naming the table). The TensorRT check is run again
+on the new file (the tables' sizes are part of what it reads). The input file is never modified.
+A rig whose camera names, order or image size do not fit the graph is refused.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import onnx
 from fisheye_infer.cameras.rig import Rig, resolve_rig
 from fisheye_infer.errors import ArtifactError, ConfigError, RigError
 from fisheye_infer.geometry.kinds import tables_for
+from fisheye_infer.geometry.tables import POOL_PIXELS, POOL_POINTS
 from fisheye_infer.runtime.artifact import METADATA_KEY, ArtifactMeta, parse_meta
 
 from .graph import REBAKE_WEIGHTS_KEY, decode_arrays, get_metadata, replace_initializers, save_model, set_metadata
@@ -55,6 +57,14 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
             f"model {model_path}: its geometry initializers {sorted(meta.geometry_initializers)} differ from those "
             f"its parameters define {sorted(tables)}"
         )
+    held = {init.name: tuple(init.dims) for init in proto.graph.initializer if init.name in tables}
+    for name, table in tables.items():
+        if name in held and not name.startswith((POOL_POINTS, POOL_PIXELS)) and held[name] != table.shape:
+            raise ArtifactError(
+                f"model {model_path}: its geometry table {name} is {held[name]}, where this version computes "
+                f"{table.shape} for the rig; the file comes from another version of the exporter: export the "
+                "checkpoint again"
+            )
     replace_initializers(proto, tables)
     model_id = f"{meta.architecture}-{new_rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
     new_meta = meta.model_copy(

@@ -38,6 +38,7 @@ __all__ = [
     "check_keys",
     "TableCheck",
     "decide_geometry",
+    "warn_of_other_lenses",
     "OfficialCheckpointModel",
     "load_official_state_dict",
     "GeometryReport",
@@ -194,6 +195,19 @@ def decide_geometry(checks: Sequence[TableCheck], policy: str, *, context: str =
             stacklevel=3,
         )
     return policy
+
+
+def warn_of_other_lenses(context: str, camera_names: Sequence[str], tables: np.ndarray, policy: str) -> None:
+    """An official checkpoint stores one lens's tables, compared with the first camera's (``tables``, the rig's
+    per camera); name the cameras with lenses of their own, whose tables the rig gives unchecked."""
+    others = [name for name, table in zip(camera_names, tables) if not np.array_equal(table, tables[0])]
+    if others and policy != "rig":
+        warnings.warn(
+            f"{context}: the checkpoint stores the tables of one lens, compared with camera '{camera_names[0]}'; "
+            f"cameras {', '.join(others)} have lenses of their own, whose tables come from the rig unchecked",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ import torch
 
 from fisheye_infer.errors import ConfigError
 
-from .resample import sample_rows
+from .resample import camera_images, sample_rows
 
 __all__ = ["rectify", "check_rig_image_size"]
 
@@ -26,22 +26,22 @@ def rectify(images: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, siz
     """uint8 (or float) B x N x H x W x 3 fisheye images -> B x N x 3 x Hc x Wc (``size``) raw pixels,
     in the weights' dtype.
 
-    ``index`` / ``weight`` are the taps of the grid on an H x W image, shared by the cameras (one
-    intrinsic model): each output pixel reads the same four pixels of every camera's three
-    channels, one row of the channels-last images. The weights are float32, or float64 in the
-    export check's float64 reference model.
+    ``index`` / ``weight`` are the cameras' taps on their H x W images, camera-major (each camera its own
+    lens): each output pixel of camera n reads four pixels of that camera's three channels in every
+    sample, one row of the channels-last images. The weights are float32, or float64 in the export
+    check's float64 reference model.
     """
     b, n, h, w, c = images.shape
-    rows = images.to(weight.dtype).permute(2, 3, 0, 1, 4).reshape(h * w, b * n * c)  # HW x 3BN
-    out = sample_rows(rows, index, weight)  # HcWc x 3BN
-    return out.reshape(*size, b, n, c).permute(2, 3, 4, 0, 1)  # B x N x 3 x Hc x Wc
+    x = images.to(weight.dtype)
+    rows = torch.cat([x[:, i].permute(1, 2, 0, 3).reshape(h * w, b * c) for i in range(n)])  # NHW x B3
+    return camera_images(sample_rows(rows, index, weight), b, size)  # B x N x 3 x Hc x Wc
 
 
 def check_rig_image_size(rig: Any, height: int, width: int, field: str) -> None:
-    """The rectification grid is in the rig camera's pixels: refuse input images of another size."""
-    camera = rig.shared_model()
-    if (camera.height, camera.width) != (height, width):
-        raise ConfigError(
-            f"{field}: the configuration expects {height}x{width} fisheye images, but the rig's "
-            f"camera model is {camera.height}x{camera.width}"
-        )
+    """The rectification grids are in the rig cameras' pixels: refuse input images of another size."""
+    for cam in rig.cameras:
+        if (cam.model.height, cam.model.width) != (height, width):
+            raise ConfigError(
+                f"{field}: the configuration expects {height}x{width} fisheye images, but camera '{cam.name}' "
+                f"is {cam.model.height}x{cam.model.width}"
+            )

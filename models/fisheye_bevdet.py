@@ -26,7 +26,7 @@ from .backbone import FPN, ResNet
 from .base import FisheyeDetector
 from .bev_encoder import SECOND, SECONDFPN
 from .bevdet_config import BEVDetConfig, ViewTransformConfig
-from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
+from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry, warn_of_other_lenses
 from .normalise import normalise_frames
 from .registry import register_model
 from .transfusion import INT8_FLOAT, SCORE_SEMANTICS, TransFusionHead
@@ -250,12 +250,13 @@ class FisheyeBEVDet(FisheyeDetector):
         return out
 
     def official_geometry_state(self) -> dict[str, torch.Tensor]:
-        """The geometry tables in official form, as an official checkpoint stores them."""
+        """The geometry tables in official form, as an official checkpoint stores them: one grid and one mask,
+        the first camera's (the official rig's cameras share one lens)."""
         g = self.view_transform.geometry
         assert isinstance(g, LSSGeometry)  # FrustumBEVDet overrides this for its geometries
-        d = g.frustum.shape[0]
+        d, grid = g.frustum.shape[0], g.grid[0]
         grid3d = np.concatenate(
-            [np.broadcast_to(g.grid, (d, *g.grid.shape)), np.zeros((d, *g.grid.shape[:2], 1), np.float32)], axis=-1
+            [np.broadcast_to(grid, (d, *grid.shape)), np.zeros((d, *grid.shape[:2], 1), np.float32)], axis=-1
         )
         t = torch.from_numpy
         return {
@@ -264,12 +265,13 @@ class FisheyeBEVDet(FisheyeDetector):
             _VT + "dx": t(g.bev_grid.dx.copy()),
             _VT + "bx": t(g.bev_grid.bx.copy()),
             _VT + "nx": torch.tensor(g.bev_grid.nx, dtype=torch.int64),
-            _VT + "valid_fov_mask": t(g.valid_fov_mask.copy()),
-            _VT + "sphere_grid_2d": t(g.grid.copy()),
+            _VT + "valid_fov_mask": t(g.valid_fov_mask[:1].copy()),
+            _VT + "sphere_grid_2d": t(grid.copy()),
         }
 
     def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
-        """Compare the stored tables with the rig's and install the ones ``policy`` selects."""
+        """Compare the stored tables with the rig's (its grid with the first camera's) and install the ones
+        ``policy`` selects."""
         ref = self.rig_geometry
         assert isinstance(ref, LSSGeometry)  # FrustumBEVDet overrides this for its geometries
         hard = bev_grid_checks(state_dict, ref.bev_grid)
@@ -279,11 +281,12 @@ class FisheyeBEVDet(FisheyeDetector):
         # Only slice 0 of sphere_grid_3d is ever used (it is sphere_grid_2d); in the other slices
         # float32 noise flips the two horizon rays at exactly +-110 degrees to the out-of-fov sentinel.
         checks = (
-            TableCheck(_VT + "sphere_grid_2d", grid2d, ref.grid, atol=GRID_ATOL),
-            TableCheck(_VT + "sphere_grid_3d[0]", grid3d[0, ..., :2], ref.grid, atol=GRID_ATOL),
+            TableCheck(_VT + "sphere_grid_2d", grid2d, ref.grid[0], atol=GRID_ATOL),
+            TableCheck(_VT + "sphere_grid_3d[0]", grid3d[0, ..., :2], ref.grid[0], atol=GRID_ATOL),
             TableCheck(_VT + "frustum", frustum, ref.frustum, atol=FRUSTUM_ATOL, rtol=FRUSTUM_RTOL),
         )
         source = decide_geometry(checks, policy, context="FisheyeBEVDet checkpoint")
+        warn_of_other_lenses("FisheyeBEVDet checkpoint", self.camera_names, ref.grid, policy)
         geometry = ref.with_tables(grid=grid2d, frustum=frustum) if source == "checkpoint" else ref
         self.set_geometry(geometry)
         return GeometryReport(source, checks + hard)

@@ -26,7 +26,7 @@ from fisheye_infer.geometry.petr import PETRGeometry
 
 from .backbone import FPN, ResNet
 from .base import FisheyeDetector
-from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry
+from .checkpoint import GeometryReport, KeySpec, TableCheck, as_numpy, decide_geometry, warn_of_other_lenses
 from .normalise import normalise_frames
 from .petr_config import PETRConfig
 from .petr_head import INT8_FLOAT, SCORE_SEMANTICS, AnyPETRGeometry, FisheyePETRHead, decode_predictions
@@ -224,13 +224,13 @@ class FisheyePETR(FisheyeDetector):
         assert isinstance(geometry, PETRGeometry)  # ResampledPETR overrides this for its geometries
         cfg = self.config.head
         frustum = spherical_frustum(depth_bins(cfg.dbound), cfg.feature_size, cfg.azimuth_range, cfg.elevation_range)
-        grid = np.asarray(geometry.grid, dtype=np.float32)
+        grid = np.asarray(geometry.grid[0], dtype=np.float32)  # one grid and mask: the first camera's
         # world2cam depends only on the ray direction, so every depth slice holds the same grid.
         grid3d = np.concatenate(
             [np.broadcast_to(grid, (frustum.shape[0], *grid.shape)), np.zeros((*frustum.shape[:3], 1), np.float32)],
             axis=-1,
         )
-        mask = np.asarray(geometry.unvalid_area, dtype=np.float32).reshape(1, 1, *grid.shape[:2])
+        mask = np.asarray(geometry.unvalid_area[0], dtype=np.float32).reshape(1, 1, *grid.shape[:2])
         return dict(zip(GEOMETRY_KEYS, (frustum, np.ascontiguousarray(grid3d), grid, mask)))
 
     def official_geometry_state(self) -> dict[str, torch.Tensor]:
@@ -266,6 +266,7 @@ class FisheyePETR(FisheyeDetector):
             ),
         )
         source = decide_geometry(checks, policy, context="FisheyePETR checkpoint")
+        warn_of_other_lenses("FisheyePETR checkpoint", self.camera_names, ref.grid, policy)
         geometry = (
             ref.with_tables(grid=grid2d, unvalid_area=stored[GEOMETRY_KEYS[3]]) if source == "checkpoint" else ref
         )

@@ -66,7 +66,7 @@ def perspective_views(
 ) -> torch.Tensor:
     """uint8 B x N x H x W x 3 -> float32 B x N x Y x 3 x h x w: cv2.remap's views, camera by camera, yaw by yaw.
 
-    ``image_grid`` is the (Y * h, w, 2) remap grid of the stacked yaws; ``truncate`` floors the
+    ``image_grid`` holds each camera's (Y * h, w, 2) remap grid of its stacked yaws; ``truncate`` floors the
     views (the official ``ImageAug3D``'s uint8 cast).
     """
     b, n = images.shape[0], images.shape[1]

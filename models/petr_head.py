@@ -120,7 +120,7 @@ class FisheyePETRHead(nn.Module):
         # Calibration-derived tables and the cached embeddings: buffers, but not state-dict keys.
         n = config.num_views
         self._sampling_names: tuple[str, ...] = ()
-        self.register_buffer("unvalid_area", torch.zeros(1, 1, fh, fw), persistent=False)
+        self.register_buffer("unvalid_area", torch.zeros(1, n, fh, fw), persistent=False)
         self.register_buffer("coords3d", torch.zeros(n, 3 * cfg.depth_num, fh, fw), persistent=False)
         self.register_buffer("key_pos", torch.zeros(1, n * fh * fw, c), persistent=False)
         self.register_buffer("key_mask_flat", torch.zeros(1, n * fh * fw, dtype=torch.bool), persistent=False)
@@ -151,7 +151,7 @@ class FisheyePETRHead(nn.Module):
         self.geometry = geometry
         device = self.code_weights.device
         self._install_sampling(geometry)
-        self.unvalid_area.copy_(_f32(geometry.unvalid_area).reshape(self.unvalid_area.shape).to(device))
+        self.unvalid_area.copy_(_f32(geometry.unvalid_area).expand_as(self.unvalid_area).to(device))
         self.coords3d.copy_(_f32(geometry.coords()).to(device))
         self.refresh_embeddings()
 
@@ -164,9 +164,8 @@ class FisheyePETRHead(nn.Module):
         self.query_pos.copy_(self.query_positions())
 
     def key_mask(self) -> torch.Tensor:
-        """(1, N, H, W) bool: True where the sampled lens validity is not exactly 1.0."""
-        n = self.config.num_views
-        return (self.unvalid_area != 0).expand(1, n, *self.unvalid_area.shape[-2:])
+        """(1, N, H, W) bool: True where the camera's sampled lens validity is not exactly 1.0."""
+        return self.unvalid_area != 0
 
     def embedding_weights(self) -> dict[str, np.ndarray]:
         """The weights the key embedding needs, by name (what re-baking for a new rig needs)."""
@@ -226,17 +225,12 @@ class FisheyePETRHead(nn.Module):
 
     # ------------------------------------------------------------------ forward
     def warp(self, p3: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """B x N x C x h x w -> B x N x C x H x W on the shared spherical grid.
-
-        The grid is the same for every camera, so every camera's channels are sampled with the
-        same taps (``geom.warp.*``; see :mod:`.resample`).
-        """
-        b, n, c, h, w = p3.shape
-        fh, fw = self.cfg.feature_size
+        """B x N x C x h x w -> B x N x C x H x W on the spherical grid, each camera with its lens's taps
+        (``geom.warp.*``; see :mod:`.resample`)."""
         g = self.geometry
         assert isinstance(g, PETRGeometry)  # the spherical head's; RectifiedPETRHead has no warp
-        index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, (h, w), p3.device)
-        return resample(p3.reshape(b * n, c, h, w), index, weight, (fh, fw)).reshape(b, n, c, fh, fw)
+        index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, p3.shape[-2:], p3.device)
+        return resample(p3, index, weight, self.cfg.feature_size)
 
     def forward_decoder(
         self,

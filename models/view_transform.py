@@ -93,10 +93,10 @@ class FisheyeLSS(nn.Module):
         """Refuse tables whose shapes do not fit the configuration, naming the table."""
         h, w = self.cfg.feature_size
         d = self.num_depth
-        if not isinstance(geometry, LSSGeometry) or geometry.grid.shape != (h, w, 2):
+        if not isinstance(geometry, LSSGeometry) or geometry.grid.shape != (len(geometry.cam2lidar), h, w, 2):
             raise ConfigError(
                 f"view transform grid is {getattr(geometry, 'grid', np.empty(0)).shape}, configuration needs "
-                f"({h}, {w}, 2)"
+                f"(cameras, {h}, {w}, 2): one grid per camera"
             )
         if geometry.frustum.shape != (d, h, w, 3):
             raise ConfigError(
@@ -114,7 +114,8 @@ class FisheyeLSS(nn.Module):
     # -- stages -------------------------------------------------------------------------
 
     def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """M x C x Hf x Wf -> M x C x H x W with the grid's bilinear taps (``geom.warp.*``; see :mod:`.resample`)."""
+        """B x N x C x Hf x Wf -> B x N x C x H x W with each camera's bilinear taps (``geom.warp.*``; see
+        :mod:`.resample`)."""
         g = self.geometry
         assert isinstance(g, LSSGeometry)  # _check_geometry installs nothing else; RectifiedLSS has no warp
         index, weight = taps_for(
@@ -162,8 +163,8 @@ class FisheyeLSS(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """B x N x Cin x Hf x Wf -> depth B x N x D x H x W and ctx B x N x H x W x C (masked cameras zeroed)."""
         b, n = feat.shape[0], feat.shape[1]
-        x = self.warp(feat.flatten(0, 1), tables)
-        depth, ctx = self.depth_context(x)
+        x = self.warp(feat, tables)
+        depth, ctx = self.depth_context(x.flatten(0, 1))
         h, w = depth.shape[-2:]
         depth = depth.reshape(b, n, self.num_depth, h, w)
         ctx = ctx.reshape(b, n, self.out_channels, h, w).permute(0, 1, 3, 4, 2)
@@ -227,7 +228,7 @@ class RectifiedLSS(FisheyeLSS):
             )
 
     def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """No feature warp: M x C x H x W features of the resampled images are already on the frustum's grid."""
+        """No feature warp: B x N x C x H x W features of the resampled images are already on the frustum's grid."""
         h, w = self.cfg.feature_size
         if tuple(feat.shape[-2:]) != (h, w):
             raise ConfigError(
@@ -245,9 +246,10 @@ class CylindricalLSS(RectifiedLSS):
         super()._check_geometry(geometry)
         if (
             not isinstance(geometry, CylLSSGeometry)
-            or geometry.image_grid.ndim != 3
-            or geometry.image_grid.shape[-1] != 2
+            or geometry.image_grid.ndim != 4
+            or geometry.image_grid.shape[::3] != (len(geometry.cam2lidar), 2)
         ):
             raise ConfigError(
-                f"image rectification grid is {getattr(geometry, 'image_grid', np.empty(0)).shape}, expected (H, W, 2)"
+                f"image rectification grid is {getattr(geometry, 'image_grid', np.empty(0)).shape}, expected "
+                "(cameras, H, W, 2): one grid per camera"
             )

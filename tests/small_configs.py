@@ -132,3 +132,16 @@ def move_rig(rig: Rig) -> Rig:
         cam["cam2lidar"] = (move @ np.array(cam["cam2lidar"])).tolist()
     data["name"] = "moved"
     return Rig.from_dict(data)
+
+
+def own_lenses(rig: Rig) -> Rig:
+    """``rig`` with a lens of its own on every camera: each camera's OCam centre moved by a different few per cent
+    of the image and its affine stretch changed, as four real cameras calibrate."""
+    data = rig.model_dump(mode="json")
+    for n, cam in enumerate(data["cameras"]):
+        model = cam["model"]
+        model["center_row"] += (n - 1.5) * 0.02 * model["height"]
+        model["center_col"] += (1 - n) * 0.015 * model["width"]
+        model["c"] += 0.004 * (n + 1)
+    data["name"] = "own-lenses"
+    return Rig.from_dict(data)

@@ -307,13 +307,14 @@ class Rig(BaseModel):
         return np.linalg.inv(self.cam2lidar())
 
     def shared_model(self) -> Any:
-        """The one camera model all cameras share; the detectors were trained with a single intrinsic model."""
+        """The one camera model all cameras share (Fisheye3DOD's rig has one); a rig whose cameras differ is refused,
+        naming the camera."""
         first = self.cameras[0].model
         for cam in self.cameras[1:]:
             if cam.model != first:
                 raise RigError(
                     f"camera '{cam.name}': its camera model differs from '{self.cameras[0].name}'; "
-                    "this model needs one shared intrinsic calibration"
+                    "expected one model shared by all cameras"
                 )
         return first
 

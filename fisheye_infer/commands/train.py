@@ -52,7 +52,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--rig",
         help="the rig to train for: with --config, as given (its image size the configuration's); without, "
         "a fisheye --arch in its compact configuration for this rig, its images scaled by 0.4 as the shipped "
-        "rig's are (one OCam model shared by the cameras; default: the shipped rig)",
+        "rig's are (an OCam model per camera, images of one size; default: the shipped rig)",
     )
     parser.add_argument(
         "--cameras",

@@ -2,10 +2,11 @@
 
 Layout (§3 of the dataset description)::
 
-    ROOT/calib_results.txt                        one OCam model for every fisheye camera
+    ROOT/calib_results.txt                        the OCam model of every fisheye camera without its own
     ROOT/ImageSets-2hz/{train,val}.json           [{scene_name, vehicle_name, weather, frame_id, prev_id, next_id}, ...]
     ROOT/<scene>/<vehicle>/lidar/sensor_metadata.txt
     ROOT/<scene>/<vehicle>/fisheye_camera_<name>/{frame_id}.png  + sensor_metadata.txt
+                                                  (+ calib_results.txt: this camera's own lens, optional)
     ROOT/<scene>/<vehicle>/nu_rgb_camera_<name>/{frame_id}.png   + sensor_metadata.txt   (pinhole, optional)
     ROOT/<scene>/<vehicle>/label_3d/{frame_id}.json
 
@@ -13,9 +14,10 @@ Layout (§3 of the dataset description)::
     for frame in data:                     # Frame: token, image paths, rig, ground truth
         dets = detector.detect(frame.image_paths)
 
-The cameras a split is read with are fisheye cameras (the OCam model of ``calib_results.txt``),
-pinhole cameras (``nu_rgb_camera_*``: the layout stores no pinhole intrinsics, so each takes the
-official converter's ideal 90-degree pinhole at the size of its images, 1280x720 in the dataset),
+The cameras a split is read with are fisheye cameras (the OCam model of ``calib_results.txt``; a
+camera folder holding a ``calib_results.txt`` of its own, a lens calibrated for that camera alone, takes
+that one), pinhole cameras (``nu_rgb_camera_*``: the layout stores no pinhole intrinsics, so each takes
+the official converter's ideal 90-degree pinhole at the size of its images, 1280x720 in the dataset),
 or both; ``calib_results.txt`` is needed only for fisheye cameras. Extrinsics are rebuilt per
 frame from the CARLA poses of each camera and the lidar at that frame, in the "compat" convention
 the checkpoints were trained with; each ``sensor_metadata.txt`` is parsed once per sequence. Label
@@ -198,14 +200,32 @@ class Frame:
         return boxes_to_records(self.gt_boxes, None, self.gt_labels, self.class_names)
 
 
+def _read_lens(path: Path, fov: float) -> OCamModel:
+    try:
+        return OCamModel.from_file(path, fov=fov)
+    except CameraModelError as exc:
+        raise DatasetError(str(exc)) from exc
+
+
+def _camera_lens(folder: Path, root_lens: OCamModel | None, fov: float, what: str) -> OCamModel:
+    """A fisheye camera's lens: its folder's ``calib_results.txt``, else the dataset root's."""
+    own = folder / "calib_results.txt"
+    if own.is_file():
+        return _read_lens(own, fov)
+    if root_lens is None:
+        raise DatasetError(f"{what}: calib_results.txt not found, neither in {folder} nor at the dataset root")
+    return root_lens
+
+
 class _Sequence:
     """One ``<scene>/<vehicle>`` folder: its sensor poses, parsed once."""
 
-    def __init__(self, folder: Path, token: str, cameras: Sequence[str]) -> None:
+    def __init__(self, folder: Path, token: str, cameras: Sequence[str], lens: OCamModel | None, fov: float) -> None:
         if not folder.is_dir():
             raise DatasetError(f"scene {token}: folder {folder} not found")
         self.poses: dict[str, dict[str, CarlaPose]] = {}
         self.pinholes: dict[str, Pinhole] = {}
+        self.lenses: dict[str, OCamModel] = {}
         for sensor in ("lidar", *cameras):
             path = folder / sensor / "sensor_metadata.txt"
             if not (folder / sensor).is_dir():
@@ -215,6 +235,8 @@ class _Sequence:
                 self.poses[sensor] = parse_sensor_metadata(path.read_text())
             except OSError as exc:
                 raise DatasetError(f"scene {token}: {path} cannot be read ({exc.strerror})") from exc
+            if sensor in FISHEYE3DOD_CAMERAS:
+                self.lenses[sensor] = _camera_lens(folder / sensor, lens, fov, f"scene {token}: camera '{sensor}'")
 
     def pinhole(self, camera: str, image: Path, token: str) -> Pinhole:
         """The converter's pinhole model for ``camera``, at the size of its first image read (a PNG header)."""
@@ -271,17 +293,11 @@ class Fisheye3DOD:
                 f"got {list(cameras)}"
             )
         self.pinhole_cameras = PINHOLE_CAMERAS if pinhole else ()
-        self.model: OCamModel | None = None
-        if any(c in FISHEYE3DOD_CAMERAS for c in self.cameras):
-            calib = self.root / "calib_results.txt"
-            if not calib.is_file():
-                raise DatasetError(
-                    f"dataset root {self.root}: calib_results.txt not found (one OCam model for every fisheye camera)"
-                )
-            try:
-                self.model = OCamModel.from_file(calib, fov=fov)
-            except CameraModelError as exc:
-                raise DatasetError(str(exc)) from exc
+        self.fov = fov
+        self.model: OCamModel | None = None  # the root's, for the cameras without a calib_results.txt of their own
+        calib = self.root / "calib_results.txt"
+        if calib.is_file() and any(c in FISHEYE3DOD_CAMERAS for c in self.cameras):
+            self.model = _read_lens(calib, fov)
         entries = read_split(self.root, split)
         if scenes is not None:
             known = {e.scene for e in entries}
@@ -312,7 +328,7 @@ class Fisheye3DOD:
         if key not in self._sequences:
             sensors = tuple(dict.fromkeys((*self.cameras, *self.pinhole_cameras)))
             self._sequences[key] = _Sequence(
-                self.root / entry.scene / entry.vehicle, f"{entry.scene}/{entry.vehicle}", sensors
+                self.root / entry.scene / entry.vehicle, f"{entry.scene}/{entry.vehicle}", sensors, self.model, self.fov
             )
         return self._sequences[key]
 
@@ -320,7 +336,9 @@ class Fisheye3DOD:
         matrices = {c: seq.cam2lidar(c, entry.frame_id, entry.token, self.convention) for c in cameras}
         folder = self.root / entry.scene / entry.vehicle
         models = {
-            c: seq.pinhole(c, folder / c / f"{entry.frame_id}.png", entry.token) if c in PINHOLE_CAMERAS else self.model
+            c: seq.pinhole(c, folder / c / f"{entry.frame_id}.png", entry.token)
+            if c in PINHOLE_CAMERAS
+            else seq.lenses[c]
             for c in cameras
         }
         try:

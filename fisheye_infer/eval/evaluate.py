@@ -162,12 +162,18 @@ def detect_dataset(
 def _warn_if_rigs_differ(data_rig: Rig, model_rig: Rig, tolerance: float = 0.01) -> None:
     """The model's geometry is baked for its own rig; say so when the data were recorded with another one."""
     worst = 0.0
+    lenses = []
     for cam in data_rig.cameras:
         if cam.name in model_rig.names:
-            worst = max(worst, float(np.abs(cam.matrix - model_rig.camera(cam.name).matrix).max()))
-    if worst > tolerance:
+            baked = model_rig.camera(cam.name)
+            worst = max(worst, float(np.abs(cam.matrix - baked.matrix).max()))
+            if cam.model != baked.model:
+                lenses.append(cam.name)
+    mismatches = [f"cam2lidar differs by up to {worst:.3f}"] if worst > tolerance else []
+    mismatches += [f"the lens model of camera '{name}' differs" for name in lenses]
+    if mismatches:
         print(
-            f"warning: the data's cam2lidar differs from the rig baked into the model by up to {worst:.3f}; "
+            f"warning: the data's rig differs from the rig baked into the model ({'; '.join(mismatches)}); "
             "results reflect that mismatch (re-bake the model for this rig with `fisheye-infer rebake`)",
             file=sys.stderr,
         )

@@ -111,6 +111,11 @@ def update_split(root: str | Path, split: str, entries: Sequence[Mapping[str, st
     return path
 
 
+def _holds(path: Path, model: OCamModel) -> bool:
+    """Whether ``path`` is absent or describes ``model``."""
+    return not path.is_file() or OCamModel.from_file(path, fov=model.fov) == model
+
+
 class Fisheye3DODWriter:
     """Writes the frames of one ``<scene>/<vehicle>`` sequence; call ``close`` to record them in the split."""
 
@@ -127,15 +132,14 @@ class Fisheye3DODWriter:
         self.folder = self.root / scene / vehicle
         self._entries: list[dict[str, str]] = []
 
-    def write_calib(self, model: OCamModel) -> Path:
-        """``ROOT/calib_results.txt``; an existing file must describe the same model."""
+    def write_calib(self, model: OCamModel, camera: str | None = None) -> Path:
+        """``ROOT/calib_results.txt``, the lens of every fisheye camera, or with ``camera`` the lens of that camera
+        alone, in its folder of this sequence; an existing file must describe the same model."""
         if not isinstance(model, OCamModel):
-            raise DatasetError(
-                f"calib: the layout stores one OCam model for all fisheye cameras, got a {type(model).__name__}"
-            )
-        path = self.root / "calib_results.txt"
+            raise DatasetError(f"calib: the layout stores OCam models of fisheye cameras, got a {type(model).__name__}")
+        path = (self.root if camera is None else self.folder / camera) / "calib_results.txt"
         if path.is_file():
-            if OCamModel.from_file(path, fov=model.fov) != model:
+            if not _holds(path, model):
                 raise DatasetError(f"calib: {path} already holds a different camera model")
             return path
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -143,8 +147,10 @@ class Fisheye3DODWriter:
         return path
 
     def _write_models(self, rig: Rig) -> None:
-        """``calib_results.txt`` for the fisheye cameras; pinhole cameras must be the converter's 90-degree
-        pinhole of their size (:func:`converter_pinhole`), which the reader rebuilds from the images."""
+        """``calib_results.txt`` for the fisheye cameras: one at the root for a lens they share (while the root
+        holds none or that one, and the sequence has no camera files yet), else one in each camera's folder;
+        pinhole cameras must be the converter's 90-degree pinhole of their size (:func:`converter_pinhole`),
+        which the reader rebuilds from the images."""
         fisheye = [c for c in rig.cameras if c.name not in PINHOLE_CAMERAS]
         for cam in rig.cameras:
             ideal = converter_pinhole(cam.model.width, cam.model.height)
@@ -158,8 +164,16 @@ class Fisheye3DODWriter:
                     f"camera '{cam.name}': a {cam.model.type} model; the layout's cameras are OCam fisheye cameras "
                     f"or the pinhole cameras {', '.join(PINHOLE_CAMERAS)}"
                 )
-        if fisheye:
-            self.write_calib(Rig.from_dict({"cameras": [c.model_dump() for c in fisheye]}).shared_model())
+        lenses = {cam.name: cam.model for cam in fisheye if isinstance(cam.model, OCamModel)}  # all of them, checked
+        if not lenses:
+            return
+        shared = next(iter(lenses.values())) if len(set(lenses.values())) == 1 else None
+        own = any((self.folder / name / "calib_results.txt").is_file() for name in lenses)
+        if shared is not None and not own and _holds(self.root / "calib_results.txt", shared):
+            self.write_calib(shared)
+        else:
+            for name, lens in lenses.items():
+                self.write_calib(lens, name)
 
     def write_poses(self, frame_id: str, rig: Rig, lidar_pose: CarlaPose) -> Rig:
         """Append this frame's lidar and camera poses to the sensors' ``sensor_metadata.txt``.

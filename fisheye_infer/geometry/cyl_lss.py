@@ -14,7 +14,7 @@ import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import cylindrical_frustum, frustum_to_lidar, linspace_depth_bins
-from fisheye_infer.geometry.grids import cells_inside_lens, cylindrical_image_grid
+from fisheye_infer.geometry.grids import cells_inside_lens, cylindrical_image_grid, fisheye_lenses, per_camera
 from fisheye_infer.geometry.lss import LSSParams
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import RECTIFY, CylParams, pool_tables, sampling_tables
@@ -39,8 +39,10 @@ class CylLSSParams(LSSParams, CylParams):
 
 
 def cyl_image_grid(rig: Rig, params: CylParams) -> np.ndarray:
-    """(Hi, Wi, 2) float32 GridSample grid rectifying the rig's raw fisheye images onto the cylinder."""
-    return cylindrical_image_grid(rig.shared_model(), params.image_size, params.azimuth_range, params.height_range)
+    """(N, Hi, Wi, 2) float32 GridSample grids rectifying each camera's raw fisheye images onto the cylinder."""
+    return per_camera(
+        rig, lambda lens: cylindrical_image_grid(lens, params.image_size, params.azimuth_range, params.height_range)
+    )
 
 
 @dataclass(frozen=True)
@@ -48,22 +50,24 @@ class CylLSSGeometry:
     """Geometry tables of the cylindrical LSS model for one rig and configuration."""
 
     params: CylLSSParams
-    image_grid: np.ndarray  # Hc x Wc x 2 float32, GridSample coordinates of the raw fisheye image
+    image_grid: np.ndarray  # N x Hc x Wc x 2 float32, GridSample coordinates of each camera's raw fisheye image
     frustum: np.ndarray  # D x H x W x 3 float32, camera frame, depth = cylinder radius
     cam2lidar: np.ndarray  # N x 4 x 4 float64
     plan: PoolingPlan
     source: str = "rig"  # where the frustum came from: "rig" or "checkpoint"
-    #: (1, H, W) bool, the cylindrical images' feature cells that show the fisheye lens (``cells_inside_lens``).
+    #: (N, H, W) bool, each camera's cylindrical feature cells that show its fisheye lens (``cells_inside_lens``).
     inside_lens: np.ndarray | None = None
 
     @classmethod
     def from_rig(cls, rig: Rig, params: CylLSSParams) -> CylLSSGeometry:
-        """The rig's tables (shared camera model + extrinsics)."""
+        """The rig's tables (each camera's lens model and extrinsics)."""
         frustum = np.ascontiguousarray(params.frustum(), dtype=np.float32)
         cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
         plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), params.bev_grid, params.bucket_sizes)
         grid = cyl_image_grid(rig, params)
-        inside = cells_inside_lens(rig.shared_model(), grid, 1, params.feature_size)
+        inside = np.concatenate(
+            [cells_inside_lens(lens, g, 1, params.feature_size) for lens, g in zip(fisheye_lenses(rig), grid)]
+        )
         return cls(params=params, image_grid=grid, frustum=frustum, cam2lidar=cam2lidar, plan=plan, inside_lens=inside)
 
     @property

@@ -54,7 +54,7 @@ def cyl_petr_directions(params: CylPETRParams) -> np.ndarray:
 
 @dataclass(frozen=True)
 class CylPETRGeometry:
-    """image_grid (Hc, Wc, 2) float32 GridSample grid of the raw fisheye image; cam2lidar (N, 4, 4)."""
+    """image_grid (N, Hc, Wc, 2) float32 GridSample grids of each camera's raw fisheye image; cam2lidar (N, 4, 4)."""
 
     params: CylPETRParams
     image_grid: np.ndarray
@@ -63,7 +63,7 @@ class CylPETRGeometry:
 
     @classmethod
     def from_rig(cls, rig: Rig, params: CylPETRParams) -> CylPETRGeometry:
-        """The rig's shared intrinsic model (one grid for every camera) and its extrinsics in rig order."""
+        """Each camera's lens model (its rectification grid) and extrinsics, in rig order."""
         return cls(
             params=params, image_grid=cyl_image_grid(rig, params), cam2lidar=np.asarray(rig.cam2lidar(), np.float64)
         )
@@ -71,7 +71,7 @@ class CylPETRGeometry:
     def check(self, num_cameras: int) -> None:
         """Raise ``ConfigError`` naming the table whose shape does not fit the parameters and camera count."""
         check_tables(
-            {"image_grid": (*self.params.image_size, 2), "cam2lidar": (num_cameras, 4, 4)},
+            {"image_grid": (num_cameras, *self.params.image_size, 2), "cam2lidar": (num_cameras, 4, 4)},
             {"image_grid": self.image_grid, "cam2lidar": self.cam2lidar},
         )
 

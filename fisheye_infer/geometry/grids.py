@@ -12,16 +12,21 @@ Angles are computed in float64 and the tables are cast to float32 once, at the e
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from fisheye_infer.cameras.camera_models import OCamModel
+from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
 
 __all__ = [
     "DEFAULT_AZIMUTH_RANGE",
     "DEFAULT_ELEVATION_RANGE",
+    "fisheye_lenses",
+    "per_camera",
+    "stored_for_first_lens",
     "angular_axes",
     "spherical_directions",
     "cylindrical_directions",
@@ -44,6 +49,46 @@ __all__ = [
 DEFAULT_AZIMUTH_RANGE = (-math.radians(110.0), math.radians(110.0))
 #: +-45 degrees of elevation (positive is down, as the camera's y axis).
 DEFAULT_ELEVATION_RANGE = (-math.pi / 4, math.pi / 4)
+
+
+def fisheye_lenses(rig: Rig) -> list[OCamModel]:
+    """Each camera's OCam model, in rig order: the lens model the fisheye geometries project with.
+
+    Each camera has its own (a rig of four real cameras has four calibrations; Fisheye3DOD's share one).
+    """
+    lenses = []
+    for cam in rig.cameras:
+        if not isinstance(cam.model, OCamModel):
+            raise ConfigError(
+                f"camera '{cam.name}': a {cam.model.type} model; the fisheye geometries project with an OCam "
+                "model (`fisheye-infer rig import --ocam` fits one to Kannala-Brandt, double-sphere, EUCM and Mei "
+                "calibrations)"
+            )
+        lenses.append(cam.model)
+    return lenses
+
+
+def per_camera(rig: Rig, table_of: Callable[[OCamModel], np.ndarray]) -> np.ndarray:
+    """(N, ...) float32: ``table_of`` each camera's lens (:func:`fisheye_lenses`), stacked in rig order; a lens
+    shared by several cameras is computed once."""
+    lenses = fisheye_lenses(rig)
+    tables: dict[OCamModel, np.ndarray] = {}
+    for lens in lenses:
+        if lens not in tables:
+            tables[lens] = np.asarray(table_of(lens), np.float32)
+    return np.ascontiguousarray(np.stack([tables[lens] for lens in lenses]))
+
+
+def stored_for_first_lens(tables: np.ndarray, stored: np.ndarray) -> np.ndarray:
+    """``tables`` (N, ...) per camera with ``stored`` in place of every camera whose table is the first camera's.
+
+    An official checkpoint stores one table (its rig's cameras share one lens); a rig whose cameras each
+    have their own lens gets it for the cameras with the first camera's lens only.
+    """
+    out = np.array(tables, dtype=np.float32)
+    same = np.array([np.array_equal(t, tables[0]) for t in tables])
+    out[same] = np.asarray(stored, np.float32).reshape(out.shape[1:])
+    return out
 
 
 def angular_axes(

@@ -2,7 +2,7 @@
 
 params = LSSParams(feature_size=(25, 100), azimuth_range=..., elevation_range=..., dbound=..., xbound=..., ...)
 geometry = LSSGeometry.from_rig(rig, params)          # the rig's tables
-geometry.with_tables(grid=stored_grid)                 # a checkpoint's stored tables instead
+geometry.with_tables(grid=stored_grid)                 # a checkpoint's stored grid (its first camera's lens)
 geometry.tables()                                      # {"geom.warp.*": ..., "geom.pool.*": ...}
 """
 
@@ -15,7 +15,13 @@ import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import depth_bins, frustum_to_lidar, spherical_frustum
-from fisheye_infer.geometry.grids import invalid_mask, spherical_grid
+from fisheye_infer.geometry.grids import (
+    fisheye_lenses,
+    invalid_mask,
+    per_camera,
+    spherical_grid,
+    stored_for_first_lens,
+)
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, WARP, Params, pool_tables, sampling_tables
 
@@ -44,24 +50,23 @@ class LSSGeometry:
     """Geometry tables of the fisheye LSS transform for one rig and configuration."""
 
     params: LSSParams
-    grid: np.ndarray  # H x W x 2 float32, grid_sample coordinates (shared by all cameras)
+    grid: np.ndarray  # N x H x W x 2 float32, each camera's grid_sample coordinates
     frustum: np.ndarray  # D x H x W x 3 float32, camera frame, radial depth
     cam2lidar: np.ndarray  # N x 4 x 4 float64
     plan: PoolingPlan
-    valid_fov_mask: np.ndarray  # 1 x 1 x H x W float32, sampled lens validity (unused by the forward)
+    valid_fov_mask: np.ndarray  # N x 1 x H x W float32, each lens's sampled validity (unused by the forward)
     source: str = "rig"  # where grid/frustum came from: "rig" or "checkpoint"
 
     @classmethod
     def from_rig(cls, rig: Rig, params: LSSParams) -> LSSGeometry:
-        """The rig's tables: its one shared camera model and its extrinsics, in rig order."""
-        camera = rig.shared_model()
-        grid = np.ascontiguousarray(
-            spherical_grid(camera, params.feature_size, params.azimuth_range, params.elevation_range), np.float32
+        """The rig's tables: each camera's lens model and its extrinsics, in rig order."""
+        grid = per_camera(
+            rig, lambda lens: spherical_grid(lens, params.feature_size, params.azimuth_range, params.elevation_range)
         )
         frustum = np.ascontiguousarray(params.frustum(), np.float32)
         cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
         plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), params.bev_grid, params.bucket_sizes)
-        valid = (np.float32(1.0) - invalid_mask(camera, grid))[None, None].astype(np.float32)
+        valid = np.stack([1.0 - invalid_mask(lens, g) for lens, g in zip(fisheye_lenses(rig), grid)])[:, None]
         return cls(params=params, grid=grid, frustum=frustum, cam2lidar=cam2lidar, plan=plan, valid_fov_mask=valid)
 
     @property
@@ -70,14 +75,15 @@ class LSSGeometry:
 
     @property
     def inside_lens(self) -> np.ndarray:
-        """(1, H, W) bool: the grid's cells that mostly sample the lens's field of view (``valid_fov_mask``)."""
-        return self.valid_fov_mask[0] > 0.5
+        """(N, H, W) bool: each camera's cells that mostly sample its lens's field of view (``valid_fov_mask``)."""
+        return self.valid_fov_mask[:, 0] > 0.5
 
     def with_tables(
         self, *, grid: np.ndarray | None = None, frustum: np.ndarray | None = None, source: str = "checkpoint"
     ) -> LSSGeometry:
-        """Same rig with replaced grid and/or frustum; the pooling plan is rebuilt only if the frustum changed."""
-        new_grid = self.grid if grid is None else np.ascontiguousarray(grid, dtype=np.float32)
+        """Same rig with a checkpoint's grid (H, W, 2) (:func:`stored_for_first_lens`) and/or frustum; the pooling
+        plan is rebuilt only if the frustum changed."""
+        new_grid = self.grid if grid is None else stored_for_first_lens(self.grid, grid)
         new_frustum = self.frustum if frustum is None else np.ascontiguousarray(frustum, dtype=np.float32)
         plan = self.plan
         if not np.array_equal(new_frustum, self.frustum):

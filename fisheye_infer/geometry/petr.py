@@ -23,9 +23,12 @@ from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.grids import (
     DEFAULT_AZIMUTH_RANGE,
     DEFAULT_ELEVATION_RANGE,
+    fisheye_lenses,
     invalid_mask,
+    per_camera,
     spherical_directions,
     spherical_grid,
+    stored_for_first_lens,
 )
 from fisheye_infer.geometry.tables import WARP, Params, key_tables, sampling_tables
 
@@ -232,8 +235,8 @@ def check_tables(tables: dict[str, tuple[int, ...]], arrays: dict[str, np.ndarra
 
 @dataclass(frozen=True)
 class PETRGeometry:
-    """grid (H, W, 2) float32 for grid_sample(align_corners=True); unvalid_area (H, W) float32,
-    a key is masked where it is not exactly 0; cam2lidar (N, 4, 4) in the model's camera order."""
+    """grid (N, H, W, 2) float32, each camera's for grid_sample(align_corners=True); unvalid_area (N, H, W)
+    float32, a camera's key is masked where it is not exactly 0; cam2lidar (N, 4, 4) in the model's camera order."""
 
     params: PETRParams
     grid: np.ndarray
@@ -243,36 +246,33 @@ class PETRGeometry:
 
     @classmethod
     def from_rig(cls, rig: Rig, params: PETRParams) -> PETRGeometry:
-        """Grid and mask from the rig's one shared intrinsic model, extrinsics in rig order.
-
-        The official model was trained with one intrinsic model for all cameras (one grid,
-        one mask), so a rig whose cameras differ is refused by ``Rig.shared_model``.
-        """
-        camera = rig.shared_model()
-        grid = spherical_grid(camera, params.feature_size, params.azimuth_range, params.elevation_range)
-        return cls(params=params, grid=grid, unvalid_area=invalid_mask(camera, grid), cam2lidar=rig.cam2lidar())
+        """Each camera's grid and mask from its lens model, extrinsics in rig order."""
+        grid = per_camera(
+            rig, lambda lens: spherical_grid(lens, params.feature_size, params.azimuth_range, params.elevation_range)
+        )
+        mask = np.stack([invalid_mask(lens, g) for lens, g in zip(fisheye_lenses(rig), grid)])
+        return cls(params=params, grid=grid, unvalid_area=mask, cam2lidar=rig.cam2lidar())
 
     def with_tables(
         self, *, grid: np.ndarray | None = None, unvalid_area: np.ndarray | None = None, source: str = "checkpoint"
     ) -> PETRGeometry:
-        """Same extrinsics with the warp grid and/or mask replaced (e.g. by a checkpoint's tables)."""
-        new_grid = self.grid if grid is None else np.asarray(grid, dtype=np.float32)
-        new_mask = self.unvalid_area if unvalid_area is None else np.asarray(unvalid_area, dtype=np.float32)
-        return replace(self, grid=new_grid, unvalid_area=new_mask.reshape(new_grid.shape[:2]), source=source)
+        """Same extrinsics with a checkpoint's one grid (H, W, 2) and/or mask (H, W) in place of the first camera's
+        lens's (:func:`stored_for_first_lens`)."""
+        new_grid = self.grid if grid is None else stored_for_first_lens(self.grid, grid)
+        new_mask = self.unvalid_area if unvalid_area is None else stored_for_first_lens(self.unvalid_area, unvalid_area)
+        return replace(self, grid=new_grid, unvalid_area=new_mask, source=source)
 
     def check(self, num_cameras: int) -> None:
         """Raise ``ConfigError`` naming the table whose shape does not fit the parameters and camera count."""
         fh, fw = self.params.feature_size
-        mask = self.unvalid_area.reshape(fh, fw) if np.shape(self.unvalid_area) == (1, 1, fh, fw) else self.unvalid_area
         check_tables(
-            {"grid": (fh, fw, 2), "unvalid_area": (fh, fw), "cam2lidar": (num_cameras, 4, 4)},
-            {"grid": self.grid, "unvalid_area": mask, "cam2lidar": self.cam2lidar},
+            {"grid": (num_cameras, fh, fw, 2), "unvalid_area": (num_cameras, fh, fw), "cam2lidar": (num_cameras, 4, 4)},
+            {"grid": self.grid, "unvalid_area": self.unvalid_area, "cam2lidar": self.cam2lidar},
         )
 
     def key_mask(self) -> np.ndarray:
-        """(N, H, W) bool: keys attention ignores (the sampled lens validity is not exactly 1.0)."""
-        mask = np.asarray(self.unvalid_area, np.float32).reshape(self.params.feature_size) != 0
-        return np.broadcast_to(mask, (len(self.cam2lidar), *self.params.feature_size))
+        """(N, H, W) bool: keys attention ignores (the camera's sampled lens validity is not exactly 1.0)."""
+        return np.asarray(self.unvalid_area, np.float32) != 0
 
     def coords(self, cam2lidar: np.ndarray | None = None) -> np.ndarray:
         """(N, 3 * depth_num, H, W) float32 position-encoder inputs; ``cam2lidar`` overrides the rig's."""
@@ -280,8 +280,9 @@ class PETRGeometry:
 
     def key_pos(self, weights: dict[str, np.ndarray], coords: np.ndarray | None = None) -> np.ndarray:
         """(1, N*H*W, C) float32 key embedding with ``weights`` (see :func:`key_position_embedding`)."""
-        mask = np.asarray(self.unvalid_area, np.float32).reshape(self.params.feature_size)
-        return key_position_embedding(self.coords() if coords is None else coords, mask, weights, self.params)
+        return key_position_embedding(
+            self.coords() if coords is None else coords, self.key_mask(), weights, self.params
+        )
 
     def tables(self, weights: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
         """Every ``geom.*`` table of the graph; the key embedding needs the position-encoder weights."""

@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.geometry.frustum import depth_bins
-from fisheye_infer.geometry.grids import cells_inside_lens
+from fisheye_infer.geometry.grids import cells_inside_lens, fisheye_lenses
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, pool_tables
 from fisheye_infer.geometry.views import (
@@ -113,10 +113,10 @@ class PinholeLSSGeometry:
     views: Views
     frustum: np.ndarray  # D x H x W x 3 float32, image coordinates and depth
     plan: PoolingPlan
-    image_grid: np.ndarray | None  # (Y * Hv, Wv, 2) remap grid of the perspective views; None for pinhole cameras
+    image_grid: np.ndarray | None  # (N, Y * Hv, Wv, 2) remap grids of each camera's views; None for pinhole cameras
     source: str = "rig"  # where the frustum came from: "rig" or "checkpoint"
-    #: (Y, H, W) bool, the perspective views' feature cells that show the fisheye lens (``cells_inside_lens``), the
-    #: same for every camera; None for pinhole cameras.
+    #: (N * Y, H, W) bool, each view's feature cells that show its camera's fisheye lens (``cells_inside_lens``),
+    #: camera by camera; None for pinhole cameras.
     inside_lens: np.ndarray | None = None
 
     @classmethod
@@ -127,7 +127,10 @@ class PinholeLSSGeometry:
         if not isinstance(params.views, Perspective):
             return cls(params=params, views=views, frustum=frustum, plan=plan, image_grid=None)
         grid = perspective_image_grid(rig, params.views)
-        inside = cells_inside_lens(rig.shared_model(), grid, len(params.views.yaws), params.feature_size)
+        yaws = len(params.views.yaws)
+        inside = np.concatenate(
+            [cells_inside_lens(lens, g, yaws, params.feature_size) for lens, g in zip(fisheye_lenses(rig), grid)]
+        )
         return cls(params=params, views=views, frustum=frustum, plan=plan, image_grid=grid, inside_lens=inside)
 
     @property

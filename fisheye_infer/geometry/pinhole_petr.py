@@ -83,7 +83,7 @@ class PinholePETRGeometry:
 
     params: PinholePETRParams
     views: Views
-    image_grid: np.ndarray  # (Y * Hv, Wv, 2) remap grid of the perspective views, or (0, 0, 2)
+    image_grid: np.ndarray  # (N, Y * Hv, Wv, 2) remap grids of each camera's views, or (0, 0, 0, 2)
     cam2lidar: np.ndarray  # V x 4 x 4, the views'
     lidar2img: np.ndarray  # V x 4 x 4
     source: str = "rig"
@@ -94,7 +94,7 @@ class PinholePETRGeometry:
         grid = (
             perspective_image_grid(rig, params.views)
             if isinstance(params.views, Perspective)
-            else np.zeros((0, 0, 2), np.float32)
+            else np.zeros((0, 0, 0, 2), np.float32)
         )
         return cls(params=params, views=views, image_grid=grid, cam2lidar=views.cam2lidar, lidar2img=views.lidar2img())
 

@@ -15,9 +15,13 @@ bilinear taps on the sampled source (``Params.source_size``): GridSample's
 channels-last source per output pixel and weighs them with one batched MatMul: GridSample's bilinear,
 zero-padded, ``align_corners=True`` result, in less time than ONNX Runtime's GridSample kernel.
 
+Every camera has its own taps (its own lens calibration), camera after camera: the source is laid out
+camera-major, one row per pixel of each camera (n * h * w + pixel), so one graph serves a rig whose
+cameras share a lens and one whose cameras each have their own.
+
 LSS (FisheyeBEVDet), for N cameras, an H x W angular grid and an X x Y BEV grid:
-    geom.warp.index           (H*W*4,)      int64    flat source pixel of each tap, shared by the cameras
-    geom.warp.weight          (H*W, 1, 4)   float32  the taps' bilinear weights (0 outside the source)
+    geom.warp.index           (N*H*W*4,)    int64    flat source pixel of each tap, camera-major
+    geom.warp.weight          (N*H*W, 1, 4) float32  the taps' bilinear weights (0 outside the source)
     geom.pool.counts          (1, X*Y, 1)   float32  points per BEV cell, at least 1 (mean divisor)
     geom.pool.cell_rows       (X*Y,)        int64    row of each cell in the bucket outputs (+ zero row)
     geom.pool.points.<b>      (K_b, L_b)    int64    flat point indices of bucket b, padded with P
@@ -32,8 +36,8 @@ PETR (FisheyePETR):
 
 The cylindrical baselines rectify the raw fisheye images instead of their features, so their
 graphs take the taps of the image grid (cv2.remap emulation) and no ``geom.warp.*``:
-    geom.rectify.index        (Hi*Wi*4,)    int64    flat raw-image pixel of each tap
-    geom.rectify.weight       (Hi*Wi, 1, 4) float32
+    geom.rectify.index        (N*Hi*Wi*4,)    int64    flat raw-image pixel of each tap, camera-major
+    geom.rectify.weight       (N*Hi*Wi, 1, 4) float32
 Cylindrical LSS (fisheye-bevdet-cyl): geom.rectify.* + the geom.pool.* tables above.
 Cylindrical PETR (fisheye-petr-cyl): geom.rectify.* + geom.petr.key_pos + geom.petr.key_mask
 (all False: the official head masks no key).
@@ -43,7 +47,7 @@ views the backbone sees (:mod:`.views`):
     geom.resize.x.index       (T, Wv)       int64    PIL bicubic resize and crop of pinhole images: the
     geom.resize.x.high, .low  (T, Wv)       float32  columns each output column reads, and the integer
     geom.resize.y.*           (T, Hv)                weights split in two exact halves (:mod:`.resize`)
-or geom.rectify.* of the perspective views (fisheye input, the views stacked by yaw); then geom.pool.*
+or geom.rectify.* of the perspective views (fisheye input, each camera's views stacked by yaw); then geom.pool.*
 (pinhole LSS, pinhole-bevdet / fisheye-bevdet-persp) or geom.petr.key_pos + geom.petr.key_mask (all
 False; pinhole PETR, pinhole-petr / fisheye-petr-persp).
 
@@ -61,7 +65,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.geometry.grids import bilinear_taps, remap_taps
+from fisheye_infer.geometry.grids import BilinearTaps, bilinear_taps, remap_taps
 from fisheye_infer.geometry.pooling import PoolingPlan
 from fisheye_infer.geometry.resize import ResizeTaps
 
@@ -85,6 +89,7 @@ __all__ = [
     "pool_points",
     "pool_pixels",
     "pool_tables",
+    "camera_taps",
     "sampling_tables",
     "key_tables",
 ]
@@ -123,18 +128,33 @@ def taps_weight(prefix: str) -> str:
     return f"{prefix}weight"
 
 
-def sampling_tables(prefix: str, grid: np.ndarray, source_size: tuple[int, int] | None) -> dict[str, np.ndarray]:
-    """The taps of ``grid`` (H, W, 2) on a ``source_size`` (H, W) source as the tables ``prefix``.
+def camera_taps(grids: np.ndarray, height: int, width: int, prefix: str = WARP) -> BilinearTaps:
+    """The taps of each camera's grid, ``grids`` (N, H, W, 2), on its own ``height`` x ``width`` source, stacked
+    camera after camera with camera n's source pixels offset by ``n * height * width`` (the camera-major layout).
 
-    ``WARP``: GridSample's taps (the official feature warp); ``RECTIFY``: cv2.remap's exact taps of
-    a :func:`~fisheye_infer.geometry.grids.remap_grid` grid (the official image rectification).
+    ``RECTIFY``: cv2.remap's exact taps of :func:`~fisheye_infer.geometry.grids.remap_grid` grids (the official
+    image rectification); otherwise GridSample's (the official feature warp).
     """
+    g = np.asarray(grids)
+    if g.ndim != 4 or g.shape[-1] != 2:
+        raise ConfigError(f"grids: expected one (H, W, 2) grid per camera, (N, H, W, 2), got {g.shape}")
+    taps_of = remap_taps if prefix == RECTIFY else bilinear_taps
+    taps = [taps_of(grid, height, width) for grid in g]
+    return BilinearTaps(
+        index=np.concatenate([t.index + n * height * width for n, t in enumerate(taps)]),
+        weight=np.concatenate([t.weight for t in taps]),
+    )
+
+
+def sampling_tables(prefix: str, grids: np.ndarray, source_size: tuple[int, int] | None) -> dict[str, np.ndarray]:
+    """The taps of the cameras' ``grids`` (N, H, W, 2) on ``source_size`` (H, W) sources as the tables ``prefix``
+    (:func:`camera_taps`)."""
     if source_size is None:
         raise ConfigError(
             "geometry parameters: source_size is missing (files exported before the sampling taps held a "
             "GridSample grid instead); export the checkpoint again to get tables for it"
         )
-    taps = remap_taps(grid, *source_size) if prefix == RECTIFY else bilinear_taps(grid, *source_size)
+    taps = camera_taps(grids, *source_size, prefix=prefix)
     return {taps_index(prefix): taps.index, taps_weight(prefix): taps.weight}
 
 

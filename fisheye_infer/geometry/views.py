@@ -24,10 +24,10 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from fisheye_infer.cameras.camera_models import Pinhole
+from fisheye_infer.cameras.camera_models import OCamModel, Pinhole
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.geometry.grids import remap_grid
+from fisheye_infer.geometry.grids import per_camera, remap_grid
 from fisheye_infer.geometry.resize import pil_bicubic_taps
 from fisheye_infer.geometry.tables import RECTIFY, RESIZE_X, RESIZE_Y, resize_tables, sampling_tables
 
@@ -184,16 +184,13 @@ def perspective_maps(camera: object, source: Perspective) -> tuple[np.ndarray, n
 
 
 def perspective_image_grid(rig: Rig, source: Perspective) -> np.ndarray:
-    """(Y * H, W, 2) float32 :func:`remap_grid` of the rig's shared fisheye model: every camera's views,
-    stacked by yaw."""
-    camera = rig.shared_model()
-    if not hasattr(camera, "world2cam"):
-        raise ConfigError(
-            f"perspective rectification needs the fisheye cameras' OCam model; the rig's cameras are "
-            f"{getattr(camera, 'type', type(camera).__name__)}"
-        )
-    map_x, map_y = perspective_maps(camera, source)
-    return remap_grid(map_x, map_y, camera.width, camera.height)
+    """(N, Y * H, W, 2) float32 :func:`remap_grid` of each camera's fisheye lens: its views, stacked by yaw."""
+
+    def grid_of(lens: OCamModel) -> np.ndarray:
+        map_x, map_y = perspective_maps(lens, source)
+        return remap_grid(map_x, map_y, lens.width, lens.height)
+
+    return per_camera(rig, grid_of)
 
 
 def views_of(rig: Rig, source: ResizeCrop | Perspective) -> Views:
@@ -208,8 +205,8 @@ def front_end_tables(
     image_grid: np.ndarray | None,
 ) -> dict[str, np.ndarray]:
     """The tables that make the views from the raw (H, W) ``source_size`` images: cv2.remap's taps of the
-    perspective ``image_grid`` (``geom.rectify.*``), or PIL's resize and the crop to ``image_size``
-    (``geom.resize.*``)."""
+    cameras' perspective ``image_grid`` (N, Y * H, W, 2) (``geom.rectify.*``), or PIL's resize and the crop
+    to ``image_size`` (``geom.resize.*``)."""
     if isinstance(source, Perspective):
         if image_grid is None:
             raise ConfigError("perspective views: the rectification grid is missing")

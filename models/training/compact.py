@@ -277,7 +277,7 @@ COMPACT: dict[str, tuple[Callable[[], Any], Callable[[], Rig]]] = {
 
 def compact_setup(arch: str, rig: Rig | None = None) -> tuple[Any, Rig]:
     """The compact configuration of ``arch`` and the rig it trains on: by default the shipped rig's, or, for a
-    fisheye architecture, ``rig`` (a user's own: its cameras, their poses and its one shared lens model) with
+    fisheye architecture, ``rig`` (a user's own: its cameras, their poses and lens models) with
     its images scaled by ``COMPACT_SCALE`` as the shipped rig's are, the configuration's images and cameras
     taken from it. The compact pinhole baselines take the shipped pinhole rig only: their resize and crop are
     those of its 512 x 288 images, and a held-out set in the Fisheye3DOD layout keeps no pinhole intrinsics
@@ -290,12 +290,18 @@ def compact_setup(arch: str, rig: Rig | None = None) -> tuple[Any, Rig]:
             f"--rig: the compact {arch} takes the shipped six-camera pinhole rig only (its resize and crop are "
             "those of 512x288 images); train another pinhole rig with --config and --rig"
         )
-    lens = rig.shared_model()  # names the camera whose calibration differs
-    if not isinstance(lens, OCamModel):
-        raise ConfigError(
-            f"--rig: the compact {arch} takes fisheye cameras of an OCam model (`fisheye-infer rig import --ocam` "
-            f"fits one); camera '{rig.names[0]}' has a {lens.type} model"
-        )
+    for cam in rig.cameras:
+        if not isinstance(cam.model, OCamModel):
+            raise ConfigError(
+                f"--rig: the compact {arch} takes fisheye cameras of an OCam model (`fisheye-infer rig import "
+                f"--ocam` fits one); camera '{cam.name}' has a {cam.model.type} model"
+            )
+        if (cam.model.width, cam.model.height) != (rig.cameras[0].model.width, rig.cameras[0].model.height):
+            raise ConfigError(
+                f"--rig: camera '{cam.name}' takes {cam.model.width}x{cam.model.height} images, camera "
+                f"'{rig.names[0]}' {rig.cameras[0].model.width}x{rig.cameras[0].model.height}; the model's input "
+                "holds one image size for all cameras"
+            )
     try:
         seen = compact_rig(rig)
     except ValueError as exc:  # a size that 0.4 does not scale to whole pixels at the same aspect

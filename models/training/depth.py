@@ -52,14 +52,13 @@ def lidar_frustum(geometry: Any, feature_size: tuple[int, int] | None = None) ->
 
 
 def _inside_lens(geometry: Any, views: int) -> np.ndarray:
-    """(V, H*W) bool: the cells of each of the V views that show the lens (every cell of a pinhole camera's view).
-    A geometry's ``inside_lens`` holds one mask per view of a camera, the same for every camera (one shared lens)."""
+    """(V, H*W) bool: the cells of each of the V views that show its camera's lens (every cell of a pinhole
+    camera's view), from the geometry's ``inside_lens`` (one mask per view)."""
     h, w = geometry.params.feature_size
     inside = geometry.inside_lens
     if inside is None:
         return np.ones((views, h * w), bool)
-    per_camera = np.asarray(inside, bool).reshape(len(inside), h * w)
-    return np.tile(per_camera, (views // len(per_camera), 1))
+    return np.asarray(inside, bool).reshape(views, h * w)
 
 
 class DepthTargets:

@@ -189,3 +189,47 @@ def test_writing_a_frame_again_replaces_it(small_rig: Rig, tmp_path: Path) -> No
     data = Fisheye3DOD(tmp_path)
     assert len(data) == 2 and data[0].rig == again.rig
     np.testing.assert_array_equal(data[0].gt_boxes, again.boxes)
+
+
+def test_cameras_with_lenses_of_their_own_are_read_back_with_them(small_rig: Rig, tmp_path: Path) -> None:
+    """Four calibrations, one per camera: each goes into its camera's folder, none to the root, and the reader
+    gives every camera its own; a camera folder without one and no root file is refused by name."""
+    from small_configs import own_lenses
+
+    from fisheye_infer.eval.dataset import DatasetError
+
+    rig = own_lenses(small_rig)
+    root = tmp_path / "Fisheye3DOD"
+    written = synthesize(rig, root, frames=2, seed=3)
+    assert not (root / "calib_results.txt").exists()
+    assert len(list(root.glob("*/*/fisheye_camera_*/calib_results.txt"))) == 4
+    frames = list(Fisheye3DOD(root))
+    assert [f.rig for f in frames] == [w.rig for w in written]
+    assert [c.model for c in frames[0].rig.cameras] == [c.model for c in rig.cameras]
+    next(root.glob("*/*/fisheye_camera_left/calib_results.txt")).unlink()
+    with pytest.raises(DatasetError, match=r"camera 'fisheye_camera_left': calib_results.txt not found"):
+        list(Fisheye3DOD(root))
+
+
+def test_a_sequence_of_another_shared_lens_keeps_its_own(small_rig: Rig, tmp_path: Path) -> None:
+    """The root holds the first lens written; a sequence whose cameras share another gets it in their folders, and
+    a sequence written with lenses of their own is not overwritten by a shared one."""
+    from small_configs import own_lenses
+
+    from fisheye_infer.eval.dataset import DatasetError
+
+    root = tmp_path / "Fisheye3DOD"
+    other = Rig.from_dict(
+        {**small_rig.model_dump(mode="json"), "cameras": [
+            {**cam, "model": own_lenses(small_rig).cameras[1].model.model_dump(mode="json")}
+            for cam in small_rig.model_dump(mode="json")["cameras"]
+        ]}
+    )  # fmt: skip
+    first = synthesize(small_rig, root, frames=1, seed=1, scene_name="synth-Town00-ClearNoon-0001")
+    second = synthesize(other, root, frames=1, seed=2, scene_name="synth-Town00-ClearNoon-0002")
+    read = {f.token: f.rig for f in Fisheye3DOD(root)}
+    assert read == {first[0].token: first[0].rig, second[0].token: second[0].rig}
+    assert len(list(root.glob("synth-Town00-ClearNoon-0002/*/*/calib_results.txt"))) == 4
+    synthesize(own_lenses(small_rig), root, frames=1, seed=3, scene_name="synth-Town00-ClearNoon-0003")
+    with pytest.raises(DatasetError, match="already holds a different camera model"):
+        synthesize(small_rig, root, frames=1, seed=3, scene_name="synth-Town00-ClearNoon-0003")

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import onnx
 import pytest
 from onnx import numpy_helper
-from small_configs import move_rig, small_configs
+from small_configs import move_rig, own_lenses, small_configs
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ArtifactError, RigError
@@ -39,13 +41,15 @@ def _initializers(graph: onnx.GraphProto) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.parametrize("arch", ["fisheye-bevdet", "fisheye-petr"])
-def test_rebaked_file_equals_a_fresh_export(arch: str, tmp_path: Path, small_exports) -> None:  # noqa: ANN001
-    """On the reduced configurations: the same code path as full size, in a fraction of the time."""
+def test_rebaked_file_equals_a_fresh_export(arch: str, tmp_path: Path, small_exports: Callable[[str], Any]) -> None:
+    """On the reduced configurations: the same code path as full size, in a fraction of the time. The fresh
+    export's self-check holds it to the PyTorch model of the new rig: every camera moved and with a lens of its
+    own (a file exported for one shared lens re-baked for four calibrations)."""
     pytest.importorskip("torch")
     from fisheye_infer.export.exporter import export
 
     config, rig = small_configs()[arch]
-    moved_rig = move_rig(rig)
+    moved_rig = own_lenses(move_rig(rig))
     exported = small_exports(arch)
     rebaked = tmp_path / "rebaked.onnx"
     meta = rebake(exported.onnx, moved_rig, rebaked)
@@ -59,6 +63,8 @@ def test_rebaked_file_equals_a_fresh_export(arch: str, tmp_path: Path, small_exp
         assert a[name].dtype == b[name].dtype, name
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     assert any(not np.array_equal(a[n], v) for n, v in _geometry(exported.onnx).items())  # the rig really changed
+    weight = a["geom.warp.weight"].reshape(len(rig), -1)  # each camera reads its own lens's taps
+    assert all(not np.array_equal(weight[n], weight[0]) for n in range(1, len(rig)))
     assert meta.rig_hash == moved_rig.hash == fresh.meta.rig_hash and meta.model_id == fresh.meta.model_id
     assert read_meta(rebaked).model_dump(exclude={"parity"}) == fresh.meta.model_dump(exclude={"parity"})
     assert read_meta(rebaked).parity is None  # re-baking runs no PyTorch comparison; it claims none
@@ -77,6 +83,23 @@ def test_rebake_refuses_rigs_that_do_not_fit(bevdet_export, rig: Rig, tmp_path: 
         rebake(bevdet_export.onnx, Rig.from_dict(data), tmp_path / "x.onnx")
     with pytest.raises(ArtifactError, match="never overwrites its input"):
         rebake(bevdet_export.onnx, rig, bevdet_export.onnx)
+    assert not (tmp_path / "x.onnx").exists()
+
+
+def test_rebake_refuses_a_table_of_another_shape(small_exports: Callable[[str], Any], tmp_path: Path) -> None:
+    """A file whose warp holds one set of taps for all cameras (its first camera's, as files of another
+    version of the exporter did) is not given four: its graph reads them in its own layout."""
+    exported = small_exports("fisheye-bevdet")
+    proto = onnx.load(str(exported.onnx))
+    for init in proto.graph.initializer:
+        if init.name in ("geom.warp.index", "geom.warp.weight"):
+            table = numpy_helper.to_array(init)
+            init.CopyFrom(numpy_helper.from_array(table[: len(table) // 4].copy(), init.name))
+    older = tmp_path / "older.onnx"
+    onnx.save(proto, str(older))
+    _, rig = small_configs()["fisheye-bevdet"]
+    with pytest.raises(ArtifactError, match=r"geom.warp.\w+ is \(\d+.*export the checkpoint again"):
+        rebake(older, rig, tmp_path / "x.onnx")
     assert not (tmp_path / "x.onnx").exists()
 
 

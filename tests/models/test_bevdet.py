@@ -68,7 +68,7 @@ def test_strict_load_full_synthetic(full_checkpoint: dict, full_model) -> None:
     assert all(c.agrees for c in report.checks)
     sd = full_checkpoint["state_dict"]
     assert torch.equal(model.bbox_head.shared_conv.weight, sd["bbox_head.shared_conv.weight"])
-    assert torch.equal(torch.from_numpy(model.view_transform.geometry.grid), sd[VT + "sphere_grid_2d"])
+    assert all(torch.equal(torch.from_numpy(g), sd[VT + "sphere_grid_2d"]) for g in model.view_transform.geometry.grid)
 
 
 def test_missing_unexpected_and_misshaped_keys_are_all_named(small_config, small_state_dict) -> None:
@@ -148,7 +148,8 @@ def test_geometry_mismatch_raises_unless_policy_given(small_config, small_state_
         load_model("fisheye-bevdet", small_state_dict, config=small_config)
     with pytest.warns(UserWarning, match="sphere_grid_2d"):
         model, report = load_model("fisheye-bevdet", small_state_dict, config=small_config, geometry="checkpoint")
-    assert report.source == "checkpoint" and torch.equal(torch.from_numpy(model.view_transform.geometry.grid), stored)
+    assert report.source == "checkpoint"
+    assert all(torch.equal(torch.from_numpy(g), stored) for g in model.view_transform.geometry.grid)
     with pytest.warns(UserWarning, match="recomputed"):
         model, report = load_model("fisheye-bevdet", small_state_dict, config=small_config, geometry="rig")
     assert report.source == "rig"
@@ -165,7 +166,7 @@ def test_geometry_within_rounding_uses_stored_tables_exactly(small_config, small
         warnings.simplefilter("error")
         model, report = load_model("fisheye-bevdet", small_state_dict, config=small_config)
     assert report.source == "checkpoint"
-    assert torch.equal(torch.from_numpy(model.view_transform.geometry.grid), grid)
+    assert all(torch.equal(torch.from_numpy(g), grid) for g in model.view_transform.geometry.grid)
     assert np.array_equal(model.view_transform.geometry.frustum, frustum.numpy())
 
 
@@ -231,11 +232,8 @@ def _peaks(head: TransFusionHead, dense: torch.Tensor) -> torch.Tensor:
 def test_full_size_forward(full_model) -> None:
     model, _ = full_model
     tables = model.view_transform.tables()
-    assert tuple(tables["geom.warp.index"].shape) == (25 * 100 * 4,) and tuple(tables["geom.warp.weight"].shape) == (
-        25 * 100,
-        1,
-        4,
-    )
+    assert tuple(tables["geom.warp.index"].shape) == (4 * 25 * 100 * 4,)  # four taps per cell of each camera
+    assert tuple(tables["geom.warp.weight"].shape) == (4 * 25 * 100, 1, 4)
     images = synthetic_images(42, 1, 4, 800, 800)
     with torch.no_grad():
         out = model(images, return_extras=True)
@@ -307,15 +305,15 @@ def test_grid_uses_width_divisor_and_align_corners(small_model, small_config) ->
     camera = default_rig().shared_model()
     uv = camera.world2cam(spherical_directions(vt.feature_size, vt.azimuth_range, vt.elevation_range).reshape(-1, 3))
     expected = (uv * 2.0 / np.array([camera.width, camera.height]) - 1.0).reshape(*vt.feature_size, 2)
-    grid = small_model.view_transform.geometry.grid
+    grid = small_model.view_transform.geometry.grid[0]
     assert np.allclose(grid, expected, atol=1e-6)
     assert not np.allclose(
         grid, (uv * 2.0 / (np.array([camera.width, camera.height]) - 1) - 1.0).reshape(grid.shape), atol=1e-4
     )
     # align_corners=True: a column ramp f(x) = x is sampled at (gx + 1) / 2 * (Wf - 1)
     wf = 10
-    ramp = torch.arange(wf, dtype=torch.float32).expand(1, 1, wf, wf).contiguous()
-    out = small_model.view_transform.warp(ramp)[0, 0].numpy()
+    ramp = torch.arange(wf, dtype=torch.float32).expand(1, 4, 1, wf, wf).contiguous()
+    out = small_model.view_transform.warp(ramp)[0, 0, 0].numpy()
     inside = (np.abs(grid) < 1).all(-1)
     assert np.allclose(out[inside], ((grid[..., 0] + 1) / 2 * (wf - 1))[inside], atol=1e-5)
 
@@ -358,7 +356,7 @@ def test_trunc_voxelisation_through_the_plan() -> None:
     )
     geometry = LSSGeometry(
         params=params,
-        grid=np.zeros((1, 6, 2), np.float32),
+        grid=np.zeros((1, 1, 6, 2), np.float32),
         frustum=points[0],
         cam2lidar=np.eye(4)[None],
         plan=plan,
@@ -572,6 +570,6 @@ def test_official_tables_are_accepted_and_used_exactly(full_checkpoint: dict, of
         sd[VT + key] = torch.from_numpy(official["fisheye_bevdet/" + VT + key])
     model, report = load_model("fisheye-bevdet", {"state_dict": sd, "meta": {}})
     assert report.source == "checkpoint"
-    assert torch.equal(torch.from_numpy(model.view_transform.geometry.grid), sd[VT + "sphere_grid_2d"])
+    assert all(torch.equal(torch.from_numpy(g), sd[VT + "sphere_grid_2d"]) for g in model.view_transform.geometry.grid)
     np.testing.assert_array_equal(model.view_transform.geometry.frustum, official["fisheye_bevdet/" + VT + "frustum"])
     assert model.view_transform.geometry.plan.num_kept == pytest.approx(554_668, abs=50)

@@ -152,11 +152,12 @@ def test_remap_grid_reproduces_cv2_remap(rig: Rig, fisheye_frame: np.ndarray, ra
             zbound=(-5, 5, 10),
         ),
     )
-    taps = remap_taps(grid, 800, 800)
+    assert grid.shape == (4, 400, 800, 2) and all(np.array_equal(g, grid[0]) for g in grid)  # one lens
+    taps = remap_taps(grid[0], 800, 800)
     rows = image.reshape(-1, 3)
     ours = np.einsum("pk,pkc->pc", taps.weight[:, 0], rows[taps.index.reshape(-1, 4)]).reshape(400, 800, 3)
     np.testing.assert_array_equal(ours, reference)
-    assert 0 < np.abs(sample(grid) - reference).max() < 0.05
+    assert 0 < np.abs(sample(grid[0]) - reference).max() < 0.05
     assert black_share(reference) > (0.3 if ranges == "released" else 0.0)  # released: rays behind the lens
     # Without the 1/32 px rounding the same maps miss cv2 by several grey levels at sharp edges.
     unrounded = np.stack([2 * map_x / 799.0 - 1, 2 * map_y / 799.0 - 1], axis=-1).astype(np.float32)
@@ -257,18 +258,18 @@ def test_released_image_grid_steps_radians_per_column(rig: Rig, full_bevdet) -> 
     camera = rig.shared_model()
     uv = camera.world2cam(rays.reshape(-1, 3)).reshape(400, 800, 2).astype(np.float32)
     expected = remap_grid(uv[..., 0], uv[..., 1], camera.width, camera.height)
-    grid = full_bevdet.view_transform.geometry.image_grid
+    grid = full_bevdet.view_transform.geometry.image_grid  # each camera's: one lens
     one_step = 2.0 / (camera.width - 1) / 32  # an ulp of difference may tip a 1/32 px rounding
-    np.testing.assert_allclose(grid, expected, rtol=0, atol=1.01 * one_step)
+    np.testing.assert_allclose(grid, np.broadcast_to(expected, grid.shape), rtol=0, atol=1.01 * one_step)
 
 
 def test_released_images_black_cells_are_outside_the_lens(rig: Rig, full_bevdet) -> None:  # noqa: ANN001
     """The released cylinder's rays past the lens leave a quarter of its stride-16 cells mostly black: those are the
     cells without a depth target (``inside_lens``), each the mean of its 16 x 16 pixels' lens validity."""
     g = full_bevdet.view_transform.geometry
-    valid = 1.0 - invalid_mask(rig.shared_model(), g.image_grid)  # 400 x 800
+    valid = 1.0 - invalid_mask(rig.shared_model(), g.image_grid[0])  # 400 x 800
     blocks = valid.reshape(25, 16, 50, 16).mean(axis=(1, 3))
-    np.testing.assert_array_equal(g.inside_lens, blocks[None] > 0.5)
+    np.testing.assert_array_equal(g.inside_lens, np.broadcast_to(blocks > 0.5, (4, 25, 50)))  # four cameras, one lens
     assert 0.2 < 1.0 - g.inside_lens.mean() < 0.3
 
 
@@ -418,12 +419,13 @@ def test_geometry_table_names(full_bevdet, full_petr) -> None:  # noqa: ANN001
     assert set(lss) == {"geom.rectify.index", "geom.rectify.weight", "geom.pool.counts", "geom.pool.cell_rows"} | {
         f"geom.pool.{kind}.{b}" for kind in ("points", "pixels") for b in range(buckets)
     }
-    assert lss["geom.rectify.index"].shape == (400 * 800 * 4,) and lss["geom.rectify.weight"].shape == (400 * 800, 1, 4)
+    assert lss["geom.rectify.index"].shape == (4 * 400 * 800 * 4,)  # four taps per pixel of each camera
+    assert lss["geom.rectify.weight"].shape == (4 * 400 * 800, 1, 4)
     assert [lss[f"geom.pool.points.{b}"].shape[1] for b in range(buckets)] == list(DEFAULT_BUCKET_SIZES)
     petr = full_petr.geometry_tables()
     assert {k: tuple(v.shape) for k, v in petr.items()} == {
-        "geom.rectify.index": (400 * 800 * 4,),
-        "geom.rectify.weight": (400 * 800, 1, 4),
+        "geom.rectify.index": (4 * 400 * 800 * 4,),
+        "geom.rectify.weight": (4 * 400 * 800, 1, 4),
         "geom.petr.key_pos": (1, 5000, 256),
         "geom.petr.key_mask": (1, 5000),
     }

@@ -214,14 +214,17 @@ def test_a_file_of_no_known_format_says_what_it_reads(tmp_path: Path) -> None:
 def test_rig_import_with_ocam_gives_a_rig_the_fisheye_detectors_take(
     small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A camchain of the reduced model's four cameras (160x160, one double sphere lens, as the fisheye
-    detectors share one intrinsic calibration) imported with ``--ocam``, then ``rebake``: the file runs on it."""
+    """A camchain of the reduced model's four cameras (160x160, each its own double sphere lens) imported with
+    ``--ocam``, then ``rebake``: the file, exported for one shared lens, runs on four calibrations."""
     from fisheye_infer.runtime.artifact import read_meta
     from fisheye_infer.runtime.detector import Detector
 
     camchain = tmp_path / "camchain.yaml"
-    lens = ("ds", [-0.2, 0.57, 50.0, 50.0, 79.5, 79.5], "none", [])
-    lidar2cam = _kalibr_camchain(camchain, resolution=(160, 160), cameras=dict.fromkeys(KALIBR_CAMERAS, lens))
+    lenses = {
+        name: ("ds", [-0.2 + 0.01 * n, 0.57, 50.0 + n, 50.5 + n, 79.5 - n, 79.5 + 0.5 * n], "none", [])
+        for n, name in enumerate(KALIBR_CAMERAS)
+    }
+    lidar2cam = _kalibr_camchain(camchain, resolution=(160, 160), cameras=lenses)
     extrinsics = _extrinsics(tmp_path / "lidar2cam.json", {"fisheye_camera_front": lidar2cam["fisheye_camera_front"]})
     out = tmp_path / "imported.yaml"
     command = ["rig", "import", str(camchain), "--extrinsics", str(extrinsics), "--names", ",".join(KALIBR_CAMERAS)]
@@ -231,6 +234,7 @@ def test_rig_import_with_ocam_gives_a_rig_the_fisheye_detectors_take(
     assert len(errors) == 4 and max(errors) < 1.0 and (tmp_path / "imported.png").stat().st_size > 0
     rig = Rig.load(out)
     assert all(isinstance(cam.model, OCamModel) for cam in rig.cameras) and rig.names == list(KALIBR_CAMERAS)
+    assert len({cam.model for cam in rig.cameras}) == 4
     assert main(["rig", "show", str(out)]) == 0 and "ocam" in capsys.readouterr().out
     rebaked = tmp_path / "rebaked.onnx"
     assert main(["rebake", str(small_export.onnx), "--rig", str(out), "--out", str(rebaked)]) == 0

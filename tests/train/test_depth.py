@@ -105,12 +105,12 @@ def test_a_view_wider_than_the_lens_has_no_target_beyond_it(rectified) -> None:
     compact, rig = rectified["fisheye-bevdet-persp"]
     views = Perspective(size=compact.params.views.size, fov=170.0, yaws=compact.params.views.yaws)
     wide = PinholeLSSGeometry.from_rig(rig, compact.params.model_copy(update={"views": views}))
-    inside = wide.inside_lens  # yaws x H x W
+    inside = wide.inside_lens  # (cameras x yaws) x H x W, camera by camera
+    assert inside.shape[0] == len(rig.names) * 2
     assert not inside.all() and inside[:, :, inside.shape[2] // 2].all()  # the centre column shows the lens
     assert not inside[0, :, 0].any() and not inside[1, :, -1].any()  # the outer edges of the two views do not
     scene = Scene(CUBE, np.zeros(1, np.int64), GROUND)
     bins = DepthTargets(wide)(scene)  # views (camera by camera, each camera's yaws) x H x W
     unmasked = DepthTargets(replace(wide, inside_lens=None))(scene)
-    per_view = np.tile(inside, (len(rig.names), 1, 1))
-    assert (bins[~per_view] == -1).all() and (unmasked[~per_view] >= 0).any()
-    assert np.array_equal(bins[per_view], unmasked[per_view])
+    assert (bins[~inside] == -1).all() and (unmasked[~inside] >= 0).any()
+    assert np.array_equal(bins[inside], unmasked[inside])

@@ -11,9 +11,11 @@ torch = pytest.importorskip("torch")
 
 from typing import Any  # noqa: E402
 
+from small_configs import own_lenses  # noqa: E402
+
 from fisheye_infer.cameras.rig import Rig, pinhole_rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
-from fisheye_infer.models import BEVDetConfig, create_model, load_checkpoint  # noqa: E402
+from fisheye_infer.models import BEVDetConfig, create_model, load_checkpoint, load_model  # noqa: E402
 from fisheye_infer.models.training.options import lr_factor  # noqa: E402
 from fisheye_infer.runtime.artifact import read_meta  # noqa: E402
 from fisheye_infer.scenes.render import resized_rig  # noqa: E402
@@ -160,9 +162,10 @@ def test_a_reduced_layout_trains_on_the_cameras_named(
 
 
 def test_the_compact_configuration_trains_for_a_rig_of_ones_own(tmp_path: Path, moved_rig: Rig) -> None:
-    """--rig without --config: the compact FisheyeBEVDet for another rig (every camera moved, images half the
-    shipped size), its images scaled by 0.4 as the shipped rig's are."""
-    mine = resized_rig(moved_rig, 0.5)
+    """--rig without --config: the compact FisheyeBEVDet for another rig (every camera moved and with a lens of its
+    own, images half the shipped size), its images scaled by 0.4 as the shipped rig's are. The checkpoint's official
+    grid is the first camera's; loaded back, every camera keeps its own."""
+    mine = resized_rig(own_lenses(moved_rig), 0.5)
     mine.save(tmp_path / "mine.json")
     out = tmp_path / "run"
     argv = ["train", "--out", str(out), "--rig", str(tmp_path / "mine.json"), "--steps", "1", "--val-frames", "0"]
@@ -173,12 +176,17 @@ def test_the_compact_configuration_trains_for_a_rig_of_ones_own(tmp_path: Path, 
     assert (config.image.width, config.image.height) == (160, 160) and list(config.image.camera_names) == rig.names
     state_dict, _ = load_checkpoint(out / "model.pth")
     assert list(state_dict) == list(create_model("fisheye-bevdet", config, rig).official_keys())
+    with pytest.warns(UserWarning, match="fisheye_camera_left, fisheye_camera_right, fisheye_camera_rear have lenses"):
+        model, report = load_model("fisheye-bevdet", out / "model.pth", config, rig)
+    grids = model.view_transform.geometry.grid
+    assert report.source == "checkpoint" and np.array_equal(grids[0], state_dict["view_transform.sphere_grid_2d"])
+    assert np.array_equal(grids, model.rig_geometry.grid) and not np.array_equal(grids[1], grids[0])
 
 
-def _two_lenses(rig: Rig) -> Rig:
-    """``rig`` with its left camera's image centre moved by a pixel: a calibration of its own."""
+def _two_sizes(rig: Rig) -> Rig:
+    """``rig`` with its left camera's images 1280x960."""
     data = rig.model_dump(mode="json")
-    data["cameras"][1]["model"]["center_col"] += 1.0
+    data["cameras"][1]["model"].update(width=1280, height=960)
     return Rig.from_dict(data)
 
 
@@ -200,7 +208,7 @@ def _five_by_four(rig: Rig) -> Rig:
         ),
         ("pinhole-bevdet", lambda rig: rig, "the compact pinhole-bevdet takes the shipped six-camera pinhole rig only"),
         ("fisheye-bevdet", lambda _: pinhole_rig(), "camera 'nu_rgb_camera_front' has a pinhole model"),
-        ("fisheye-petr", _two_lenses, "camera 'fisheye_camera_left': its camera model differs"),
+        ("fisheye-petr", _two_sizes, "camera 'fisheye_camera_left' takes 1280x960 images, camera"),
     ],
 )
 def test_a_rig_the_compact_configuration_cannot_take_is_named(
