@@ -12,12 +12,15 @@
 - ``opencv``: a ``cv::FileStorage`` file of OpenCV's calibration sample (``camera_matrix``,
   ``distortion_coefficients``, ``image_width``, ``image_height``, ``fisheye_model``): ``cv::fisheye``
   (four coefficients) or the pinhole model (4, 5 or 8).
+- ``ocam``: an OCamCalib ``calib_results.txt``, one camera per file, named by its folder where the file
+  keeps OCamCalib's name (``front/calib_results.txt`` is camera ``front``), by its file name otherwise.
 
 Distortion conventions: Kalibr's ``equidistant``, ROS's ``equidistant`` and ``cv::fisheye`` share
 ``k1..k4`` of ``theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8)`` (``KannalaBrandt.k``); Kalibr's
 ``radtan`` ``[k1, k2, r1, r2]`` is OpenCV's ``[k1, k2, p1, p2]``. A camera whose model cannot be represented
 is refused with the reason. Wide-angle cameras get a ``fov`` covering what their image shows
-(``image_fov``), as none of these formats states one.
+(``image_fov``), as none of these formats states one; OCam cameras get 220 degrees, Fisheye3DOD's, as
+``fisheye-infer rig convert`` gives them by default.
 """
 
 from __future__ import annotations
@@ -37,16 +40,19 @@ from fisheye_infer.cameras.camera_models import (
     DoubleSphere,
     ExtendedUnified,
     KannalaBrandt,
+    OCamModel,
     Omnidirectional,
     Pinhole,
     incidence_angle,
 )
-from fisheye_infer.errors import RigError
+from fisheye_infer.errors import CameraModelError, RigError
 
 __all__ = ["FORMATS", "CalibratedCamera", "detect_format", "image_fov", "read_calibration"]
 
 #: The calibration formats ``read_calibration`` reads.
-FORMATS: Final = ("kalibr", "ros", "opencv")
+FORMATS: Final = ("kalibr", "ros", "opencv", "ocam")
+#: How OCamCalib's ``calib_results.txt`` begins.
+_OCAM_HEADER: Final = "#polynomial coefficients for the DIRECT mapping function"
 
 
 @dataclass(frozen=True)
@@ -63,6 +69,8 @@ def detect_format(path: str | Path) -> str:
     """Which of ``FORMATS`` a file is, from its content; a ``RigError`` when none fits."""
     path = Path(path)
     text = _read(path)
+    if text.lstrip().startswith(_OCAM_HEADER):
+        return "ocam"
     if text.lstrip().startswith("%YAML:") or "!!opencv-matrix" in text:
         return "opencv"
     data = _yaml(path, text)
@@ -71,8 +79,8 @@ def detect_format(path: str | Path) -> str:
     if isinstance(data, dict) and "camera_matrix" in data and "distortion_model" in data:
         return "ros"
     raise RigError(
-        f"{path}: not a calibration this reads (a Kalibr camchain, a ROS CameraInfo YAML or an OpenCV "
-        "FileStorage file); name the format with --format, or see 'fisheye-infer rig convert' for OCam files"
+        f"{path}: not a calibration this reads (a Kalibr camchain, a ROS CameraInfo YAML, an OpenCV "
+        "FileStorage file or an OCamCalib calib_results.txt); name the format with --format"
     )
 
 
@@ -86,6 +94,8 @@ def read_calibration(path: str | Path, format: str | None = None) -> list[Calibr
         return [_ros(path)]
     if kind == "opencv":
         return [_opencv(path)]
+    if kind == "ocam":
+        return [_ocam(path)]
     raise RigError(f"{path}: format {kind!r} is not one of {', '.join(FORMATS)}")
 
 
@@ -230,6 +240,17 @@ def _opencv(path: Path) -> CalibratedCamera:
         is_fisheye = False
     size = {"width": int(width), "height": int(height)}
     return CalibratedCamera(path.stem, _k_and_d(k, coeffs, "fisheye" if is_fisheye else "opencv", label, size))
+
+
+# -- OCamCalib -------------------------------------------------------------------------------------
+
+
+def _ocam(path: Path) -> CalibratedCamera:
+    try:
+        model = OCamModel.parse(_read(path), source=str(path))
+    except CameraModelError as exc:
+        raise RigError(str(exc)) from exc
+    return CalibratedCamera(path.parent.name if path.stem == "calib_results" else path.stem, model)
 
 
 # -- shared ------------------------------------------------------------------------------------------

@@ -211,7 +211,7 @@ class Rig(BaseModel):
         names: Sequence[str] | None = None,
         name: str | None = None,
     ) -> Rig:
-        """Cameras from calibration files (``calibration_files``: Kalibr, ROS ``CameraInfo``, OpenCV) placed
+        """Cameras from calibration files (``calibration_files``: Kalibr, ROS ``CameraInfo``, OpenCV, OCamCalib) placed
         in the lidar frame by ``{"cameras": {name: lidar2cam 4x4}}`` (``extrinsics``).
 
         A Kalibr camchain places its cameras relative to each other: one camera in ``extrinsics`` places

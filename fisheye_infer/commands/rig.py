@@ -44,13 +44,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
     convert.add_argument("--out", required=True, help="rig file to write (.json or .yaml)")
     convert.set_defaults(run=run_convert)
     imported = actions.add_parser(
-        "import", help="write a rig file from Kalibr, ROS CameraInfo or OpenCV calibration files"
+        "import", help="write a rig file from Kalibr, ROS CameraInfo, OpenCV or OCamCalib calibration files"
     )
     imported.add_argument(
-        "files", nargs="+", help="a Kalibr camchain, or one ROS CameraInfo YAML / OpenCV FileStorage file per camera"
+        "files",
+        nargs="+",
+        help="a Kalibr camchain, or one ROS CameraInfo YAML / OpenCV FileStorage file / OCamCalib calib_results.txt "
+        "per camera",
     )
     imported.add_argument(
-        "--format", choices=("kalibr", "ros", "opencv"), help="the files' format (default: recognised from each file)"
+        "--format",
+        choices=("kalibr", "ros", "opencv", "ocam"),
+        help="the files' format (default: recognised from each file)",
     )
     imported.add_argument(
         "--extrinsics",

@@ -207,7 +207,7 @@ def test_opencv_file_storage_fisheye_and_pinhole(tmp_path: Path) -> None:
 def test_a_file_of_no_known_format_says_what_it_reads(tmp_path: Path) -> None:
     path = tmp_path / "other.yaml"
     path.write_text("a: 1\n")
-    with pytest.raises(RigError, match="Kalibr camchain, a ROS CameraInfo YAML or an OpenCV"):
+    with pytest.raises(RigError, match="Kalibr camchain, a ROS CameraInfo YAML, an OpenCV FileStorage file or an OCamCalib"):
         detect_format(path)
 
 
@@ -241,3 +241,35 @@ def test_rig_import_with_ocam_gives_a_rig_the_fisheye_detectors_take(
     assert read_meta(rebaked).rig.hash == rig.hash
     frame = {name: np.zeros((160, 160, 3), np.uint8) for name in rig.names}
     assert Detector(rebaked, threads=1).detect(frame).boxes.shape[1] == 7
+
+
+def test_ocamcalib_files_one_per_camera_give_each_camera_its_lens(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Four ``calib_results.txt`` as OCamCalib writes them, one per camera folder (the shipped file with each
+    camera's image centre where its own calibration put it): each camera named by its folder, with its own lens,
+    and a file that is not OCam's refused with the formats named."""
+    shipped = (Path(__file__).resolve().parents[2] / "fisheye_infer/data/rig-fisheye3dod/calib_results.txt").read_text()
+    assert "398.967516 399.029971" in shipped  # its centre row and column
+    rig = default_rig()
+    files = []
+    for n, name in enumerate(rig.names):
+        centre = f"{398.967516 + 2 * n:.6f} {399.029971 - n:.6f}"
+        path = tmp_path / name / "calib_results.txt"
+        path.parent.mkdir()
+        path.write_text(shipped.replace("398.967516 399.029971", centre))
+        files.append(str(path))
+    assert detect_format(files[0]) == "ocam"
+    extrinsics = _extrinsics(tmp_path / "lidar2cam.json", dict(zip(rig.names, rig.lidar2cam(), strict=True)))
+    out = tmp_path / "rig.yaml"
+    assert main(["rig", "import", *files, "--extrinsics", str(extrinsics), "--out", str(out)]) == 0
+    imported = Rig.load(out)
+    assert imported.names == rig.names and len({cam.model for cam in imported.cameras}) == 4
+    assert imported.cameras[0].model == rig.cameras[0].model  # the shipped file unchanged is the shipped lens
+    assert [cam.model.center_row for cam in imported.cameras] == pytest.approx([398.967516 + 2 * n for n in range(4)])
+    np.testing.assert_allclose(imported.cam2lidar(), rig.cam2lidar(), atol=1e-12)
+    capsys.readouterr()
+    broken = tmp_path / "broken.txt"
+    broken.write_text(shipped.replace("800 800", "800"))
+    with pytest.raises(RigError, match="OCam file .*broken.txt"):
+        read_calibration(broken)
