@@ -349,18 +349,21 @@ class Rig(BaseModel):
         return hashlib.sha256(doc.encode()).hexdigest()[:16]
 
     def describe(self) -> str:
-        """A human-readable table: camera, model, image size, position and heading."""
+        """A human-readable table: camera, model, which calibration (cameras with the same number share one),
+        image size, position and heading."""
         width = max(24, *(len(n) for n in self.names))
+        calibrations = list(dict.fromkeys(cam.model for cam in self.cameras))
         lines = [f"rig {self.name!r}  hash {self.hash}  frame: lidar (x forward, y left, z up)"]
         lines.append(
-            f"  {'camera':<{width}} {'model':<17} {'image':>9} {'fov':>7}   {'position x, y, z (m)':<26} {'heading':>8}"
+            f"  {'camera':<{width}} {'model':<17} {'lens':>4} {'image':>9} {'fov':>7}   {'position x, y, z (m)':<26} "
+            f"{'heading':>8}"
         )
         for cam in self.cameras:
             x, y, z = np.round(cam.position, 3) + 0.0  # no "-0.000"
             fov = getattr(cam.model, "fov", None)
             lines.append(
-                f"  {cam.name:<{width}} {cam.model.type:<17} {cam.model.width:>4}x{cam.model.height:<4} "
-                f"{fov if fov is not None else '-':>7}"
+                f"  {cam.name:<{width}} {cam.model.type:<17} {calibrations.index(cam.model) + 1:>4} "
+                f"{cam.model.width:>4}x{cam.model.height:<4} {fov if fov is not None else '-':>7}"
                 f"   {x:>7.3f}, {y:>7.3f}, {z:>7.3f}     {round(math.degrees(cam.heading), 1) + 0.0:>7.1f}°"
             )
         return "\n".join(lines)

@@ -269,6 +269,11 @@ def test_ocamcalib_files_one_per_camera_give_each_camera_its_lens(
     assert [cam.model.center_row for cam in imported.cameras] == pytest.approx([398.967516 + 2 * n for n in range(4)])
     np.testing.assert_allclose(imported.cam2lidar(), rig.cam2lidar(), atol=1e-12)
     capsys.readouterr()
+    assert main(["rig", "show", str(out)]) == 0
+    rows = capsys.readouterr().out.splitlines()[2:]
+    assert [row.split()[2] for row in rows] == ["1", "2", "3", "4"]  # the lens column: four calibrations
+    assert main(["rig", "show", "default"]) == 0
+    assert [row.split()[2] for row in capsys.readouterr().out.splitlines()[2:]] == ["1"] * 4  # one shared
     broken = tmp_path / "broken.txt"
     broken.write_text(shipped.replace("800 800", "800"))
     with pytest.raises(RigError, match="OCam file .*broken.txt"):
