@@ -207,7 +207,9 @@ def test_opencv_file_storage_fisheye_and_pinhole(tmp_path: Path) -> None:
 def test_a_file_of_no_known_format_says_what_it_reads(tmp_path: Path) -> None:
     path = tmp_path / "other.yaml"
     path.write_text("a: 1\n")
-    with pytest.raises(RigError, match="Kalibr camchain, a ROS CameraInfo YAML, an OpenCV FileStorage file or an OCamCalib"):
+    with pytest.raises(
+        RigError, match="Kalibr camchain, a ROS CameraInfo YAML, an OpenCV FileStorage file or an OCamCalib"
+    ):
         detect_format(path)
 
 
