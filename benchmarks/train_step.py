@@ -7,6 +7,8 @@ steps (frame rendering, forward, losses with the assignment, backward, AdamW); t
 allocates and is left out. Cases:
 
     compact-b1, compact-b2   the compact configuration (320 x 320), batch 1 / 2
+    compact-jitter-b2        the compact configuration, batch 2, with ``--lens-jitter 4`` (each step's frames
+                             rendered through moved lenses, their warp tables computed)
     compact480-b2            the compact configuration at 480 x 480 (rig x 0.6, 15 x 60 angular grid), batch 2
     official-b1              the official full-size configuration (800 x 800), batch 1
     pinhole-b2, persp-b2, cyl-b2
@@ -52,6 +54,7 @@ def cases() -> dict[str, tuple[Any, Rig, TrainOptions]]:
     return {
         "compact-b1": (compact_bevdet_config(), compact_rig(), TrainOptions(batch_size=1)),
         "compact-b2": (compact_bevdet_config(), compact_rig(), two),
+        "compact-jitter-b2": (compact_bevdet_config(), compact_rig(), TrainOptions(batch_size=2, lens_jitter=4.0)),
         "compact480-b2": (*_compact_at(480, (15, 60)), two),
         "official-b1": (BEVDetConfig(), default_rig(), TrainOptions(batch_size=1)),
         "pinhole-b2": (*compact_setup("pinhole-bevdet"), two),

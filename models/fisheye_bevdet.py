@@ -179,11 +179,18 @@ class FisheyeBEVDet(FisheyeDetector):
         feats = self.image_features(images, tables)
         return self.scene_features(feats, self.view_valid(camera_valid, feats.shape[1]), tables)
 
-    def forward_raw(self, images: torch.Tensor, camera_valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """The head's outputs before decoding (see ``TransFusionHead.forward_raw``): what training's losses read."""
+    def forward_raw(
+        self,
+        images: torch.Tensor,
+        camera_valid: torch.Tensor | None = None,
+        tables: dict[str, torch.Tensor] | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """The head's outputs before decoding (see ``TransFusionHead.forward_raw``): what training's losses read.
+        ``tables`` replaces installed geometry tables by name (a training step's moved lenses)."""
         self._check_images(images, camera_valid)
-        feats = self.image_features(images)
-        bev = self.scene_features(feats, self.view_valid(camera_valid, feats.shape[1]))
+        tables = {**self.view_transform.tables(), **tables} if tables else None
+        feats = self.image_features(images, tables)
+        bev = self.scene_features(feats, self.view_valid(camera_valid, feats.shape[1]), tables)
         raw: dict[str, torch.Tensor] = self.bbox_head.forward_raw(self.pts_neck(self.pts_backbone(bev)))
         return raw
 

@@ -97,6 +97,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="share of steps whose forward rounds weights and activations as the int8 file will "
         "(quantization-aware training; default 0: float only)",
     )
+    parser.add_argument(
+        "--lens-jitter",
+        type=float,
+        help="fisheye-bevdet: move each camera's lens centre at random within this many pixels every step, frames "
+        "and warp tables to match, so the model serves other units of the lens (default 0: the rig's lenses)",
+    )
     parser.add_argument("--device", default="cpu", help="where the model trains: cpu (default), cuda, cuda:1, ...")
     parser.add_argument(
         "--workers",
@@ -176,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
         "qat": args.qat,
         "init_backbone": args.init_backbone,
         "freeze_backbone": args.freeze_backbone,
+        "lens_jitter": args.lens_jitter,
     }
     # a resumed run keeps the options it was started with; those given again must match them (but --steps)
     start = saved_options(out) if args.resume else {}

@@ -26,6 +26,7 @@ __all__ = [
     "DEFAULT_ELEVATION_RANGE",
     "fisheye_lenses",
     "per_camera",
+    "spherical_lens_grids",
     "stored_for_first_lens",
     "angular_axes",
     "spherical_directions",
@@ -77,6 +78,16 @@ def per_camera(rig: Rig, table_of: Callable[[OCamModel], np.ndarray]) -> np.ndar
         if lens not in tables:
             tables[lens] = np.asarray(table_of(lens), np.float32)
     return np.ascontiguousarray(np.stack([tables[lens] for lens in lenses]))
+
+
+def spherical_lens_grids(
+    rig: Rig, out_hw: tuple[int, int], azimuth_range: tuple[float, float], elevation_range: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each camera's equirectangular grid (N, H, W, 2) and the share of each cell outside its lens's valid area
+    (N, H, W) float32 (:func:`invalid_mask`): the lens-dependent tables of both fisheye detectors."""
+    grid = per_camera(rig, lambda lens: spherical_grid(lens, out_hw, azimuth_range, elevation_range))
+    outside = np.stack([invalid_mask(lens, g) for lens, g in zip(fisheye_lenses(rig), grid)])
+    return grid, outside
 
 
 def stored_for_first_lens(tables: np.ndarray, stored: np.ndarray) -> np.ndarray:

@@ -3,6 +3,7 @@
 params = LSSParams(feature_size=(25, 100), azimuth_range=..., elevation_range=..., dbound=..., xbound=..., ...)
 geometry = LSSGeometry.from_rig(rig, params)          # the rig's tables
 geometry.with_tables(grid=stored_grid)                 # a checkpoint's stored grid (its first camera's lens)
+geometry.with_lenses(recalibrated_rig)                 # the same poses, other lens models
 geometry.tables()                                      # {"geom.warp.*": ..., "geom.pool.*": ...}
 """
 
@@ -14,14 +15,9 @@ from typing import Literal
 import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.frustum import depth_bins, frustum_to_lidar, spherical_frustum
-from fisheye_infer.geometry.grids import (
-    fisheye_lenses,
-    invalid_mask,
-    per_camera,
-    spherical_grid,
-    stored_for_first_lens,
-)
+from fisheye_infer.geometry.grids import spherical_lens_grids, stored_for_first_lens
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, WARP, Params, pool_tables, sampling_tables
 
@@ -60,14 +56,27 @@ class LSSGeometry:
     @classmethod
     def from_rig(cls, rig: Rig, params: LSSParams) -> LSSGeometry:
         """The rig's tables: each camera's lens model and its extrinsics, in rig order."""
-        grid = per_camera(
-            rig, lambda lens: spherical_grid(lens, params.feature_size, params.azimuth_range, params.elevation_range)
-        )
+        grid, valid = cls._lens_tables(rig, params)
         frustum = np.ascontiguousarray(params.frustum(), np.float32)
         cam2lidar = np.asarray(rig.cam2lidar(), dtype=np.float64)
         plan = build_pooling_plan(frustum_to_lidar(frustum, cam2lidar), params.bev_grid, params.bucket_sizes)
-        valid = np.stack([1.0 - invalid_mask(lens, g) for lens, g in zip(fisheye_lenses(rig), grid)])[:, None]
         return cls(params=params, grid=grid, frustum=frustum, cam2lidar=cam2lidar, plan=plan, valid_fov_mask=valid)
+
+    @staticmethod
+    def _lens_tables(rig: Rig, params: LSSParams) -> tuple[np.ndarray, np.ndarray]:
+        grid, outside = spherical_lens_grids(rig, params.feature_size, params.azimuth_range, params.elevation_range)
+        return grid, (1.0 - outside)[:, None]
+
+    def with_lenses(self, rig: Rig) -> LSSGeometry:
+        """The same extrinsics, frustum and pooling plan with ``rig``'s lens models: the grid and mask of cameras
+        calibrated anew (a lens centre moved), without rebuilding the plan the lenses do not change."""
+        if not np.array_equal(np.asarray(rig.cam2lidar(), np.float64), self.cam2lidar):
+            raise ConfigError(
+                f"rig '{rig.name}': its camera poses differ from the geometry's; with_lenses changes lenses only "
+                "(LSSGeometry.from_rig builds the pooling plan of other poses)"
+            )
+        grid, valid = self._lens_tables(rig, self.params)
+        return replace(self, grid=grid, valid_fov_mask=valid, source="rig")
 
     @property
     def bev_grid(self) -> BevGrid:

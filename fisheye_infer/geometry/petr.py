@@ -23,11 +23,8 @@ from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.grids import (
     DEFAULT_AZIMUTH_RANGE,
     DEFAULT_ELEVATION_RANGE,
-    fisheye_lenses,
-    invalid_mask,
-    per_camera,
     spherical_directions,
-    spherical_grid,
+    spherical_lens_grids,
     stored_for_first_lens,
 )
 from fisheye_infer.geometry.tables import WARP, Params, key_tables, sampling_tables
@@ -247,10 +244,7 @@ class PETRGeometry:
     @classmethod
     def from_rig(cls, rig: Rig, params: PETRParams) -> PETRGeometry:
         """Each camera's grid and mask from its lens model, extrinsics in rig order."""
-        grid = per_camera(
-            rig, lambda lens: spherical_grid(lens, params.feature_size, params.azimuth_range, params.elevation_range)
-        )
-        mask = np.stack([invalid_mask(lens, g) for lens, g in zip(fisheye_lenses(rig), grid)])
+        grid, mask = spherical_lens_grids(rig, params.feature_size, params.azimuth_range, params.elevation_range)
         return cls(params=params, grid=grid, unvalid_area=mask, cam2lidar=rig.cam2lidar())
 
     def with_tables(

@@ -51,8 +51,13 @@ def _hash01(ix: np.ndarray, iy: np.ndarray, seed: int) -> np.ndarray:
     return ((h ^ (h >> 16)) & 0xFFFF).astype(np.float32) / 65536.0
 
 
+#: Camera models whose rays a renderer keeps: a rig's lenses, with room for a training step's moved ones.
+RAY_CACHE_MODELS = 16
+
+
 class Renderer:
-    """Ray-casts scenes through cameras; the per-pixel rays of each camera model are computed once."""
+    """Ray-casts scenes through cameras; the per-pixel rays of the latest camera models are kept
+    (``RAY_CACHE_MODELS``), so a rig's are computed once and moved lenses do not pile up."""
 
     def __init__(self, texture_seed: int = 0) -> None:
         self.texture_seed = texture_seed
@@ -70,6 +75,8 @@ class Renderer:
             rays = model.unproject(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64))  # type: ignore[attr-defined]
             fov = getattr(model, "fov", None)
             inside = incidence_angle(rays) <= math.radians(fov / 2) if fov is not None else np.ones(len(rays), bool)
+            if len(self._rays) >= RAY_CACHE_MODELS:
+                del self._rays[next(iter(self._rays))]  # the oldest
             self._rays[model] = (np.ascontiguousarray(rays.T, np.float32), inside)
         return self._rays[model]
 

@@ -81,6 +81,11 @@ class SyntheticFrames:
         return np.random.default_rng([SPLITS[self.split], self.seed, int(index)])
 
     def __getitem__(self, index: int) -> Sample:
+        return self.frame(index)
+
+    def frame(self, index: int, rig: Rig | None = None) -> Sample:
+        """Frame ``index``; ``rig`` (the same cameras, calibrated otherwise) renders its scene through other
+        lenses or poses: the scene, look and records stay frame ``index``'s."""
         if index < 0:
             raise IndexError(f"frame index must be non-negative, got {index}")
         rng = self.rng(index)
@@ -93,8 +98,11 @@ class SyntheticFrames:
         )
         look = random_appearance(rng, scene, self.colour_jitter)
         self.renderer.texture_seed = int(rng.integers(0, 2**31))
-        pictures = self.renderer.render(self.rig, scene, look)
-        images = np.stack([pictures[name] for name in self.rig.names])
+        rig = self.rig if rig is None else rig
+        if rig.names != self.rig.names:
+            raise ValueError(f"rig: cameras {rig.names}, expected the stream's {self.rig.names}")
+        pictures = self.renderer.render(rig, scene, look)
+        images = np.stack([pictures[name] for name in rig.names])
         x0, y0, x1, y1 = self.bev_range
         b = scene.boxes
         keep = (b[:, 0] >= x0) & (b[:, 0] < x1) & (b[:, 1] >= y0) & (b[:, 1] < y1)

@@ -2,12 +2,13 @@
 
 A step's frames are a function of the step alone (seeded, rendered on demand), so resuming a run
 continues with the frames the uninterrupted run would have used, and ``DataLoader`` workers can
-render the next steps ahead of the loop without changing what any step sees.
+render the next steps ahead of the loop without changing what any step sees. With lens-centre
+jitter (``lens_jitter.py``) a step's lenses are a function of the step too.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -15,11 +16,18 @@ import torch
 from fisheye_infer.scenes.streams import Sample, SyntheticFrames
 
 from .depth import DepthTargets
+from .lens_jitter import LensJitter
 
 __all__ = ["Batch", "StepBatches", "collate", "step_loader"]
 
-#: One step's frames and their depth targets (B*N x H x W bins; None for a model without a depth head).
-Batch = tuple[list[Sample], np.ndarray | None]
+
+class Batch(NamedTuple):
+    """One step's frames, their depth targets (B*N x H x W bins; None for a model without a depth head) and,
+    with lens-centre jitter, the warp tables of the lenses the frames were rendered through (else None)."""
+
+    samples: list[Sample]
+    depth: np.ndarray | None
+    tables: dict[str, np.ndarray] | None = None
 
 
 def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
@@ -29,16 +37,30 @@ def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[n
 
 class StepBatches(torch.utils.data.Dataset[Batch]):
     """Step ``s`` -> frames ``s*B .. s*B+B-1`` of ``frames`` with their depth targets: what one step
-    trains on, rendered where it is asked for (in the loop, or ahead in ``DataLoader`` workers)."""
+    trains on, rendered where it is asked for (in the loop, or ahead in ``DataLoader`` workers); with
+    ``jitter``, through the step's moved lenses."""
 
-    def __init__(self, frames: SyntheticFrames, depth_targets: DepthTargets | None, batch_size: int) -> None:
-        self.frames, self.depth_targets, self.batch_size = frames, depth_targets, batch_size
+    def __init__(
+        self,
+        frames: SyntheticFrames,
+        depth_targets: DepthTargets | None,
+        batch_size: int,
+        jitter: LensJitter | None = None,
+    ) -> None:
+        self.frames, self.depth_targets, self.batch_size, self.jitter = frames, depth_targets, batch_size, jitter
 
     def __getitem__(self, step: int) -> Batch:
-        samples = [self.frames[step * self.batch_size + i] for i in range(self.batch_size)]
+        indices = range(step * self.batch_size, (step + 1) * self.batch_size)
+        if self.jitter is None:
+            samples = [self.frames[i] for i in indices]
+            inside, tables = None, None
+        else:
+            lenses = self.jitter(step)
+            samples = [self.frames.frame(i, lenses.rig) for i in indices]
+            inside, tables = lenses.inside_lens, lenses.tables
         if self.depth_targets is None:
-            return samples, None
-        return samples, np.concatenate([self.depth_targets(s.scene) for s in samples])
+            return Batch(samples, None, tables)
+        return Batch(samples, np.concatenate([self.depth_targets(s.scene, inside) for s in samples]), tables)
 
 
 def step_loader(batches: StepBatches, start: int, stop: int, workers: int) -> torch.utils.data.DataLoader[Batch]:

@@ -90,7 +90,10 @@ class DepthTargets:
         self.origins, self.shape, self.k2 = origins, (h, w), k * k
         self.renderer = Renderer()
 
-    def __call__(self, scene: Scene) -> np.ndarray:
+    def __call__(self, scene: Scene, inside_lens: np.ndarray | None = None) -> np.ndarray:
+        """(V, H, W) bins of ``scene``; ``inside_lens`` (V, H, W) replaces the geometry's cells inside the lens
+        (the frame's lenses, when they are not the geometry's)."""
+        inside = self.inside if inside_lens is None else np.asarray(inside_lens, bool).reshape(self.inside.shape)
         ground = Scene(np.zeros((0, 7)), np.zeros(0, np.int64), scene.ground_z)
         out = np.full((len(self.origins), self.centre.shape[1]), -1, np.int64)
         for n, o in enumerate(self.origins):
@@ -102,7 +105,7 @@ class DepthTargets:
             nearest_box = depth.reshape(-1, self.k2).min(axis=1) * self.first[n]  # along the cell's centre ray
             t = np.where(np.isfinite(nearest_box), nearest_box, self.renderer.ray_depth(o, self.centre[n].T, scene))
             bins = (t[None] > self.edges[n]).sum(axis=0)
-            ok = np.isfinite(t) & (t >= self.lowest[n]) & (t < self.highest[n]) & self.inside[n]
+            ok = np.isfinite(t) & (t >= self.lowest[n]) & (t < self.highest[n]) & inside[n]
             out[n, ok] = bins[ok]
         return out.reshape(len(self.origins), *self.shape)
 

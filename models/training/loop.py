@@ -39,11 +39,15 @@ import torch
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import CheckpointError, ConfigError
+from fisheye_infer.geometry.lss import LSSGeometry
 from fisheye_infer.scenes.streams import SyntheticFrames
 from fisheye_infer.tools.files import pending_file
 
+from ..fisheye_bevdet import FisheyeBEVDet
+from ..view_transform import FisheyeLSS, RectifiedLSS
 from .batches import Batch, StepBatches, step_loader
 from .config_file import write_config
+from .lens_jitter import LensJitter
 from .objectives import objective_for
 from .options import TrainOptions, lr_factor, training_device
 from .qat import FakeQuant
@@ -104,8 +108,15 @@ def saved_options(folder: Path) -> dict[str, Any]:
 
 
 def _saved_options(meta: dict[str, Any]) -> dict[str, Any]:
-    # runs made before fine-tuning, int8 simulation and backbone initialisation existed lack those fields
-    saved = {"init": "", "qat": 0.0, "init_backbone": "", "freeze_backbone": False, **meta.get("train_options", {})}
+    # runs made before fine-tuning, int8 simulation, backbone initialisation and lens jitter existed lack those fields
+    saved = {
+        "init": "",
+        "qat": 0.0,
+        "init_backbone": "",
+        "freeze_backbone": False,
+        "lens_jitter": 0.0,
+        **meta.get("train_options", {}),
+    }
     return {field.name: saved[field.name] for field in dataclasses.fields(TrainOptions) if field.name in saved}
 
 
@@ -114,6 +125,23 @@ def _atomic_save(obj: Any, path: Path) -> None:
     with pending_file(path) as pending:
         torch.save(obj, pending.path)
         pending.commit()
+
+
+def lens_jitter(model: torch.nn.Module, arch: str, rig: Rig, options: TrainOptions) -> LensJitter:
+    """The run's lens-centre jitter; refused, naming the option, for a model (of ``arch``) whose geometry it
+    does not move."""
+    transform = getattr(model, "view_transform", None)
+    if (
+        not isinstance(model, FisheyeBEVDet)
+        or not isinstance(transform, FisheyeLSS)
+        or isinstance(transform, RectifiedLSS)
+        or not isinstance(transform.geometry, LSSGeometry)
+    ):
+        raise ConfigError(
+            f"--lens-jitter: moves the lenses of fisheye-bevdet (its warp tables and depth masks); "
+            f"{arch} trains on its rig's lenses"
+        )
+    return LensJitter(transform.geometry, rig, options.lens_jitter, options.seed)
 
 
 class Trainer:
@@ -150,7 +178,8 @@ class Trainer:
         labelled = self.objective.bev_range
         self.train_frames = SyntheticFrames(rig, "train", options.seed, bev_range=labelled)
         self.val_frames = SyntheticFrames(rig, "val", options.seed, bev_range=labelled)
-        self.train_batches = StepBatches(self.train_frames, self.objective.depth_targets, options.batch_size)
+        jitter = lens_jitter(self.model, self.arch, rig, options) if options.lens_jitter else None
+        self.train_batches = StepBatches(self.train_frames, self.objective.depth_targets, options.batch_size, jitter)
         self.val_batches = StepBatches(self.val_frames, self.objective.depth_targets, 1)
         self.fake_quant = FakeQuant(self.model, get_model_entry(self.arch).int8_float) if options.qat else None
         if options.freeze_backbone:

@@ -60,7 +60,7 @@ def _seeded(model: nn.Module, seed: int) -> None:
 
 
 def _images(batch: Batch, device: torch.device) -> tuple[torch.Tensor, list[np.ndarray], list[np.ndarray]]:
-    images, boxes, labels = collate(batch[0])
+    images, boxes, labels = collate(batch.samples)
     return torch.from_numpy(images).to(device), boxes, labels
 
 
@@ -106,9 +106,10 @@ class BEVDetObjective:
 
     def __call__(self, batch: Batch, device: torch.device) -> dict[str, torch.Tensor]:
         images, boxes, labels = _images(batch, device)
-        terms = self.loss(self.model.forward_raw(images), boxes, labels)
-        assert batch[1] is not None  # this objective's batches carry depth targets
-        terms["loss_depth"] = depth_loss(self.depth_probe.probs(), torch.from_numpy(batch[1]).to(device))
+        tables = None if batch.tables is None else {k: torch.from_numpy(v).to(device) for k, v in batch.tables.items()}
+        terms = self.loss(self.model.forward_raw(images, tables=tables), boxes, labels)
+        assert batch.depth is not None  # this objective's batches carry depth targets
+        terms["loss_depth"] = depth_loss(self.depth_probe.probs(), torch.from_numpy(batch.depth).to(device))
         if self.depth_weight:
             terms["loss"] = terms["loss"] + self.depth_weight * terms["loss_depth"]
         return terms

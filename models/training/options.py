@@ -13,7 +13,10 @@ import torch
 
 from fisheye_infer.errors import ConfigError
 
-__all__ = ["TrainOptions", "lr_factor", "training_device"]
+__all__ = ["MAX_LENS_JITTER", "TrainOptions", "lr_factor", "training_device"]
+
+#: Pixels a lens centre may move under ``--lens-jitter``: calibrations of one lens design differ by a few.
+MAX_LENS_JITTER = 32.0
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,8 @@ class TrainOptions:
     for a FisheyePETR): the stand-in for the official ImageNet weights; ``init`` takes precedence.
     ``freeze_backbone`` keeps the image backbone and neck as they start (weights and BatchNorm
     statistics), so a step skips their backward: about half of a compact FisheyePETR step's time.
+    ``lens_jitter`` moves each camera's lens centre at random within that many pixels every step, with
+    the frames and warp tables to match (``lens_jitter.py``; FisheyeBEVDet): 0 trains on the rig's lenses.
     """
 
     steps: int = 8000
@@ -51,6 +56,7 @@ class TrainOptions:
     qat: float = 0.0
     init_backbone: str = ""
     freeze_backbone: bool = False
+    lens_jitter: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "checkpoint_every"):
@@ -60,6 +66,11 @@ class TrainOptions:
             raise ConfigError(f"--lr: expected a positive learning rate, got {self.lr}")
         if not self.depth_weight >= 0:
             raise ConfigError(f"--depth-weight: expected 0 or more, got {self.depth_weight}")
+        if not 0 <= self.lens_jitter <= MAX_LENS_JITTER:
+            raise ConfigError(
+                f"--lens-jitter: expected 0 to {MAX_LENS_JITTER:g} pixels of lens-centre movement, "
+                f"got {self.lens_jitter}"
+            )
         if not 0 <= self.qat <= 1:
             raise ConfigError(f"--qat: expected a share of steps in [0, 1], got {self.qat}")
         if self.val_frames < 0 or self.warmup_steps < 0:

@@ -265,8 +265,8 @@ def test_frames_rendered_by_workers_are_the_frames_of_the_loop(straight_run: Run
     trainer = Trainer(config, rig, tmp_path / "run", TrainOptions(steps=3, batch_size=2), workers=1)
     ahead = list(trainer._batches(3))
     assert len(ahead) == 3 and trainer._batches(0).num_workers == 0  # nothing to render: no process started
-    for step, (samples, depth) in enumerate(ahead):
-        inline_samples, inline_depth = trainer.train_batches[step]
+    for step, (samples, depth, _) in enumerate(ahead):
+        inline_samples, inline_depth, _ = trainer.train_batches[step]
         assert [s.index for s in samples] == [2 * step, 2 * step + 1] == [s.index for s in inline_samples]
         assert all(np.array_equal(a.images, b.images) for a, b in zip(samples, inline_samples))
         assert np.array_equal(depth, inline_depth)
