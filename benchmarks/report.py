@@ -31,10 +31,8 @@ def study_of_runs(*runs: str) -> str:
     return "python benchmarks/study.py " + " ".join(f"--model runs/{run}/model.pth" for run in runs)
 
 
-#: The study of the BEVDet family of the paper's Table 2, and of its first two rows alone (RQ1: FisheyeBEVDet against
-#: BEVDet on six pinhole cameras), whose runs end first.
+#: The study of the BEVDet family of the paper's Table 2, trained with one recipe.
 STUDY_RUNS = study_of_runs("fisheye-bevdet", "pinhole-bevdet", "fisheye-bevdet-persp", "fisheye-bevdet-cyl")
-STUDY_FIRST_RUNS = study_of_runs("fisheye-bevdet", "pinhole-bevdet")
 #: The pages with generated figures (each shipped model's card, the study page), by the command whose latest result
 #: fills a block of them (a shipped model other than the default: ``model_card.py --model NAME``); a page may hold
 #: the blocks of several commands.
@@ -42,7 +40,6 @@ CARDS = {
     CARD_COMMAND: PRETRAINED / "fisheye_bevdet_compact" / "MODEL_CARD.md",
     f"{CARD_COMMAND} --model fisheye-petr-compact": PRETRAINED / "fisheye_petr_compact" / "MODEL_CARD.md",
     "python benchmarks/study.py": harness.ROOT / "docs" / "study.md",
-    STUDY_FIRST_RUNS: harness.ROOT / "docs" / "study.md",
     STUDY_RUNS: harness.ROOT / "docs" / "study.md",
 }
 CARD_END = "<!-- end of the generated figures -->"
