@@ -17,6 +17,10 @@ allocates and is left out. Cases:
     petr-b2, pinhole-petr-b2, persp-petr-b2, cyl-petr-b2
                              the compact FisheyePETR and PETR baselines with the backbone frozen, as their
                              recipe trains them (``--freeze-backbone``), batch 2
+    petr-q900-b2             the compact FisheyePETR with the official 900 queries, frozen backbone, batch 2
+    petr-explicit-b2, petr-q900-explicit-b2
+                             those two with the decoder's attention trained through the explicit graph the
+                             export writes instead of PyTorch's fused kernel (what the fused kernel saves)
 
 Each row carries the load average, since figures on a shared machine move with it.
 """
@@ -33,6 +37,7 @@ import torch
 
 from fisheye_infer.cameras.rig import Rig, default_rig
 from fisheye_infer.models import BEVDetConfig
+from fisheye_infer.models.petr_transformer import MultiheadAttention
 from fisheye_infer.models.training.compact import COMPACT_SECTIONS, compact_bevdet_config, compact_rig, compact_setup
 from fisheye_infer.models.training.loop import Trainer
 from fisheye_infer.models.training.options import TrainOptions
@@ -51,6 +56,8 @@ def _compact_at(side: int, feature_size: tuple[int, int]) -> tuple[BEVDetConfig,
 def cases() -> dict[str, tuple[Any, Rig, TrainOptions]]:
     """Case -> configuration, rig and options (a frozen backbone times the same whatever its weights)."""
     two, frozen = TrainOptions(batch_size=2), TrainOptions(batch_size=2, freeze_backbone=True)
+    petr, petr_rig = compact_setup("fisheye-petr")
+    petr_q900 = petr.replace(head={"num_query": 900})
     return {
         "compact-b1": (compact_bevdet_config(), compact_rig(), TrainOptions(batch_size=1)),
         "compact-b2": (compact_bevdet_config(), compact_rig(), two),
@@ -60,7 +67,10 @@ def cases() -> dict[str, tuple[Any, Rig, TrainOptions]]:
         "pinhole-b2": (*compact_setup("pinhole-bevdet"), two),
         "persp-b2": (*compact_setup("fisheye-bevdet-persp"), two),
         "cyl-b2": (*compact_setup("fisheye-bevdet-cyl"), two),
-        "petr-b2": (*compact_setup("fisheye-petr"), frozen),
+        "petr-b2": (petr, petr_rig, frozen),
+        "petr-explicit-b2": (petr, petr_rig, frozen),
+        "petr-q900-b2": (petr_q900, petr_rig, frozen),
+        "petr-q900-explicit-b2": (petr_q900, petr_rig, frozen),
         "pinhole-petr-b2": (*compact_setup("pinhole-petr"), frozen),
         "persp-petr-b2": (*compact_setup("fisheye-petr-persp"), frozen),
         "cyl-petr-b2": (*compact_setup("fisheye-petr-cyl"), frozen),
@@ -80,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for name in args.cases.split(","):
         config, rig, options = table[name]
+        MultiheadAttention.fused_in_training = "-explicit-" not in name
         with tempfile.TemporaryDirectory() as folder:
             trainer = Trainer(config, rig, folder, options)
             seconds = harness.Stats(tuple(trainer.train_step()["seconds"] for _ in range(max(args.steps, 2)))[1:])

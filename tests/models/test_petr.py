@@ -336,6 +336,30 @@ def test_attention_matches_torch_multihead_attention() -> None:
     torch.testing.assert_close(mine(q, k, v, key_padding_bias(everything)), uniform, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("ignored", ["some keys", "every key", "none"])
+def test_training_attention_equals_the_exported_graph(ignored: str) -> None:
+    """Training mode runs PyTorch's fused attention; its outputs and every gradient are the explicit graph's."""
+    torch.manual_seed(0)
+    explicit = MultiheadAttention(32, 4).eval()
+    fused = MultiheadAttention(32, 4).train()
+    fused.load_state_dict(explicit.state_dict())
+    q, k, v = torch.randn(2, 9, 32), torch.randn(2, 13, 32), torch.randn(2, 13, 32)
+    mask = {"some keys": torch.rand(1, 13) < 0.4, "every key": torch.ones(1, 13, dtype=torch.bool)}.get(ignored)
+    bias = None if mask is None else key_padding_bias(mask)
+    outputs = []
+    for module in (explicit, fused):
+        inputs = [x.clone().requires_grad_() for x in (q, k, v)]
+        out = module(*inputs, bias)
+        (out * torch.linspace(-1, 1, out.numel()).reshape(out.shape)).sum().backward()
+        grads = [x.grad for x in inputs] + [p.grad for p in module.parameters()]
+        outputs.append((out.detach(), grads))
+    torch.testing.assert_close(outputs[1][0], outputs[0][0], rtol=1e-5, atol=1e-6)
+    if ignored == "every key":
+        return  # uniform attention whatever the logits: no gradient to compare (training always has keys)
+    for got, want in zip(outputs[1][1], outputs[0][1]):
+        torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-6)
+
+
 def _reference_layer(
     layer: torch.nn.Module, t: torch.Tensor, mem: torch.Tensor, qp: torch.Tensor, kp: torch.Tensor, mask: torch.Tensor
 ) -> torch.Tensor:
