@@ -18,6 +18,7 @@ allocates and is left out. Cases:
                              the compact FisheyePETR and PETR baselines with the backbone frozen, as their
                              recipe trains them (``--freeze-backbone``), batch 2
     petr-q900-b2             the compact FisheyePETR with the official 900 queries, frozen backbone, batch 2
+    petr-jitter-b2           the compact FisheyePETR, frozen backbone, batch 2, with ``--lens-jitter 4``
     petr-explicit-b2, petr-q900-explicit-b2
                              those two with the decoder's attention trained through the explicit graph the
                              export writes instead of PyTorch's fused kernel (what the fused kernel saves)
@@ -70,6 +71,7 @@ def cases() -> dict[str, tuple[Any, Rig, TrainOptions]]:
         "petr-b2": (petr, petr_rig, frozen),
         "petr-explicit-b2": (petr, petr_rig, frozen),
         "petr-q900-b2": (petr_q900, petr_rig, frozen),
+        "petr-jitter-b2": (petr, petr_rig, TrainOptions(batch_size=2, freeze_backbone=True, lens_jitter=4.0)),
         "petr-q900-explicit-b2": (petr_q900, petr_rig, frozen),
         "pinhole-petr-b2": (*compact_setup("pinhole-petr"), frozen),
         "persp-petr-b2": (*compact_setup("fisheye-petr-persp"), frozen),

@@ -196,15 +196,16 @@ class FisheyePETRHead(nn.Module):
         pe = np.stack([self.geometry.key_pos(weights, x).reshape(n, fh, fw, c) for x in coords])
         return _f32(pe).permute(0, 1, 4, 2, 3).to(self.coords3d.device)  # B x N x C x H x W
 
-    def trainable_positions(self) -> tuple[torch.Tensor, torch.Tensor]:
+    def trainable_positions(self, key_mask: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(key_pos (1, N*H*W, C), query_pos (Q, C)) computed by this head's torch modules, so that training
         reaches ``position_encoder``, ``adapt_pos3d``, ``query_embedding`` and ``reference_points``.
 
         The inputs are the geometry's numpy tables (the key coordinates and the sine encoding of the key
         mask), so the numbers are those of the cached ``key_pos``/``query_pos``; only the gradient is new.
+        ``key_mask`` (N, H, W) bool replaces the installed mask (a training step's moved lenses).
         """
         p = self.geometry.params
-        mask = self.key_mask()[0].cpu().numpy()
+        mask = self.key_mask()[0].cpu().numpy() if key_mask is None else np.asarray(key_mask, bool)
         sine = _f32(sine_position_encoding(mask, p.num_feats, p.temperature)).to(self.coords3d.device)
         pe = self.position_encoder(self.coords3d) + self.adapt_pos3d(sine)  # N x C x H x W
         return pe.permute(0, 2, 3, 1).reshape(1, -1, self.cfg.embed_dims), self.query_positions()

@@ -100,8 +100,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--lens-jitter",
         type=float,
-        help="fisheye-bevdet: move each camera's lens centre at random within this many pixels every step, frames "
-        "and warp tables to match, so the model serves other units of the lens (default 0: the rig's lenses)",
+        help="fisheye-bevdet and fisheye-petr: move each camera's lens centre at random within this many pixels "
+        "every step, frames and the lenses' tables to match, so the model serves other units of the lens "
+        "(default 0: the rig's lenses)",
     )
     parser.add_argument("--device", default="cpu", help="where the model trains: cpu (default), cuda, cuda:1, ...")
     parser.add_argument(

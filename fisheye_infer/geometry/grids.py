@@ -27,6 +27,7 @@ __all__ = [
     "fisheye_lenses",
     "per_camera",
     "spherical_lens_grids",
+    "require_poses",
     "stored_for_first_lens",
     "angular_axes",
     "spherical_directions",
@@ -88,6 +89,16 @@ def spherical_lens_grids(
     grid = per_camera(rig, lambda lens: spherical_grid(lens, out_hw, azimuth_range, elevation_range))
     outside = np.stack([invalid_mask(lens, g) for lens, g in zip(fisheye_lenses(rig), grid)])
     return grid, outside
+
+
+def require_poses(rig: Rig, cam2lidar: np.ndarray, rebuild: str) -> None:
+    """Refuse ``rig`` unless its cameras sit at ``cam2lidar``: a geometry's ``with_lenses`` changes the lenses
+    alone; ``rebuild`` names what builds the geometry of other poses."""
+    if not np.array_equal(np.asarray(rig.cam2lidar(), np.float64), np.asarray(cam2lidar, np.float64)):
+        raise ConfigError(
+            f"rig '{rig.name}': its camera poses differ from the geometry's; with_lenses changes lenses only "
+            f"({rebuild} builds the geometry of other poses)"
+        )
 
 
 def stored_for_first_lens(tables: np.ndarray, stored: np.ndarray) -> np.ndarray:

@@ -15,9 +15,8 @@ from typing import Literal
 import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
-from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.frustum import depth_bins, frustum_to_lidar, spherical_frustum
-from fisheye_infer.geometry.grids import spherical_lens_grids, stored_for_first_lens
+from fisheye_infer.geometry.grids import require_poses, spherical_lens_grids, stored_for_first_lens
 from fisheye_infer.geometry.pooling import BevGrid, PoolingPlan, build_pooling_plan
 from fisheye_infer.geometry.tables import DEFAULT_BUCKET_SIZES, WARP, Params, pool_tables, sampling_tables
 
@@ -70,13 +69,13 @@ class LSSGeometry:
     def with_lenses(self, rig: Rig) -> LSSGeometry:
         """The same extrinsics, frustum and pooling plan with ``rig``'s lens models: the grid and mask of cameras
         calibrated anew (a lens centre moved), without rebuilding the plan the lenses do not change."""
-        if not np.array_equal(np.asarray(rig.cam2lidar(), np.float64), self.cam2lidar):
-            raise ConfigError(
-                f"rig '{rig.name}': its camera poses differ from the geometry's; with_lenses changes lenses only "
-                "(LSSGeometry.from_rig builds the pooling plan of other poses)"
-            )
+        require_poses(rig, self.cam2lidar, "LSSGeometry.from_rig, with the pooling plan of those poses,")
         grid, valid = self._lens_tables(rig, self.params)
         return replace(self, grid=grid, valid_fov_mask=valid, source="rig")
+
+    def lens_tables(self) -> dict[str, np.ndarray]:
+        """The tables a change of lens calibration replaces (a training step's moved lenses): the warp's taps."""
+        return self.sampling_tables()
 
     @property
     def bev_grid(self) -> BevGrid:

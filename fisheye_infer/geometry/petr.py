@@ -23,11 +23,12 @@ from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.grids import (
     DEFAULT_AZIMUTH_RANGE,
     DEFAULT_ELEVATION_RANGE,
+    require_poses,
     spherical_directions,
     spherical_lens_grids,
     stored_for_first_lens,
 )
-from fisheye_infer.geometry.tables import WARP, Params, key_tables, sampling_tables
+from fisheye_infer.geometry.tables import PETR_KEY_MASK, WARP, Params, key_mask_table, key_tables, sampling_tables
 
 __all__ = [
     "DEFAULT_POSITION_RANGE",
@@ -247,6 +248,19 @@ class PETRGeometry:
         grid, mask = spherical_lens_grids(rig, params.feature_size, params.azimuth_range, params.elevation_range)
         return cls(params=params, grid=grid, unvalid_area=mask, cam2lidar=rig.cam2lidar())
 
+    def with_lenses(self, rig: Rig) -> PETRGeometry:
+        """The same extrinsics with ``rig``'s lens models: the grid and key mask of cameras calibrated anew (a
+        lens centre moved); the keys' 3D coordinates depend on the poses alone."""
+        require_poses(rig, self.cam2lidar, "PETRGeometry.from_rig")
+        p = self.params
+        grid, mask = spherical_lens_grids(rig, p.feature_size, p.azimuth_range, p.elevation_range)
+        return replace(self, grid=grid, unvalid_area=mask, source="rig")
+
+    @property
+    def inside_lens(self) -> np.ndarray:
+        """(N, H, W) bool: the keys attention uses (``key_mask`` False)."""
+        return ~self.key_mask()
+
     def with_tables(
         self, *, grid: np.ndarray | None = None, unvalid_area: np.ndarray | None = None, source: str = "checkpoint"
     ) -> PETRGeometry:
@@ -287,3 +301,9 @@ class PETRGeometry:
     def sampling_tables(self) -> dict[str, np.ndarray]:
         """The feature warp's taps (``geom.warp.*``) on the ``source_size`` image features."""
         return sampling_tables(WARP, self.grid, self.params.source_size)
+
+    def lens_tables(self) -> dict[str, np.ndarray]:
+        """The tables a change of lens calibration replaces (a training step's moved lenses): the warp's taps and
+        the key mask. The key embedding changes too (its sine encoding counts the masked keys); it needs the
+        position encoder's weights."""
+        return {**self.sampling_tables(), PETR_KEY_MASK: key_mask_table(self.key_mask())}

@@ -92,6 +92,7 @@ __all__ = [
     "camera_taps",
     "sampling_tables",
     "key_tables",
+    "key_mask_table",
 ]
 
 PREFIX = "geom."
@@ -181,7 +182,12 @@ def pool_tables(plan: PoolingPlan) -> dict[str, np.ndarray]:
 
 def key_tables(key_pos: np.ndarray, key_mask: np.ndarray) -> dict[str, np.ndarray]:
     """PETR's key embedding (1, N*H*W, C) float32 and key mask (N, H, W) bool as their tables."""
-    return {PETR_KEY_POS: key_pos, PETR_KEY_MASK: np.asarray(key_mask, bool).reshape(1, -1).copy()}
+    return {PETR_KEY_POS: key_pos, PETR_KEY_MASK: key_mask_table(key_mask)}
+
+
+def key_mask_table(key_mask: np.ndarray) -> np.ndarray:
+    """PETR's key mask (N, H, W) bool as its table (1, N*H*W)."""
+    return np.asarray(key_mask, bool).reshape(1, -1).copy()
 
 
 class Params(BaseModel):

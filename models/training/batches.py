@@ -16,18 +16,18 @@ import torch
 from fisheye_infer.scenes.streams import Sample, SyntheticFrames
 
 from .depth import DepthTargets
-from .lens_jitter import LensJitter
+from .lens_jitter import LensJitter, StepLenses
 
 __all__ = ["Batch", "StepBatches", "collate", "step_loader"]
 
 
 class Batch(NamedTuple):
     """One step's frames, their depth targets (B*N x H x W bins; None for a model without a depth head) and,
-    with lens-centre jitter, the warp tables of the lenses the frames were rendered through (else None)."""
+    with lens-centre jitter, the lenses the frames were rendered through (else None)."""
 
     samples: list[Sample]
     depth: np.ndarray | None
-    tables: dict[str, np.ndarray] | None = None
+    lenses: StepLenses | None = None
 
 
 def collate(samples: list[Sample]) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
@@ -51,16 +51,12 @@ class StepBatches(torch.utils.data.Dataset[Batch]):
 
     def __getitem__(self, step: int) -> Batch:
         indices = range(step * self.batch_size, (step + 1) * self.batch_size)
-        if self.jitter is None:
-            samples = [self.frames[i] for i in indices]
-            inside, tables = None, None
-        else:
-            lenses = self.jitter(step)
-            samples = [self.frames.frame(i, lenses.rig) for i in indices]
-            inside, tables = lenses.inside_lens, lenses.tables
+        lenses = None if self.jitter is None else self.jitter(step)
+        samples = [self.frames[i] if lenses is None else self.frames.frame(i, lenses.rig) for i in indices]
         if self.depth_targets is None:
-            return Batch(samples, None, tables)
-        return Batch(samples, np.concatenate([self.depth_targets(s.scene, inside) for s in samples]), tables)
+            return Batch(samples, None, lenses)
+        inside = None if lenses is None else lenses.inside_lens
+        return Batch(samples, np.concatenate([self.depth_targets(s.scene, inside) for s in samples]), lenses)
 
 
 def step_loader(batches: StepBatches, start: int, stop: int, workers: int) -> torch.utils.data.DataLoader[Batch]:

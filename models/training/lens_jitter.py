@@ -8,22 +8,23 @@ in their calibrated centres by pixels, so a model meant for a fleet has to be tr
 With jitter, step ``s`` draws each camera's centre offset (rows, cols) uniformly within
 ``pixels`` (seeded by the run's seed and the step, so a resumed run draws what the uninterrupted
 one would), renders the step's frames through the moved lenses and gives the model those lenses'
-warp tables and the depth targets their masks, so the geometry stays exact and only the
+tables (``lens_tables``): FisheyeBEVDet its warp taps and the depth targets their masks, FisheyePETR
+its warp taps, its key mask and the key embedding of that mask. The geometry stays exact; only the
 picture's place in the frame varies. Validation frames keep the rig's own lenses.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from fisheye_infer.cameras.camera_models import OCamModel
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ConfigError
-from fisheye_infer.geometry.lss import LSSGeometry
 
-__all__ = ["LensJitter", "StepLenses", "centres_moved"]
+__all__ = ["LensGeometry", "LensJitter", "StepLenses", "centres_moved"]
 
 #: Seed-sequence word that keeps the jitter's draws apart from every other stream of a run.
 _JITTER_STREAM = 0x1E75
@@ -45,10 +46,25 @@ def centres_moved(rig: Rig, shifts: np.ndarray) -> Rig:
     return rig.model_copy(update={"cameras": tuple(cameras)})
 
 
+class LensGeometry(Protocol):
+    """A fisheye geometry that moves with its lenses (``LSSGeometry``, ``PETRGeometry``)."""
+
+    def with_lenses(self, rig: Rig) -> LensGeometry:
+        """The same poses with ``rig``'s lens models."""
+
+    def lens_tables(self) -> dict[str, np.ndarray]:
+        """The graph tables that depend on the lenses, by name."""
+
+    @property
+    def inside_lens(self) -> np.ndarray:
+        """(N, H, W) bool: each camera's cells inside its lens."""
+
+
 @dataclass(frozen=True)
 class StepLenses:
-    """One step's moved lenses: the rig its frames are rendered through, the warp tables (``geom.warp.*``) of
-    those lenses and each camera's cells inside its lens (N, H, W) for the depth targets."""
+    """One step's moved lenses: the rig its frames are rendered through, the tables of those lenses that
+    replace the model's (``lens_tables``) and each camera's cells inside its lens (N, H, W): FisheyeBEVDet's
+    depth targets and FisheyePETR's unmasked keys."""
 
     rig: Rig
     tables: dict[str, np.ndarray]
@@ -62,7 +78,7 @@ class LensJitter:
     lenses = jitter(step)          # lenses.rig, lenses.tables, lenses.inside_lens
     """
 
-    def __init__(self, geometry: LSSGeometry, rig: Rig, pixels: float, seed: int) -> None:
+    def __init__(self, geometry: LensGeometry, rig: Rig, pixels: float, seed: int) -> None:
         if not pixels > 0:
             raise ConfigError(f"--lens-jitter: expected a positive number of pixels, got {pixels}")
         self.geometry, self.rig, self.pixels, self.seed = geometry, rig, float(pixels), int(seed)
@@ -75,4 +91,4 @@ class LensJitter:
     def __call__(self, step: int) -> StepLenses:
         rig = centres_moved(self.rig, self.shifts(step))
         moved = self.geometry.with_lenses(rig)
-        return StepLenses(rig, moved.sampling_tables(), moved.inside_lens)
+        return StepLenses(rig, moved.lens_tables(), moved.inside_lens)

@@ -40,14 +40,16 @@ import torch
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import CheckpointError, ConfigError
 from fisheye_infer.geometry.lss import LSSGeometry
+from fisheye_infer.geometry.petr import PETRGeometry
 from fisheye_infer.scenes.streams import SyntheticFrames
 from fisheye_infer.tools.files import pending_file
 
 from ..fisheye_bevdet import FisheyeBEVDet
+from ..fisheye_petr import FisheyePETR
 from ..view_transform import FisheyeLSS, RectifiedLSS
 from .batches import Batch, StepBatches, step_loader
 from .config_file import write_config
-from .lens_jitter import LensJitter
+from .lens_jitter import LensGeometry, LensJitter
 from .objectives import objective_for
 from .options import TrainOptions, lr_factor, training_device
 from .qat import FakeQuant
@@ -130,18 +132,28 @@ def _atomic_save(obj: Any, path: Path) -> None:
 def lens_jitter(model: torch.nn.Module, arch: str, rig: Rig, options: TrainOptions) -> LensJitter:
     """The run's lens-centre jitter; refused, naming the option, for a model (of ``arch``) whose geometry it
     does not move."""
+    geometry = _lens_geometry(model)
+    if geometry is None:
+        raise ConfigError(
+            "--lens-jitter: moves the lenses of fisheye-bevdet (its warp tables and depth masks) and fisheye-petr "
+            f"(its warp tables and key mask); {arch} trains on its rig's lenses"
+        )
+    return LensJitter(geometry, rig, options.lens_jitter, options.seed)
+
+
+def _lens_geometry(model: torch.nn.Module) -> LensGeometry | None:
+    """The geometry a step's moved lenses replace: FisheyeBEVDet's spherical lift or FisheyePETR's spherical keys
+    (None for the rectified and pinhole baselines, which sample their lenses through other tables)."""
     transform = getattr(model, "view_transform", None)
     if (
-        not isinstance(model, FisheyeBEVDet)
-        or not isinstance(transform, FisheyeLSS)
-        or isinstance(transform, RectifiedLSS)
-        or not isinstance(transform.geometry, LSSGeometry)
+        isinstance(model, FisheyeBEVDet)
+        and isinstance(transform, FisheyeLSS)
+        and not isinstance(transform, RectifiedLSS)
+        and isinstance(transform.geometry, LSSGeometry)
     ):
-        raise ConfigError(
-            f"--lens-jitter: moves the lenses of fisheye-bevdet (its warp tables and depth masks); "
-            f"{arch} trains on its rig's lenses"
-        )
-    return LensJitter(transform.geometry, rig, options.lens_jitter, options.seed)
+        return transform.geometry
+    geometry = getattr(getattr(model, "pts_bbox_head", None), "geometry", None)
+    return geometry if isinstance(model, FisheyePETR) and isinstance(geometry, PETRGeometry) else None
 
 
 class Trainer:

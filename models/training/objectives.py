@@ -22,6 +22,7 @@ from ..fisheye_petr import FisheyePETR
 from ..view_transform import FisheyeLSS
 from .batches import Batch, collate
 from .depth import DepthTargets, depth_loss
+from .lens_jitter import StepLenses
 from .losses import TransFusionLoss
 from .options import TrainOptions
 from .petr_loss import PETRLoss
@@ -57,6 +58,10 @@ def _seeded(model: nn.Module, seed: int) -> None:
     from fisheye_infer.models.seeded_checkpoint import init_weights
 
     init_weights(model, seed)
+
+
+def _tensors(tables: dict[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
+    return {name: torch.from_numpy(table).to(device) for name, table in tables.items()}
 
 
 def _images(batch: Batch, device: torch.device) -> tuple[torch.Tensor, list[np.ndarray], list[np.ndarray]]:
@@ -106,7 +111,7 @@ class BEVDetObjective:
 
     def __call__(self, batch: Batch, device: torch.device) -> dict[str, torch.Tensor]:
         images, boxes, labels = _images(batch, device)
-        tables = None if batch.tables is None else {k: torch.from_numpy(v).to(device) for k, v in batch.tables.items()}
+        tables = None if batch.lenses is None else _tensors(batch.lenses.tables, device)
         terms = self.loss(self.model.forward_raw(images, tables=tables), boxes, labels)
         assert batch.depth is not None  # this objective's batches carry depth targets
         terms["loss_depth"] = depth_loss(self.depth_probe.probs(), torch.from_numpy(batch.depth).to(device))
@@ -153,9 +158,20 @@ class PETRObjective:
         images, boxes, labels = _images(batch, device)
         head = self.model.pts_bbox_head
         feats = self.model.image_features(images)
-        outs = head.forward_decoder(feats, return_intermediate=True, positions=head.trainable_positions())
+        tables, positions = self.step_tables(batch.lenses, device)
+        outs = head.forward_decoder(feats, return_intermediate=True, tables=tables, positions=positions)
         cls, codes = head.predict(outs)  # L x B x Q x K, L x B x Q x 8
         return self.loss(cls, codes, boxes, labels)
+
+    def step_tables(
+        self, lenses: StepLenses | None, device: torch.device
+    ) -> tuple[dict[str, torch.Tensor] | None, tuple[torch.Tensor, torch.Tensor]]:
+        """A step's decoder tables (None: the installed ones) and trainable (key, query) embeddings; with a step's
+        moved ``lenses``, their warp taps, their key mask and that mask's key embedding."""
+        head = self.model.pts_bbox_head
+        if lenses is None:
+            return None, head.trainable_positions()
+        return {**head.tables(), **_tensors(lenses.tables, device)}, head.trainable_positions(~lenses.inside_lens)
 
     def settle(self) -> None:
         """The key and query embeddings the inference path caches, from the trained weights."""

@@ -39,7 +39,8 @@ class TrainOptions:
     ``freeze_backbone`` keeps the image backbone and neck as they start (weights and BatchNorm
     statistics), so a step skips their backward: about half of a compact FisheyePETR step's time.
     ``lens_jitter`` moves each camera's lens centre at random within that many pixels every step, with
-    the frames and warp tables to match (``lens_jitter.py``; FisheyeBEVDet): 0 trains on the rig's lenses.
+    the frames and the lenses' tables to match (``lens_jitter.py``; FisheyeBEVDet and FisheyePETR): 0 trains on
+    the rig's lenses.
     """
 
     steps: int = 8000

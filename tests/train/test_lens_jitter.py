@@ -1,5 +1,6 @@
 """Lens-centre jitter (``train --lens-jitter``): each step's frames rendered through moved lenses, the model
-given exactly those lenses' warp tables and depth masks, seeded per step; refused where it moves nothing."""
+given exactly those lenses' tables (FisheyeBEVDet: warp taps and depth masks; FisheyePETR: warp taps, key mask
+and its key embedding), seeded per step; refused where it moves nothing."""
 
 from __future__ import annotations
 
@@ -15,12 +16,15 @@ from fisheye_infer.cameras.rig import Rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
 from fisheye_infer.errors import ConfigError  # noqa: E402
 from fisheye_infer.geometry.lss import LSSGeometry  # noqa: E402
+from fisheye_infer.geometry.petr import PETRGeometry  # noqa: E402
+from fisheye_infer.geometry.tables import PETR_KEY_MASK  # noqa: E402
 from fisheye_infer.models import create_model  # noqa: E402
 from fisheye_infer.models.training.batches import Batch  # noqa: E402
 from fisheye_infer.models.training.config_file import write_config  # noqa: E402
 from fisheye_infer.models.training.depth import DepthTargets  # noqa: E402
 from fisheye_infer.models.training.lens_jitter import centres_moved  # noqa: E402
 from fisheye_infer.models.training.loop import Trainer  # noqa: E402
+from fisheye_infer.models.training.objectives import PETRObjective, objective_for  # noqa: E402
 from fisheye_infer.models.training.options import TrainOptions  # noqa: E402
 from fisheye_infer.scenes.render import Renderer  # noqa: E402
 from fisheye_infer.scenes.scene import random_scene  # noqa: E402
@@ -83,9 +87,9 @@ def test_a_step_is_rendered_through_its_moved_lenses_with_their_tables_and_depth
     batch = trainer.train_batches[step]
     params = trainer.model.view_transform.geometry.params
     exact = LSSGeometry.from_rig(lenses.rig, params)  # a geometry built for the moved lenses from scratch
-    assert batch.tables is not None and set(batch.tables) == set(exact.sampling_tables())
+    assert batch.lenses is not None and set(batch.lenses.tables) == set(exact.sampling_tables())
     for name, table in exact.sampling_tables().items():
-        assert np.array_equal(batch.tables[name], table), name
+        assert np.array_equal(batch.lenses.tables[name], table), name
     for i, sample in enumerate(batch.samples):
         assert sample.index == 2 * step + i
         assert np.array_equal(sample.images, trainer.train_frames.frame(sample.index, lenses.rig).images)
@@ -99,12 +103,11 @@ def test_the_forward_with_a_steps_tables_is_that_of_a_model_built_for_its_lenses
     trainer: Trainer, small: tuple[Any, Rig]
 ) -> None:
     batch = trainer.train_batches[1]
-    assert batch.tables is not None
-    lenses = trainer.train_batches.jitter(1)  # type: ignore[misc]
-    built = create_model("fisheye-bevdet", small[0], lenses.rig)
+    assert batch.lenses is not None
+    built = create_model("fisheye-bevdet", small[0], batch.lenses.rig)
     built.load_state_dict(trainer.model.state_dict())
     images = torch.from_numpy(np.stack([s.images for s in batch.samples]))
-    tables = {k: torch.from_numpy(v) for k, v in batch.tables.items()}
+    tables = {k: torch.from_numpy(v) for k, v in batch.lenses.tables.items()}
     trainer.model.eval()
     built.eval()
     with torch.no_grad():
@@ -116,19 +119,79 @@ def test_the_forward_with_a_steps_tables_is_that_of_a_model_built_for_its_lenses
     assert any(not torch.allclose(installed[n], expected[n], rtol=1e-5, atol=1e-5) for n in expected)
 
 
+@pytest.fixture(scope="module")
+def petr_trainer(tmp_path_factory: pytest.TempPathFactory) -> Trainer:
+    from small_configs import small_configs
+
+    config, rig = small_configs()["fisheye-petr"]
+    options = TrainOptions(steps=10, batch_size=2, lens_jitter=PIXELS)
+    return Trainer(config, rig, tmp_path_factory.mktemp("petr-jitter") / "run", options)
+
+
+def test_a_petr_step_gets_its_lenses_warp_taps_and_key_mask(petr_trainer: Trainer) -> None:
+    step = 2
+    batch = petr_trainer.train_batches[step]
+    assert batch.lenses is not None and batch.depth is None
+    head = petr_trainer.model.pts_bbox_head
+    exact = PETRGeometry.from_rig(batch.lenses.rig, head.geometry.params)  # built for the moved lenses from scratch
+    assert set(batch.lenses.tables) == set(exact.lens_tables()) == {*exact.sampling_tables(), PETR_KEY_MASK}
+    for name, table in exact.lens_tables().items():
+        assert np.array_equal(batch.lenses.tables[name], table), name
+    assert np.array_equal(batch.lenses.inside_lens, ~exact.key_mask())
+    assert not np.array_equal(exact.key_mask(), head.geometry.key_mask())  # the step masks other keys
+    for i, sample in enumerate(batch.samples):
+        assert np.array_equal(sample.images, petr_trainer.train_frames.frame(2 * step + i, batch.lenses.rig).images)
+
+
+def test_a_petr_step_decodes_as_a_model_built_for_its_lenses(petr_trainer: Trainer) -> None:
+    """The training forward with a step's lenses (warp taps, key mask, the key embedding of that mask) is the
+    forward of a model built for the moved rig with the same weights."""
+    batch = petr_trainer.train_batches[1]
+    assert batch.lenses is not None
+    model = petr_trainer.model
+    built = create_model("fisheye-petr", model.config, batch.lenses.rig)
+    built.load_state_dict(model.state_dict())
+    images = torch.from_numpy(np.stack([s.images for s in batch.samples]))
+    outputs = {}
+    model.eval()
+    built.eval()
+    cases = {"step": (model, batch.lenses), "built": (built, None), "rig": (model, None)}
+    with torch.no_grad():
+        for name, (m, lenses) in cases.items():
+            objective = objective_for(m, petr_trainer.options)
+            assert isinstance(objective, PETRObjective)
+            tables, positions = objective.step_tables(lenses, torch.device("cpu"))
+            feats = m.image_features(images)
+            outputs[name] = m.pts_bbox_head.forward_decoder(feats, tables=tables, positions=positions)
+    torch.testing.assert_close(outputs["step"], outputs["built"], rtol=1e-5, atol=1e-5)
+    assert not torch.allclose(outputs["rig"], outputs["built"], rtol=1e-5, atol=1e-5)
+
+
+def test_a_jittered_petr_run_trains_and_keeps_the_rigs_tables(petr_trainer: Trainer) -> None:
+    head = petr_trainer.model.pts_bbox_head
+    installed = {name: table.clone() for name, table in head.tables().items()}
+    for _ in range(2):
+        assert np.isfinite(petr_trainer.train_step()["loss"])
+    petr_trainer.objective.settle()
+    assert torch.equal(head.tables()[PETR_KEY_MASK], installed[PETR_KEY_MASK])  # the exported file's rig
+    for name in installed.keys() - {PETR_KEY_MASK, "geom.petr.key_pos"}:
+        assert torch.equal(head.tables()[name], installed[name]), name
+
+
 def test_without_jitter_a_step_is_the_frames_of_the_rig(small: tuple[Any, Rig], tmp_path: Path) -> None:
     trainer = Trainer(*small, tmp_path / "run", TrainOptions(steps=10, batch_size=1))
     batch = trainer.train_batches[2]
-    assert isinstance(batch, Batch) and batch.tables is None and trainer.train_batches.jitter is None
+    assert isinstance(batch, Batch) and batch.lenses is None and trainer.train_batches.jitter is None
     assert np.array_equal(batch.samples[0].images, trainer.train_frames[2].images)
 
 
 def test_jitter_is_refused_where_it_moves_no_lens(tmp_path: Path) -> None:
     from small_configs import small_configs
 
-    config, rig = small_configs()["fisheye-bevdet-cyl"]
-    with pytest.raises(ConfigError, match="--lens-jitter: moves the lenses of fisheye-bevdet.*fisheye-bevdet-cyl"):
-        Trainer(config, rig, tmp_path / "run", TrainOptions(lens_jitter=2.0))
+    for arch in ("fisheye-bevdet-cyl", "fisheye-petr-persp", "pinhole-petr"):
+        config, rig = small_configs()[arch]
+        with pytest.raises(ConfigError, match=f"--lens-jitter: moves the lenses of fisheye-bevdet.*; {arch} trains"):
+            Trainer(config, rig, tmp_path / arch, TrainOptions(lens_jitter=2.0))
     for pixels in (-1.0, 64.0):
         with pytest.raises(ConfigError, match="--lens-jitter: expected 0 to 32 pixels"):
             TrainOptions(lens_jitter=pixels)
@@ -150,9 +213,12 @@ def test_a_jittered_run_resumes_with_its_jitter_and_refuses_another(
     assert torch.load(out / "checkpoint.pth", weights_only=True)["meta"]["train_options"]["lens_jitter"] == 2.0
 
 
-def test_new_lenses_keep_the_geometrys_poses(small: tuple[Any, Rig], trainer: Trainer) -> None:
+def test_new_lenses_keep_the_geometrys_poses(small: tuple[Any, Rig], trainer: Trainer, petr_trainer: Trainer) -> None:
     from small_configs import move_rig
 
-    geometry = trainer.model.view_transform.geometry
-    with pytest.raises(ConfigError, match="its camera poses differ from the geometry's"):
-        geometry.with_lenses(move_rig(small[1]))
+    for geometry, builder in (
+        (trainer.model.view_transform.geometry, "LSSGeometry.from_rig"),
+        (petr_trainer.model.pts_bbox_head.geometry, "PETRGeometry.from_rig"),
+    ):
+        with pytest.raises(ConfigError, match=f"its camera poses differ from the geometry's.*{builder}"):
+            geometry.with_lenses(move_rig(small[1]))
