@@ -350,6 +350,7 @@ def test_training_attention_equals_the_exported_graph(ignored: str) -> None:
     for module in (explicit, fused):
         inputs = [x.clone().requires_grad_() for x in (q, k, v)]
         out = module(*inputs, bias)
+        assert _autograd_names(out) & {"SoftmaxBackward0"} == ({"SoftmaxBackward0"} if module is explicit else set())
         (out * torch.linspace(-1, 1, out.numel()).reshape(out.shape)).sum().backward()
         grads = [x.grad for x in inputs] + [p.grad for p in module.parameters()]
         outputs.append((out.detach(), grads))
@@ -358,6 +359,19 @@ def test_training_attention_equals_the_exported_graph(ignored: str) -> None:
         return  # uniform attention whatever the logits: no gradient to compare (training always has keys)
     for got, want in zip(outputs[1][1], outputs[0][1]):
         torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-6)
+
+
+def _autograd_names(out: torch.Tensor) -> set[str]:
+    """The names of the autograd nodes that computed ``out``: which graph ran."""
+    names, stack, seen = set(), [out.grad_fn], set()
+    while stack:
+        node = stack.pop()
+        if node is None or node in seen:
+            continue
+        seen.add(node)
+        names.add(type(node).__name__)
+        stack.extend(next_node for next_node, _ in node.next_functions)
+    return names
 
 
 def _reference_layer(
