@@ -65,6 +65,22 @@ def _pinhole_view_transform(vt: Section, d: PinholeViewTransformConfig) -> Pinho
     return PinholeViewTransformConfig(**view_transform_fields(vt, d), image_size=size)
 
 
+def _lss_params(config: PinholeBEVDetConfig | PerspBEVDetConfig, views: ResizeCrop | Perspective) -> PinholeLSSParams:
+    """The lift's geometry parameters of a BEVDet whose views are pinhole images (resized and cropped, or
+    perspective views cut from fisheye images)."""
+    vt = config.view_transform
+    return PinholeLSSParams(
+        feature_size=tuple(vt.feature_size),
+        image_size=tuple(vt.image_size),
+        source_size=(config.image.height, config.image.width),
+        views=views,
+        dbound=tuple(vt.dbound),
+        xbound=tuple(vt.xbound),
+        ybound=tuple(vt.ybound),
+        zbound=tuple(vt.zbound),
+    )
+
+
 @dataclass(frozen=True)
 class PinholeBEVDetConfig(BEVDetConfig):
     """BEVDet on six pinhole cameras: ``image`` the raw 1280x720 input, ``image_aug`` the resize and crop."""
@@ -85,17 +101,7 @@ class PinholeBEVDetConfig(BEVDetConfig):
         return self.image_aug.views()
 
     def geometry_params(self) -> Any:
-        vt = self.view_transform
-        return PinholeLSSParams(
-            feature_size=tuple(vt.feature_size),
-            image_size=tuple(vt.image_size),
-            source_size=(self.image.height, self.image.width),
-            views=self.views(),
-            dbound=tuple(vt.dbound),
-            xbound=tuple(vt.xbound),
-            ybound=tuple(vt.ybound),
-            zbound=tuple(vt.zbound),
-        )
+        return _lss_params(self, self.views())
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
@@ -161,17 +167,7 @@ class PerspBEVDetConfig(BEVDetConfig):
         return self.perspective.views()
 
     def geometry_params(self) -> Any:
-        vt = self.view_transform
-        return PinholeLSSParams(
-            feature_size=tuple(vt.feature_size),
-            image_size=tuple(vt.image_size),
-            source_size=(self.image.height, self.image.width),
-            views=self.views(),
-            dbound=tuple(vt.dbound),
-            xbound=tuple(vt.xbound),
-            ybound=tuple(vt.ybound),
-            zbound=tuple(vt.zbound),
-        )
+        return _lss_params(self, self.views())
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
