@@ -65,7 +65,7 @@ def _pinhole_view_transform(vt: Section, d: PinholeViewTransformConfig) -> Pinho
     return PinholeViewTransformConfig(**view_transform_fields(vt, d), image_size=size)
 
 
-def _lss_params(config: PinholeBEVDetConfig | PerspBEVDetConfig, views: ResizeCrop | Perspective) -> PinholeLSSParams:
+def _lss_params(config: PinholeBEVDetConfig | PerspBEVDetConfig) -> PinholeLSSParams:
     """The lift's geometry parameters of a BEVDet whose views are pinhole images (resized and cropped, or
     perspective views cut from fisheye images)."""
     vt = config.view_transform
@@ -73,7 +73,7 @@ def _lss_params(config: PinholeBEVDetConfig | PerspBEVDetConfig, views: ResizeCr
         feature_size=tuple(vt.feature_size),
         image_size=tuple(vt.image_size),
         source_size=(config.image.height, config.image.width),
-        views=views,
+        views=config.views(),
         dbound=tuple(vt.dbound),
         xbound=tuple(vt.xbound),
         ybound=tuple(vt.ybound),
@@ -101,7 +101,7 @@ class PinholeBEVDetConfig(BEVDetConfig):
         return self.image_aug.views()
 
     def geometry_params(self) -> Any:
-        return _lss_params(self, self.views())
+        return _lss_params(self)
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
@@ -167,7 +167,7 @@ class PerspBEVDetConfig(BEVDetConfig):
         return self.perspective.views()
 
     def geometry_params(self) -> Any:
-        return _lss_params(self, self.views())
+        return _lss_params(self)
 
     @classmethod
     def _image_size(cls, vt: Section, d: BEVDetConfig, cfg: Mapping[str, Any]) -> tuple[int, int]:
