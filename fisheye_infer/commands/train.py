@@ -113,8 +113,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--init",
-        help="start from this checkpoint's weights (a model.pth of the same configuration and rig): "
-        "a fine-tuning run with its own optimiser and schedule",
+        help="start from this checkpoint's weights (a model.pth of the same configuration and rig, or of "
+        "fewer queries: its queries come first, the others start seeded): a fine-tuning run with its own "
+        "optimiser and schedule",
     )
     parser.add_argument(
         "--init-backbone",

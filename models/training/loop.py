@@ -58,6 +58,8 @@ __all__ = ["Trainer", "TRAINABLE", "arch_of", "read_config_file", "saved_options
 
 #: What ``init_backbone`` loads: the image backbone and its neck, the same modules in every architecture.
 BACKBONE_PREFIXES = ("img_backbone.", "img_neck.")
+#: A query-based head's learned reference points, one row per query: what ``--init`` may grow.
+QUERY_TABLE = "pts_bbox_head.reference_points.weight"
 #: The architectures ``Trainer`` trains (each has an objective in ``objectives.py`` and a compact configuration
 #: in ``compact.py``): the paper's two detectors and the baselines of its Table 2.
 TRAINABLE = (
@@ -274,9 +276,28 @@ class Trainer:
         path = Path(self.options.init)
         if not path.is_file():
             raise CheckpointError(f"--init: {path} does not exist")
-        state_dict, meta = load_checkpoint(path)
+        state_dict, meta = self._grown_queries(*load_checkpoint(path))
         self._check_origin(meta, f"--init: {path}", recorded=False)
         load_official_state_dict(self.model, state_dict, geometry="rig", context=f"--init {path}")
+
+    def _grown_queries(
+        self, state_dict: dict[str, torch.Tensor], meta: dict[str, Any]
+    ) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """A checkpoint of this configuration but for fewer queries (``num_query``) becomes one of this
+        configuration: its reference points are the first of this run's, the others keep their seeded
+        ones, so a trained decoder takes more queries without starting over. Any other checkpoint is
+        returned as it is, for ``_check_origin`` to judge."""
+        mine, theirs = self.config.to_dict(), meta.get("config")
+        wanted = mine.get("head", {}).get("num_query")
+        if wanted is None or not isinstance(theirs, dict) or not isinstance(theirs.get("head"), dict):
+            return state_dict, meta
+        have = theirs["head"].get("num_query")
+        grown = {**theirs, "head": {**theirs["head"], "num_query": wanted}}
+        if not isinstance(have, int) or have >= wanted or grown != mine:
+            return state_dict, meta
+        table = self.model.state_dict()[QUERY_TABLE].clone()
+        table[:have] = state_dict[QUERY_TABLE]
+        return {**state_dict, QUERY_TABLE: table}, {**meta, "config": mine}
 
     def load_backbone(self) -> None:
         """Start the image backbone and neck (``img_backbone.*``, ``img_neck.*``) from ``options.init_backbone``,

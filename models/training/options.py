@@ -29,8 +29,9 @@ class TrainOptions:
     ``init`` is the run's own. ``depth_weight`` weighs the
     depth loss against the synthetic frames' true ray depths (``depth.py``; 0 trains with the
     official losses alone). ``init`` starts from the weights of a checkpoint (one ``model.pth`` of
-    a run, with this configuration and rig) instead of the seeded initialiser: a fine-tuning run,
-    with its own optimiser, warm-up and schedule. ``qat`` is the share of steps whose forward
+    a run, with this configuration and rig, or with fewer queries: a FisheyePETR grows its query set,
+    the checkpoint's queries first) instead of the seeded initialiser: a fine-tuning run, with its
+    own optimiser, warm-up and schedule. ``qat`` is the share of steps whose forward
     rounds as the int8 file will (``qat.FakeQuant``; which steps is seeded): 0 trains the float
     model alone, 1 the int8 simulation alone, between the two both (the shipped model's model card
     says what 0.5 changed). ``init_backbone`` starts only the image backbone and neck from a

@@ -1,5 +1,6 @@
 """fisheye-infer train on a reduced FisheyePETR: the official losses fall, checkpoints export, --resume
-continues the same run, and the image backbone can start from another run's."""
+continues the same run, the image backbone can start from another run's, and a run can start from one
+with fewer queries."""
 
 from __future__ import annotations
 
@@ -91,6 +92,35 @@ def test_backbone_starts_from_another_run(petr_run: Run, petr_inputs: tuple[Path
         torch.testing.assert_close(mine[key], trained[key], msg=key)
     head = "pts_bbox_head.input_proj.weight"
     assert not torch.equal(mine[head], trained[head])  # the head keeps its own seeded start
+
+
+def test_init_grows_the_query_set(petr_run: Run, petr_inputs: tuple[Path, Path], tmp_path: Path) -> None:
+    """--init from a run with fewer queries: its queries come first, the others start as a new run's do."""
+    config, rig = PETRConfig.from_mmdet3d_config(petr_inputs[0]), Rig.load(petr_inputs[1])
+    have = config.head.num_query
+    more = config.replace(head={"num_query": 3 * have})
+    start = str(petr_run.folder / "model.pth")
+    trainer = Trainer(more, rig, tmp_path / "run", TrainOptions(steps=1, seed=1, init=start))
+    seeded = trainer.model.state_dict()["pts_bbox_head.reference_points.weight"].clone()
+    trainer.load_init()
+    trained, _ = load_checkpoint(start)
+    mine = trainer.model.state_dict()
+    table = mine["pts_bbox_head.reference_points.weight"]
+    assert table.shape == (3 * have, 3)
+    torch.testing.assert_close(table[:have], trained["pts_bbox_head.reference_points.weight"], rtol=0, atol=0)
+    torch.testing.assert_close(table[have:], seeded[have:], rtol=0, atol=0)
+    for key in [k for k in mine if k != "pts_bbox_head.reference_points.weight"]:
+        torch.testing.assert_close(mine[key], trained[key], rtol=0, atol=0, msg=key)
+
+
+def test_init_never_drops_queries(petr_run: Run, petr_inputs: tuple[Path, Path], tmp_path: Path) -> None:
+    from fisheye_infer.errors import CheckpointError
+
+    config, rig = PETRConfig.from_mmdet3d_config(petr_inputs[0]), Rig.load(petr_inputs[1])
+    fewer = config.replace(head={"num_query": config.head.num_query // 2})
+    options = TrainOptions(steps=1, init=str(petr_run.folder / "model.pth"))
+    with pytest.raises(CheckpointError, match=r"another model configuration \(differs in: head\)"):
+        Trainer(fewer, rig, tmp_path / "run", options).load_init()
 
 
 def test_a_backbone_of_another_shape_is_refused(

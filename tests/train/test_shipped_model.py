@@ -3,9 +3,10 @@
 The frames are the validation stream's 300-331 (the training command never draws from that
 stream; the model cards' figures use frames 0-199 and the bundled frame is 210). On these 32
 frames (ONNX Runtime) the compact FisheyeBEVDet scores Car AP@2m 0.82 and mAP 0.55 within 30 m, and
-the compact FisheyePETR 0.10 and 0.22. The bars (``BARS``) sit well below, so that another CPU's
+the compact FisheyePETR 0.69 and 0.35. The bars (``BARS``) sit well below, so that another CPU's
 last-bit differences can never fail them while a broken export, decoding or checkpoint (AP near 0)
-always does, and so does the FisheyeBEVDet before its fine-tuning (0.63 and 0.36).
+always does, and so do the FisheyeBEVDet before its fine-tuning (0.63 and 0.36) and the FisheyePETR
+of 300 queries its recipe starts from (0.10 and 0.22).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ FIRST, COUNT = 300, 32
 #: Per shipped model: its architecture, and the bars of this test (Car AP@2m and mAP within 30 m; the model
 #: cards' 200-frame figures are higher).
 ARCH = {COMPACT_BEVDET.name: "fisheye-bevdet", COMPACT_PETR.name: "fisheye-petr"}
-BARS = {COMPACT_BEVDET.name: (0.65, 0.4), COMPACT_PETR.name: (0.05, 0.15)}
+BARS = {COMPACT_BEVDET.name: (0.65, 0.4), COMPACT_PETR.name: (0.45, 0.25)}
 
 
 @pytest.fixture(scope="session", params=PRETRAINED, ids=lambda m: m.name)
