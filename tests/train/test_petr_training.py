@@ -16,7 +16,7 @@ torch = pytest.importorskip("torch")
 from fisheye_infer.cameras.rig import Rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
 from fisheye_infer.models import PETRConfig, create_model, load_checkpoint  # noqa: E402
-from fisheye_infer.models.training.loop import Trainer  # noqa: E402
+from fisheye_infer.models.training.loop import QUERY_TABLE, Trainer  # noqa: E402
 from fisheye_infer.models.training.options import TrainOptions  # noqa: E402
 from fisheye_infer.runtime.artifact import read_meta  # noqa: E402
 
@@ -101,15 +101,15 @@ def test_init_grows_the_query_set(petr_run: Run, petr_inputs: tuple[Path, Path],
     more = config.replace(head={"num_query": 3 * have})
     start = str(petr_run.folder / "model.pth")
     trainer = Trainer(more, rig, tmp_path / "run", TrainOptions(steps=1, seed=1, init=start))
-    seeded = trainer.model.state_dict()["pts_bbox_head.reference_points.weight"].clone()
+    seeded = trainer.model.state_dict()[QUERY_TABLE].clone()
     trainer.load_init()
     trained, _ = load_checkpoint(start)
     mine = trainer.model.state_dict()
-    table = mine["pts_bbox_head.reference_points.weight"]
+    table = mine[QUERY_TABLE]
     assert table.shape == (3 * have, 3)
-    torch.testing.assert_close(table[:have], trained["pts_bbox_head.reference_points.weight"], rtol=0, atol=0)
+    torch.testing.assert_close(table[:have], trained[QUERY_TABLE], rtol=0, atol=0)
     torch.testing.assert_close(table[have:], seeded[have:], rtol=0, atol=0)
-    for key in [k for k in mine if k != "pts_bbox_head.reference_points.weight"]:
+    for key in [k for k in mine if k != QUERY_TABLE]:
         torch.testing.assert_close(mine[key], trained[key], rtol=0, atol=0, msg=key)
 
 
