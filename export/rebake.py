@@ -1,39 +1,84 @@
-"""``rebake``: recompute an exported file's geometry for a new rig, with numpy and onnx only.
+"""``rebake``: an exported file for another rig, with numpy and onnx only.
 
-    rebake("model.onnx", "new_rig.yaml", "model_new_rig.onnx")
+    rebake("model.onnx", "robot_rig.yaml", "model_robot.onnx")                  # virtual cameras (the default)
+    rebake("model.onnx", "recalibrated.yaml", "model_new.onnx", mode="tables")  # new tables, no resampling
 
-The metadata of an exported file records the parameters of its geometry tables (and, for
-FisheyePETR, the position-encoder weights the key embedding needs), so every ``geom.*``
-initializer can be recomputed without torch. The graph itself is unchanged: it was traced with
-the pooling tables' sizes symbolic; every other table keeps its shape (a file whose tables this
-version computes in another shape is refused, naming the table). The TensorRT check is run again
-on the new file (the tables' sizes are part of what it reads). The input file is never modified.
-A rig whose camera names, order or image size do not fit the graph is refused.
+``virtual`` (the default for a rig that is not the file's training rig): the file takes the robot's raw images, each
+camera at its own size, and a front end in the graph resamples each into the image its training camera would have
+taken (:mod:`fisheye_infer.geometry.virtual`, :mod:`.virtual_front`); the network and its geometry tables stay as
+trained. Robot cameras are mapped onto the model's by ``camera_map`` or by heading
+(:func:`~fisheye_infer.cameras.camera_map.map_cameras`).
+
+``tables``: every ``geom.*`` initializer recomputed for the rig. The metadata of an exported file records the
+parameters of its geometry tables (and, for FisheyePETR, the position-encoder weights the key embedding needs), so
+the tables can be recomputed without torch. The graph itself is unchanged: it was traced with the pooling tables'
+sizes symbolic; every other table keeps its shape (a file whose tables this version computes in another shape is
+refused, naming the table). A rig whose camera names, order or image size do not fit the graph is refused. The
+network then sees pictures through the new lenses and mounts, which it was not trained on.
+
+The TensorRT check is run again on the new file. The input file is never modified.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Literal
 
 import onnx
 
+from fisheye_infer.cameras.camera_map import map_cameras
 from fisheye_infer.cameras.rig import Rig, resolve_rig
+from fisheye_infer.cameras.virtual_view import UNSEEN_FILL
 from fisheye_infer.errors import ArtifactError, ConfigError, RigError
 from fisheye_infer.geometry.kinds import tables_for
 from fisheye_infer.geometry.tables import POOL_PIXELS, POOL_POINTS
-from fisheye_infer.runtime.artifact import METADATA_KEY, ArtifactMeta, parse_meta
+from fisheye_infer.geometry.virtual import virtual_front
+from fisheye_infer.runtime.artifact import METADATA_KEY, ArtifactMeta, VirtualCameras, parse_meta
 
 from .graph import REBAKE_WEIGHTS_KEY, decode_arrays, get_metadata, replace_initializers, save_model, set_metadata
 from .tensorrt_check import check_tensorrt
+from .virtual_front import attach_front, detach_front, has_front
 
-__all__ = ["rebake"]
+__all__ = ["RebakeMode", "rebake"]
+
+RebakeMode = Literal["auto", "virtual", "tables"]
 
 
-def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> ArtifactMeta:
-    """Write ``out``: ``model_path`` with every geometry table recomputed for ``rig``; returns its metadata."""
+def rebake(
+    model_path: str | Path,
+    rig: str | Path | Rig,
+    out: str | Path,
+    *,
+    mode: RebakeMode = "auto",
+    camera_map: Mapping[str, str] | None = None,
+    depth: float | None = None,
+) -> ArtifactMeta:
+    """Write ``out``: ``model_path`` for the cameras of ``rig``.
+
+    Args:
+        model_path: A file written by ``fisheye-infer export`` (or by ``rebake``).
+        rig: The new rig: a rig file, a folder, ``default``, or a :class:`~fisheye_infer.cameras.rig.Rig`.
+        out: Where to write the new file (never ``model_path``).
+        mode: ``virtual``: a front end resamples the rig's cameras into the training cameras; ``tables``: the
+            geometry tables are recomputed for the rig; ``auto``: ``tables`` for the file's training rig itself,
+            ``virtual`` otherwise.
+        camera_map: ``virtual``: the model's camera name -> the rig's camera name for every camera; None maps
+            them by heading.
+        depth: ``virtual``: None compensates rotation only; a distance (m) compensates the cameras' offsets there.
+
+    Returns:
+        ArtifactMeta: The new file's metadata.
+
+    Raises:
+        ArtifactError: The input cannot be read, is the output, or its tables do not fit this version.
+        RigError: The rig does not fit (camera names or sizes in ``tables`` mode; the camera map in ``virtual``).
+    """
     model_path, out = Path(model_path), Path(out)
     if out.resolve() == model_path.resolve():
         raise ArtifactError(f"--out {out}: re-baking never overwrites its input; choose another path")
+    if camera_map is not None and mode == "tables":
+        raise RigError("camera map: the tables mode keeps the model's camera names; a map is for virtual cameras")
     try:
         proto = onnx.load(str(model_path))
     except Exception as exc:
@@ -41,12 +86,64 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
     props = get_metadata(proto)
     meta = parse_meta(props.get(METADATA_KEY), source=f"model {model_path}")
     new_rig = rig if isinstance(rig, Rig) else resolve_rig(rig)
-    if len(new_rig) != len(meta.cameras):
+    training = meta.training_rig
+    if mode == "auto":
+        mode = "tables" if new_rig.hash == training.hash and camera_map is None else "virtual"
+    if mode == "virtual":
+        new_meta = _virtual(proto, meta, new_rig, camera_map, depth)
+    else:
+        new_meta = _tables(proto, props, meta, new_rig, model_path)
+    final = new_meta.model_copy(update={"tensorrt": check_tensorrt(proto)}).check()
+    set_metadata(proto, final)
+    save_model(proto, out)
+    return final
+
+
+def _model_id(meta: ArtifactMeta, rig: Rig) -> str:
+    return f"{meta.architecture}-{rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
+
+
+def _virtual(
+    proto: onnx.ModelProto,
+    meta: ArtifactMeta,
+    robot: Rig,
+    camera_map: Mapping[str, str] | None,
+    depth: float | None,
+) -> ArtifactMeta:
+    """The front end for ``robot`` attached to ``proto``; the new metadata."""
+    training = meta.training_rig
+    order = map_cameras(training, robot, camera_map)
+    ordered = robot.model_copy(update={"cameras": tuple(robot.camera(name) for name in order)})
+    front = virtual_front(training, ordered, order, depth)
+    attach_front(proto, front)
+    return meta.model_copy(
+        update={
+            "rig": ordered,
+            "rig_hash": ordered.hash,
+            "cameras": tuple(order),
+            "image_size": front.padded_size,
+            "model_id": _model_id(meta, ordered),
+            "virtual_cameras": VirtualCameras(
+                training_rig=training, depth_m=depth, unseen_fill=UNSEEN_FILL, cameras=front.reports
+            ),
+        }
+    )
+
+
+def _tables(
+    proto: onnx.ModelProto, props: dict[str, str], meta: ArtifactMeta, new_rig: Rig, model_path: Path
+) -> ArtifactMeta:
+    """``proto``'s geometry tables recomputed for ``new_rig`` (any front end removed); the new metadata."""
+    training = meta.training_rig
+    if has_front(proto):
+        detach_front(proto)
+    if len(new_rig) != len(training):
         raise RigError(
-            f"the rig has {len(new_rig)} cameras, the model was built for {len(meta.cameras)} "
-            f"({', '.join(meta.cameras)})"
+            f"the rig has {len(new_rig)} cameras, the model was built for {len(training)} "
+            f"({', '.join(training.names)})"
         )
-    new_rig.require(meta.cameras, meta.image_size)
+    size = (training.cameras[0].model.width, training.cameras[0].model.height)
+    new_rig.require(training.names, size)
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
     try:
         tables = tables_for(new_rig, meta.geometry, weights)
@@ -66,17 +163,15 @@ def rebake(model_path: str | Path, rig: str | Path | Rig, out: str | Path) -> Ar
                 "checkpoint again"
             )
     replace_initializers(proto, tables)
-    model_id = f"{meta.architecture}-{new_rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
-    new_meta = meta.model_copy(
+    return meta.model_copy(
         update={
             "rig": new_rig,
             "rig_hash": new_rig.hash,
-            "model_id": model_id,
+            "cameras": tuple(new_rig.names),
+            "image_size": size,
+            "model_id": _model_id(meta, new_rig),
             "geometry_source": "rig",
             "parity": None,
-            "tensorrt": check_tensorrt(proto),
+            "virtual_cameras": None,
         }
     )  # its notes quote table values, which the rig changes
-    set_metadata(proto, new_meta.check())
-    save_model(proto, out)
-    return new_meta

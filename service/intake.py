@@ -54,13 +54,17 @@ class FrameSpec:
     """What a frame must look like for this model and service."""
 
     cameras: tuple[str, ...]
-    image_size: tuple[int, int]  # (width, height)
+    camera_sizes: tuple[tuple[int, int], ...]  # (width, height) of each camera's images, in camera order
     classes: tuple[str, ...]
     max_batch_frames: int
 
     @classmethod
     def of(cls, info: DetectorInfo, max_batch_frames: int) -> FrameSpec:
-        return cls(info.cameras, info.image_size, info.classes, max_batch_frames)
+        return cls(info.cameras, info.camera_sizes, info.classes, max_batch_frames)
+
+    def size_of(self, camera: str) -> tuple[int, int]:
+        """(width, height) of ``camera``'s images (the first camera's for a name the model does not have)."""
+        return dict(zip(self.cameras, self.camera_sizes)).get(camera, self.camera_sizes[0])
 
     def check_frame_count(self, count: int) -> None:
         """At most ``max_batch_frames`` frames in one request (422 beyond)."""
@@ -114,7 +118,7 @@ def _check_image(data: bytes, label: str, spec: FrameSpec, declared: str | None 
         )
     if not data:
         raise RequestInvalid(
-            f"camera '{label}': empty image, expected a {spec.image_size[0]}x{spec.image_size[1]} JPEG or PNG",
+            f"camera '{label}': empty image, expected a {spec.size_of(label)[0]}x{spec.size_of(label)[1]} JPEG or PNG",
             field=label,
         )
     if not (data.startswith(_PNG) or data.startswith(_JPEG)):
@@ -122,7 +126,7 @@ def _check_image(data: bytes, label: str, spec: FrameSpec, declared: str | None 
             f"camera '{label}': not a JPEG or PNG image (first bytes {data[:8].hex()})", field=label
         )
     size = encoded_image_size(data)
-    width, height = spec.image_size
+    width, height = spec.size_of(label)
     if size is None:
         raise RequestInvalid(
             f"camera '{label}': image header is truncated or unreadable (no width and height found), "
@@ -196,7 +200,7 @@ def decode_frames(
     def one(task: tuple[int, str, bytes | None]) -> np.ndarray | None:
         index, camera, data = task
         try:
-            return None if data is None else decode_image(data, camera, spec.image_size)
+            return None if data is None else decode_image(data, camera, spec.size_of(camera))
         except FrameError as exc:
             error = RequestInvalid(str(exc), field=camera)
             raise (_in_frame(index, error) if len(frames) > 1 else error) from None

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from fisheye_infer.commands.common import NEEDS_EXPORT, ArchChoices, missing_extra
 from fisheye_infer.precision import COMPARE_FRAMES, MIN_TOP_MATCHED
@@ -30,6 +31,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--rig", default="default", help="rig file, folder with calib_results.txt + lidar2cam.json, or 'default'"
+    )
+    onto = parser.add_argument_group(
+        "another rig",
+        "the checkpoint's file is verified for the rig it was trained with (--rig), then resampled in the graph onto "
+        "another rig's cameras (virtual cameras, as fisheye-infer rebake writes them): the network sees the "
+        "pictures it was trained on",
+    )
+    onto.add_argument("--onto", metavar="RIG", help="the robot's rig: rig file or folder (default: none)")
+    onto.add_argument(
+        "--camera-map", metavar="MAP", help="with --onto: model_camera=robot_camera,... (default: by heading)"
+    )
+    onto.add_argument(
+        "--depth", type=float, metavar="M", help="with --onto: compensate camera offsets at M metres (default: none)"
     )
     parser.add_argument(
         "--geometry",
@@ -125,6 +139,9 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    if (args.camera_map is not None or args.depth is not None) and args.onto is None:
+        print("fisheye-infer export: error: --camera-map/--depth need --onto", file=sys.stderr)
+        return 2
     if (args.compare_frames != COMPARE_FRAMES or args.min_kept != MIN_TOP_MATCHED) and not (args.int8 or args.fp16):
         print("fisheye-infer export: error: --compare-frames/--min-kept need --int8 or --fp16", file=sys.stderr)
         return 2
@@ -153,4 +170,22 @@ def run(args: argparse.Namespace) -> int:
         comparison=comparison,
     )
     print(result.summary())
+    if args.onto is not None:
+        return _onto(args, [f for f in (result.path, *(r.path for r in (result.int8, result.fp16) if r)) if f])
+    return 0
+
+
+def _onto(args: argparse.Namespace, files: list[Path]) -> int:
+    """Each written file re-targeted onto ``--onto``'s cameras in place (``rebake``'s virtual cameras)."""
+    from fisheye_infer.cameras.camera_map import parse_camera_map
+    from fisheye_infer.export.rebake import rebake
+
+    camera_map = None if args.camera_map is None else parse_camera_map(args.camera_map)
+    for path in files:
+        staged = path.with_name(f".{path.name}.onto")
+        meta = rebake(path, args.onto, staged, mode="virtual", camera_map=camera_map, depth=args.depth)
+        staged.replace(path)
+        print(f"{path}: virtual cameras onto {meta.rig.name!r} ({meta.rig_hash})")
+        for report in meta.virtual_cameras.cameras if meta.virtual_cameras else ():
+            print(f"  {report.summary()}")
     return 0

@@ -120,7 +120,7 @@ class DetectorActor:
         from fisheye_infer.runtime.preprocess import load_frame
 
         info = self.detector.info
-        return load_frame(files, info.cameras, info.image_size)
+        return load_frame(files, info.cameras, info.image_size, info.camera_sizes)
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         tokens = [str(t) for t in batch["token"]]

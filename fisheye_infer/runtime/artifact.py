@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import ArtifactError
 from fisheye_infer.geometry.kinds import GeometryParams
+from fisheye_infer.geometry.virtual import VirtualCameraReport
 from fisheye_infer.precision import MIN_TOP_MATCHED
 
 __all__ = [
@@ -39,6 +40,7 @@ __all__ = [
     "ReplayedChoice",
     "TensorRTFinding",
     "TensorRTReport",
+    "VirtualCameras",
     "inspection_session",
     "parse_meta",
     "read_meta",
@@ -238,6 +240,19 @@ class TensorRTReport(_Model):
         return head + f"NOT compatible, {len(errors)} error(s): {shown}{more}"
 
 
+class VirtualCameras(_Model):
+    """The robot's cameras standing in for the training cameras (:mod:`fisheye_infer.geometry.virtual`).
+
+    The file's ``rig``, ``cameras`` and ``image_size`` are the robot's (its cameras in the model's slot order,
+    images padded to the largest); the network and its geometry tables are those of ``training_rig``.
+    """
+
+    training_rig: Rig
+    depth_m: float | None = None  # None: rotation compensated, translation ignored
+    unseen_fill: float  # grey level of training pixels the robot camera does not see
+    cameras: tuple[VirtualCameraReport, ...]
+
+
 class ArtifactMeta(_Model):
     """The metadata document; reading a schema-1 or -2 document migrates it to the current schema."""
 
@@ -266,6 +281,7 @@ class ArtifactMeta(_Model):
     parity: Annotated[ParityReport | ReducedParityReport, Field(discriminator="reference")] | None = None
     quantization: Quantization | None = None
     tensorrt: TensorRTReport | None = None  # files written before the check have none
+    virtual_cameras: VirtualCameras | None = None  # a front end resamples the robot's cameras into the model's
 
     @model_validator(mode="before")
     @classmethod
@@ -291,7 +307,24 @@ class ArtifactMeta(_Model):
             raise ArtifactError(
                 f"cameras: metadata lists {', '.join(self.cameras)}, the embedded rig has {', '.join(self.rig.names)}"
             )
+        if self.virtual_cameras is not None and len(self.virtual_cameras.training_rig) != len(self.cameras):
+            raise ArtifactError(
+                f"virtual_cameras: {len(self.virtual_cameras.training_rig)} training cameras for "
+                f"{len(self.cameras)} cameras"
+            )
         return self
+
+    @property
+    def training_rig(self) -> Rig:
+        """The rig the network's geometry tables were computed for: the training rig behind virtual cameras."""
+        return self.rig if self.virtual_cameras is None else self.virtual_cameras.training_rig
+
+    def camera_sizes(self) -> tuple[tuple[int, int], ...]:
+        """(width, height) of each camera's images, in camera order: the rig's own sizes behind virtual cameras
+        (padded to ``image_size`` in the graph's input), ``image_size`` for every camera otherwise."""
+        if self.virtual_cameras is None:
+            return tuple(self.image_size for _ in self.cameras)
+        return tuple((c.model.width, c.model.height) for c in self.rig.cameras)
 
 
 def parse_meta(document: str | None, source: str = "model") -> ArtifactMeta:

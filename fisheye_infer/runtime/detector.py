@@ -62,7 +62,8 @@ class DetectorInfo:
     model_id: str
     classes: tuple[str, ...]
     cameras: tuple[str, ...]
-    image_size: tuple[int, int]  # (width, height)
+    image_size: tuple[int, int]  # (width, height) of the images input (the largest camera's behind virtual cameras)
+    camera_sizes: tuple[tuple[int, int], ...]  # (width, height) of each camera's images, in camera order
     colour_order: str
     num_boxes: int
     rig: Rig
@@ -118,6 +119,7 @@ def describe(meta: ArtifactMeta, providers: Sequence[str]) -> DetectorInfo:
         classes=meta.classes,
         cameras=meta.cameras,
         image_size=meta.image_size,
+        camera_sizes=meta.camera_sizes(),
         colour_order=meta.colour_order,
         num_boxes=meta.num_boxes,
         rig=meta.rig,
@@ -250,7 +252,9 @@ class FrameDetector:
         if len(frames) == 0:
             raise FrameError("frames: expected a non-empty sequence of frames")
         t0 = time.perf_counter()
-        loaded = load_frames(frames, self.info.cameras, self.info.image_size, self.map_images)
+        loaded = load_frames(
+            frames, self.info.cameras, self.info.image_size, self.map_images, camera_sizes=self.info.camera_sizes
+        )
         t1 = time.perf_counter()
         images, valid = stack_frames(loaded, self.info.image_size)
         t2 = time.perf_counter()

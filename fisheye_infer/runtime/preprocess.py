@@ -84,9 +84,25 @@ def _as_mapping(frame: Frame, cameras: Sequence[str]) -> Mapping[str, ImageInput
     return dict(zip(cameras, frame))
 
 
-def load_frame(frame: Frame, cameras: Sequence[str], image_wh: tuple[int, int]) -> list[np.ndarray | None]:
-    """Decode and validate one frame: one (H, W, 3) uint8 array per camera, ``None`` where missing."""
-    return load_frames([frame], cameras, image_wh)[0]
+def load_frame(
+    frame: Frame,
+    cameras: Sequence[str],
+    image_wh: tuple[int, int],
+    camera_sizes: Sequence[tuple[int, int]] | None = None,
+) -> list[np.ndarray | None]:
+    """Decode and validate one frame: one (H, W, 3) uint8 array per camera, ``None`` where missing.
+
+    Args:
+        frame: A mapping camera -> image, or the images in camera order.
+        cameras: The model's camera names, in order.
+        image_wh: (width, height) of every camera's images.
+        camera_sizes: (width, height) of each camera's images where they differ (a file with virtual cameras);
+            None: ``image_wh`` for all.
+
+    Returns:
+        list[np.ndarray | None]: One image per camera, None where missing.
+    """
+    return load_frames([frame], cameras, image_wh, camera_sizes=camera_sizes)[0]
 
 
 def load_frames(
@@ -94,8 +110,11 @@ def load_frames(
     cameras: Sequence[str],
     image_wh: tuple[int, int],
     map_images: Callable[[Callable[[Any], np.ndarray | None], Iterable[Any]], Iterable[np.ndarray | None]] = map,
+    camera_sizes: Sequence[tuple[int, int]] | None = None,
 ) -> list[list[np.ndarray | None]]:
     """Decode and validate several frames; errors name the frame (when there are several) and the camera.
+
+    Each camera's images must be ``image_wh``, or its own entry of ``camera_sizes`` where given.
 
     ``map_images`` runs the per-image work when more than one image needs decoding: a thread
     pool's ``map`` decodes them in parallel (OpenCV and libjpeg-turbo release the GIL while they
@@ -114,9 +133,12 @@ def load_frames(
         except FrameError as exc:  # raised when its turn comes, after the frames before it
             mappings.append(exc)
 
+    size_of = dict(zip(cameras, camera_sizes or [image_wh] * len(cameras)))
+
     def one(task: tuple[str, ImageInput]) -> np.ndarray | None:
         camera, image = task
-        return None if image is None else _check_array(_to_array(image, camera, image_wh), camera, image_wh)
+        wh = size_of[camera]
+        return None if image is None else _check_array(_to_array(image, camera, wh), camera, wh)
 
     tasks = [
         (camera, images.get(camera)) for images in mappings if not isinstance(images, FrameError) for camera in cameras
@@ -140,24 +162,29 @@ def load_frames(
 def stack_frames(frames: Sequence[list[np.ndarray | None]], image_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Loaded frames -> ``(B, N, H, W, 3)`` uint8 (zeros for missing cameras) and ``(B, N)`` bool validity.
 
-    Each image is copied exactly once, into its slot of the batch buffer.
+    Each image is copied exactly once, into its slot of the batch buffer; an image smaller than ``image_wh`` (a
+    camera of its own size behind virtual cameras) fills the slot's top-left corner, the rest is zeros.
     """
     width, height = image_wh
     n = len(frames[0])
-    images = np.empty((len(frames), n, height, width, 3), np.uint8)
+    padded = any(image is not None and image.shape[:2] != (height, width) for frame in frames for image in frame)
+    images = (np.zeros if padded else np.empty)((len(frames), n, height, width, 3), np.uint8)
     valid = np.zeros((len(frames), n), dtype=bool)
     for b, frame in enumerate(frames):
         for i, image in enumerate(frame):
             if image is None:
                 images[b, i] = 0
             else:
-                images[b, i] = image
+                images[b, i, : image.shape[0], : image.shape[1]] = image
                 valid[b, i] = True
     return images, valid
 
 
 def prepare_batch(
-    frames: Sequence[Frame], cameras: Sequence[str], image_wh: tuple[int, int]
+    frames: Sequence[Frame],
+    cameras: Sequence[str],
+    image_wh: tuple[int, int],
+    camera_sizes: Sequence[tuple[int, int]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Frames -> ``(B, N, H, W, 3)`` uint8 and ``(B, N)`` bool; errors name the frame index too."""
     if isinstance(frames, Mapping) or len(frames) == 0:
@@ -165,7 +192,7 @@ def prepare_batch(
     loaded = []
     for b, frame in enumerate(frames):
         try:
-            loaded.append(load_frame(frame, cameras, image_wh))
+            loaded.append(load_frame(frame, cameras, image_wh, camera_sizes))
         except FrameError as exc:
             raise FrameError(f"frame {b}: {exc}") from None
     return stack_frames(loaded, image_wh)

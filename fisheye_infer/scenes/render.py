@@ -24,9 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fisheye_infer.cameras.camera_models import OCamModel, Pinhole, incidence_angle
+from fisheye_infer.cameras.camera_models import OCamModel, Pinhole
 from fisheye_infer.cameras.carla_poses import CarlaPose, Convention
 from fisheye_infer.cameras.rig import Rig, RigCamera
+from fisheye_infer.cameras.virtual_view import pixel_rays
 from fisheye_infer.errors import RigError
 from fisheye_infer.runtime.records import CLASSES
 from fisheye_infer.scenes.scene import CLASS_COLOURS, Appearance, Scene, quantize, random_scene
@@ -70,11 +71,7 @@ class Renderer:
         (N, 3) @ (3, 3) is not.
         """
         if model not in self._rays:
-            width, height = model.width, model.height  # type: ignore[attr-defined]
-            v, u = np.mgrid[0:height, 0:width]
-            rays = model.unproject(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64))  # type: ignore[attr-defined]
-            fov = getattr(model, "fov", None)
-            inside = incidence_angle(rays) <= math.radians(fov / 2) if fov is not None else np.ones(len(rays), bool)
+            rays, inside = pixel_rays(model)
             if len(self._rays) >= RAY_CACHE_MODELS:
                 del self._rays[next(iter(self._rays))]  # the oldest
             self._rays[model] = (np.ascontiguousarray(rays.T, np.float32), inside)

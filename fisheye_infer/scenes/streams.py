@@ -86,6 +86,25 @@ class SyntheticFrames:
     def frame(self, index: int, rig: Rig | None = None) -> Sample:
         """Frame ``index``; ``rig`` (the same cameras, calibrated otherwise) renders its scene through other
         lenses or poses: the scene, look and records stay frame ``index``'s."""
+        rig = self.rig if rig is None else rig
+        if rig.names != self.rig.names:
+            raise ValueError(f"rig: cameras {rig.names}, expected the stream's {self.rig.names}")
+        scene, pictures, records = self.draw(index, rig)
+        images = np.stack([pictures[name] for name in rig.names])
+        boxes, _, labels = records_to_arrays(records, source=f"{self.split} frame {index}")
+        return Sample(int(index), images, records, boxes, labels, scene)
+
+    def draw(self, index: int, rig: Rig) -> tuple[Scene, dict[str, np.ndarray], tuple[dict[str, Any], ...]]:
+        """Frame ``index``'s scene, its pictures through any ``rig`` (cameras of any names, models and sizes) and its
+        ground-truth records.
+
+        Args:
+            index: The frame's index in the stream.
+            rig: The cameras to render it through.
+
+        Returns:
+            tuple: The scene, camera name -> (H, W, 3) uint8 BGR picture, and the records within the BEV range.
+        """
         if index < 0:
             raise IndexError(f"frame index must be non-negative, got {index}")
         rng = self.rng(index)
@@ -98,17 +117,12 @@ class SyntheticFrames:
         )
         look = random_appearance(rng, scene, self.colour_jitter)
         self.renderer.texture_seed = int(rng.integers(0, 2**31))
-        rig = self.rig if rig is None else rig
-        if rig.names != self.rig.names:
-            raise ValueError(f"rig: cameras {rig.names}, expected the stream's {self.rig.names}")
         pictures = self.renderer.render(rig, scene, look)
-        images = np.stack([pictures[name] for name in rig.names])
         x0, y0, x1, y1 = self.bev_range
         b = scene.boxes
         keep = (b[:, 0] >= x0) & (b[:, 0] < x1) & (b[:, 1] >= y0) & (b[:, 1] < y1)
         records = tuple(boxes_to_records(b[keep], np.full(int(keep.sum()), GT_SCORE), scene.labels[keep]))
-        boxes, _, labels = records_to_arrays(records, source=f"{self.split} frame {index}")
-        return Sample(int(index), images, records, boxes, labels, scene)
+        return scene, pictures, records
 
 
 def write_split(

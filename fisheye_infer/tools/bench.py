@@ -88,7 +88,8 @@ def _graph_stages(
     from fisheye_infer.runtime.session import session_options
 
     images, valid = stack_frames(
-        [load_frame(frame, detector.info.cameras, detector.info.image_size)], detector.info.image_size
+        [load_frame(frame, detector.info.cameras, detector.info.image_size, detector.info.camera_sizes)],
+        detector.info.image_size,
     )
     times = time_stages(
         path,

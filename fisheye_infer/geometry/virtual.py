@@ -1,0 +1,146 @@
+"""Virtual cameras: the tables of a front end that turns a robot's raw images into the training cameras' images.
+
+    front = virtual_front(training_rig, robot_rig, order)     # order: the robot camera of each slot
+    front.tables                                              # geom.virtual.* for the graph
+    front.reports                                             # what each robot camera covers
+
+Each slot's training image is resampled from its robot camera's raw image with cv2.remap's exact taps
+(:func:`~fisheye_infer.geometry.grids.remap_taps`) of the :class:`~fisheye_infer.cameras.virtual_view.VirtualView`
+maps, then ``fill`` is added (mid-grey where the robot camera does not see the training ray) and the sum is rounded
+to uint8 as cv2.remap rounds it. Robot cameras may differ in size: the graph takes them padded to the largest width
+and height, each image in the top-left corner of its slot, and the taps read that layout:
+
+    geom.virtual.index    (N*Ht*Wt*4,)    int64    flat padded robot pixel of each tap, slot-major (n*Hp*Wp + y*Wp + x)
+    geom.virtual.weight   (N*Ht*Wt, 1, 4) float32  the taps' weights (products of two k/32 fractions, 0 outside)
+    geom.virtual.fill     (N*Ht*Wt, 1, 1) float32  added to each resampled pixel: ``UNSEEN_FILL`` or 0
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.cameras.virtual_view import VirtualView, virtual_view
+from fisheye_infer.errors import RigError
+from fisheye_infer.geometry.grids import remap_grid, remap_taps
+
+__all__ = [
+    "VIRTUAL",
+    "VIRTUAL_INDEX",
+    "VIRTUAL_WEIGHT",
+    "VIRTUAL_FILL",
+    "VirtualCameraReport",
+    "VirtualFront",
+    "virtual_front",
+    "padded_size",
+]
+
+VIRTUAL = "geom.virtual."
+VIRTUAL_INDEX = "geom.virtual.index"
+VIRTUAL_WEIGHT = "geom.virtual.weight"
+VIRTUAL_FILL = "geom.virtual.fill"
+
+
+class VirtualCameraReport(BaseModel):
+    """What one robot camera gives the model slot it stands in."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    slot: str  # the training camera's name
+    camera: str  # the robot camera's name
+    image_size: tuple[int, int]  # (width, height) of the robot camera's images
+    coverage: float  # share of the training lens's field the robot camera sees
+    rotation_deg: float  # rotation between the mounts, compensated
+    translation_mm: float  # distance between the camera centres, not compensated (unless a depth is given)
+    sampling_scale: float  # robot pixels per training pixel (median); below 1 the robot camera resolves less
+
+    def summary(self) -> str:
+        """One line for the export's report.
+
+        Returns:
+            str: The slot, its robot camera and the figures, with a warning where the robot camera resolves less.
+        """
+        warn = "  (warning: fewer robot pixels than training pixels)" if self.sampling_scale < 1.0 else ""
+        return (
+            f"{self.slot} <- {self.camera} ({self.image_size[0]}x{self.image_size[1]}): covers {self.coverage:.1%} of "
+            f"the training field, rotation {self.rotation_deg:.2f}° compensated, translation {self.translation_mm:.0f} "
+            f"mm left, {self.sampling_scale:.2f} robot px per training px{warn}"
+        )
+
+
+@dataclass(frozen=True)
+class VirtualFront:
+    """The front end's tables, the padded input size (width, height) and one report per slot."""
+
+    tables: dict[str, np.ndarray]
+    padded_size: tuple[int, int]
+    reports: tuple[VirtualCameraReport, ...]
+    views: tuple[VirtualView, ...]
+
+
+def padded_size(rig: Rig) -> tuple[int, int]:
+    """(width, height) that holds every camera's image of ``rig``.
+
+    Args:
+        rig: The robot rig.
+
+    Returns:
+        tuple[int, int]: The largest width and the largest height.
+    """
+    return max(c.model.width for c in rig.cameras), max(c.model.height for c in rig.cameras)
+
+
+def virtual_front(training: Rig, robot: Rig, order: Sequence[str], depth: float | None = None) -> VirtualFront:
+    """The tables that resample ``robot``'s cameras (``order``: one per slot of ``training``) into ``training``'s.
+
+    Args:
+        training: The rig the model was trained with.
+        robot: The robot's rig.
+        order: The robot camera of each slot of ``training``, in its order
+            (:func:`~fisheye_infer.cameras.camera_map.map_cameras`).
+        depth: None to compensate rotation only; else the distance (m) at which translation is compensated.
+
+    Returns:
+        VirtualFront: The ``geom.virtual.*`` tables, the padded input size and each slot's report.
+
+    Raises:
+        RigError: ``order`` does not name one robot camera per slot, or the training cameras differ in size.
+    """
+    if len(order) != len(training):
+        raise RigError(f"virtual cameras: {len(order)} robot cameras for {len(training)} model cameras")
+    sizes = {(c.model.width, c.model.height) for c in training.cameras}
+    if len(sizes) != 1:
+        raise RigError(f"virtual cameras: the model's cameras differ in size ({sorted(sizes)})")
+    cameras = [robot.camera(name) for name in order]
+    pw, ph = padded_size(robot.subset(order))
+    index, weight, fill, reports, views = [], [], [], [], []
+    for n, (slot, cam) in enumerate(zip(training.cameras, cameras)):
+        view = virtual_view(slot, cam, depth)
+        w, h = cam.model.width, cam.model.height
+        taps = remap_taps(remap_grid(view.map_x, view.map_y, w, h), h, w)
+        flat = taps.index
+        index.append(np.where(taps.weight.reshape(-1) > 0, n * ph * pw + (flat // w) * pw + flat % w, 0))
+        weight.append(taps.weight)
+        fill.append(view.fill().reshape(-1, 1, 1))
+        views.append(view)
+        reports.append(
+            VirtualCameraReport(
+                slot=slot.name,
+                camera=cam.name,
+                image_size=(w, h),
+                coverage=round(view.coverage, 6),
+                rotation_deg=round(view.rotation_deg, 4),
+                translation_mm=round(view.translation_mm, 2),
+                sampling_scale=round(view.sampling_scale, 4),
+            )
+        )
+    tables = {
+        VIRTUAL_INDEX: np.concatenate(index).astype(np.int64),
+        VIRTUAL_WEIGHT: np.concatenate(weight).astype(np.float32),
+        VIRTUAL_FILL: np.concatenate(fill).astype(np.float32),
+    }
+    return VirtualFront(tables=tables, padded_size=(pw, ph), reports=tuple(reports), views=tuple(views))
