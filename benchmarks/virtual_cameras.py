@@ -37,6 +37,8 @@ from fisheye_infer.eval.metrics import EvalConfig
 from fisheye_infer.scenes.streams import SyntheticFrames
 
 FOUND_RADIUS_M = 2.0
+#: The distance at which the moved cameras' offsets are compensated in the third way.
+DEPTH_M = 10.0
 #: Lenses of the wide-angle models, each scaled so that its 220-degree field fits its image (a 109.5-degree ray 250 px
 #: from the centre of a 512x512 image; 236 px in the 640x480 EUCM one), then one narrower lens: TUM-VI's cam0
 #: calibration (Kannala-Brandt, 512x512), which sees about 195 degrees.
@@ -203,31 +205,34 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         trained = Path(tmp) / "model.onnx"
         export(shipped.checkpoint, trained, config=shipped.config, rig=shipped.rig, frames=1)
-        for name, test_rig in test_rigs(rig, args.quick).items():
-            row: dict[str, object] = {"test rig": name}
+        for n, (name, test_rig) in enumerate(test_rigs(rig, args.quick).items()):
             same_kind = all(
                 isinstance(c.model, OCamModel) and (c.model.width, c.model.height) == (t.model.width, t.model.height)
                 for c, t in zip(test_rig.cameras, rig.cameras)
             )
-            files = {"virtual": Path(tmp) / f"{test_rig.name}.virtual.onnx"}
-            meta = rebake(trained, test_rig, files["virtual"], mode="virtual")
-            assert meta.virtual_cameras is not None
-            row["coverage"] = min(c.coverage for c in meta.virtual_cameras.cameras)
-            if same_kind:
-                files["tables"] = Path(tmp) / f"{test_rig.name}.tables.onnx"
-                rebake(trained, test_rig, files["tables"], mode="tables")
-            for mode in ("tables", "virtual"):
-                if mode in files:
-                    s = score(
-                        Detector(files[mode], threads=args.threads), stream, test_rig, frames, shipped.score_threshold
-                    )
-                    row.update({f"{mode} FDS": s["FDS"], f"{mode} mAP": s["mAP"], f"{mode} found": s["found"]})
-                else:
-                    row.update({f"{mode} FDS": None, f"{mode} mAP": None, f"{mode} found": None})
+            moved = "forward" in name or "up" in name
+            ways = {
+                "tables": {"mode": "tables"} if same_kind else None,
+                "virtual": {"mode": "virtual"},
+                f"virtual at {DEPTH_M:g} m": {"mode": "virtual", "depth": DEPTH_M} if moved else None,
+            }
+            row: dict[str, object] = {"test rig": name}
+            for way, options in ways.items():
+                if options is None:
+                    row.update({f"{way} FDS": None, f"{way} mAP": None, f"{way} found": None})
+                    continue
+                path = Path(tmp) / f"{n}-{way}.onnx"
+                meta = rebake(trained, test_rig, path, **options)  # type: ignore[arg-type]
+                if way == "virtual":
+                    assert meta.virtual_cameras is not None
+                    row["coverage"] = min(c.coverage for c in meta.virtual_cameras.cameras)
+                detector = Detector(path, threads=args.threads)
+                s = score(detector, stream, test_rig, frames, shipped.score_threshold)
+                row.update({f"{way} FDS": s["FDS"], f"{way} mAP": s["mAP"], f"{way} found": s["found"]})
             print(row, file=sys.stderr, flush=True)
             rows.append(row)
         _, pictures, _ = stream.draw(0, rig)
-        virtual = Path(tmp) / "training rig.virtual.onnx"
+        virtual = Path(tmp) / "0-virtual.onnx"
         for threads in (1, 2):
             plain, front = frame_ms(trained, threads, pictures), frame_ms(virtual, threads, pictures)
             costs.append(

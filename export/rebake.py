@@ -25,14 +25,16 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 import onnx
 
 from fisheye_infer.cameras.camera_map import map_cameras
 from fisheye_infer.cameras.rig import Rig, resolve_rig
 from fisheye_infer.cameras.virtual_view import UNSEEN_FILL
 from fisheye_infer.errors import ArtifactError, ConfigError, RigError
-from fisheye_infer.geometry.kinds import tables_for
-from fisheye_infer.geometry.tables import POOL_PIXELS, POOL_POINTS
+from fisheye_infer.geometry.kinds import geometry_from_rig, tables_for
+from fisheye_infer.geometry.petr import PETRGeometry
+from fisheye_infer.geometry.tables import PETR_KEY_MASK, PETR_KEY_POS, POOL_PIXELS, POOL_POINTS
 from fisheye_infer.geometry.virtual import virtual_front
 from fisheye_infer.runtime.artifact import METADATA_KEY, ArtifactMeta, VirtualCameras, parse_meta
 
@@ -90,7 +92,8 @@ def rebake(
     if mode == "auto":
         mode = "tables" if new_rig.hash == training.hash and camera_map is None else "virtual"
     if mode == "virtual":
-        new_meta = _virtual(proto, meta, new_rig, camera_map, depth)
+        weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
+        new_meta = _virtual(proto, meta, new_rig, camera_map, depth, weights)
     else:
         new_meta = _tables(proto, props, meta, new_rig, model_path)
     final = new_meta.model_copy(update={"tensorrt": check_tensorrt(proto)}).check()
@@ -109,13 +112,19 @@ def _virtual(
     robot: Rig,
     camera_map: Mapping[str, str] | None,
     depth: float | None,
+    weights: dict[str, np.ndarray] | None,
 ) -> ArtifactMeta:
-    """The front end for ``robot`` attached to ``proto``; the new metadata."""
+    """The front end for ``robot`` attached to ``proto``, FisheyePETR's keys on unseen pixels masked; the new
+    metadata."""
     training = meta.training_rig
     order = map_cameras(training, robot, camera_map)
     ordered = robot.model_copy(update={"cameras": tuple(robot.camera(name) for name in order)})
     front = virtual_front(training, ordered, order, depth)
     attach_front(proto, front)
+    geometry = geometry_from_rig(training, meta.geometry)
+    if isinstance(geometry, PETRGeometry) and weights is not None:
+        keys = geometry.with_unseen(np.stack([view.unseen for view in front.views])).tables(weights)
+        replace_initializers(proto, {name: keys[name] for name in (PETR_KEY_POS, PETR_KEY_MASK)})
     return meta.model_copy(
         update={
             "rig": ordered,
@@ -139,8 +148,7 @@ def _tables(
         detach_front(proto)
     if len(new_rig) != len(training):
         raise RigError(
-            f"the rig has {len(new_rig)} cameras, the model was built for {len(training)} "
-            f"({', '.join(training.names)})"
+            f"the rig has {len(new_rig)} cameras, the model was built for {len(training)} ({', '.join(training.names)})"
         )
     size = (training.cameras[0].model.width, training.cameras[0].model.height)
     new_rig.require(training.names, size)

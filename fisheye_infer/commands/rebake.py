@@ -56,8 +56,14 @@ def run(args: argparse.Namespace) -> int:
     if args.depth is not None and not args.depth > 0:
         raise RigError(f"--depth: expected a distance above 0 m, got {args.depth}")
     camera_map = None if args.camera_map is None else parse_camera_map(args.camera_map)
-    mode = "tables" if args.tables else "auto"
-    meta = rebake(args.model, args.rig, args.out, mode=mode, camera_map=camera_map, depth=args.depth)
+    meta = rebake(
+        args.model,
+        args.rig,
+        args.out,
+        mode="tables" if args.tables else "auto",
+        camera_map=camera_map,
+        depth=args.depth,
+    )
     virtual = meta.virtual_cameras
     how = "geometry tables recomputed" if virtual is None else "virtual cameras: the rig images resampled in the graph"
     print(f"wrote {args.out}: {meta.model_id}, rig {meta.rig.name!r} ({meta.rig_hash}), {how}")

@@ -24,6 +24,7 @@ from fisheye_infer.geometry.grids import (
     DEFAULT_AZIMUTH_RANGE,
     DEFAULT_ELEVATION_RANGE,
     require_poses,
+    sample_bilinear,
     spherical_directions,
     spherical_lens_grids,
     stored_for_first_lens,
@@ -269,6 +270,19 @@ class PETRGeometry:
         new_grid = self.grid if grid is None else stored_for_first_lens(self.grid, grid)
         new_mask = self.unvalid_area if unvalid_area is None else stored_for_first_lens(self.unvalid_area, unvalid_area)
         return replace(self, grid=new_grid, unvalid_area=new_mask, source=source)
+
+    def with_unseen(self, unseen: np.ndarray) -> PETRGeometry:
+        """The same geometry with the keys that sample ``unseen`` image pixels masked too: a virtual camera's
+        pixels that its robot camera does not see (:mod:`fisheye_infer.geometry.virtual`).
+
+        Args:
+            unseen: (N, H, W) bool, per camera, the image pixels without a picture.
+
+        Returns:
+            PETRGeometry: The unvalid area raised to the sampled share of unseen pixels where that is larger.
+        """
+        sampled = np.stack([sample_bilinear(np.asarray(u, np.float32), g) for u, g in zip(unseen, self.grid)])
+        return replace(self, unvalid_area=np.maximum(self.unvalid_area, sampled).astype(np.float32))
 
     def check(self, num_cameras: int) -> None:
         """Raise ``ConfigError`` naming the table whose shape does not fit the parameters and camera count."""

@@ -117,7 +117,11 @@ def virtual_front(training: Rig, robot: Rig, order: Sequence[str], depth: float 
         raise RigError(f"virtual cameras: the model's cameras differ in size ({sorted(sizes)})")
     cameras = [robot.camera(name) for name in order]
     pw, ph = padded_size(robot.subset(order))
-    index, weight, fill, reports, views = [], [], [], [], []
+    index: list[np.ndarray] = []
+    weight: list[np.ndarray] = []
+    fill: list[np.ndarray] = []
+    reports: list[VirtualCameraReport] = []
+    views: list[VirtualView] = []
     for n, (slot, cam) in enumerate(zip(training.cameras, cameras)):
         view = virtual_view(slot, cam, depth)
         w, h = cam.model.width, cam.model.height
@@ -138,7 +142,7 @@ def virtual_front(training: Rig, robot: Rig, order: Sequence[str], depth: float 
                 sampling_scale=round(view.sampling_scale, 4),
             )
         )
-    tables = {
+    tables: dict[str, np.ndarray] = {
         VIRTUAL_INDEX: np.concatenate(index).astype(np.int64),
         VIRTUAL_WEIGHT: np.concatenate(weight).astype(np.float32),
         VIRTUAL_FILL: np.concatenate(fill).astype(np.float32),

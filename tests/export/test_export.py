@@ -198,7 +198,7 @@ def test_self_check_fails_on_the_interleaved_sine_layout(
 
     monkeypatch.setattr(petr_geometry, "_blocked_sin_cos", interleaved)
     bad = tmp_path / "interleaved.onnx"
-    rebake(petr_export.onnx, rig, bad)
+    rebake(petr_export.onnx, rig, bad, mode="tables")
     monkeypatch.undo()
     report = verify(bad, reference_of(petr_export, references, rig), threads=(2,))
     assert not report.passed and report.max_box_abs_diff_m > report.tolerance_box_m

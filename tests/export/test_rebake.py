@@ -52,7 +52,7 @@ def test_rebaked_file_equals_a_fresh_export(arch: str, tmp_path: Path, small_exp
     moved_rig = own_lenses(move_rig(rig))
     exported = small_exports(arch)
     rebaked = tmp_path / "rebaked.onnx"
-    meta = rebake(exported.onnx, moved_rig, rebaked)
+    meta = rebake(exported.onnx, moved_rig, rebaked, mode="tables")
     quiet = {"frames": 1, "threads": (1,), "progress": lambda _: None}  # as the shared export's
     fresh = export(exported.ckpt, tmp_path / "fresh.onnx", config=config, rig=moved_rig, geometry="rig", **quiet)
     mine, theirs = onnx.load(str(rebaked)).graph, onnx.load(str(fresh.path)).graph
@@ -73,14 +73,16 @@ def test_rebaked_file_equals_a_fresh_export(arch: str, tmp_path: Path, small_exp
 def test_rebake_refuses_rigs_that_do_not_fit(bevdet_export, rig: Rig, tmp_path: Path) -> None:
     small = resized_rig(rig, 0.5)
     with pytest.raises(RigError, match="image is 400x400, model expects 800x800"):
-        rebake(bevdet_export.onnx, small, tmp_path / "x.onnx")
+        rebake(bevdet_export.onnx, small, tmp_path / "x.onnx", mode="tables")
     three = Rig.from_dict({**rig.model_dump(mode="json"), "cameras": rig.model_dump(mode="json")["cameras"][:3]})
     with pytest.raises(RigError, match="3 cameras"):
-        rebake(bevdet_export.onnx, three, tmp_path / "x.onnx")
+        rebake(bevdet_export.onnx, three, tmp_path / "x.onnx", mode="tables")
+    with pytest.raises(RigError, match="camera 'fisheye_camera_rear': no robot camera looks within 45°"):
+        rebake(bevdet_export.onnx, three, tmp_path / "x.onnx")  # virtual cameras: none stands in the rear one
     data = rig.model_dump(mode="json")
     data["cameras"] = data["cameras"][::-1]
     with pytest.raises(RigError, match="camera order"):
-        rebake(bevdet_export.onnx, Rig.from_dict(data), tmp_path / "x.onnx")
+        rebake(bevdet_export.onnx, Rig.from_dict(data), tmp_path / "x.onnx", mode="tables")
     with pytest.raises(ArtifactError, match="never overwrites its input"):
         rebake(bevdet_export.onnx, rig, bevdet_export.onnx)
     assert not (tmp_path / "x.onnx").exists()
@@ -99,7 +101,7 @@ def test_rebake_refuses_a_table_of_another_shape(small_exports: Callable[[str], 
     onnx.save(proto, str(older))
     _, rig = small_configs()["fisheye-bevdet"]
     with pytest.raises(ArtifactError, match=r"geom.warp.\w+ is \(\d+.*export the checkpoint again"):
-        rebake(older, rig, tmp_path / "x.onnx")
+        rebake(older, rig, tmp_path / "x.onnx", mode="tables")
     assert not (tmp_path / "x.onnx").exists()
 
 
@@ -114,15 +116,12 @@ BLOCK_TORCH = (
 )
 
 
-def test_rebake_command_runs_without_torch(petr_export, moved_rig: Rig, tmp_path: Path) -> None:
+@pytest.mark.parametrize("tables", [True, False], ids=["tables", "virtual"])
+def test_rebake_command_runs_without_torch(petr_export, moved_rig: Rig, tmp_path: Path, tables: bool) -> None:
     rig_file = moved_rig.save(tmp_path / "moved.yaml")
     out = tmp_path / "rebaked.onnx"
-    result = subprocess.run(
-        [sys.executable, "-c", BLOCK_TORCH, "rebake", str(petr_export.onnx), "--rig", str(rig_file), "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    argv = ["rebake", str(petr_export.onnx), "--rig", str(rig_file), "--out", str(out), *(["--tables"] * tables)]
+    result = subprocess.run([sys.executable, "-c", BLOCK_TORCH, *argv], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
-    assert "geometry tables recomputed" in result.stdout
+    assert ("geometry tables recomputed" if tables else "virtual cameras") in result.stdout
     assert read_meta(out).rig_hash == moved_rig.hash

@@ -304,3 +304,31 @@ def test_export_onto_retargets_each_written_file_in_place(small_export, tmp_path
     assert _onto(args, [path]) == 0
     assert read_meta(path).cameras == ("r0", "r1", "r2", "r3") and "virtual cameras onto" in capsys.readouterr().out
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.onnx", "robot.json"]
+
+
+def test_fisheye_petr_masks_the_keys_a_narrower_lens_does_not_see(small_exports, tmp_path: Path) -> None:
+    exported = small_exports("fisheye-petr")
+    meta = read_meta(exported.onnx)
+
+    def key_mask(path: Path) -> np.ndarray:
+        return next(
+            onnx.numpy_helper.to_array(i)
+            for i in onnx.load(str(path)).graph.initializer
+            if i.name == "geom.petr.key_mask"
+        )
+
+    same = rebake(exported.onnx, meta.rig, tmp_path / "same.onnx", mode="virtual")
+    assert same.virtual_cameras is not None
+    np.testing.assert_array_equal(key_mask(tmp_path / "same.onnx"), key_mask(exported.onnx))
+    side = meta.rig.cameras[0].model.width
+    narrow = Equidistant(
+        width=side, height=side, fx=side / 4, fy=side / 4, cx=(side - 1) / 2, cy=(side - 1) / 2, fov=150.0
+    )
+    robot = meta.rig.model_copy(
+        update={"cameras": tuple(c.model_copy(update={"model": narrow}) for c in meta.rig.cameras)}
+    )
+    rebake(exported.onnx, robot, tmp_path / "narrow.onnx")
+    before, after = key_mask(exported.onnx), key_mask(tmp_path / "narrow.onnx")
+    assert (after >= before).all() and after.sum() > before.sum() + 0.1 * before.size
+    frame = _frame(robot)
+    assert Detector(tmp_path / "narrow.onnx", threads=1).detect(frame).boxes.shape[1] == 7

@@ -461,7 +461,7 @@ def test_rebake_recomputes_the_baseline_tables(kit_export, tmp_path: Path) -> No
     for cam in data["cameras"]:
         cam["cam2lidar"][0][3] += 0.3  # every camera 0.3 m further forward
     moved = Rig.from_dict(data)
-    meta = rebake(result.path, moved, tmp_path / "moved.onnx")
+    meta = rebake(result.path, moved, tmp_path / "moved.onnx", mode="tables")
     assert meta.rig_hash == moved.hash and meta.geometry == read_meta(result.path).geometry
     with pytest.raises(RigError):
         rebake(
