@@ -60,7 +60,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     imported.add_argument(
         "--extrinsics",
         required=True,
-        help='lidar2cam.json: {"cameras": {name: 4x4 lidar2cam}}; one camera of a Kalibr camchain places them all',
+        help='lidar2cam.json: {"cameras": {name: 4x4 lidar2cam}}; one camera of a Kalibr camchain places them all '
+        "(each camchain from its own cameras)",
+    )
+    imported.add_argument(
+        "--trust-chain",
+        choices=("cn_cnm1", "imu"),
+        help="for a Kalibr camchain with both T_cn_cnm1 and T_cam_imu: which places the cameras where they "
+        "disagree (default: a disagreement is refused with its size)",
     )
     imported.add_argument("--names", help="comma-separated camera names, in file order (default: the files' own)")
     imported.add_argument(
@@ -137,7 +144,9 @@ def run_import(args: argparse.Namespace) -> int:
     from fisheye_infer.tools.viz import draw_rig, save_png
 
     names = [n.strip() for n in args.names.split(",")] if args.names else None
-    rig = Rig.from_calibration(args.files, args.extrinsics, format=args.format, names=names, name=Path(args.out).stem)
+    rig = Rig.from_calibration(
+        args.files, args.extrinsics, args.format, names, name=Path(args.out).stem, trust_chain=args.trust_chain
+    )
     if args.ocam:
         rig, fits = fit_rig_ocam(rig)
         for camera, fit in fits.items():
