@@ -1,6 +1,6 @@
 """Calibration files as real tools write them, beyond the plain cases: OpenVINS's camchains with OpenCV's YAML
-header, Kalibr's IMU-camera camchains, several camchains in one import, older ROS files, OpenCV XML, fields of
-view within each model's domain, and files that are no calibration at all."""
+header, Kalibr's IMU-camera camchains, several camchains in one import, older ROS files, OpenCV XML, OCam fits
+that fail or miss, fields of view within each model's domain, and files that are no calibration at all."""
 
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ from calibration_writers import (
 from fisheye_infer.cameras.calibration_files import detect_format, read_calibration
 from fisheye_infer.cameras.camera_models import DistortedPinhole, DoubleSphere, KannalaBrandt
 from fisheye_infer.cameras.field_of_view import domain_fov, reported_fov
+from fisheye_infer.cameras.ocam_fit import fit_rig_ocam
 from fisheye_infer.cameras.rig import Rig, default_rig
 from fisheye_infer.cli import main
 from fisheye_infer.errors import RigError
@@ -167,6 +168,40 @@ def test_an_opencv_xml_file_is_recognised(tmp_path: Path) -> None:
     assert path.read_text().startswith("<?xml") and detect_format(path) == "opencv"
     (cam,) = read_calibration(path)
     assert isinstance(cam.model, KannalaBrandt) and cam.model.k == (0.02, -0.004, 0.001, -0.0002)
+
+
+def _omni_camchain(path: Path, xi: float, coeffs: list[float]) -> Path:
+    cameras = {"front": ("omni", [xi, 620.0, 621.0, 399.0, 400.0], "radtan", coeffs)}
+    kalibr_camchain(path, cameras=cameras)
+    return path
+
+
+def test_an_ocam_fit_that_fails_or_misses_is_refused_unless_forced(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A Mei lens whose undistortion diverges inside its field of view gives no finite fit; one with tangential
+    distortion (not radially symmetric) misses by 12 px. Neither is written unless forced."""
+    lidar2cam = {"fisheye_camera_front": default_rig().lidar2cam()[0]}
+    extrinsics = extrinsics_json(tmp_path / "lidar2cam.json", lidar2cam)
+    failing = _omni_camchain(tmp_path / "failing.yaml", 1.6622715, [-0.10298044, -0.1043001, 0.02684171, 0.03586719])
+    out = tmp_path / "rig.yaml"
+    base = ["rig", "import", "--names", "fisheye_camera_front", "--extrinsics", str(extrinsics), "--ocam"]
+    assert main([*base, str(failing), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "camera 'fisheye_camera_front': the OCam fit of its Omnidirectional lens failed" in err and not out.exists()
+    rig = Rig.from_calibration([failing], extrinsics, names=["fisheye_camera_front"])
+    with pytest.raises(RigError, match="lens failed"):
+        fit_rig_ocam(rig, force=True)
+    missing = _omni_camchain(tmp_path / "missing.yaml", 1.6, [-0.1, 0.02, 0.01, 0.0])
+    assert main([*base, str(missing), "--out", str(out)]) == 1
+    assert "max reprojection error above the 1 px bound (camera 'fisheye_camera_front' 12.4 px)" in capsys.readouterr().err
+    assert not out.exists()
+    assert main([*base, str(missing), "--force-fit", "--out", str(out)]) == 0
+    assert "12.408 px (above the 1 px bound: written because of --force-fit)" in capsys.readouterr().out
+    assert out.exists() and Rig.load(out).cameras[0].model.type == "ocam"
+    assert main(["rig", "import", str(missing), "--names", "fisheye_camera_front", "--extrinsics", str(extrinsics),
+                 "--force-fit", "--out", str(out)]) == 1  # fmt: skip
+    assert "--force-fit: applies to --ocam fits" in capsys.readouterr().err
 
 
 def test_a_reported_field_of_view_stays_within_what_the_model_projects(
