@@ -256,7 +256,9 @@ def _opencv(path: Path) -> CalibratedCamera:
     if k is None or d is None:
         raise RigError(f"{label}: expected camera_matrix and distortion_coefficients (OpenCV's calibration sample)")
     for key, value in (("image_width", width), ("image_height", height)):
-        if not math.isfinite(value) or value <= 0 or value != int(value):
+        if not math.isfinite(value):
+            raise RigError(f"{label} ({key}): not finite (got {value})")
+        if value <= 0 or value != int(value):
             raise RigError(f"{label} ({key}): expected a positive integer, got {value}")
     if k.shape != (3, 3):
         raise RigError(f"{label} (camera_matrix): expected a 3x3 matrix, got shape {k.shape}")

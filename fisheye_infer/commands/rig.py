@@ -49,8 +49,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     imported.add_argument(
         "files",
         nargs="+",
-        help="a Kalibr camchain, or one ROS CameraInfo YAML / OpenCV FileStorage file / OCamCalib calib_results.txt "
-        "per camera",
+        help="Kalibr camchains, or one ROS CameraInfo YAML / OpenCV FileStorage file (YAML or XML) / OCamCalib "
+        "calib_results.txt per camera",
     )
     imported.add_argument(
         "--format",

@@ -277,6 +277,9 @@ def test_values_that_are_not_finite_are_named_as_such(tmp_path: Path) -> None:
     assert ".Nan" in path.read_text()
     with pytest.raises(RigError, match=r"camera 'nan' \(camera_matrix\): not finite \(got \[\[nan, 0\.0, 639\.5\]"):
         read_calibration(path)
+    path.write_text(path.read_text().replace("image_width: 1280", "image_width: .Nan"))
+    with pytest.raises(RigError, match=r"camera 'nan' \(image_width\): not finite \(got nan\)"):
+        read_calibration(path)
     doc = yaml.safe_load(_camchain_text(tmp_path))
     doc["cam0"]["intrinsics"][2] = float("nan")
     kalibr = tmp_path / "nan.yaml"
@@ -284,6 +287,13 @@ def test_values_that_are_not_finite_are_named_as_such(tmp_path: Path) -> None:
     assert ".nan" in kalibr.read_text()
     with pytest.raises(RigError, match=r"camera 'cam0' \(intrinsics\): not finite \(got \[-0\.2, 0\.57, nan, "):
         read_calibration(kalibr)
+
+
+def test_yaml_nested_too_deeply_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "deep.yaml"
+    path.write_text("cam0: " + "[" * 100_000 + "]" * 100_000 + "\n")
+    with pytest.raises(RigError, match=r"deep\.yaml: not valid YAML \(nested too deeply\)"):
+        read_calibration(path)
 
 
 def test_a_huge_value_is_quoted_short(tmp_path: Path) -> None:
