@@ -195,7 +195,8 @@ def place_cameras(
 
 
 def _yaml(path: Path, text: str) -> Any:
-    """The YAML document of a calibration file, OpenCV's ``%YAML:1.0`` directive read as ``%YAML 1.1``."""
+    """The YAML document of a calibration file; OpenCV's ``%YAML:1.0`` directive, which other YAML readers refuse,
+    is dropped."""
     return load_yaml(_OPENCV_DIRECTIVE.sub("", text, count=1), path)
 
 
