@@ -3,6 +3,8 @@
 ``camera_models`` (OCam, Kannala-Brandt, equidistant, pinhole, distorted pinhole, double sphere,
 EUCM and Mei's omnidirectional model behind one interface), ``ocam_fit`` (an OCam model fitted to
 another model's calibration), ``rig`` (named cameras with poses), ``rig_files`` (the rig file
-formats read and written), ``calibration_files`` (Kalibr, ROS CameraInfo and OpenCV calibrations
-read into camera models), ``carla_poses`` (CARLA sensor poses to cam2lidar matrices).
+formats read and written), ``calibration_files`` (Kalibr, ROS CameraInfo, OpenCV and OCamCalib
+calibrations read into camera models; ``kalibr_camchain`` and ``calibration_values`` behind it),
+``field_of_view`` (what an image shows and what a model projects), ``text_input`` (files from outside
+read with bounds), ``carla_poses`` (CARLA sensor poses to cam2lidar matrices).
 """

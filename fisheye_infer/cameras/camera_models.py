@@ -32,7 +32,8 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from fisheye_infer.errors import CameraModelError
+from fisheye_infer.cameras.text_input import read_text
+from fisheye_infer.errors import CameraModelError, RigError
 
 __all__ = [
     "CameraModel",
@@ -86,7 +87,7 @@ def _inside_image(uv: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     width: int = Field(gt=0, description="image width in pixels")
     height: int = Field(gt=0, description="image height in pixels")
@@ -133,9 +134,9 @@ class OCamModel(_Frozen):
         """Read an OCamCalib ``calib_results.txt``."""
         path = Path(path)
         try:
-            text = path.read_text()
-        except OSError as exc:
-            raise CameraModelError(f"OCam file {path}: cannot be read ({exc.strerror})") from exc
+            text = read_text(path, "an OCam calib_results.txt")
+        except RigError as exc:
+            raise CameraModelError(f"OCam file {exc}") from None
         return cls.parse(text, fov=fov, source=str(path))
 
     @classmethod
@@ -153,9 +154,10 @@ class OCamModel(_Frozen):
             try:
                 rows.append([float(tok) for tok in stripped.split()])
             except ValueError as exc:
-                raise CameraModelError(
-                    f"OCam file {source}, line {lineno}: not a row of numbers: {stripped!r}"
-                ) from exc
+                quoted = stripped if len(stripped) <= 80 else stripped[:77] + "..."
+                raise CameraModelError(f"OCam file {source}, line {lineno}: not a row of numbers: {quoted!r}") from exc
+            if not all(math.isfinite(v) for v in rows[-1]):
+                raise CameraModelError(f"OCam file {source}, line {lineno}: not finite (NaN or infinity)")
             if len(rows) == 5:
                 break
         fields = [

@@ -3,8 +3,10 @@
 The Fisheye3DOD checkpoints were trained with OCam sampling grids. A user whose lenses are
 calibrated with OpenCV's fisheye model (or the paper's r(theta) polynomial), or with Kalibr's
 and Basalt's wide-angle models, gets the OCam model of the same lens from ``fit_ocam``, and with
-it the geometry tables the detectors expect. The fit reports its own reprojection error, so the
-user can judge it (a model with tangential distortion is not radially symmetric, and shows it there).
+it the geometry tables the detectors expect. The fit reports its own reprojection error (a model with
+tangential distortion is not radially symmetric, and shows it there); ``fit_rig_ocam`` refuses a fit
+whose error is above ``MAX_FIT_ERROR_PX`` unless forced, and a fit that fails (a lens whose projection
+is undefined somewhere in its field of view gives no finite polynomial) is refused by camera.
 
 In units of fx pixels along the image's x axis: invpol is a least-squares polynomial of the image
 radius rho(theta) of a ray at incidence theta + pi/2, over the lens's ``fov``; pol is a polynomial
@@ -16,17 +18,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
 from fisheye_infer.cameras.camera_models import DoubleSphere, ExtendedUnified, KannalaBrandt, OCamModel, Omnidirectional
+from fisheye_infer.cameras.field_of_view import domain_fov
 from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.errors import RigError
 
 #: The models ``fit_rig_ocam`` replaces by their OCam fit.
 _FITTED = (KannalaBrandt, DoubleSphere, ExtendedUnified, Omnidirectional)
+#: The largest max reprojection error (pixels) of a fit ``fit_rig_ocam`` accepts unless forced.
+MAX_FIT_ERROR_PX: Final = 1.0
 
-__all__ = ["OCamFit", "fit_ocam", "fit_ocam_from_kb", "fit_rig_ocam"]
+__all__ = ["MAX_FIT_ERROR_PX", "OCamFit", "fit_ocam", "fit_ocam_from_kb", "fit_rig_ocam"]
 
 
 @dataclass(frozen=True)
@@ -54,10 +60,12 @@ def _lstsq_poly(x: np.ndarray, y: np.ndarray, powers: list[int], scale: float) -
 
 
 def fit_ocam(lens: Any, invpol_degree: int = 12, pol_degree: int = 10, samples: int = 2000) -> OCamFit:
-    """OCam model of a lens over its ``fov``, with the fit's max reprojection error. ``lens``: a model with
-    ``fx``, ``fy``, ``cx``, ``cy``, ``fov`` and ``project``/``unproject`` (``KannalaBrandt``, ``DoubleSphere``,
-    ``ExtendedUnified``, ``Omnidirectional``)."""
-    alpha_max = math.radians(lens.fov / 2.0)
+    """OCam model of a lens over its ``fov`` (within what the model projects, ``domain_fov``), with the fit's
+    max reprojection error. ``lens``: a model with ``fx``, ``fy``, ``cx``, ``cy``, ``fov`` and
+    ``project``/``unproject`` (``KannalaBrandt``, ``DoubleSphere``, ``ExtendedUnified``, ``Omnidirectional``).
+    A fit that gives no finite model is refused (``RigError``)."""
+    fov = min(float(lens.fov), domain_fov(lens))
+    alpha_max = math.radians(fov / 2.0)
     f = lens.fx
     along_x = lens.model_copy(update={"width": 1 << 20, "height": 1 << 20, "cx": 0.0, "cy": 0.0})  # no image edge
     # invpol: image radius (in fx pixels) as a function of theta = alpha - pi/2.
@@ -72,7 +80,13 @@ def fit_ocam(lens: Any, invpol_degree: int = 12, pol_degree: int = 10, samples: 
     alpha_of_rho = np.arctan2(np.hypot(rays[:, 0], rays[:, 1]), rays[:, 2])
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(radius > 0, radius * np.cos(alpha_of_rho) / np.sin(alpha_of_rho), f)
-    pol = _lstsq_poly(radius, -z, [0] + list(range(2, pol_degree + 1)), scale=rho_max)
+    with np.errstate(invalid="ignore"):
+        pol = _lstsq_poly(radius, -z, [0] + list(range(2, pol_degree + 1)), scale=rho_max)
+    if not (np.isfinite(pol).all() and np.isfinite(invpol).all()):
+        raise RigError(
+            f"the OCam fit of its {type(lens).__name__} lens failed: the lens gives no finite ray or image point "
+            f"somewhere in its {fov:g}-degree field of view"
+        )
     model = OCamModel(
         pol=tuple(pol.tolist()),
         invpol=tuple(invpol.tolist()),
@@ -83,7 +97,7 @@ def fit_ocam(lens: Any, invpol_degree: int = 12, pol_degree: int = 10, samples: 
         e=0.0,
         width=lens.width,
         height=lens.height,
-        fov=lens.fov,
+        fov=fov,
     )
     # Errors over rays/pixels spread across the whole fov, at several azimuths.
     a = np.linspace(0.0, alpha_max, 200)
@@ -95,6 +109,8 @@ def fit_ocam(lens: Any, invpol_degree: int = 12, pol_degree: int = 10, samples: 
     project_err = float(np.abs(ocam_uv - lens_uv).max())
     back, _ = lens.project(model.unproject(lens_uv))
     unproject_err = float(np.abs(back - lens_uv).max())
+    if not (math.isfinite(project_err) and math.isfinite(unproject_err)):
+        raise RigError(f"the OCam fit of its {type(lens).__name__} lens failed: its error is not finite")
     return OCamFit(model=model, max_project_error_px=project_err, max_unproject_error_px=unproject_err)
 
 
@@ -103,9 +119,36 @@ def fit_ocam_from_kb(kb: KannalaBrandt, invpol_degree: int = 12, pol_degree: int
     return fit_ocam(kb, invpol_degree, pol_degree, samples)
 
 
-def fit_rig_ocam(rig: Rig) -> tuple[Rig, dict[str, OCamFit]]:
+def fit_rig_ocam(
+    rig: Rig, max_error_px: float = MAX_FIT_ERROR_PX, force: bool = False
+) -> tuple[Rig, dict[str, OCamFit]]:
     """``rig`` with every wide-angle camera (Kannala-Brandt, double sphere, EUCM, Mei) replaced by its
-    ``fit_ocam`` model, and the fits by camera name: the form the fisheye detectors' geometry takes."""
-    fits = {cam.name: fit_ocam(cam.model) for cam in rig.cameras if isinstance(cam.model, _FITTED)}
+    ``fit_ocam`` model: the form the fisheye detectors' geometry takes.
+
+    Args:
+        rig: the rig to fit.
+        max_error_px: the largest max reprojection error (pixels) accepted.
+        force: accept fits above ``max_error_px`` too (their errors are still returned).
+
+    Returns:
+        The fitted rig, and the fits by camera name. A fit that fails, or one above ``max_error_px``
+        unless ``force``, is refused (``RigError``) naming the camera and its error.
+    """
+    fits = {}
+    for cam in rig.cameras:
+        if isinstance(cam.model, _FITTED):
+            try:
+                fits[cam.name] = fit_ocam(cam.model)
+            except RigError as exc:
+                raise RigError(f"camera '{cam.name}': {exc}") from None
+    above = {name: fit.max_reprojection_error_px for name, fit in fits.items()}
+    above = {name: error for name, error in above.items() if error > max_error_px}
+    if above and not force:
+        errors = ", ".join(f"camera '{name}' {error:.3g} px" for name, error in above.items())
+        raise RigError(
+            f"OCam fit: max reprojection error above the {max_error_px:g} px bound ({errors}); the OCam model does not "
+            "represent the lens there. Keep the lens's own model (no --ocam), or accept the fit with --force-fit "
+            "(force=True in Python)"
+        )
     models = {cam.name: fits[cam.name].model if cam.name in fits else cam.model for cam in rig.cameras}
     return Rig.from_cameras(models, dict(zip(rig.names, rig.cam2lidar(), strict=True)), name=rig.name), fits

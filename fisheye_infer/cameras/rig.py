@@ -18,7 +18,6 @@ import hashlib
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import replace
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
@@ -29,6 +28,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from fisheye_infer.cameras.camera_models import AnyCameraModel
 from fisheye_infer.cameras.carla_poses import Convention
+from fisheye_infer.cameras.field_of_view import reported_fov
+from fisheye_infer.cameras.kalibr_camchain import TrustChain
 from fisheye_infer.cameras.rig_files import (
     RIG_SCHEMA_VERSION,
     describe_validation_error,
@@ -210,43 +211,19 @@ class Rig(BaseModel):
         format: str | None = None,
         names: Sequence[str] | None = None,
         name: str | None = None,
+        trust_chain: TrustChain | None = None,
     ) -> Rig:
         """Cameras from calibration files (``calibration_files``: Kalibr, ROS ``CameraInfo``, OpenCV, OCamCalib) placed
-        in the lidar frame by ``{"cameras": {name: lidar2cam 4x4}}`` (``extrinsics``).
-
-        A Kalibr camchain places its cameras relative to each other: one camera in ``extrinsics`` places
-        them all, and any other listed must agree with the chain (1 mm, 0.06 degrees). Files without a
-        chain need every camera in ``extrinsics``. ``names`` renames the cameras in file order.
+        in the lidar frame by ``{"cameras": {name: lidar2cam 4x4}}`` (``extrinsics``): each Kalibr camchain by one of
+        its cameras there (any other there must agree with the chain: 1 mm, 0.06 degrees), every other camera by
+        its own. ``names`` renames the cameras in file order; ``trust_chain`` (``"cn_cnm1"`` or ``"imu"``): which of
+        a camchain's ``T_cn_cnm1`` and ``T_cam_imu`` places its cameras where the two disagree.
         """
-        from fisheye_infer.cameras.calibration_files import read_calibration
+        from fisheye_infer.cameras.calibration_files import place_cameras, read_calibrations
 
-        cameras = [cam for f in files for cam in read_calibration(f, format)]
-        if names is not None:
-            if len(names) != len(cameras):
-                raise RigError(
-                    f"names: {len(names)} given for {len(cameras)} camera(s) in {', '.join(map(str, files))}"
-                )
-            cameras = [replace(cam, name=new) for cam, new in zip(cameras, names, strict=True)]
-        given = read_lidar2cam_json(extrinsics)
-        chained = [(c, c.cam2first) for c in cameras if c.cam2first is not None]
-        cam2lidar = {c.name: given[c.name] for c in cameras if c.name in given}
-        if chained:
-            anchor = next(((c, pose) for c, pose in chained if c.name in given), None)
-            if anchor is None:
-                raise RigError(
-                    f"extrinsics {extrinsics}: none of the chained cameras ({', '.join(c.name for c, _ in chained)}) "
-                    "is in it; give lidar2cam of at least one"
-                )
-            first2lidar = given[anchor[0].name] @ np.linalg.inv(anchor[1])
-            for cam, pose in chained:
-                placed = first2lidar @ pose
-                if cam.name in given:
-                    _check_agrees(cam.name, given[cam.name], placed, extrinsics)
-                cam2lidar[cam.name] = placed
-        missing = [c.name for c in cameras if c.name not in cam2lidar]
-        if missing:
-            raise RigError(f"extrinsics {extrinsics}: no lidar2cam for camera(s) {', '.join(missing)}")
-        models = {c.name: c.model for c in cameras}
+        groups = read_calibrations(files, format, names, trust_chain)
+        cam2lidar = place_cameras(groups, read_lidar2cam_json(extrinsics), str(extrinsics))
+        models = {c.name: c.model for _, cams in groups for c in cams}
         return cls.from_cameras(models, cam2lidar, name=name or Path(files[0]).stem)
 
     @classmethod
@@ -360,25 +337,13 @@ class Rig(BaseModel):
         )
         for cam in self.cameras:
             x, y, z = np.round(cam.position, 3) + 0.0  # no "-0.000"
-            fov = getattr(cam.model, "fov", None)
+            fov = reported_fov(cam.model)
             lines.append(
                 f"  {cam.name:<{width}} {cam.model.type:<17} {calibrations.index(cam.model) + 1:>4} "
                 f"{cam.model.width:>4}x{cam.model.height:<4} {fov if fov is not None else '-':>7}"
                 f"   {x:>7.3f}, {y:>7.3f}, {z:>7.3f}     {round(math.degrees(cam.heading), 1) + 0.0:>7.1f}°"
             )
         return "\n".join(lines)
-
-
-def _check_agrees(name: str, given: np.ndarray, chained: np.ndarray, source: str | Path) -> None:
-    """A camera placed both by the extrinsics and by the camchain: the two must agree."""
-    delta = np.linalg.inv(given) @ chained
-    metres = float(np.linalg.norm(delta[:3, 3]))
-    degrees = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(delta[:3, :3]) - 1) / 2))))
-    if metres > 1e-3 or degrees > 0.06:
-        raise RigError(
-            f"camera '{name}': the extrinsics in {source} and the camchain disagree by {metres * 1000:.1f} mm and "
-            f"{degrees:.2f} degrees; give one camera's lidar2cam, or ones that agree"
-        )
 
 
 def _canonical(value: Any) -> Any:

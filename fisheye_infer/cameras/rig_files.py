@@ -12,12 +12,15 @@ then validate what comes back. Nothing here builds a ``Rig``, so this module doe
 - a pinhole camera list (``{"cameras": [{"name", "width", "height", "K", "distortion": "none",
   "lidar2cam"}, ...]}``, the layout of ``rig-pinhole6/cameras.json``).
 
-Readers report problems with the file, camera and field they concern, as :class:`RigError`.
+Readers report problems with the file, camera and field they concern, as :class:`RigError`. Files are
+read through ``text_input`` (a binary file is "not a rig file", YAML aliases are refused), and a value that
+is not finite (YAML's ``.nan``, JSON's ``NaN``) is named as such.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Final
@@ -28,6 +31,7 @@ from pydantic import ValidationError
 
 from fisheye_infer.cameras.camera_models import OCamModel
 from fisheye_infer.cameras.carla_poses import Convention, cam2lidar_from_poses, read_sensor_metadata
+from fisheye_infer.cameras.text_input import load_yaml, read_text, short
 from fisheye_infer.errors import CameraModelError, RigError
 
 __all__ = [
@@ -40,6 +44,7 @@ __all__ = [
     "pinhole_list_cameras",
     "write_rig_document",
     "describe_validation_error",
+    "error_message",
 ]
 
 RIG_SCHEMA_VERSION: Final = 1
@@ -56,20 +61,33 @@ def read_ocam(calib: str | Path, fov: float) -> OCamModel:
 def read_lidar2cam_json(path: str | Path) -> dict[str, np.ndarray]:
     """cam2lidar (4x4 float64) per camera, in file order, from ``{"cameras": {name: 4x4 lidar2cam}}``."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise RigError(f"extrinsics {path}: cannot be read as JSON ({exc})") from exc
+    doc = _json(path, read_text(path, "an extrinsics file"), "extrinsics")
     cams = doc.get("cameras") if isinstance(doc, dict) else None
     if not isinstance(cams, dict) or not cams:
         raise RigError(f'extrinsics {path}: expected {{"cameras": {{name: 4x4 lidar2cam}}}}')
     cam2lidar = {}
     for cam, m in cams.items():
-        arr = np.asarray(m, dtype=np.float64)
+        try:
+            arr = np.asarray(m, dtype=np.float64)
+        except (TypeError, ValueError):
+            arr = np.full((0,), np.nan)
+        label = f"camera {short(cam)} (lidar2cam in {path})"
         if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
-            raise RigError(f"camera '{cam}' (lidar2cam in {path}): expected a finite 4x4 matrix, got shape {arr.shape}")
+            raise RigError(f"{label}: expected a finite 4x4 matrix, got {short(m)}")
+        if abs(np.linalg.det(arr)) < 1e-9:
+            raise RigError(f"{label}: not invertible (a rigid transform is)")
         cam2lidar[cam] = np.linalg.inv(arr)
     return cam2lidar
+
+
+def _json(path: Path, text: str, what: str) -> Any:
+    """The JSON document in ``text`` (``what`` names the file in the refusal)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RigError(f"{what} {path}: cannot be read as JSON ({exc})") from None
+    except RecursionError:
+        raise RigError(f"{what} {path}: cannot be read as JSON (nested too deeply)") from None
 
 
 def read_sensor_metadata_poses(
@@ -105,14 +123,8 @@ def _is_yaml(path: Path) -> bool:
 def read_rig_document(path: Path) -> Any:
     """The parsed contents of a rig file (YAML for ``.yaml``/``.yml``, JSON otherwise), its
     ``schema_version`` checked when it has one; not yet validated as a rig."""
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise RigError(f"rig file {path}: cannot be read ({exc.strerror})") from exc
-    try:
-        data = yaml.safe_load(text) if _is_yaml(path) else json.loads(text)
-    except (yaml.YAMLError, json.JSONDecodeError) as exc:
-        raise RigError(f"rig file {path}: not valid {'YAML' if _is_yaml(path) else 'JSON'}: {exc}") from exc
+    text = read_text(path, "a rig file")
+    data = load_yaml(text, f"rig file {path}") if _is_yaml(path) else _json(path, text, "rig file")
     if isinstance(data, dict) and data.get("schema_version", RIG_SCHEMA_VERSION) != RIG_SCHEMA_VERSION:
         raise RigError(
             f"rig file {path}: schema_version {data.get('schema_version')!r} is not supported "
@@ -203,6 +215,13 @@ def describe_validation_error(exc: ValidationError, data: Any) -> str:
             name = entry.get("name") if isinstance(entry, dict) else None
             field = ".".join(str(x) for x in loc[2:] if x not in _MODEL_TYPES) or "entry"
             where = f"camera '{name}' ({field})" if name else f"camera #{loc[1]} ({field})"
-        msg = err["msg"].removeprefix("Value error, ")
-        parts.append(f"{where}: {msg}")
+        parts.append(f"{where}: {error_message(err)}")
     return "; ".join(parts)
+
+
+def error_message(error: Any) -> str:
+    """One pydantic error's message; a value that is not finite is said to be so, whatever the field's bound."""
+    value = error.get("input")
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"not finite (got {value})"
+    return str(error["msg"]).removeprefix("Value error, ")

@@ -49,8 +49,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     imported.add_argument(
         "files",
         nargs="+",
-        help="a Kalibr camchain, or one ROS CameraInfo YAML / OpenCV FileStorage file / OCamCalib calib_results.txt "
-        "per camera",
+        help="Kalibr camchains, or one ROS CameraInfo YAML / OpenCV FileStorage file (YAML or XML) / OCamCalib "
+        "calib_results.txt per camera",
     )
     imported.add_argument(
         "--format",
@@ -60,15 +60,23 @@ def configure(parser: argparse.ArgumentParser) -> None:
     imported.add_argument(
         "--extrinsics",
         required=True,
-        help='lidar2cam.json: {"cameras": {name: 4x4 lidar2cam}}; one camera of a Kalibr camchain places them all',
+        help='lidar2cam.json: {"cameras": {name: 4x4 lidar2cam}}; one camera of a Kalibr camchain places them all '
+        "(each camchain from its own cameras)",
+    )
+    imported.add_argument(
+        "--trust-chain",
+        choices=("cn_cnm1", "imu"),
+        help="for a Kalibr camchain with both T_cn_cnm1 and T_cam_imu: which places the cameras where they "
+        "disagree (default: a disagreement is refused with its size)",
     )
     imported.add_argument("--names", help="comma-separated camera names, in file order (default: the files' own)")
     imported.add_argument(
         "--ocam",
         action="store_true",
         help="replace each wide-angle model by its OCam fit, the form the fisheye detectors' geometry takes "
-        "(the fit's error is printed)",
+        "(the fit's error is printed; a fit above 1 px max reprojection error is refused)",
     )
+    imported.add_argument("--force-fit", action="store_true", help="with --ocam: write fits above the 1 px bound too")
     imported.add_argument("--out", required=True, help="rig file to write (.json or .yaml)")
     imported.add_argument("--plot", help="PNG of the rig from above (default: --out with .png)")
     imported.set_defaults(run=run_import)
@@ -132,16 +140,24 @@ def run_convert(args: argparse.Namespace) -> int:
 def run_import(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from fisheye_infer.cameras.ocam_fit import fit_rig_ocam
+    from fisheye_infer.cameras.ocam_fit import MAX_FIT_ERROR_PX, fit_rig_ocam
     from fisheye_infer.cameras.rig import Rig
+    from fisheye_infer.errors import OptionError
     from fisheye_infer.tools.viz import draw_rig, save_png
 
+    if args.force_fit and not args.ocam:
+        raise OptionError("--force-fit: applies to --ocam fits; add --ocam, or leave it out")
     names = [n.strip() for n in args.names.split(",")] if args.names else None
-    rig = Rig.from_calibration(args.files, args.extrinsics, format=args.format, names=names, name=Path(args.out).stem)
+    rig = Rig.from_calibration(
+        args.files, args.extrinsics, args.format, names, name=Path(args.out).stem, trust_chain=args.trust_chain
+    )
     if args.ocam:
-        rig, fits = fit_rig_ocam(rig)
+        rig, fits = fit_rig_ocam(rig, max_error_px=MAX_FIT_ERROR_PX, force=args.force_fit)
         for camera, fit in fits.items():
-            print(f"camera '{camera}': OCam fit, max reprojection error {fit.max_reprojection_error_px:.3f} px")
+            error = fit.max_reprojection_error_px
+            above = error > MAX_FIT_ERROR_PX
+            note = f" (above the {MAX_FIT_ERROR_PX:g} px bound: written because of --force-fit)" if above else ""
+            print(f"camera '{camera}': OCam fit, max reprojection error {error:.3f} px{note}")
     rig.save(args.out)
     print(rig.describe())
     plot = args.plot or str(Path(args.out).with_suffix(".png"))

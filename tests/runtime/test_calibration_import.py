@@ -3,7 +3,6 @@ rig the fisheye detectors run on (``rig import --ocam``, then ``rebake``)."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from calibration_writers import KALIBR_CAMERAS, extrinsics_json, kalibr_camchain, opencv_storage, ros_camera_info
 
 from fisheye_infer.cameras.calibration_files import detect_format, read_calibration
 from fisheye_infer.cameras.camera_models import (
@@ -26,78 +26,6 @@ from fisheye_infer.cameras.rig import Rig, default_rig
 from fisheye_infer.cli import main
 from fisheye_infer.errors import RigError
 
-#: One Kalibr camera of each wide-angle model it calibrates: (camera_model, intrinsics, distortion_model, coeffs).
-KALIBR_CAMERAS = {
-    "fisheye_camera_front": ("ds", [-0.2, 0.57, 250.0, 251.0, 399.5, 400.5], "none", []),
-    "fisheye_camera_left": ("eucm", [0.63, 1.05, 228.0, 229.0, 400.0, 399.0], "none", []),
-    "fisheye_camera_right": ("omni", [1.6, 620.0, 621.0, 399.0, 400.0], "radtan", [-0.1, 0.02, 0.0, 0.0]),
-    "fisheye_camera_rear": ("pinhole", [230.0, 231.0, 400.0, 400.0], "equidistant", [0.02, -0.004, 0.001, -0.0002]),
-}
-
-
-def _kalibr_camchain(
-    path: Path, resolution: tuple[int, int] = (800, 800), cameras: dict[str, tuple] = KALIBR_CAMERAS
-) -> dict[str, np.ndarray]:
-    """A camchain as Kalibr writes it (``cam0``..``cam3``, ``T_cn_cnm1`` from the shipped rig's poses); the
-    lidar2cam of each camera."""
-    rig = default_rig()
-    lidar2cam = dict(zip(rig.names, rig.lidar2cam(), strict=True))
-    chain: dict[str, dict] = {}
-    previous = None
-    for i, (name, (model, intrinsics, distortion, coeffs)) in enumerate(cameras.items()):
-        entry: dict = {
-            "camera_model": model,
-            "intrinsics": intrinsics,
-            "distortion_model": distortion,
-            "distortion_coeffs": coeffs,
-            "resolution": list(resolution),
-            "rostopic": f"/{name}/image_raw",
-        }
-        if previous is not None:
-            entry["T_cn_cnm1"] = (lidar2cam[name] @ np.linalg.inv(lidar2cam[previous])).tolist()
-            entry["cam_overlaps"] = [i - 1]
-        chain[f"cam{i}"] = entry
-        previous = name
-    path.write_text(yaml.dump(chain, default_flow_style=None))
-    return lidar2cam
-
-
-def _extrinsics(path: Path, lidar2cam: dict[str, np.ndarray]) -> Path:
-    path.write_text(json.dumps({"cameras": {name: m.tolist() for name, m in lidar2cam.items()}}))
-    return path
-
-
-def _ros_camera_info(path: Path, model: str, d: list[float], name: str = "front") -> Path:
-    """The layout ``camera_calibration_parsers`` writes."""
-    k = [450.0, 0.0, 320.0, 0.0, 452.0, 240.0, 0.0, 0.0, 1.0]
-    doc = {
-        "image_width": 640,
-        "image_height": 480,
-        "camera_name": name,
-        "camera_matrix": {"rows": 3, "cols": 3, "data": k},
-        "distortion_model": model,
-        "distortion_coefficients": {"rows": 1, "cols": len(d), "data": d},
-        "rectification_matrix": {"rows": 3, "cols": 3, "data": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]},
-        "projection_matrix": {"rows": 3, "cols": 4, "data": [450.0, 0, 320.0, 0, 0, 452.0, 240.0, 0, 0, 0, 1.0, 0]},
-    }
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return path
-
-
-def _opencv_storage(path: Path, d: list[float], fisheye: int | None) -> Path:
-    """What OpenCV's calibration sample writes (``cv::FileStorage``)."""
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    fs.write("image_width", 1280)
-    fs.write("image_height", 960)
-    fs.write("flags", 0)
-    if fisheye is not None:
-        fs.write("fisheye_model", fisheye)
-    fs.write("camera_matrix", np.array([[330.0, 0, 639.5], [0, 331.0, 479.5], [0, 0, 1]]))
-    fs.write("distortion_coefficients", np.array(d, np.float64).reshape(-1, 1))
-    fs.write("avg_reprojection_error", 0.21)
-    fs.release()
-    return path
-
 
 def _rays(max_deg: float, n: int = 300) -> np.ndarray:
     rng = np.random.default_rng(1)
@@ -107,10 +35,10 @@ def _rays(max_deg: float, n: int = 300) -> np.ndarray:
 
 def test_kalibr_camchain_gives_each_model_and_the_chained_poses(tmp_path: Path) -> None:
     camchain = tmp_path / "camchain.yaml"
-    lidar2cam = _kalibr_camchain(camchain)
+    lidar2cam = kalibr_camchain(camchain)
     assert detect_format(camchain) == "kalibr"
     names = list(KALIBR_CAMERAS)
-    anchor = _extrinsics(tmp_path / "lidar2cam.json", {names[0]: lidar2cam[names[0]]})
+    anchor = extrinsics_json(tmp_path / "lidar2cam.json", {names[0]: lidar2cam[names[0]]})
     rig = Rig.from_calibration([camchain], anchor, names=names)
     for cam in rig.cameras:
         assert np.abs(cam.matrix - np.linalg.inv(lidar2cam[cam.name])).max() < 1e-9
@@ -139,18 +67,18 @@ def test_a_circular_fisheye_gets_the_fov_of_its_image_circle() -> None:
 
 def test_kalibr_cameras_given_twice_must_agree_with_the_chain(tmp_path: Path) -> None:
     camchain = tmp_path / "camchain.yaml"
-    lidar2cam = _kalibr_camchain(camchain)
+    lidar2cam = kalibr_camchain(camchain)
     names = list(KALIBR_CAMERAS)
-    both = _extrinsics(tmp_path / "both.json", {n: lidar2cam[n] for n in names[:2]})
+    both = extrinsics_json(tmp_path / "both.json", {n: lidar2cam[n] for n in names[:2]})
     assert len(Rig.from_calibration([camchain], both, names=names)) == 4
     moved = dict(lidar2cam)
     moved[names[1]] = moved[names[1]].copy()
     moved[names[1]][0, 3] += 0.01
-    wrong = _extrinsics(tmp_path / "wrong.json", {n: moved[n] for n in names[:2]})
+    wrong = extrinsics_json(tmp_path / "wrong.json", {n: moved[n] for n in names[:2]})
     with pytest.raises(RigError, match=rf"camera '{names[1]}'.*disagree by 10.0 mm"):
         Rig.from_calibration([camchain], wrong, names=names)
     with pytest.raises(RigError, match="none of the chained cameras"):
-        Rig.from_calibration([camchain], _extrinsics(tmp_path / "other.json", {"cam9": np.eye(4)}))
+        Rig.from_calibration([camchain], extrinsics_json(tmp_path / "other.json", {"cam9": np.eye(4)}))
 
 
 def test_a_camera_kalibr_calibrated_otherwise_is_refused_with_the_reason(tmp_path: Path) -> None:
@@ -173,35 +101,35 @@ def test_ros_camera_info_models(tmp_path: Path) -> None:
         ("plumb_bob", [-0.28, 0.07, 1e-4, -2e-4, 0.01]),
         ("rational_polynomial", [0.4, -0.1, 2e-4, 1e-4, 0.02, 0.7, -0.05, 0.03]),
     ):
-        path = _ros_camera_info(tmp_path / f"{model}.yaml", model, d)
+        path = ros_camera_info(tmp_path / f"{model}.yaml", model, d)
         assert detect_format(path) == "ros"
         (cam,) = read_calibration(path)
         assert cam.name == "front" and isinstance(cam.model, DistortedPinhole) and cam.cam2first is None
         ref, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k, np.array(d))
         assert np.abs(cam.model.project(rays)[0] - ref.reshape(-1, 2)).max() < 1e-9
-    (cam,) = read_calibration(_ros_camera_info(tmp_path / "equi.yaml", "equidistant", [0.02, -0.004, 0.001, -0.0002]))
+    (cam,) = read_calibration(ros_camera_info(tmp_path / "equi.yaml", "equidistant", [0.02, -0.004, 0.001, -0.0002]))
     ref, _ = cv2.fisheye.projectPoints(
         rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), k, np.array([0.02, -0.004, 0.001, -0.0002])
     )
     assert isinstance(cam.model, KannalaBrandt) and np.abs(cam.model.project(rays)[0] - ref.reshape(-1, 2)).max() < 1e-9
-    (cam,) = read_calibration(_ros_camera_info(tmp_path / "ideal.yaml", "plumb_bob", [0.0] * 5))
+    (cam,) = read_calibration(ros_camera_info(tmp_path / "ideal.yaml", "plumb_bob", [0.0] * 5))
     assert isinstance(cam.model, Pinhole)
     with pytest.raises(RigError, match="'fov_model' cannot be represented"):
-        read_calibration(_ros_camera_info(tmp_path / "fov.yaml", "fov_model", [0.9]))
+        read_calibration(ros_camera_info(tmp_path / "fov.yaml", "fov_model", [0.9]))
     with pytest.raises(RigError, match="plumb_bob takes 5 coefficients, got 4"):
-        read_calibration(_ros_camera_info(tmp_path / "short.yaml", "plumb_bob", [0.1, 0.0, 0.0, 0.0]))
+        read_calibration(ros_camera_info(tmp_path / "short.yaml", "plumb_bob", [0.1, 0.0, 0.0, 0.0]))
 
 
 def test_opencv_file_storage_fisheye_and_pinhole(tmp_path: Path) -> None:
-    fisheye = _opencv_storage(tmp_path / "fisheye.yml", [0.02, -0.004, 0.001, -0.0002], fisheye=1)
+    fisheye = opencv_storage(tmp_path / "fisheye.yml", [0.02, -0.004, 0.001, -0.0002], fisheye=1)
     assert detect_format(fisheye) == "opencv"
     (cam,) = read_calibration(fisheye)
     assert isinstance(cam.model, KannalaBrandt) and cam.model.k == (0.02, -0.004, 0.001, -0.0002)
     assert (cam.model.width, cam.model.height, cam.model.fx, cam.model.cy) == (1280, 960, 330.0, 479.5)
-    (cam,) = read_calibration(_opencv_storage(tmp_path / "pinhole.yml", [-0.28, 0.07, 1e-4, -2e-4, 0.01], fisheye=0))
+    (cam,) = read_calibration(opencv_storage(tmp_path / "pinhole.yml", [-0.28, 0.07, 1e-4, -2e-4, 0.01], fisheye=0))
     assert isinstance(cam.model, DistortedPinhole) and cam.model.distortion == (-0.28, 0.07, 1e-4, -2e-4, 0.01)
     with pytest.raises(RigError, match="fit both cv::fisheye"):
-        read_calibration(_opencv_storage(tmp_path / "ambiguous.yml", [0.1, 0.0, 0.0, 0.0], fisheye=None))
+        read_calibration(opencv_storage(tmp_path / "ambiguous.yml", [0.1, 0.0, 0.0, 0.0], fisheye=None))
 
 
 def test_a_file_of_no_known_format_says_what_it_reads(tmp_path: Path) -> None:
@@ -226,8 +154,8 @@ def test_rig_import_with_ocam_gives_a_rig_the_fisheye_detectors_take(
         name: ("ds", [-0.2 + 0.01 * n, 0.57, 50.0 + n, 50.5 + n, 79.5 - n, 79.5 + 0.5 * n], "none", [])
         for n, name in enumerate(KALIBR_CAMERAS)
     }
-    lidar2cam = _kalibr_camchain(camchain, resolution=(160, 160), cameras=lenses)
-    extrinsics = _extrinsics(tmp_path / "lidar2cam.json", {"fisheye_camera_front": lidar2cam["fisheye_camera_front"]})
+    lidar2cam = kalibr_camchain(camchain, resolution=(160, 160), cameras=lenses)
+    extrinsics = extrinsics_json(tmp_path / "lidar2cam.json", {"fisheye_camera_front": lidar2cam["fisheye_camera_front"]})
     out = tmp_path / "imported.yaml"
     command = ["rig", "import", str(camchain), "--extrinsics", str(extrinsics), "--names", ",".join(KALIBR_CAMERAS)]
     assert main([*command, "--ocam", "--out", str(out)]) == 0
@@ -262,7 +190,7 @@ def test_ocamcalib_files_one_per_camera_give_each_camera_its_lens(
         path.write_text(shipped.replace("398.967516 399.029971", centre))
         files.append(str(path))
     assert detect_format(files[0]) == "ocam"
-    extrinsics = _extrinsics(tmp_path / "lidar2cam.json", dict(zip(rig.names, rig.lidar2cam(), strict=True)))
+    extrinsics = extrinsics_json(tmp_path / "lidar2cam.json", dict(zip(rig.names, rig.lidar2cam(), strict=True)))
     out = tmp_path / "rig.yaml"
     assert main(["rig", "import", *files, "--extrinsics", str(extrinsics), "--out", str(out)]) == 0
     imported = Rig.load(out)

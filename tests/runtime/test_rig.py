@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from fisheye_infer.cameras.carla_poses import CarlaPose, cam2lidar_from_poses, parse_sensor_metadata
 from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, Rig, resolve_rig
@@ -219,3 +220,36 @@ def test_rig_from_sensor_metadata(tmp_path: Path, rig: Rig) -> None:
     (vehicle / "fisheye_camera_rear" / "sensor_metadata.txt").write_text("no records here\n")
     with pytest.raises(RigError, match="fisheye_camera_rear/sensor_metadata.txt: no 'frame=..."):
         Rig.from_sensor_metadata(vehicle, calib)
+
+
+def test_rig_files_refuse_binary_aliases_and_name_what_is_not_finite(rig: Rig, tmp_path: Path) -> None:
+    """A binary file is "not a rig file" (or OCam file), YAML aliases are refused, NaN (JSON's ``NaN``, YAML's
+    ``.nan``) is "not finite" in its camera and field, and an extrinsics value of 100,000 characters is quoted
+    short."""
+    binary = tmp_path / "rig.json"
+    binary.write_bytes(b"\xff\xfe" + "{}".encode("utf-16-le"))
+    with pytest.raises(RigError, match=r"rig\.json: not a rig file \(byte 0xff at offset 0 is not UTF-8 text\)"):
+        Rig.load(binary)
+    doc = rig.model_dump(mode="json")
+    bomb = tmp_path / "rig.yaml"
+    bomb.write_text("x: &x [1, 2]\ny: [*x, *x]\n" + yaml.safe_dump(doc))
+    with pytest.raises(RigError, match=r"rig file .*rig\.yaml: YAML anchors and aliases .* are refused"):
+        Rig.load(bomb)
+    doc["cameras"][1]["model"]["center_col"] = float("nan")
+    for path in (tmp_path / "nan.json", tmp_path / "nan.yaml"):
+        path.write_text(yaml.safe_dump(doc) if path.suffix == ".yaml" else json.dumps(doc))
+        assert ("center_col: .nan" if path.suffix == ".yaml" else '"center_col": NaN') in path.read_text()
+        with pytest.raises(RigError, match=r"camera 'fisheye_camera_left' \(model\.center_col\): not finite \(got nan\)"):
+            Rig.load(path)
+    calib = tmp_path / "calib_results.txt"
+    calib.write_text(rig.shared_model().to_text())
+    lidar2cam = {n: m.tolist() for n, m in zip(rig.names, rig.lidar2cam(), strict=True)}
+    extrinsics = tmp_path / "lidar2cam.json"
+    extrinsics.write_text(json.dumps({"cameras": {**lidar2cam, "fisheye_camera_front": "x" * 100_000}}))
+    with pytest.raises(RigError, match=r"camera 'fisheye_camera_front' \(lidar2cam in .*\): expected a finite 4x4") as e:
+        Rig.from_ocam_extrinsics(calib, extrinsics)
+    assert len(str(e.value)) < 400
+    extrinsics.write_text(json.dumps({"cameras": lidar2cam}))
+    calib.write_bytes(bytes(range(128, 256)))
+    with pytest.raises(RigError, match=r"OCam file .*calib_results.txt: not an OCam calib_results.txt \(byte 0x80 at"):
+        Rig.from_ocam_extrinsics(calib, extrinsics)
