@@ -38,6 +38,7 @@ from fisheye_infer.export.virtual_front import attach_front, detach_front, has_f
 from fisheye_infer.geometry.virtual import virtual_front
 from fisheye_infer.runtime.artifact import read_meta
 from fisheye_infer.scenes.render import Renderer, random_scene, resized_rig
+from fisheye_infer.tools.virtual_picture import resample_views
 
 TRAINING = resized_rig(default_rig(), 0.1)  # four 80x80 OCam cameras
 
@@ -144,6 +145,7 @@ def test_front_end_equals_an_independent_cv2_remap(kind: str) -> None:
     for i, (slot, name) in enumerate(zip(TRAINING.cameras, order)):
         np.testing.assert_array_equal(got[0, i], _reference(slot, robot.camera(name), raw[name]), err_msg=slot.name)
         np.testing.assert_array_equal(got[1, i], _reference(slot, robot.camera(name), 255 - raw[name]))
+    np.testing.assert_array_equal(np.stack(resample_views(front, raw)), got[0])  # the picture's numpy path
     turn = np.linalg.inv(TRAINING.cameras[0].matrix) @ _turned(TRAINING.cameras[0], 5.0, 3.0)
     expected = math.degrees(math.acos((np.trace(turn[:3, :3]) - 1) / 2))
     assert front.reports[0].rotation_deg == pytest.approx(expected, abs=1e-3)
@@ -230,12 +232,10 @@ def test_each_robot_camera_is_fed_at_its_own_size_and_by_its_own_name(small_expo
     cameras[2] = cameras[2].model_copy(update={"model": eucm})
     robot = Rig(name="robot", cameras=tuple(reversed(cameras)))
     robot.save(tmp_path / "robot.json")
-    assert (
-        main(
-            ["rebake", str(small_export.onnx), "--rig", str(tmp_path / "robot.json"), "--out", str(tmp_path / "r.onnx")]
-        )
-        == 0
-    )
+    picture = tmp_path / "views.png"
+    argv = ["rebake", str(small_export.onnx), "--rig", str(tmp_path / "robot.json"), "--out", str(tmp_path / "r.onnx")]
+    assert main([*argv, "--picture", str(picture)]) == 0
+    assert cv2.imread(str(picture)).shape[0] > 4 * 320  # one row of two pictures per camera
     out = read_meta(tmp_path / "r.onnx")
     assert out.cameras == ("robot_0", "robot_1", "robot_2", "robot_3")
     assert out.image_size == (200, 160) and out.camera_sizes()[2] == (200, 150)
