@@ -6,7 +6,8 @@ Layout (§3 of the dataset description)::
     ROOT/ImageSets-2hz/{train,val}.json           [{scene_name, vehicle_name, weather, frame_id, prev_id, next_id}, ...]
     ROOT/<scene>/<vehicle>/lidar/sensor_metadata.txt
     ROOT/<scene>/<vehicle>/fisheye_camera_<name>/{frame_id}.png  + sensor_metadata.txt
-                                                  (+ calib_results.txt: this camera's own lens, optional)
+                                                  (+ calib_results.txt: this camera's own lens, optional,
+                                                   or camera_model.json: a lens of another model)
     ROOT/<scene>/<vehicle>/nu_rgb_camera_<name>/{frame_id}.png   + sensor_metadata.txt   (pinhole, optional)
     ROOT/<scene>/<vehicle>/label_3d/{frame_id}.json
 
@@ -36,8 +37,9 @@ from typing import Any
 
 import cv2
 import numpy as np
+from pydantic import TypeAdapter, ValidationError
 
-from fisheye_infer.cameras.camera_models import OCamModel, Pinhole
+from fisheye_infer.cameras.camera_models import AnyCameraModel, OCamModel, Pinhole
 from fisheye_infer.cameras.carla_poses import CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata
 from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
 from fisheye_infer.errors import CameraModelError, DatasetError, RigError
@@ -56,6 +58,9 @@ __all__ = [
     "camera_name",
     "IMAGESETS",
 ]
+
+#: A fisheye camera's own lens as JSON, in its folder, for a model that ``calib_results.txt`` (OCam) cannot express.
+CAMERA_MODEL_FILE = "camera_model.json"
 
 IMAGESETS = "ImageSets-2hz"
 
@@ -207,8 +212,15 @@ def _read_lens(path: Path, fov: float) -> OCamModel:
         raise DatasetError(str(exc)) from exc
 
 
-def _camera_lens(folder: Path, root_lens: OCamModel | None, fov: float, what: str) -> OCamModel:
-    """A fisheye camera's lens: its folder's ``calib_results.txt``, else the dataset root's."""
+def _camera_lens(folder: Path, root_lens: OCamModel | None, fov: float, what: str) -> Any:
+    """A fisheye camera's lens: its folder's ``camera_model.json`` (a model OCam cannot express) or
+    ``calib_results.txt``, else the dataset root's ``calib_results.txt``."""
+    model_file = folder / CAMERA_MODEL_FILE
+    if model_file.is_file():
+        try:
+            return TypeAdapter(AnyCameraModel).validate_json(model_file.read_bytes())
+        except (OSError, ValidationError) as exc:
+            raise DatasetError(f"{what}: {model_file} is not a camera model ({str(exc).splitlines()[0]})") from None
     own = folder / "calib_results.txt"
     if own.is_file():
         return _read_lens(own, fov)
@@ -225,7 +237,7 @@ class _Sequence:
             raise DatasetError(f"scene {token}: folder {folder} not found")
         self.poses: dict[str, dict[str, CarlaPose]] = {}
         self.pinholes: dict[str, Pinhole] = {}
-        self.lenses: dict[str, OCamModel] = {}
+        self.lenses: dict[str, Any] = {}
         for sensor in ("lidar", *cameras):
             path = folder / sensor / "sensor_metadata.txt"
             if not (folder / sensor).is_dir():

@@ -2,8 +2,9 @@
 
 The inverse of the reader: a rig becomes CARLA poses (the compat or exact conversion undone),
 printed as CARLA prints sensor data, one record per frame and sensor; boxes become gravity-centred
-label JSON; the OCam model becomes ``calib_results.txt`` (pinhole cameras must be the layout's one
-pinhole model, which it stores nowhere); the samples go into the split file.
+label JSON; the OCam model becomes ``calib_results.txt``, a fisheye lens of another model its camera folder's
+``camera_model.json`` (pinhole cameras must be the layout's one pinhole model, which it stores nowhere); the
+samples go into the split file.
 
     writer = Fisheye3DODWriter(root, scene="synth-Town00-ClearNoon-0000", split="val")
     rig_read = writer.write_frame("00001000", rig, images, boxes, labels, lidar_pose)
@@ -20,6 +21,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -34,7 +36,7 @@ from fisheye_infer.cameras.carla_poses import (
     pose_matrix,
 )
 from fisheye_infer.cameras.rig import Rig
-from fisheye_infer.eval.dataset import IMAGESETS, PINHOLE_CAMERAS, DatasetError, converter_pinhole
+from fisheye_infer.eval.dataset import CAMERA_MODEL_FILE, IMAGESETS, PINHOLE_CAMERAS, DatasetError, converter_pinhole
 from fisheye_infer.runtime.records import CLASSES, bottom_to_gravity
 
 __all__ = ["Fisheye3DODWriter", "pose_from_matrix", "camera_poses", "format_record", "update_split"]
@@ -146,6 +148,19 @@ class Fisheye3DODWriter:
         path.write_text(model.to_text())
         return path
 
+    def _write_model_file(self, camera: str, model: Any) -> Path:
+        """``<camera>/camera_model.json``: a lens that OCam's ``calib_results.txt`` cannot express; an existing file
+        must describe the same model."""
+        path = self.folder / camera / CAMERA_MODEL_FILE
+        text = model.model_dump_json(indent=1) + "\n"
+        if path.is_file():
+            if path.read_text() != text:
+                raise DatasetError(f"calib: {path} already holds a different camera model")
+            return path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+        return path
+
     def _write_models(self, rig: Rig) -> None:
         """``calib_results.txt`` for the fisheye cameras: one at the root for a lens they share (while the root
         holds none or that one, and the sequence has no camera files yet), else one in each camera's folder;
@@ -159,11 +174,9 @@ class Fisheye3DODWriter:
                     f"camera '{cam.name}': the layout stores no pinhole intrinsics and its reader takes the official "
                     f"converter's 90-degree pinhole of the images' size ({ideal}); this camera differs ({cam.model})"
                 )
-            if cam.name not in PINHOLE_CAMERAS and not isinstance(cam.model, OCamModel):
-                raise DatasetError(
-                    f"camera '{cam.name}': a {cam.model.type} model; the layout's cameras are OCam fisheye cameras "
-                    f"or the pinhole cameras {', '.join(PINHOLE_CAMERAS)}"
-                )
+        for cam in fisheye:
+            if not isinstance(cam.model, OCamModel):
+                self._write_model_file(cam.name, cam.model)
         lenses = {cam.name: cam.model for cam in fisheye if isinstance(cam.model, OCamModel)}  # all of them, checked
         if not lenses:
             return

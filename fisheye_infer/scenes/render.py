@@ -210,9 +210,9 @@ def synthesize(
     """Write ``frames`` synthetic frames of one sequence under ``out`` in the Fisheye3DOD layout.
 
     The ego vehicle drives along a gentle curve (level, so the compat conversion is exact); each
-    frame gets its own seeded objects. The fisheye cameras of ``rig`` must have OCam models (one
-    shared ``calib_results.txt``, or one in each camera's folder) and its pinhole cameras be the
-    layout's (``rig-pinhole6``'s), which the writer checks.
+    frame gets its own seeded objects. The fisheye cameras' lenses are written as OCam's
+    ``calib_results.txt`` (one shared, or one in each camera's folder), or as ``camera_model.json`` for
+    other models; the pinhole cameras must be the layout's (``rig-pinhole6``'s), which the writer checks.
     """
     from fisheye_infer.eval.writer import Fisheye3DODWriter
 

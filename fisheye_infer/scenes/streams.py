@@ -141,11 +141,11 @@ def write_split(
     writer = Fisheye3DODWriter(root, scene, split=split or frames.split)
     tokens = []
     for index in indices:
-        sample = frames[index]
+        _, images, records = frames.draw(index, frames.rig)  # each camera at its own size
+        boxes, _, labels = records_to_arrays(records, source=f"{frames.split} frame {index}")
         frame_id = f"{index:08d}"
         lidar = CarlaPose(x=100.0, y=-50.0, z=2.0, pitch=0.0, yaw=0.0, roll=0.0)
-        images = dict(zip(frames.rig.names, sample.images))
-        writer.write_frame(frame_id, frames.rig, images, sample.boxes, sample.labels, lidar)
+        writer.write_frame(frame_id, frames.rig, images, boxes, labels, lidar)
         tokens.append(f"{scene}.{writer.vehicle}.{frame_id}")
     writer.close()
     return tokens
@@ -158,11 +158,11 @@ def write_frame_folder(frames: SyntheticFrames, index: int, folder: str | Path) 
 
     import cv2
 
-    sample = frames[index]
+    _, images, records = frames.draw(index, frames.rig)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    for name, image in zip(frames.rig.names, sample.images):
+    for name, image in images.items():
         cv2.imwrite(str(folder / f"{name}.png"), image)
     token = f"{frames.split}-seed{frames.seed}-{index:08d}"
-    (folder / "labels.json").write_text(json.dumps({"token": token, "records": list(sample.records)}, indent=1) + "\n")
+    (folder / "labels.json").write_text(json.dumps({"token": token, "records": list(records)}, indent=1) + "\n")
     return folder

@@ -233,3 +233,34 @@ def test_a_sequence_of_another_shared_lens_keeps_its_own(small_rig: Rig, tmp_pat
     synthesize(own_lenses(small_rig), root, frames=1, seed=3, scene_name="synth-Town00-ClearNoon-0003")
     with pytest.raises(DatasetError, match="already holds a different camera model"):
         synthesize(small_rig, root, frames=1, seed=3, scene_name="synth-Town00-ClearNoon-0003")
+
+
+def test_lenses_of_other_models_and_sizes_are_written_as_camera_model_files(small_rig: Rig, tmp_path: Path) -> None:
+    """A double sphere and an EUCM camera of their own sizes: each camera folder holds its model as JSON, the reader
+    gives it back with its images at their size; a damaged model file is refused by name."""
+    from fisheye_infer.cameras.camera_models import DoubleSphere, ExtendedUnified
+    from fisheye_infer.eval.dataset import DatasetError
+    from fisheye_infer.scenes.streams import SyntheticFrames, write_split
+
+    models = {
+        "fisheye_camera_front": DoubleSphere(
+            width=96, height=96, fx=21.0, fy=21.0, cx=47.5, cy=47.5, xi=-0.17, alpha=0.59, fov=220.0
+        ),
+        "fisheye_camera_left": ExtendedUnified(
+            width=120, height=90, fx=23.0, fy=23.0, cx=59.5, cy=44.5, alpha=0.61, beta=1.07, fov=220.0
+        ),
+    }
+    rig = small_rig.model_copy(
+        update={
+            "cameras": tuple(c.model_copy(update={"model": models.get(c.name, c.model)}) for c in small_rig.cameras)
+        }
+    )
+    root = tmp_path / "data"
+    write_split(SyntheticFrames(rig, "val", 0), root, range(2))
+    assert len(list(root.glob("*/*/fisheye_camera_*/camera_model.json"))) == 2
+    frames = list(Fisheye3DOD(root))
+    assert [c.model for c in frames[0].rig.cameras] == [c.model for c in rig.cameras]
+    assert cv2.imread(str(frames[1].image_paths["fisheye_camera_left"])).shape == (90, 120, 3)
+    next(root.glob("*/*/fisheye_camera_left/camera_model.json")).write_text('{"type": "eucm"}')
+    with pytest.raises(DatasetError, match=r"camera 'fisheye_camera_left': .*camera_model.json is not a camera model"):
+        list(Fisheye3DOD(root))
