@@ -332,3 +332,38 @@ def test_fisheye_petr_masks_the_keys_a_narrower_lens_does_not_see(small_exports,
     assert (after >= before).all() and after.sum() > before.sum() + 0.1 * before.size
     frame = _frame(robot)
     assert Detector(tmp_path / "narrow.onnx", threads=1).detect(frame).boxes.shape[1] == 7
+
+
+@pytest.mark.parametrize("arch", ["pinhole-bevdet", "fisheye-bevdet-cyl"])
+def test_baselines_take_virtual_cameras_too(arch: str, small_exports, tmp_path: Path) -> None:
+    """The pinhole and rectified baselines: identity on their training rig; a robot rig of other intrinsics, sizes
+    and distortion (pinhole) or other lenses (fisheye) runs with each camera at its own size."""
+    exported = small_exports(arch)
+    meta = read_meta(exported.onnx)
+    same = tmp_path / "same.onnx"
+    rebake(exported.onnx, meta.rig, same, mode="virtual")
+    frame = _frame(meta.rig)
+    a, b = Detector(exported.onnx, threads=1).detect(frame), Detector(same, threads=1).detect(frame)
+    np.testing.assert_array_equal(a.boxes, b.boxes)
+    if arch.startswith("pinhole"):
+        w, h = meta.rig.cameras[0].model.width, meta.rig.cameras[0].model.height
+        lens = DistortedPinhole(
+            width=w + 40,
+            height=h + 30,
+            fx=w * 0.55,
+            fy=w * 0.55,
+            cx=(w + 39) / 2,
+            cy=(h + 29) / 2,
+            distortion=(-0.05, 0.01, 0.0, 0.0),
+        )
+    else:
+        lens = KannalaBrandt(width=640, height=480, fx=125.0, fy=125.0, cx=319.5, cy=239.5, k=(0.01, 0.0, 0.0, 0.0))
+    robot = meta.rig.model_copy(
+        update={
+            "cameras": tuple(c.model_copy(update={"model": lens, "name": f"robot_{c.name}"}) for c in meta.rig.cameras)
+        }
+    )
+    out = rebake(exported.onnx, robot, tmp_path / "robot.onnx")
+    assert out.virtual_cameras is not None and all(r.coverage > 0.9 for r in out.virtual_cameras.cameras)
+    dets = Detector(tmp_path / "robot.onnx", threads=1).detect(_frame(robot))
+    assert dets.boxes.shape[1] == 7 and len(dets.cameras_used) == len(robot)
