@@ -3,7 +3,9 @@ the argument and what was expected: in-process, on the reduced export in real ON
 
 from __future__ import annotations
 
+import json
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -73,3 +75,25 @@ def test_threads_at_the_bound_and_numpy_integers_are_taken(small_export) -> None
     detector = Detector(small_export.onnx, threads=np.int64(1), decode_threads=MOST, warmup=False)
     assert detector._session.get_session_options().intra_op_num_threads == 1
     assert Detector(os.fspath(small_export.onnx), threads=1, providers="CPUExecutionProvider", warmup=False)
+
+
+@pytest.mark.parametrize(
+    "document, words",
+    [
+        ("[" * 100_000 + "]" * 100_000, "'fisheye_infer' metadata is not JSON (maximum recursion depth"),
+        (json.dumps({"schema_version": "x" * 100_000}), "metadata schema_version 'xxxxxxxx"),
+    ],
+)
+def test_hostile_metadata_in_a_model_file_is_an_artifact_error(
+    small_export, tmp_path: Path, document: str, words: str
+) -> None:
+    """Metadata nested 100,000 deep was a RecursionError; a long schema version is not repeated whole."""
+    onnx = pytest.importorskip("onnx")
+    model = onnx.load(str(small_export.onnx))
+    for prop in model.metadata_props:
+        if prop.key == "fisheye_infer":
+            prop.value = document
+    onnx.save(model, str(tmp_path / "hostile.onnx"))
+    with pytest.raises(ArtifactError, match=re.escape(words)) as raised:
+        Detector(tmp_path / "hostile.onnx", threads=1, warmup=False)
+    assert len(str(raised.value)) < 600
