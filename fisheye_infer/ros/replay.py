@@ -28,6 +28,7 @@ A bag that cannot be read (damaged structure or compression, no messages on a ca
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -42,6 +43,7 @@ from rosbags.highlevel import AnyReader
 from fisheye_infer.errors import BagError, OptionError
 from fisheye_infer.eval.evaluate import save_results
 from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.runtime.options import check_score_threshold
 from fisheye_infer.tools.files import pending_file
 
 from .foxglove import image_annotations, scene_update
@@ -133,6 +135,12 @@ def replay(
     keeps the messages' boxes at or above it (the records keep every box, as evaluation needs); ``progress``
     is told the frames done and the most there can be (the fewest messages of one camera)."""
     started = time.perf_counter()
+    check_score_threshold(score_threshold)
+    if not (isinstance(tolerance_ms, int | float) and math.isfinite(tolerance_ms) and tolerance_ms >= 0):
+        raise OptionError(f"--tolerance-ms {tolerance_ms}: expected a finite number of milliseconds, 0 or more")
+    for flag, value in (("--batch", batch), ("--queue", queue_size)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise OptionError(f"{flag} {value!r}: expected a whole number, 1 or more")
     detector = Detector(model, threads=threads)
     cameras = list(detector.info.cameras)
     missing = [c for c in cameras if c not in topics]
@@ -142,8 +150,6 @@ def replay(
             f"--camera: the model's cameras are {', '.join(cameras)}; "
             + (f"no topic given for {', '.join(missing)}" if missing else f"{', '.join(extra)} is not one of them")
         )
-    if batch < 1:
-        raise OptionError(f"--batch {batch}: expected 1 or more")
     shared = sorted({t for t in topics.values() if list(topics.values()).count(t) > 1})
     if shared:
         raise OptionError(f"--camera: topic {', '.join(shared)} is given for more than one camera")

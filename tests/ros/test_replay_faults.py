@@ -27,7 +27,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
 from fisheye_infer.cli import main
-from fisheye_infer.errors import BagError
+from fisheye_infer.errors import BagError, OptionError
 from fisheye_infer.ros.messages import typestore
 from fisheye_infer.ros.replay import replay
 from fisheye_infer.runtime.artifact import read_meta
@@ -360,3 +360,21 @@ def test_two_bags_are_read_whole(model, tmp_path: Path) -> None:
     second = write_bag(tmp_path / "two", cameras, good_frames(cameras, size, range(2, 4)))
     report = replay(onnx, [first, second], _topics(cameras), tmp_path / "a.mcap", threads=1)
     assert report.frames == 4 and report.messages == 16 and report.complete
+
+
+@pytest.mark.parametrize(
+    "options, words",
+    [
+        ({"tolerance_ms": float("nan")}, "--tolerance-ms nan: expected a finite number of milliseconds"),
+        ({"tolerance_ms": -5.0}, "--tolerance-ms -5.0: expected a finite number"),
+        ({"tolerance_ms": float("inf")}, "--tolerance-ms inf"),
+        ({"score_threshold": 2.0}, r"score_threshold: expected a number in \[0, 1\], got 2.0"),
+        ({"batch": 0}, "--batch 0: expected a whole number, 1 or more"),
+        ({"queue_size": 1.5}, "--queue 1.5: expected a whole number"),
+    ],
+)
+def test_options_are_refused_before_the_model_loads(tmp_path: Path, options: dict, words: str) -> None:
+    """NaN or infinite tolerances were a ValueError or OverflowError traceback; the model path given does not
+    exist, so a refusal that named it would mean the options were checked too late."""
+    with pytest.raises(OptionError, match=words):
+        replay(tmp_path / "none.onnx", [tmp_path], {"front": "/front"}, tmp_path / "a.mcap", **options)
