@@ -175,9 +175,12 @@ async def model_configuration(
 def _split_body(body: bytes, header_length: str | None) -> tuple[dict[str, Any], bytes]:
     if header_length is None:
         size = len(body)
-    elif not header_length.isdigit() or int(header_length) > len(body):
+    elif not (header_length.isascii() and header_length.isdigit() and len(header_length) <= 20) or int(
+        header_length
+    ) > len(body):
         raise BadRequest(
-            f"{HEADER_LENGTH}: {header_length!r} is not a length within the {len(body)}-byte body", field=HEADER_LENGTH
+            f"{HEADER_LENGTH}: {shown(repr(header_length))} is not a length within the {len(body)}-byte body",
+            field=HEADER_LENGTH,
         )
     else:
         size = int(header_length)

@@ -143,11 +143,15 @@ def test_refusals_name_the_problem(
     assert message in response.json()["error"]
 
 
-def test_binary_header_length_is_checked(client: httpx.Client, name: str) -> None:
+@pytest.mark.parametrize("length", ["999", "9" * 5000, "\u00b2"])  # 5000 digits and "²" were a 500
+def test_binary_header_length_is_checked(client: httpx.Client, name: str, length: str) -> None:
     response = client.post(
-        f"/v2/models/{name}/infer", content=b'{"inputs": []}', headers={"Inference-Header-Content-Length": "999"}
+        f"/v2/models/{name}/infer",
+        content=b'{"inputs": []}',
+        headers={"Inference-Header-Content-Length": length.encode()},
     )
     assert response.status_code == 400 and "Inference-Header-Content-Length" in response.json()["error"]
+    assert len(response.text) < 500
 
 
 def test_tritonclient_sees_the_servers_refusal(server: LiveServer, name: str) -> None:
