@@ -150,8 +150,9 @@ def image_from_message(msg: Any, topic: str = "image", expected_wh: tuple[int, i
         )
     try:
         return decode_image(data, topic, expected_wh)
-    except FrameError as exc:
-        raise ImageRefused(f"{kind} does not decode", str(exc)) from None
+    except FrameError as exc:  # the codec names the topic as its camera
+        reason = str(exc).removeprefix(f"camera '{topic}': ")
+        raise ImageRefused(f"{kind} does not decode", f"{topic}: {reason}") from None
 
 
 def _raw_image(msg: Any, topic: str, expected_wh: tuple[int, int] | None) -> np.ndarray:

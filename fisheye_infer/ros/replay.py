@@ -197,14 +197,15 @@ def replay(
                     if progress is not None:
                         progress(report.frames, expected)
 
-            for connection, raw in _read(reader, connections, named):
+            for connection, logged, raw in _read(reader, connections, named):
                 report.messages += 1
                 counted[connection.topic] += 1
                 try:
                     msg: Any = reader.deserialize(raw, connection.msgtype)
                 except Exception as exc:  # rosbags' deserialisers raise what the damaged bytes provoke
-                    where = f"bag {_bag(connection)}, {connection.topic} ({connection.msgtype})"
-                    report.note(report.dropped, "does not deserialize", f"{where}: {str(exc)[:200]}")
+                    where = f"bag {_bag(connection)}, {connection.topic} logged at {_seconds(logged)} s"
+                    problem = f"{where} ({connection.msgtype}): {str(exc)[:200]}"
+                    report.note(report.dropped, "does not deserialize", problem)
                     continue
                 stamp = stamp_ns(msg.header)
                 if stamp < 0:  # an MCAP log time is unsigned
@@ -247,16 +248,16 @@ def _bag_errors(named: str, problem: str) -> Iterator[None]:
         raise BagError(f"bag {named}: {problem} ({reason})") from exc
 
 
-def _read(reader: AnyReader, connections: Sequence[Any], named: str) -> Iterator[tuple[Any, bytes]]:
-    """The cameras' messages in log-time order, (connection, raw bytes); a damaged bag is a ``BagError``."""
+def _read(reader: AnyReader, connections: Sequence[Any], named: str) -> Iterator[tuple[Any, int, bytes]]:
+    """The cameras' messages in log-time order, (connection, log time in ns, raw bytes); a damaged bag is a
+    ``BagError``."""
     messages = reader.messages(connections=connections)
     while True:
         with _bag_errors(named, "damaged, reading stopped"):
             item = next(messages, None)
         if item is None:
             return
-        connection, _, raw = item
-        yield connection, raw
+        yield item
 
 
 def _bag(connection: Any) -> str:
@@ -265,13 +266,16 @@ def _bag(connection: Any) -> str:
 
 def _where(connection: Any, msg: Any) -> str:
     """Where a message is: its bag, topic, header stamp, type and encoding or format."""
-    stamp = stamp_ns(msg.header)
-    sign, stamp = ("-" if stamp < 0 else ""), abs(stamp)
     kind = f"encoding {msg.encoding!r}"[:60] if hasattr(msg, "encoding") else f"format {msg.format!r}"[:60]
     return (
-        f"bag {_bag(connection)}, {connection.topic} at {sign}{stamp // 10**9}.{stamp % 10**9:09d} s "
+        f"bag {_bag(connection)}, {connection.topic} at {_seconds(stamp_ns(msg.header))} s "
         f"({connection.msgtype.rsplit('/', 1)[-1]}, {kind})"
     )
+
+
+def _seconds(ns: int) -> str:
+    """Nanoseconds as seconds with all nine decimals, as ROS tools print stamps."""
+    return f"{'-' if ns < 0 else ''}{abs(ns) // 10**9}.{abs(ns) % 10**9:09d}"
 
 
 def _camera_connections(reader: AnyReader, topics: Mapping[str, str]) -> list[Any]:

@@ -202,13 +202,15 @@ def test_bad_images_are_counted_drops_named_by_reason(model, hostile_bag: Path, 
     assert examples["wrong size"].startswith(f"bag {hostile_bag}, /{cameras[0]}/image at 1000000000.100000000 s")
     assert "image is 30000x30000, model expects 160x160" in examples["wrong size"]
     assert "(CompressedImage, format 'jpeg')" in examples["wrong size"]
-    assert f"JPEG with more than {MAX_JPEG_SCANS} scans" in examples["JPEG does not decode"]
+    scans = f"(CompressedImage, format 'jpeg'): /{cameras[0]}/image: JPEG with more than {MAX_JPEG_SCANS} scans"
+    assert scans in examples["JPEG does not decode"]
     assert "format 'jpeg' declared, the" in examples["format jpeg holding WebP bytes"]
     assert "bytes are WebP data" in examples["format jpeg holding WebP bytes"]
     assert "(Image, encoding '16UC1')" in examples["encoding 16UC1"]
     assert "step 0 is shorter than a row of 160 bgr8 pixels" in examples["step shorter than a row"]
     assert "needs 76800 bytes, holds 100" in examples["data shorter than its size"]
     assert " at -1.000000000 s" in examples["stamp before 1970"]
+    assert " logged at 1000000001.300000000 s (sensor_msgs/msg/CompressedImage): " in examples["does not deserialize"]
 
     code = main(_args(onnx, hostile_bag, cameras, tmp_path / "cli.mcap"))
     printed = capsys.readouterr().out
