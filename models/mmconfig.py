@@ -313,9 +313,7 @@ def _read(path: Path, merge_bases: bool, chain: tuple[Path, ...]) -> dict[str, A
     except OSError as exc:
         raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
-        raise ConfigError(
-            f"configuration {path}: not a Python config file (not UTF-8 text: byte {exc.start})"
-        ) from None
+        raise ConfigError(f"configuration {path}: not a Python config file (not UTF-8: byte {exc.start})") from None
     cfg = evaluate_config_source(source, str(path))
     if not merge_bases or "_base_" not in cfg:
         return cfg
@@ -327,12 +325,9 @@ def _read(path: Path, merge_bases: bool, chain: tuple[Path, ...]) -> dict[str, A
             raise ConfigError(f"configuration {path}: _base_: expected file names, got {type(base).__name__}")
         target = path.parent / base
         if target.resolve() in chain or len(chain) > _MAX_BASE_DEPTH:
+            why = "refers back to a file it is based on" if target.resolve() in chain else "nested too deep"
             trail = " -> ".join(str(p) for p in (*chain, target))
-            raise ConfigError(
-                f"configuration {path}: _base_ "
-                + ("refers back to a file it is based on" if target.resolve() in chain else "nested too deep")
-                + f" ({trail[-600:]})"
-            )
+            raise ConfigError(f"configuration {path}: _base_ {why} ({trail[-600:]})")
         merged = _merge(merged, _read(target, True, chain))
     return _merge(merged, cfg)
 

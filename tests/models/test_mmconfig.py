@@ -47,7 +47,7 @@ def test_ordinary_arithmetic_on_sequences_still_works() -> None:
 @pytest.mark.parametrize(
     "files, words",
     [
-        ({"c.py": b"\xff\xfe\x00\x01" * 100}, "not a Python config file (not UTF-8 text: byte 0)"),
+        ({"c.py": b"\xff\xfe\x00\x01" * 100}, "not a Python config file (not UTF-8: byte 0)"),
         ({"c.py": b"a = 1\x00\n"}, "c.py: not valid Python (source code string cannot contain null bytes)"),
         ({"c.py": b"a = '" + b"x" * (4 * 1024 * 1024) + b"'\n"}, "more than 4,194,304 bytes"),
         ({"c.py": b"_base_ = ['c.py']\n"}, "_base_ refers back to a file it is based on"),
