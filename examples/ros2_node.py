@@ -23,6 +23,7 @@ from visualization_msgs.msg import MarkerArray
 from fisheye_infer.ros.messages import (
     DETECTION_ARRAY,
     MARKER_ARRAY,
+    ImageRefused,
     detection_array,
     image_from_message,
     marker_array,
@@ -52,7 +53,15 @@ class DetectorNode(Node):
     def on_image(self, camera: str, msgtype: str, msg: object) -> None:
         converted = self.store.deserialize_cdr(serialize_message(msg), msgtype)
         for synced in self.sync.push(camera, stamp_ns(converted.header), converted):
-            frame = {c: image_from_message(m) for c, m in zip(self.detector.info.cameras, synced.items, strict=True)}
+            size = self.detector.info.image_size
+            try:  # the service's checks: an image of another size or format is refused before decoding
+                frame = {
+                    c: image_from_message(m, c, size)
+                    for c, m in zip(self.detector.info.cameras, synced.items, strict=True)
+                }
+            except ImageRefused as exc:
+                self.get_logger().warning(f"frame at {synced.stamp} ns dropped ({exc.reason}): {exc}")
+                continue
             detections = self.detector.detect(frame)
             array = detection_array(detections, synced.stamp, self.frame_id)
             markers = marker_array(detections, synced.stamp, self.frame_id)

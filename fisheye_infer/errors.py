@@ -11,6 +11,7 @@
      ├── FrameError         an input frame is unusable (camera and field named)       (ValueError)
      ├── OptionError        a detect option has the wrong type or is out of range     (ValueError)
      ├── DatasetError       a Fisheye3DOD folder is missing or malformed              (ValueError)
+     ├── BagError           a recorded bag cannot be read (the bag and the problem named) (ValueError)
      └── InferenceError     ONNX Runtime failed while running a valid frame
 
 Messages name the camera or field and say what was expected and what was received,
@@ -37,6 +38,7 @@ __all__ = [
     "FrameError",
     "OptionError",
     "DatasetError",
+    "BagError",
     "InferenceError",
 ]
 
@@ -84,6 +86,11 @@ class OptionError(FisheyeInferError, ValueError):
 
 class DatasetError(FisheyeInferError, ValueError):
     """A Fisheye3DOD folder is missing or malformed: the root, split, scene, camera or file is named."""
+
+
+class BagError(FisheyeInferError, ValueError):
+    """A recorded bag cannot be read: not a bag, damaged structure or compression, or no messages on the
+    topics asked for. The bag and the problem are named."""
 
 
 class InferenceError(FisheyeInferError):

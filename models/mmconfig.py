@@ -35,7 +35,7 @@ from typing import Any
 
 from fisheye_infer.errors import ConfigError
 
-__all__ = ["read_mmdet3d_config", "evaluate_config_source", "Section", "as_tuple"]
+__all__ = ["MAX_CONFIG_BYTES", "read_mmdet3d_config", "evaluate_config_source", "Section", "as_tuple"]
 
 _BINOPS: dict[type, Callable[[Any, Any], Any]] = {
     ast.Add: operator.add,
@@ -66,6 +66,8 @@ _MODULES: dict[str, dict[str, Any]] = {
 _MAX_POW = 64
 _MAX_LEN = 1_000_000  # items (characters) of one string, list, tuple or dict
 _MAX_TOTAL = 20_000_000  # items built over the whole file: many bounded values must not add up
+MAX_CONFIG_BYTES = 4 * 1024 * 1024  # of one config file; the official ones are a few kB
+_MAX_BASE_DEPTH = 16  # files reached through _base_, one inside another
 _MAX_INT_BITS = 4096  # chained ``**``/``*`` of integers would otherwise grow without bound
 _SIZED = (str, list, tuple, dict)
 
@@ -262,7 +264,10 @@ def evaluate_config_source(source: str, filename: str = "<config>") -> dict[str,
     try:
         tree = ast.parse(source, filename=filename)
     except SyntaxError as exc:
-        raise ConfigError(f"{filename} line {exc.lineno}: not valid Python ({exc.msg})") from None
+        where = f" line {exc.lineno}" if exc.lineno else ""
+        raise ConfigError(f"{filename}{where}: not valid Python ({exc.msg})") from None
+    except ValueError as exc:  # Python 3.10: "source code string cannot contain null bytes"
+        raise ConfigError(f"{filename}: not valid Python ({exc})") from None
     except (RecursionError, MemoryError):
         raise ConfigError(f"{filename}: expressions nested too deeply to read") from None
     try:
@@ -288,20 +293,42 @@ def read_mmdet3d_config(path: str | Path, *, merge_bases: bool = False) -> dict[
     """Return the top-level variables of an official config file, evaluated without executing it.
 
     With ``merge_bases`` the files in ``_base_`` (relative to ``path``) are read the same way and
-    merged first, child values winning; otherwise ``_base_`` is kept as a plain value.
+    merged first, child values winning; otherwise ``_base_`` is kept as a plain value. A file of more
+    than ``MAX_CONFIG_BYTES``, one that is not UTF-8 text, a ``_base_`` entry that is not a file name,
+    bases nested more than ``_MAX_BASE_DEPTH`` deep and a file that is its own base are refused.
     """
-    path = Path(path)
+    return _read(Path(path), merge_bases, ())
+
+
+def _read(path: Path, merge_bases: bool, chain: tuple[Path, ...]) -> dict[str, Any]:
+    """``read_mmdet3d_config`` of ``path``, reached through the bases of ``chain`` (outermost first)."""
     try:
-        source = path.read_text(encoding="utf-8")
+        with path.open("rb") as stream:  # a bounded read: a FIFO or /dev/zero has no size to check first
+            data = stream.read(MAX_CONFIG_BYTES + 1)
+        if len(data) > MAX_CONFIG_BYTES:
+            raise ConfigError(
+                f"configuration {path}: more than {MAX_CONFIG_BYTES:,} bytes (official configs are a few kB)"
+            )
+        source = data.decode("utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"configuration {path}: not a Python config file (not UTF-8: byte {exc.start})") from None
     cfg = evaluate_config_source(source, str(path))
     if not merge_bases or "_base_" not in cfg:
         return cfg
     bases = cfg.pop("_base_")
+    chain = (*chain, path.resolve())
     merged: dict[str, Any] = {}
-    for base in [bases] if isinstance(bases, str) else list(bases):
-        merged = _merge(merged, read_mmdet3d_config(path.parent / base, merge_bases=True))
+    for base in [bases] if isinstance(bases, str) else list(bases) if isinstance(bases, list | tuple) else [bases]:
+        if not isinstance(base, str):
+            raise ConfigError(f"configuration {path}: _base_: expected file names, got {type(base).__name__}")
+        target = path.parent / base
+        if target.resolve() in chain or len(chain) > _MAX_BASE_DEPTH:
+            why = "refers back to a file it is based on" if target.resolve() in chain else "nested too deep"
+            trail = " -> ".join(str(p) for p in (*chain, target))
+            raise ConfigError(f"configuration {path}: _base_ {why} ({trail[-600:]})")
+        merged = _merge(merged, _read(target, True, chain))
     return _merge(merged, cfg)
 
 

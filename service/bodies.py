@@ -160,7 +160,13 @@ def _batch_index(name: str, spec: FrameSpec) -> tuple[int, str]:
     """``'<frame index>.<camera>'`` -> (index, camera); the index in ASCII digits ("²" is a digit to Python,
     not here)."""
     index, dot, camera = name.partition(".")
-    if not dot or not (index.isascii() and index.isdigit()) or len(index) > MAX_INDEX_DIGITS:
+    if dot and index.isascii() and index.isdigit() and len(index) > MAX_INDEX_DIGITS:
+        raise RequestInvalid(
+            f"part '{shown(name)}': frame index of {len(index)} digits; at most {MAX_INDEX_DIGITS} digits are read, "
+            f"and a batch holds frames 0..{spec.max_batch_frames - 1} (max_batch_frames={spec.max_batch_frames})",
+            field=shown(name),
+        )
+    if not dot or not (index.isascii() and index.isdigit()):
         raise RequestInvalid(
             f"part '{shown(name)}': expected '<frame index>.<camera>' with the index in digits 0-9, "
             f"e.g. '0.{spec.cameras[0]}'",

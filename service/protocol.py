@@ -28,7 +28,7 @@ import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from fisheye_infer.service.errors import ServiceError
+from fisheye_infer.service.errors import ServiceError, shown
 
 __all__ = [
     "MAGIC",
@@ -114,10 +114,11 @@ def decode_frame(message: bytes) -> StreamFrame:
         at += _IMAGE.size
         if at + m > len(view):
             raise StreamProtocolError(
-                f"camera '{name}': image of {m} bytes overruns the message ({len(view) - at} bytes left)", field=name
+                f"camera '{shown(name)}': image of {m} bytes overruns the message ({len(view) - at} bytes left)",
+                field=shown(name),
             )
         if name in images:
-            raise StreamProtocolError(f"camera '{name}': given twice", field=name)
+            raise StreamProtocolError(f"camera '{shown(name)}': given twice", field=shown(name))
         images[name] = bytes(view[at : at + m])
         at += m
     if at != len(view):

@@ -69,8 +69,10 @@ def _draw_saved(args: argparse.Namespace) -> int:
 
     try:
         doc = json.loads(Path(args.result).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise FrameError(f"--result {args.result}: cannot be read as JSON ({exc})") from None
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: not UTF-8, not JSON, 4300+ digits
+        raise FrameError(
+            f"--result {args.result}: cannot be read as JSON ({str(exc)[:200] or 'nested too deep'})"
+        ) from None
     missing = [k for k in ("rig", "classes", "frames") if not isinstance(doc, dict) or k not in doc]
     if missing:
         raise FrameError(

@@ -3,8 +3,9 @@
 fisheye-infer replay model.onnx drive.mcap --camera fisheye_camera_front=/front/image/compressed ... --out out.mcap
 
 Exit code 0 when every camera message became part of a frame that ran, 3 when some were dropped
-(unsynchronised, out of order, a full queue, incomplete at the end, or undecodable; the summary
-counts each).
+(unsynchronised, out of order, a full queue, incomplete at the end, not deserialisable, stamped before
+1970, or an image that does not decode at the model's size; the summary counts each reason and names
+where it first occurred), 1 when a bag cannot be read (damaged, or no messages on a camera's topic).
 """
 
 from __future__ import annotations

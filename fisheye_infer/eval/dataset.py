@@ -104,8 +104,10 @@ def read_split(root: str | Path, split: str) -> list[SplitEntry]:
         raise DatasetError(f"split '{split}': {path} not found (splits here: {', '.join(have) or 'none'})")
     try:
         doc = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"split '{split}': {path} cannot be read as JSON ({exc})") from exc
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: not UTF-8, not JSON, 4300+ digits
+        raise DatasetError(
+            f"split '{split}': {path} cannot be read as JSON ({str(exc)[:200] or 'nested too deep'})"
+        ) from None
     if not isinstance(doc, list):
         raise DatasetError(f"split '{split}': {path} must hold a list of samples, got {type(doc).__name__}")
     entries = []
@@ -138,8 +140,8 @@ def read_labels(path: str | Path, class_names: Sequence[str] = CLASSES) -> tuple
         raise DatasetError(f"labels {path}: file not found")
     try:
         doc = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"labels {path}: cannot be read as JSON ({exc})") from exc
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: not UTF-8, not JSON, 4300+ digits
+        raise DatasetError(f"labels {path}: cannot be read as JSON ({str(exc)[:200] or 'nested too deep'})") from None
     if not isinstance(doc, list):
         raise DatasetError(f"labels {path}: expected a list of objects, got {type(doc).__name__}")
     boxes, labels, ids = np.zeros((len(doc), 7)), np.zeros(len(doc), np.int64), np.full(len(doc), -1, np.int64)

@@ -186,8 +186,9 @@ def load_results(path: str | Path) -> dict[str, list[dict[str, Any]]]:
         doc = json.loads(path.read_text())
     except OSError as exc:
         raise FrameError(f"results file {path}: cannot be read ({exc.strerror})") from exc
-    except json.JSONDecodeError as exc:
-        raise FrameError(f"results file {path}: not valid JSON: {exc}") from exc
+    except (ValueError, RecursionError) as exc:  # also not UTF-8, a number of 4300+ digits, nested too deep
+        reason = str(exc)[:200] or "nested too deep"
+        raise FrameError(f"results file {path}: not valid JSON: {reason}") from None
     results = doc.get("results") if isinstance(doc, dict) else None
     if not isinstance(results, dict):
         raise FrameError(f'results file {path}: expected {{"results": {{sample_token: [record, ...]}}}}')

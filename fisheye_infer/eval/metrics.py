@@ -138,8 +138,8 @@ class EvalConfig(BaseModel):
     def from_json(cls, text: str, source: str = "eval config") -> EvalConfig:
         try:
             data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ConfigError(f"{source}: not valid JSON: {exc}") from exc
+        except (ValueError, RecursionError) as exc:  # ValueError: not JSON, a number of 4300+ digits
+            raise ConfigError(f"{source}: not valid JSON: {str(exc)[:200] or 'nested too deep'}") from None
         return cls.from_dict(data, source)
 
     @classmethod
@@ -149,6 +149,8 @@ class EvalConfig(BaseModel):
             text = path.read_text()
         except OSError as exc:
             raise ConfigError(f"eval config {path}: cannot be read ({exc.strerror})") from exc
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"eval config {path}: not a JSON file (not UTF-8 text: byte {exc.start})") from None
         return cls.from_json(text, source=f"eval config {path}")
 
 

@@ -6,7 +6,9 @@
     array = detection_array(detections, stamp, "lidar")  # vision_msgs/msg/Detection3DArray
 
 Images: ``sensor_msgs/Image`` in ``bgr8``, ``rgb8`` or ``mono8``; ``sensor_msgs/CompressedImage`` in JPEG or
-PNG (``compressed_image_transport``'s formats); anything else is refused by name. Boxes go out at their
+PNG (``compressed_image_transport``'s formats), decoded through the service's checked decoder
+(``runtime.codec``: the size read from the header before decoding, the JPEG scan limit, strict decoding);
+anything else is refused by name, with a short reason to count it by (``ImageRefused.reason``). Boxes go out at their
 gravity centre with their yaw as a quaternion about z, in the frame the caller names (the rig's lidar
 frame); the class name is the hypothesis id, as ``vision_msgs`` asks.
 """
@@ -23,6 +25,7 @@ from rosbags.typesys.store import Typestore
 
 from fisheye_infer.errors import FrameError
 from fisheye_infer.runtime.box_geometry import centres
+from fisheye_infer.runtime.codec import JPEG_SIGNATURE, PNG_SIGNATURE, decode_image, encoded_image_size
 from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.records import yaw_to_quaternion
 from fisheye_infer.tools.viz import class_colour
@@ -30,6 +33,7 @@ from fisheye_infer.tools.viz import class_colour
 __all__ = [
     "DETECTION_ARRAY",
     "IMAGE_TYPES",
+    "ImageRefused",
     "MARKER_ARRAY",
     "detection_array",
     "image_from_message",
@@ -74,31 +78,117 @@ def stamp_ns(header: Any) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
-def image_from_message(msg: Any, topic: str = "image") -> np.ndarray:
-    """A camera message as an (H, W, 3) BGR uint8 image; an encoding or format this cannot read is refused."""
+class ImageRefused(FrameError):
+    """A camera message that does not give the model an image; ``reason`` is a short name to count it by
+    (``encoding 16UC1``, ``wrong size``, ``JPEG does not decode``), the message says the rest."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+#: What the first bytes of a compressed image say it is.
+_SIGNATURES = (
+    (PNG_SIGNATURE, "PNG"),
+    (JPEG_SIGNATURE, "JPEG"),
+    (b"GIF8", "GIF"),
+    (b"II*\x00", "TIFF"),
+    (b"MM\x00*", "TIFF"),
+    (b"BM", "BMP"),
+)
+
+
+def _kind_of(data: bytes) -> str:
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        return "WebP"
+    return next((kind for signature, kind in _SIGNATURES if data.startswith(signature)), "unrecognised")
+
+
+def _cut(text: object, limit: int = 40) -> str:
+    text = str(text)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def image_from_message(msg: Any, topic: str = "image", expected_wh: tuple[int, int] | None = None) -> np.ndarray:
+    """A camera message as an (H, W, 3) BGR uint8 image, through the checks the service makes.
+
+    Args:
+        msg: a ``sensor_msgs/Image`` (``bgr8``, ``rgb8`` or ``mono8``) or ``sensor_msgs/CompressedImage``
+            (JPEG or PNG, the format it declares matching its bytes).
+        topic: named in the refusals.
+        expected_wh: the model's (width, height): an image of another size is refused before it is
+            decoded or copied (the size is read from the message or from the JPEG/PNG header), so a
+            small message claiming 30000x30000 pixels costs nothing.
+
+    Returns:
+        The image, ``expected_wh`` in size when given.
+
+    Raises:
+        ImageRefused: an encoding or format this does not read, a size other than ``expected_wh``, a
+            size its data or step contradicts, or bytes that do not decode (``runtime.codec``'s checks).
+    """
     if hasattr(msg, "encoding"):  # sensor_msgs/Image
-        channels = {"bgr8": 3, "rgb8": 3, "mono8": 1}.get(msg.encoding)
-        if channels is None:
-            raise FrameError(f"{topic}: image encoding {msg.encoding!r} is not read (expected bgr8, rgb8 or mono8)")
-        data = np.asarray(msg.data, np.uint8)
-        if msg.step < msg.width * channels or len(data) < msg.step * msg.height:
-            raise FrameError(
-                f"{topic}: image {msg.width}x{msg.height} {msg.encoding} with step {msg.step} holds {len(data)} bytes"
-            )
-        rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)[:, : msg.width * channels]
-        pixels = rows.reshape(msg.height, msg.width, channels)
-        if msg.encoding == "rgb8":
-            return np.ascontiguousarray(pixels[:, :, ::-1])
-        if msg.encoding == "mono8":
-            return cv2.cvtColor(pixels[:, :, 0], cv2.COLOR_GRAY2BGR)
-        return np.ascontiguousarray(pixels)
+        return _raw_image(msg, topic, expected_wh)
     fmt = str(msg.format).lower()
-    if not any(kind in fmt for kind in ("jpeg", "jpg", "png")) or "depth" in fmt:
-        raise FrameError(f"{topic}: compressed format {msg.format!r} is not read (expected JPEG or PNG)")
-    image = cv2.imdecode(np.asarray(msg.data, np.uint8), cv2.IMREAD_COLOR)
-    if image is None:
-        raise FrameError(f"{topic}: the {msg.format!r} data does not decode")
-    return image
+    wants = {kind for kind, words in (("JPEG", ("jpeg", "jpg")), ("PNG", ("png",))) if any(w in fmt for w in words)}
+    if not wants or "depth" in fmt:
+        raise ImageRefused(
+            f"format {_cut(msg.format)}",
+            f"{topic}: compressed format {_cut(msg.format)!r} is not read (expected JPEG or PNG)",
+        )
+    data = np.asarray(msg.data, np.uint8).tobytes()
+    kind = _kind_of(data)
+    if kind not in wants:
+        raise ImageRefused(
+            f"format {_cut(msg.format)} holding {kind} bytes",
+            f"{topic}: format {_cut(msg.format)!r} declared, the {len(data)} bytes are {kind} data",
+        )
+    size = encoded_image_size(data)
+    if expected_wh is not None and size is not None and size != tuple(expected_wh):
+        raise ImageRefused(
+            "wrong size", f"{topic}: image is {size[0]}x{size[1]}, model expects {expected_wh[0]}x{expected_wh[1]}"
+        )
+    try:
+        return decode_image(data, topic, expected_wh)
+    except FrameError as exc:  # the codec names the topic as its camera
+        reason = str(exc).removeprefix(f"camera '{topic}': ")
+        raise ImageRefused(f"{kind} does not decode", f"{topic}: {reason}") from None
+
+
+def _raw_image(msg: Any, topic: str, expected_wh: tuple[int, int] | None) -> np.ndarray:
+    """A ``sensor_msgs/Image``'s pixels as BGR; its sizes are checked against each other before any copy."""
+    channels = {"bgr8": 3, "rgb8": 3, "mono8": 1}.get(msg.encoding)
+    if channels is None:
+        raise ImageRefused(
+            f"encoding {_cut(msg.encoding)}",
+            f"{topic}: image encoding {_cut(msg.encoding)!r} is not read (expected bgr8, rgb8 or mono8)",
+        )
+    width, height, step = int(msg.width), int(msg.height), int(msg.step)
+    if expected_wh is not None and (width, height) != tuple(expected_wh):
+        raise ImageRefused(
+            "wrong size", f"{topic}: image is {width}x{height}, model expects {expected_wh[0]}x{expected_wh[1]}"
+        )
+    if width == 0 or height == 0:
+        raise ImageRefused("empty image", f"{topic}: image is {width}x{height}")
+    if step < width * channels:
+        raise ImageRefused(
+            "step shorter than a row",
+            f"{topic}: step {step} is shorter than a row of {width} {msg.encoding} pixels ({width * channels} bytes)",
+        )
+    data = np.asarray(msg.data, np.uint8)
+    if len(data) < step * height:
+        raise ImageRefused(
+            "data shorter than its size",
+            f"{topic}: image {width}x{height} {msg.encoding} with step {step} needs {step * height} bytes, "
+            f"holds {len(data)}",
+        )
+    rows = data[: step * height].reshape(height, step)[:, : width * channels]
+    pixels = rows.reshape(height, width, channels)
+    if msg.encoding == "rgb8":
+        return np.ascontiguousarray(pixels[:, :, ::-1])
+    if msg.encoding == "mono8":
+        return cv2.cvtColor(np.ascontiguousarray(pixels[:, :, 0]), cv2.COLOR_GRAY2BGR)
+    return np.ascontiguousarray(pixels)
 
 
 def ros2_image(msg: Any) -> Any:

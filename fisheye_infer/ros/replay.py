@@ -18,27 +18,32 @@ synchronised frame and stamped with its first camera's header stamp:
 holds the ROS 2 channels only.
 
 Beside it, ``<out>.json``: the nuScenes-style records of every frame (``{"results": {stamp: [...]}}``), which
-``fisheye-infer eval --results`` reads. Frames that could not be synchronised or decoded are counted by
-reason in the ``ReplayReport``.
+``fisheye-infer eval --results`` reads. Messages and frames that could not be read, synchronised or decoded
+are counted by reason in the ``ReplayReport``, with where each reason first occurred; images are decoded
+only at the model's size (``messages.image_from_message``), so what a bag's images claim costs nothing.
+A bag that cannot be read (damaged structure or compression, no messages on a camera's topic) is a
+``BagError`` naming it, and nothing is written.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import mcap.writer
 from mcap_protobuf.schema import register_schema
-from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.highlevel import AnyReader
 
-from fisheye_infer.errors import FrameError, OptionError
+from fisheye_infer.errors import BagError, OptionError
 from fisheye_infer.eval.evaluate import save_results
 from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.runtime.options import check_score_threshold
 from fisheye_infer.tools.files import pending_file
 
 from .foxglove import image_annotations, scene_update
@@ -46,6 +51,7 @@ from .messages import (
     DETECTION_ARRAY,
     IMAGE_TYPES,
     MARKER_ARRAY,
+    ImageRefused,
     detection_array,
     image_from_message,
     marker_array,
@@ -62,33 +68,49 @@ DETECTIONS_TOPIC = "/detections"
 
 @dataclass
 class ReplayReport:
-    """What a replay read, ran and wrote; ``dropped`` counts camera messages by reason, ``undecodable``
-    frames whose images did not decode."""
+    """What a replay read, ran and wrote. ``dropped`` counts camera messages by reason (the synchroniser's,
+    ``does not deserialize``, ``stamp before 1970``); ``unread`` frames whose images did not give the model an
+    image, by reason (``encoding 16UC1``, ``wrong size``, ``JPEG does not decode``, ...); ``examples`` says
+    where each reason first occurred (bag, topic, stamp, type) and why."""
 
     frames: int = 0
     messages: int = 0
     dropped: Counter[str] = field(default_factory=Counter)
-    undecodable: int = 0
+    unread: Counter[str] = field(default_factory=Counter)
+    examples: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
     out: Path | None = None
     records: Path | None = None
 
     @property
+    def undecodable(self) -> int:
+        """Frames dropped because an image of theirs did not give the model an image."""
+        return sum(self.unread.values())
+
+    @property
     def complete(self) -> bool:
         """Whether every camera message became part of a frame that ran."""
-        return not self.dropped and not self.undecodable
+        return not self.dropped and not self.unread
+
+    def note(self, counter: Counter[str], reason: str, where: str) -> None:
+        """Count one drop for ``reason``, keeping the first example."""
+        counter[reason] += 1
+        self.examples.setdefault(reason, where)
 
     def summary(self) -> str:
+        """The counts and each reason's first example, as the command prints them."""
         rate = self.frames / self.seconds if self.seconds else 0.0
         lost = ", ".join(f"{n} {reason}" for reason, n in sorted(self.dropped.items())) or "none"
-        return "\n".join(
-            [
-                f"replayed {self.frames} frame(s) from {self.messages} camera message(s) in {self.seconds:.1f} s "
-                f"({rate:.1f} frames/s)",
-                f"camera messages dropped: {lost}; frames that did not decode: {self.undecodable}",
-                f"wrote {self.out} and {self.records}",
-            ]
-        )
+        unread = ", ".join(f"{n} {reason}" for reason, n in sorted(self.unread.items()))
+        lines = [
+            f"replayed {self.frames} frame(s) from {self.messages} camera message(s) in {self.seconds:.1f} s "
+            f"({rate:.1f} frames/s)",
+            f"camera messages dropped: {lost}; frames that did not decode: {self.undecodable}"
+            + (f" ({unread})" if unread else ""),
+        ]
+        lines += [f"  first '{reason}': {where}" for reason, where in self.examples.items()]
+        lines.append(f"wrote {self.out} and {self.records}")
+        return "\n".join(lines)
 
 
 def replay(
@@ -113,6 +135,12 @@ def replay(
     keeps the messages' boxes at or above it (the records keep every box, as evaluation needs); ``progress``
     is told the frames done and the most there can be (the fewest messages of one camera)."""
     started = time.perf_counter()
+    check_score_threshold(score_threshold)
+    if not (isinstance(tolerance_ms, int | float) and math.isfinite(tolerance_ms) and tolerance_ms >= 0):
+        raise OptionError(f"--tolerance-ms {tolerance_ms}: expected a finite number of milliseconds, 0 or more")
+    for flag, value in (("--batch", batch), ("--queue", queue_size)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise OptionError(f"{flag} {value!r}: expected a whole number, 1 or more")
     detector = Detector(model, threads=threads)
     cameras = list(detector.info.cameras)
     missing = [c for c in cameras if c not in topics]
@@ -122,8 +150,6 @@ def replay(
             f"--camera: the model's cameras are {', '.join(cameras)}; "
             + (f"no topic given for {', '.join(missing)}" if missing else f"{', '.join(extra)} is not one of them")
         )
-    if batch < 1:
-        raise OptionError(f"--batch {batch}: expected 1 or more")
     shared = sorted({t for t in topics.values() if list(topics.values()).count(t) > 1})
     if shared:
         raise OptionError(f"--camera: topic {', '.join(shared)} is given for more than one camera")
@@ -136,31 +162,32 @@ def replay(
     camera_of = {topic: camera for camera, topic in topics.items()}
     store = typestore()
     results: dict[str, list[dict[str, Any]]] = {}
+    named = ", ".join(map(str, bags))
     opened = contextlib.ExitStack()
-    try:
+    with _bag_errors(named, "cannot be read as a rosbag2 or ROS 1 bag"):
         reader = opened.enter_context(AnyReader([Path(b) for b in bags], default_typestore=store))
-    except AnyReaderError as exc:
-        raise FrameError(f"bag {', '.join(map(str, bags))}: cannot be read as a rosbag2 or ROS 1 bag ({exc})") from exc
     with opened:
         connections = _camera_connections(reader, topics)
-        expected = min(c.msgcount for c in connections)
+        expected = min(sum(c.msgcount for c in connections if c.topic == t) for t in topics.values())
+        size = detector.info.image_size
         with pending_file(out) as pending, open(pending.path, "wb") as stream:
             writer = _McapWriter(stream, connections if images else [], detector, foxglove)
             pending_sets: list[SyncedSet] = []
+            counted: Counter[str] = Counter()
 
             def run(sets: list[SyncedSet]) -> None:
                 frames, kept = [], []
                 for synced in sets:
-                    try:
-                        frames.append(
-                            {
-                                cam: image_from_message(msg, connection.topic)
-                                for cam, (connection, msg) in zip(cameras, synced.items, strict=True)
-                            }
-                        )
+                    frame = {}
+                    for cam, (connection, msg) in zip(cameras, synced.items, strict=True):
+                        try:
+                            frame[cam] = image_from_message(msg, connection.topic, size)
+                        except ImageRefused as exc:
+                            report.note(report.unread, exc.reason, f"{_where(connection, msg)}: {exc}")
+                            break
+                    else:
+                        frames.append(frame)
                         kept.append(synced)
-                    except FrameError:
-                        report.undecodable += 1
                 if not frames:
                     return
                 for synced, detections in zip(kept, detector.detect_batch(frames), strict=True):
@@ -170,43 +197,107 @@ def replay(
                     if progress is not None:
                         progress(report.frames, expected)
 
-            for connection, _, raw in reader.messages(connections=connections):
+            for connection, logged, raw in _read(reader, connections, named):
                 report.messages += 1
-                msg: Any = reader.deserialize(raw, connection.msgtype)
+                counted[connection.topic] += 1
+                try:
+                    msg: Any = reader.deserialize(raw, connection.msgtype)
+                except Exception as exc:  # rosbags' deserialisers raise what the damaged bytes provoke
+                    where = f"bag {_bag(connection)}, {connection.topic} logged at {_seconds(logged)} s"
+                    problem = f"{where} ({connection.msgtype}): {str(exc)[:200]}"
+                    report.note(report.dropped, "does not deserialize", problem)
+                    continue
+                stamp = stamp_ns(msg.header)
+                if stamp < 0:  # an MCAP log time is unsigned
+                    report.note(report.dropped, "stamp before 1970", _where(connection, msg))
+                    continue
                 camera = camera_of[connection.topic]
-                for synced in sync.push(camera, stamp_ns(msg.header), (connection, msg)):
+                for synced in sync.push(camera, stamp, (connection, msg)):
                     pending_sets.append(synced)
                     if len(pending_sets) == batch:
                         run(pending_sets)
                         pending_sets = []
             run(pending_sets)
+            silent = [t for t in topics.values() if not counted[t]]
+            if silent:
+                raise BagError(
+                    f"bag {named}: no messages on {', '.join(silent)}"
+                    + (" (nor on any camera topic)" if not report.messages else "")
+                    + ", so no frame can be complete"
+                )
             sync.flush()
             writer.finish()
             stream.close()
             report.out = pending.commit()
-    report.dropped = sync.dropped
+    report.dropped.update(sync.dropped)
     meta = {"model_id": detector.info.meta.model_id, "bags": [str(b) for b in bags], "topics": dict(topics)}
     report.records = save_results(out.with_suffix(".json"), results, meta)
     report.seconds = time.perf_counter() - started
     return report
 
 
+@contextlib.contextmanager
+def _bag_errors(named: str, problem: str) -> Iterator[None]:
+    """Whatever the bag readers raise on damaged bytes, as a ``BagError`` naming the bags and the problem."""
+    try:
+        yield
+    except BagError:
+        raise
+    except Exception as exc:  # rosbags raises its own errors, struct.error, AssertionError, OSError (bz2), ...
+        reason = str(exc).strip()[:200] or type(exc).__name__
+        raise BagError(f"bag {named}: {problem} ({reason})") from exc
+
+
+def _read(reader: AnyReader, connections: Sequence[Any], named: str) -> Iterator[tuple[Any, int, bytes]]:
+    """The cameras' messages in log-time order, (connection, log time in ns, raw bytes); a damaged bag is a
+    ``BagError``."""
+    messages = reader.messages(connections=connections)
+    while True:
+        with _bag_errors(named, "damaged, reading stopped"):
+            item = next(messages, None)
+        if item is None:
+            return
+        yield item
+
+
+def _bag(connection: Any) -> str:
+    return str(getattr(connection.owner, "path", "?"))
+
+
+def _where(connection: Any, msg: Any) -> str:
+    """Where a message is: its bag, topic, header stamp, type and encoding or format."""
+    kind = f"encoding {msg.encoding!r}"[:60] if hasattr(msg, "encoding") else f"format {msg.format!r}"[:60]
+    return (
+        f"bag {_bag(connection)}, {connection.topic} at {_seconds(stamp_ns(msg.header))} s "
+        f"({connection.msgtype.rsplit('/', 1)[-1]}, {kind})"
+    )
+
+
+def _seconds(ns: int) -> str:
+    """Nanoseconds as seconds with all nine decimals, as ROS tools print stamps."""
+    return f"{'-' if ns < 0 else ''}{abs(ns) // 10**9}.{abs(ns) % 10**9:09d}"
+
+
 def _camera_connections(reader: AnyReader, topics: Mapping[str, str]) -> list[Any]:
-    """The bag's connections of the cameras' topics; a missing topic or one of another type is refused."""
-    by_topic = {c.topic: c for c in reader.connections}
+    """The bags' connections of the cameras' topics (one per bag that records it); a missing topic or one of
+    another type is refused."""
+    by_topic: dict[str, list[Any]] = {}
+    for c in reader.connections:
+        by_topic.setdefault(c.topic, []).append(c)
     chosen = []
     for camera, topic in topics.items():
-        connection = by_topic.get(topic)
-        if connection is None:
-            images = sorted(t for t, c in by_topic.items() if c.msgtype in IMAGE_TYPES) or ["none"]
+        found = by_topic.get(topic)
+        if found is None:
+            images = sorted(t for t, cs in by_topic.items() if cs[0].msgtype in IMAGE_TYPES) or ["none"]
             raise OptionError(
                 f"--camera {camera}={topic}: no such topic in the bag (image topics: {', '.join(images)})"
             )
-        if connection.msgtype not in IMAGE_TYPES:
-            raise OptionError(
-                f"--camera {camera}={topic}: the topic holds {connection.msgtype}, not {' or '.join(IMAGE_TYPES)}"
-            )
-        chosen.append(connection)
+        for connection in found:
+            if connection.msgtype not in IMAGE_TYPES:
+                raise OptionError(
+                    f"--camera {camera}={topic}: the topic holds {connection.msgtype}, not {' or '.join(IMAGE_TYPES)}"
+                )
+        chosen += found
     return chosen
 
 

@@ -335,12 +335,12 @@ def parse_meta(document: str | None, source: str = "model") -> ArtifactMeta:
         import json
 
         raw = json.loads(document)
-    except ValueError as exc:
-        raise ArtifactError(f"{source}: '{METADATA_KEY}' metadata is not JSON ({exc})") from exc
+    except (ValueError, RecursionError) as exc:  # RecursionError: nested too deep
+        raise ArtifactError(f"{source}: '{METADATA_KEY}' metadata is not JSON ({str(exc)[:200]})") from exc
     version = raw.get("schema_version") if isinstance(raw, dict) else None
     if version not in READABLE_SCHEMA_VERSIONS:
         raise ArtifactError(
-            f"{source}: metadata schema_version {version!r} is not supported by this fisheye-infer "
+            f"{source}: metadata schema_version {repr(version)[:40]} is not supported by this fisheye-infer "
             f"(it reads {', '.join(map(str, READABLE_SCHEMA_VERSIONS[:-1]))} and {READABLE_SCHEMA_VERSIONS[-1]})"
         )
     try:

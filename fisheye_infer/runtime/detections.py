@@ -137,8 +137,8 @@ class Detections:
         """Read back what ``to_json`` wrote (e.g. to draw a saved result); a bad row is named."""
         try:
             doc = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise FrameError(f"detections: not valid JSON ({exc})") from None
+        except (ValueError, RecursionError) as exc:  # ValueError: not JSON, a number of 4300+ digits
+            raise FrameError(f"detections: not valid JSON ({str(exc)[:200] or 'nested too deep'})") from None
         rows = doc.get("detections", []) if isinstance(doc, dict) else None
         if not isinstance(rows, list):
             raise FrameError("detections: expected an object with a 'detections' list")

@@ -21,6 +21,7 @@ class list against the labels the graph returns (at warm-up, and on every run).
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -45,7 +46,15 @@ from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.nms import NmsConfig
 from fisheye_infer.runtime.options import check_classes, check_nms, check_score_threshold
 from fisheye_infer.runtime.preprocess import Frame, load_frames, stack_frames
-from fisheye_infer.runtime.session import Provider, create_session, log, map_ort_errors, usable_cpus
+from fisheye_infer.runtime.session import (
+    Provider,
+    check_threads,
+    create_session,
+    log,
+    map_ort_errors,
+    resolve_providers,
+    usable_cpus,
+)
 from fisheye_infer.tools.cpu import cpu_info, int8_saturation_warning
 
 __all__ = ["Detector", "DetectorInfo", "FrameDetector", "check_interface", "check_output_shapes", "describe"]
@@ -128,9 +137,22 @@ def describe(meta: ArtifactMeta, providers: Sequence[str]) -> DetectorInfo:
     )
 
 
-def _check_decode_threads(decode_threads: int | None) -> None:
-    if decode_threads is not None and decode_threads < 1:
-        raise OptionError(f"decode_threads: expected a positive number, got {decode_threads}")
+def _check_model_path(model_path: object) -> Path:
+    """The model file's path; anything but a str or ``os.PathLike`` naming an existing file is refused."""
+    if not isinstance(model_path, str | os.PathLike):
+        raise OptionError(
+            f"model_path: expected the path of an ONNX file (str or os.PathLike), got {type(model_path).__name__}"
+        )
+    path = Path(model_path)
+    try:
+        exists = path.exists()
+    except (OSError, ValueError) as exc:  # a NUL byte, a name too long
+        raise OptionError(f"model_path: {str(path)[:200]!r} cannot name a file ({exc})") from None
+    if not exists:
+        raise ArtifactError(f"model {path}: no such file")
+    if not path.is_file():
+        raise ArtifactError(f"model {path}: is a folder or device, not an ONNX file")
+    return path
 
 
 class FrameDetector:
@@ -155,7 +177,7 @@ class FrameDetector:
         self.score_threshold = check_score_threshold(score_threshold)
         self.nms = check_nms(nms)
         self.ready = False
-        _check_decode_threads(decode_threads)
+        decode_threads = check_threads(decode_threads, "decode_threads")
         # Encoded images are decoded in parallel: decoding four PNGs one after another takes longer
         # than the whole graph run on a GPU. Threads start on first use; callers share them.
         self._decoder = ThreadPoolExecutor(
@@ -296,9 +318,21 @@ class FrameDetector:
 class Detector(FrameDetector):
     """Runs an exported fisheye detector in ONNX Runtime. See the module docstring.
 
-    ``threads``: ONNX Runtime's intra-op threads (default: the cores this process may use).
-    ``spin=False``: they sleep as soon as a call ends instead of spinning for a while first
-    (``session_options``), for cores shared with other processes or other models.
+    Every argument is checked before any work, and a bad one refused naming it (``OptionError``;
+    ``ConfigError`` for providers, ``ArtifactError`` for a file that is missing or not a model).
+
+    Args:
+        model_path (str | os.PathLike): an ONNX file written by ``fisheye-infer export``.
+        threads (int | None): ONNX Runtime's intra-op threads, a whole number from 1 to
+            ``THREADS_PER_CPU`` (4) x the CPUs this process may use (default: those CPUs).
+        providers (str | Sequence[str | tuple[str, dict]] | None): ``"auto"``, a provider name, or a
+            list of names or (name, options) pairs (default: the CPU).
+        score_threshold (float | None): keep boxes scoring at least this, in [0, 1].
+        nms (NmsConfig | str | None): NMS after the graph, or ``"rotated"``/``"circle"`` with defaults.
+        warmup (bool): one run on a black frame at construction.
+        decode_threads (int | None): threads decoding encoded images, bounded as ``threads``.
+        spin (bool): ``False``: the intra-op threads sleep as soon as a call ends instead of
+            spinning for a while first (``session_options``), for cores shared with other processes.
     """
 
     def __init__(
@@ -315,12 +349,13 @@ class Detector(FrameDetector):
     ) -> None:
         check_score_threshold(score_threshold)  # bad options are named before the session is built
         check_nms(nms)
-        _check_decode_threads(decode_threads)
-        if not isinstance(spin, bool):  # "false" would be truthy and leave spinning on
-            raise OptionError(f"spin: expected True or False, got {type(spin).__name__} {spin!r}")
-        self.path = Path(model_path)
-        if not self.path.is_file():
-            raise ArtifactError(f"model {self.path}: no such file")
+        threads = check_threads(threads)
+        check_threads(decode_threads, "decode_threads")
+        resolve_providers(providers)
+        for flag, value in (("warmup", warmup), ("spin", spin)):
+            if not isinstance(value, bool):  # "false" would be truthy
+                raise OptionError(f"{flag}: expected True or False, got {type(value).__name__} {repr(value)[:40]}")
+        self.path = _check_model_path(model_path)
         self._session = create_session(self.path, threads=threads, providers=providers, spin=spin)
         meta = parse_meta(
             self._session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {self.path}"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import numbers
 import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -17,7 +18,7 @@ from typing import Any
 
 import onnxruntime as ort
 
-from fisheye_infer.errors import ArtifactError, ConfigError, InferenceError
+from fisheye_infer.errors import ArtifactError, ConfigError, InferenceError, OptionError
 
 __all__ = [
     "PREFERRED_PROVIDERS",
@@ -32,6 +33,8 @@ __all__ = [
     "check_started",
     "map_ort_errors",
     "usable_cpus",
+    "THREADS_PER_CPU",
+    "check_threads",
 ]
 
 log = logging.getLogger("fisheye_infer")
@@ -60,6 +63,11 @@ def resolve_providers(providers: str | Sequence[Provider] | None) -> list[Provid
         return ["CPUExecutionProvider"]
     if providers == "auto":
         return [p for p in PREFERRED_PROVIDERS if p in installed]
+    if not isinstance(providers, str) and (isinstance(providers, bytes) or not isinstance(providers, Sequence)):
+        raise ConfigError(
+            "providers: expected 'auto', a provider name or a list of them (or of (name, options dict) pairs), "
+            f"got {type(providers).__name__}"
+        )
     wanted: list[Provider] = [providers] if isinstance(providers, str) else list(providers)
     if "auto" in wanted:
         raise ConfigError(
@@ -71,7 +79,7 @@ def resolve_providers(providers: str | Sequence[Provider] | None) -> list[Provid
             isinstance(p, str)
             or (isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], str) and isinstance(p[1], dict))
         ):
-            raise ConfigError(f"providers: expected a provider name or a (name, options dict) pair, got {p!r}")
+            raise ConfigError(f"providers: expected a provider name or a (name, options dict) pair, got {repr(p)[:80]}")
     missing = [name for name in map(provider_name, wanted) if name not in installed]
     if missing:
         raise ConfigError(
@@ -121,6 +129,36 @@ def usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
+#: The most threads a pool may have per CPU this process may use: more only waste memory and time switching.
+THREADS_PER_CPU = 4
+
+
+def check_threads(value: object, name: str = "threads") -> int | None:
+    """``None`` or a whole number of threads from 1 to ``THREADS_PER_CPU`` x ``usable_cpus()``.
+
+    Args:
+        value: what the caller passed (a bool, a float such as 1.5 and a string are refused).
+        name: the argument, as the message names it.
+
+    Returns:
+        The number as an ``int``, or ``None``.
+
+    Raises:
+        OptionError: naming ``name``, the range and what was given.
+    """
+    if value is None:
+        return None
+    cpus = usable_cpus()
+    most = THREADS_PER_CPU * cpus
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 1 <= int(value) <= most:
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+        raise OptionError(
+            f"{name}: expected a whole number from 1 to {most} ({THREADS_PER_CPU} x the {cpus} CPU(s) this process "
+            f"may use), got {type(value).__name__} {shown}"
+        )
+    return int(value)
+
+
 def session_options(threads: int | None = None, spin: bool = True) -> ort.SessionOptions:
     """The project's session options (also used by ``fisheye-infer bench`` for stage models).
 
@@ -129,13 +167,12 @@ def session_options(threads: int | None = None, spin: bool = True) -> ort.Sessio
     milliseconds of CPU time after every call, taken from whatever else shares the cores (other
     processes on a robot, another model in the same process; ``benchmarks/spinning.py``).
     """
-    if threads is not None and threads < 1:
-        raise ValueError(f"threads: expected a positive number, got {threads}")
+    threads = check_threads(threads)
     options = ort.SessionOptions()
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     options.inter_op_num_threads = 1
-    options.intra_op_num_threads = int(threads) if threads else usable_cpus()
+    options.intra_op_num_threads = threads or usable_cpus()
     options.log_severity_level = 3
     # Memory-pattern planning keeps a peak-sized block per input shape: FisheyeBEVDet's peak RSS
     # drops from about 980 MB to 610 MB without it, at the same latency (measured on 2 cores).

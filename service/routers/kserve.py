@@ -45,6 +45,8 @@ from fisheye_infer.service.errors import (
     RequestTimeout,
     ServiceError,
     Unavailable,
+    listed,
+    shown,
 )
 from fisheye_infer.service.state import Service
 
@@ -173,26 +175,63 @@ async def model_configuration(
 def _split_body(body: bytes, header_length: str | None) -> tuple[dict[str, Any], bytes]:
     if header_length is None:
         size = len(body)
-    elif not header_length.isdigit() or int(header_length) > len(body):
+    elif not (header_length.isascii() and header_length.isdigit() and len(header_length) <= 20) or int(
+        header_length
+    ) > len(body):
         raise BadRequest(
-            f"{HEADER_LENGTH}: {header_length!r} is not a length within the {len(body)}-byte body", field=HEADER_LENGTH
+            f"{HEADER_LENGTH}: {shown(repr(header_length))} is not a length within the {len(body)}-byte body",
+            field=HEADER_LENGTH,
         )
     else:
         size = int(header_length)
     try:
         doc = json.loads(body[:size])
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BadRequest(f"inference request: the JSON header is not valid JSON ({exc})", field="body") from None
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, and an integer of more than 4300 digits
+        raise BadRequest(
+            f"inference request: the JSON header is not valid JSON ({shown(str(exc))})", field="body"
+        ) from None
+    except RecursionError:
+        raise BadRequest(
+            "inference request: the JSON header nests arrays or objects too deep to read", field="body"
+        ) from None
     if not isinstance(doc, dict) or not isinstance(doc.get("inputs"), list):
         raise RequestInvalid("inference request: expected an object with an 'inputs' list", field="inputs")
+    if "id" in doc and not isinstance(doc["id"], str):
+        raise RequestInvalid(f"id: expected a string, got {type(doc['id']).__name__}", field="id")
+    for i, item in enumerate(doc["inputs"]):
+        if not isinstance(item, dict) or not isinstance(item.get("name"), str):
+            raise RequestInvalid(
+                f"inputs[{i}]: expected an object whose 'name' is a string, got {_kind(item, 'name')}", field="inputs"
+            )
     return doc, body[size:]
+
+
+def _kind(item: object, key: str) -> str:
+    """What a client sent where an object with a string ``key`` was expected, named by type only."""
+    if not isinstance(item, dict):
+        return type(item).__name__
+    return f"'{key}' of type {type(item.get(key)).__name__}" if key in item else f"no '{key}'"
+
+
+def _parameters(item: dict[str, Any], where: str) -> dict[str, Any]:
+    """``item``'s ``parameters``: an object (KServe's map of names to values), empty when absent."""
+    parameters = item.get("parameters")
+    if parameters is None:
+        return {}
+    if not isinstance(parameters, dict):
+        raise RequestInvalid(
+            f"{where}.parameters: expected an object, got {type(parameters).__name__}", field=f"{where}.parameters"
+        )
+    return parameters
 
 
 def _shape(item: dict[str, Any], expected: dict[str, Any]) -> list[int]:
     """An input's shape, after checking its datatype and shape against the graph's input ``expected``."""
     name, want, dims = expected["name"], KSERVE_DTYPES[expected["data_type"]], expected["dims"]
     if item.get("datatype") != want:
-        raise RequestInvalid(f"input '{name}': datatype {item.get('datatype')!r}, expected {want}", field=name)
+        raise RequestInvalid(
+            f"input '{name}': datatype {shown(repr(item.get('datatype')))}, expected {want}", field=name
+        )
     shape = item.get("shape")
     if not (
         isinstance(shape, list)
@@ -200,7 +239,9 @@ def _shape(item: dict[str, Any], expected: dict[str, Any]) -> list[int]:
         and len(shape) == len(dims) + 1
         and all(d == -1 or d == s for d, s in zip(dims, shape[1:]))
     ):
-        raise RequestInvalid(f"input '{name}': shape {shape!r}, expected [B, {', '.join(map(str, dims))}]", field=name)
+        raise RequestInvalid(
+            f"input '{name}': shape {shown(repr(shape))}, expected [B, {', '.join(map(str, dims))}]", field=name
+        )
     return shape
 
 
@@ -209,19 +250,21 @@ def _data(
 ) -> tuple[np.ndarray, int]:
     """An input's values: from the binary part (binary tensor extension) or from its JSON ``data``."""
     name, count = item["name"], int(np.prod(shape))
-    size = (item.get("parameters") or {}).get("binary_data_size")
+    size = _parameters(item, f"input '{name}'").get("binary_data_size")
     if size is not None:
         if not isinstance(size, int) or size != count * dtype.itemsize or offset + size > len(binary):
             raise RequestInvalid(
-                f"input '{name}': binary_data_size {size!r} does not fit shape {shape} "
+                f"input '{name}': binary_data_size {shown(repr(size))} does not fit shape {shape} "
                 f"({count * dtype.itemsize} bytes) in the {len(binary) - offset} bytes left",
                 field=name,
             )
         return np.frombuffer(binary[offset : offset + size], dtype).reshape(shape), offset + size
     try:
         data = np.asarray(item.get("data"), dtype).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise RequestInvalid(f"input '{name}': data cannot be read as {item['datatype']} ({exc})", field=name) from None
+    except (TypeError, ValueError, OverflowError) as exc:  # OverflowError: 300 or -1 as UINT8
+        raise RequestInvalid(
+            f"input '{name}': data cannot be read as {item['datatype']} ({shown(str(exc))})", field=name
+        ) from None
     if data.size != count:
         raise RequestInvalid(f"input '{name}': {data.size} values in data, shape {shape} needs {count}", field=name)
     return data.reshape(shape), offset
@@ -232,10 +275,10 @@ def _inputs(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Names, datatypes, shapes and the frame count first (cheap), then the values."""
     expected = {t["name"]: t for t in config["input"]}
-    given = {item.get("name"): item for item in doc["inputs"] if isinstance(item, dict)}
+    given = {item["name"]: item for item in doc["inputs"]}  # each an object with a string name (_split_body)
     if len(given) != len(doc["inputs"]) or set(given) != set(expected):
-        names = [item.get("name") if isinstance(item, dict) else item for item in doc["inputs"]]
-        raise RequestInvalid(f"inputs: got {names}, expected exactly {sorted(expected)} once each", field="inputs")
+        names = listed([repr(item["name"]) for item in doc["inputs"]])
+        raise RequestInvalid(f"inputs: got [{names}], expected exactly {sorted(expected)} once each", field="inputs")
     shapes = {name: _shape(item, expected[name]) for name, item in given.items()}
     frames = {shape[0] for shape in shapes.values()}
     if len(frames) != 1 or 0 in frames:
@@ -259,15 +302,18 @@ def _inputs(
 
 def _wanted(doc: dict[str, Any]) -> list[tuple[str, bool]]:
     """(output name, as binary) in the order asked for; all outputs when none are named."""
-    default_binary = bool((doc.get("parameters") or {}).get("binary_data_output", False))
+    default_binary = bool(_parameters(doc, "request").get("binary_data_output", False))
     asked = doc.get("outputs")
     if asked is None:
         return [(name, default_binary) for name in OUTPUTS]
     if not isinstance(asked, list) or not all(isinstance(o, dict) and o.get("name") in OUTPUTS for o in asked):
         raise RequestInvalid(
-            f"outputs: expected a list of {{'name': one of {', '.join(OUTPUTS)}}}, got {asked!r}", field="outputs"
+            f"outputs: expected a list of {{'name': one of {', '.join(OUTPUTS)}}}, got {shown(repr(asked))}",
+            field="outputs",
         )
-    return [(o["name"], bool((o.get("parameters") or {}).get("binary_data", default_binary))) for o in asked]
+    return [
+        (o["name"], bool(_parameters(o, f"output '{o['name']}'").get("binary_data", default_binary))) for o in asked
+    ]
 
 
 def _answer(name: str, doc: dict[str, Any], outputs: dict[str, np.ndarray], wanted: list[tuple[str, bool]]) -> Response:
@@ -316,8 +362,8 @@ async def infer(name: str, request: Request, service: ServiceDep, version: str |
             ) from None
         doc, binary = _split_body(body, request.headers.get(HEADER_LENGTH))
         config = await _config(request, service)
-        images, valid = _inputs(doc, binary, config, config["max_batch_size"])
         wanted = _wanted(doc)
+        images, valid = _inputs(doc, binary, config, config["max_batch_size"])
         try:
             with anyio.fail_after(settings.request_timeout_s):
                 arrays = await anyio.to_thread.run_sync(

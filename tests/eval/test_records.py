@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from fisheye_infer.errors import FrameError
+from fisheye_infer.eval.evaluate import load_results
 from fisheye_infer.runtime.records import (
     CLASSES,
     GT_SCORE,
@@ -163,3 +164,20 @@ def test_empty_round_trip() -> None:
     assert boxes_to_records(np.zeros((0, 7)), np.zeros(0), np.zeros(0, int)) == []
     boxes, scores, labels = records_to_arrays([])
     assert boxes.shape == (0, 7) and scores.shape == (0,) and labels.dtype == np.int64
+
+
+@pytest.mark.parametrize(
+    "data, words",
+    [
+        (b"\xff\xfe\x00binary", "not valid JSON: 'utf-8' codec can't decode"),
+        (b"[" * 100_000 + b"]" * 100_000, "not valid JSON"),
+        (b'{"results": ' + b"7" * 5000 + b"}", "not valid JSON: Exceeds the limit (4300 digits)"),
+        (b'{"results": [}', "not valid JSON: Expecting value"),
+    ],
+)
+def test_a_results_file_that_is_not_json_is_named(tmp_path, data: bytes, words: str) -> None:
+    """A binary file, JSON nested 100,000 deep and a 5000-digit number were tracebacks."""
+    path = tmp_path / "results.json"
+    path.write_bytes(data)
+    with pytest.raises(FrameError, match=re.escape(f"results file {path}: {words}")):
+        load_results(path)

@@ -25,7 +25,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
 from fisheye_infer.cli import main
-from fisheye_infer.errors import FrameError, OptionError
+from fisheye_infer.errors import BagError, FrameError, OptionError
 from fisheye_infer.eval.evaluate import load_results
 from fisheye_infer.ros.messages import image_from_message, typestore
 from fisheye_infer.ros.replay import replay
@@ -254,7 +254,7 @@ def test_a_missing_topic_or_camera_is_named(small_export, recording: Recording, 
     with pytest.raises(OptionError, match="no such file or folder"):
         replay(small_export.onnx, [tmp_path / "none.mcap"], topics, tmp_path / "d.mcap")
     (tmp_path / "junk.bag").write_bytes(b"junk")
-    with pytest.raises(FrameError, match="cannot be read as a rosbag2 or ROS 1 bag"):
+    with pytest.raises(BagError, match="cannot be read as a rosbag2 or ROS 1 bag"):
         replay(small_export.onnx, [tmp_path / "junk.bag"], topics, tmp_path / "e.mcap")
     with pytest.raises(OptionError, match=r"/nowhere: no such topic in the bag \(image topics: /fisheye_camera_front"):
         replay(small_export.onnx, [recording.mcap], {**topics, "fisheye_camera_rear": "/nowhere"}, tmp_path / "b.mcap")

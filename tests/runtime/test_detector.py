@@ -229,7 +229,7 @@ def test_decode_threads_nest_and_are_checked(detector: Detector, small_export) -
     """map_images called from a decode thread runs there (no deadlock on a full pool)."""
     nested = list(detector.map_images(lambda i: sum(detector.map_images(lambda j: i * j, range(4))), range(16)))
     assert nested == [6 * i for i in range(16)]
-    with pytest.raises(OptionError, match="decode_threads: expected a positive number, got 0"):
+    with pytest.raises(OptionError, match="decode_threads: expected a whole number from 1 to .* got int 0"):
         Detector(small_export.onnx, decode_threads=0)
-    with pytest.raises(ValueError, match="threads: expected a positive number, got 0"):
+    with pytest.raises(OptionError, match="threads: expected a whole number from 1 to .* got int 0"):
         Detector(small_export.onnx, threads=0)

@@ -190,3 +190,55 @@ def test_over_limit_body_with_expect_100_continue_is_refused_before_it_is_sent(s
         answer, error = read_answer(sock)  # no "100 Continue" first: the client is told not to send
         assert answer.status == 413 and "41943040 bytes" in error["error"]
         assert closed(sock)
+
+
+def _everything(sock: socket.socket, within: float = 5.0) -> bytes:
+    """What the server sends until it closes the connection, bounded by ``within`` seconds."""
+    data, deadline = b"", time.monotonic() + within
+    while time.monotonic() < deadline and select.select([sock], [], [], deadline - time.monotonic())[0]:
+        chunk = sock.recv(65536)
+        if not chunk:
+            return data
+        data += chunk
+    raise AssertionError(f"the connection was still open after {within} s; received {data[:200]!r}")
+
+
+@pytest.mark.parametrize("path", ["/detect", "/v2/models/small/infer"])
+def test_a_body_short_of_its_content_length_then_half_closed_gets_400(server: LiveServer, path: str) -> None:
+    """uvicorn closed such a connection without an answer: the client is told its body is short."""
+    with socket.create_connection(("127.0.0.1", server.port), timeout=10) as sock:
+        sock.sendall(
+            f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+            "Content-Length: 100\r\n\r\n".encode()
+            + b'{"images": {}}'
+        )
+        sock.shutdown(socket.SHUT_WR)
+        head, _, body = _everything(sock).partition(b"\r\n\r\n")
+    assert head.startswith(b"HTTP/1.1 400 ") and b"connection: close" in head.lower()
+    assert json.loads(body) == {
+        "error": "body: the client ended the connection before the 100 bytes its Content-Length declares had arrived",
+        "status": 400,
+        "type": "BadRequest",
+        "field": "body",
+    }
+
+
+def test_bytes_after_a_short_body_are_refused_as_json_and_the_connection_closed(server: LiveServer) -> None:
+    """A body shorter than its Content-Length on a kept-alive connection: the next request's bytes complete it
+    (the app refuses that body), and what is left is not HTTP: the service's 400 (uvicorn's was the text
+    "Invalid HTTP request received."), then the connection closes; no hang."""
+    following = b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+    with socket.create_connection(("127.0.0.1", server.port), timeout=10) as sock:
+        sock.sendall(
+            b"POST /detect HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nContent-Length: 40\r\n\r\n"
+            + b'{"images": {}}'
+            + following * 3
+        )
+        received = _everything(sock)
+    first, second = received.split(b"HTTP/1.1 400 Bad Request\r\n")[1:]
+    assert b"Invalid JSON" in first
+    head, _, body = second.partition(b"\r\n\r\n")
+    assert b"connection: close" in head.lower()
+    answer = json.loads(body)
+    assert answer["field"] == "request" and answer["error"].startswith("request: not a valid HTTP/1.1 request")
+    assert "a body shorter than its Content-Length" in answer["error"]

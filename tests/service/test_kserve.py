@@ -143,11 +143,15 @@ def test_refusals_name_the_problem(
     assert message in response.json()["error"]
 
 
-def test_binary_header_length_is_checked(client: httpx.Client, name: str) -> None:
+@pytest.mark.parametrize("length", ["999", "9" * 5000, "\u00b2"])  # 5000 digits and "²" were a 500
+def test_binary_header_length_is_checked(client: httpx.Client, name: str, length: str) -> None:
     response = client.post(
-        f"/v2/models/{name}/infer", content=b'{"inputs": []}', headers={"Inference-Header-Content-Length": "999"}
+        f"/v2/models/{name}/infer",
+        content=b'{"inputs": []}',
+        headers={"Inference-Header-Content-Length": length.encode()},
     )
     assert response.status_code == 400 and "Inference-Header-Content-Length" in response.json()["error"]
+    assert len(response.text) < 500
 
 
 def test_tritonclient_sees_the_servers_refusal(server: LiveServer, name: str) -> None:
@@ -193,3 +197,59 @@ def test_api_key_applies(keyed_server: LiveServer, name: str, detector: Detector
         TritonDetector(keyed_server.url, name, headers={"X-API-Key": API_KEY}).detect(images), detector.detect(images)
     )
     assert httpx.get(f"{keyed_server.url}/v2/health/live").status_code == 200  # health stays open
+
+
+def _images(**extra: object) -> dict:
+    return {"name": "images", "datatype": "UINT8", "shape": [1, 4, 160, 160, 3], "data": [0], **extra}
+
+
+@pytest.mark.parametrize(
+    "body, status, message",
+    [
+        (b"[" * 100_000 + b"]" * 100_000, 400, "nests arrays or objects too deep"),
+        (b'{"inputs": [], "id": ' + b"[" * 100_000 + b"]" * 100_000 + b"}", 400, "nests arrays or objects too deep"),
+        (b'{"inputs": [], "id": ' + b"7" * 5000 + b"}", 400, "Exceeds the limit (4300 digits)"),
+        ({"inputs": [GOOD_VALID], "id": 7}, 422, "id: expected a string, got int"),
+        ({"inputs": [{"name": ["images"]}, GOOD_VALID]}, 422, "inputs[0]: expected an object whose 'name' is a string"),
+        (
+            {"inputs": [_images(parameters=[1]), GOOD_VALID]},
+            422,
+            "input 'images'.parameters: expected an object, got list",
+        ),
+        (
+            {"inputs": [_images(parameters="x"), GOOD_VALID]},
+            422,
+            "input 'images'.parameters: expected an object, got str",
+        ),
+        (
+            {"inputs": [_images(), GOOD_VALID], "parameters": [1]},
+            422,
+            "request.parameters: expected an object, got list",
+        ),
+        (
+            {"inputs": [_images(), GOOD_VALID], "parameters": "x"},
+            422,
+            "request.parameters: expected an object, got str",
+        ),
+        (
+            {"inputs": [_images(), GOOD_VALID], "outputs": [{"name": "boxes", "parameters": [1]}]},
+            422,
+            "output 'boxes'.parameters: expected an object, got list",
+        ),
+        (
+            {"inputs": [_images(), GOOD_VALID], "outputs": [{"name": "boxes", "parameters": "x"}]},
+            422,
+            "output 'boxes'.parameters: expected an object, got str",
+        ),
+        ({"inputs": [GOOD_VALID, {**GOOD_VALID, "name": "images", "datatype": "x" * 10_000}]}, 422, "characters)"),
+        ({"inputs": [_images(data=[300]), GOOD_VALID]}, 422, "input 'images': data cannot be read as UINT8"),
+    ],
+)
+def test_malformed_requests_are_refused_by_field(
+    client: httpx.Client, name: str, body: bytes | dict, status: int, message: str
+) -> None:
+    """Each was a 500 "internal error": RecursionError, an unhashable name, parameters that are not an object."""
+    content = body if isinstance(body, bytes) else json.dumps(body).encode()
+    response = client.post(f"/v2/models/{name}/infer", content=content, headers={"Content-Type": "application/json"})
+    assert response.status_code == status, response.text
+    assert message in response.json()["error"] and len(response.text) < 2000

@@ -91,3 +91,14 @@ def test_importable_without_the_web_stack() -> None:
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
     assert result.stdout.strip() == "[]"
+
+
+def test_a_long_camera_name_is_not_repeated_whole() -> None:
+    name = "n" * 60_000
+    one = encode_frame(7, {name: b"x"})  # header, then one camera
+    overrun = one[:-5] + struct.pack("!I", 10**6)  # its image length past the end
+    twice = one[: HEADER.size - 1] + bytes([2]) + one[HEADER.size :] * 2  # the same camera twice
+    for message, words in ((overrun, "bytes overruns the message"), (twice, "given twice")):
+        with pytest.raises(StreamProtocolError, match=words) as raised:
+            decode_frame(message)
+        assert len(str(raised.value)) < 200 and "(60000 characters)" in str(raised.value)

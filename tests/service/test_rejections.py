@@ -349,10 +349,10 @@ CASES: list[tuple[str, str, Request, int, str | None, str]] = [
     (
         "batch: index of many digits",
         "/detect/batch",
-        lambda im: {"files": multipart(im, "9" * 50 + ".")},
+        lambda im: {"files": multipart(im, "9" * 30 + ".")},
         422,
         None,
-        "digits 0-9",
+        "frame index of 30 digits; at most 6 digits are read, and a batch holds frames 0..7 (max_batch_frames=8)",
     ),
     (
         "batch: camera twice, 0 and 00",
