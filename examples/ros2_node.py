@@ -53,11 +53,11 @@ class DetectorNode(Node):
     def on_image(self, camera: str, msgtype: str, msg: object) -> None:
         converted = self.store.deserialize_cdr(serialize_message(msg), msgtype)
         for synced in self.sync.push(camera, stamp_ns(converted.header), converted):
-            size = self.detector.info.image_size
+            info = self.detector.info
             try:  # the service's checks: an image of another size or format is refused before decoding
                 frame = {
                     c: image_from_message(m, c, size)
-                    for c, m in zip(self.detector.info.cameras, synced.items, strict=True)
+                    for c, size, m in zip(info.cameras, info.camera_sizes, synced.items, strict=True)
                 }
             except ImageRefused as exc:
                 self.get_logger().warning(f"frame at {synced.stamp} ns dropped ({exc.reason}): {exc}")

@@ -169,7 +169,7 @@ def replay(
     with opened:
         connections = _camera_connections(reader, topics)
         expected = min(sum(c.msgcount for c in connections if c.topic == t) for t in topics.values())
-        size = detector.info.image_size
+        size_of = dict(zip(detector.info.cameras, detector.info.camera_sizes))  # each camera's own
         with pending_file(out) as pending, open(pending.path, "wb") as stream:
             writer = _McapWriter(stream, connections if images else [], detector, foxglove)
             pending_sets: list[SyncedSet] = []
@@ -181,7 +181,7 @@ def replay(
                     frame = {}
                     for cam, (connection, msg) in zip(cameras, synced.items, strict=True):
                         try:
-                            frame[cam] = image_from_message(msg, connection.topic, size)
+                            frame[cam] = image_from_message(msg, connection.topic, size_of[cam])
                         except ImageRefused as exc:
                             report.note(report.unread, exc.reason, f"{_where(connection, msg)}: {exc}")
                             break
