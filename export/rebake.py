@@ -6,7 +6,8 @@
 ``virtual`` (the default for a rig that is not the file's training rig): the file takes the robot's raw images, each
 camera at its own size, and a front end in the graph resamples each into the image its training camera would have
 taken (:mod:`fisheye_infer.geometry.virtual`, :mod:`.virtual_front`); the network and its geometry tables stay as
-trained. Robot cameras are mapped onto the model's by ``camera_map`` or by heading
+trained, but for FisheyePETR's key mask and embedding, which also mask the keys that read pixels the robot cameras do
+not see. Robot cameras are mapped onto the model's by ``camera_map`` or by heading
 (:func:`~fisheye_infer.cameras.camera_map.map_cameras`).
 
 ``tables``: every ``geom.*`` initializer recomputed for the rig. The metadata of an exported file records the
@@ -81,6 +82,8 @@ def rebake(
         raise ArtifactError(f"--out {out}: re-baking never overwrites its input; choose another path")
     if camera_map is not None and mode == "tables":
         raise RigError("camera map: the tables mode keeps the model's camera names; a map is for virtual cameras")
+    if not model_path.is_file():
+        raise ArtifactError(f"model {model_path}: no such file (a regular ONNX file written by fisheye-infer export)")
     try:
         proto = onnx.load(str(model_path))
     except Exception as exc:

@@ -367,3 +367,10 @@ def test_baselines_take_virtual_cameras_too(arch: str, small_exports, tmp_path: 
     assert out.virtual_cameras is not None and all(r.coverage > 0.9 for r in out.virtual_cameras.cameras)
     dets = Detector(tmp_path / "robot.onnx", threads=1).detect(_frame(robot))
     assert dets.boxes.shape[1] == 7 and len(dets.cameras_used) == len(robot)
+
+
+def test_rebake_refuses_what_is_not_a_regular_file(tmp_path: Path) -> None:
+    from fisheye_infer.errors import ArtifactError
+
+    with pytest.raises(ArtifactError, match="/dev/zero: no such file"):
+        rebake("/dev/zero", TRAINING, tmp_path / "x.onnx")
