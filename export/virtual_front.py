@@ -5,9 +5,12 @@
 
 The graph's ``images`` input (B, N, Ht, Wt, 3) uint8 becomes an internal value computed from a new ``images``
 input (B, N, Hp, Wp, 3) uint8, the robot's images padded to the largest camera
-(:mod:`fisheye_infer.geometry.virtual`): a Gather of each output pixel's four taps, one batched MatMul with their
-weights, the fill added, and rounding to uint8 as cv2.remap rounds (``floor(x + 0.5)``; every product and sum is
-exact in float32). Standard ops only; the nodes are named under ``NODE_PREFIX`` so that a file can be re-targeted.
+(:mod:`fisheye_infer.geometry.virtual`): the images made planar (B, 3, N*Hp*Wp), every tap of every output pixel
+read by a GatherElements per channel (the index table expanded over the batch), the four taps weighed and summed,
+the fill added, and the sum rounded to uint8 as cv2.remap rounds (``floor(x + 0.5)``; every product and sum is
+exact in float32), then back to (B, N, Ht, Wt, 3). Every elementwise step runs over long rows of one channel and
+tap (ONNX Runtime's broadcasting and Gather are slow on short inner rows). Standard ops only; the nodes are named
+under ``NODE_PREFIX`` so that a file can be re-targeted.
 """
 
 from __future__ import annotations
@@ -64,7 +67,7 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
     batch.CopyFrom(images.type.tensor_type.shape.dim[0])
     n, ht, wt = (d.dim_value for d in images.type.tensor_type.shape.dim[1:4])
     pw, ph = front.padded_size
-    pixels = front.tables[VIRTUAL_WEIGHT].shape[0]
+    pixels = front.tables[VIRTUAL_WEIGHT].shape[1]
     if pixels != n * ht * wt:
         raise ArtifactError(f"virtual cameras: the tables resample {pixels} pixels, the graph takes {n}x{ht}x{wt}")
     rename_values(proto, {INPUT_IMAGES: TRAINING_IMAGES})
@@ -76,23 +79,48 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
     p = NODE_PREFIX
     consts = {
         f"{p}flat_shape": np.array([0, -1, 3], np.int64),
-        f"{p}taps_shape": np.array([0, pixels, 4, 3], np.int64),
-        f"{p}image_shape": np.array([0, n, ht, wt, 3], np.int64),
+        f"{p}taps_shape": np.array([0, 3, 4, pixels], np.int64),
+        f"{p}planar_shape": np.array([0, 3, n, ht, wt], np.int64),
+        f"{p}channel_taps": np.array([1, 4 * pixels], np.int64),
+        f"{p}first": np.array([0], np.int64),
+        f"{p}ones": np.array([1, 1, 1], np.int64),
+        f"{p}second": np.array([1], np.int64),
+        f"{p}tap_axis": np.array([2], np.int64),
         f"{p}half": np.array(0.5, np.float32),
     }
     graph.initializer.extend(numpy_helper.from_array(np.ascontiguousarray(a), name) for name, a in consts.items())
     graph.initializer.extend(numpy_helper.from_array(np.ascontiguousarray(a), name) for name, a in front.tables.items())
     nodes = [
         helper.make_node("Reshape", [INPUT_IMAGES, f"{p}flat_shape"], [f"{p}flat"], name=f"{p}flatten"),
-        helper.make_node("Gather", [f"{p}flat", VIRTUAL_INDEX], [f"{p}taps"], name=f"{p}gather", axis=1),
-        helper.make_node("Reshape", [f"{p}taps", f"{p}taps_shape"], [f"{p}taps4"], name=f"{p}group_taps"),
-        helper.make_node("Cast", [f"{p}taps4"], [f"{p}tapsf"], name=f"{p}to_float", to=TensorProto.FLOAT),
-        helper.make_node("MatMul", [VIRTUAL_WEIGHT, f"{p}tapsf"], [f"{p}sum"], name=f"{p}weigh"),
+        helper.make_node("Transpose", [f"{p}flat"], [f"{p}planar"], name=f"{p}to_planar", perm=[0, 2, 1]),
+        helper.make_node("Shape", [INPUT_IMAGES], [f"{p}input_shape"], name=f"{p}input_shape"),
+        helper.make_node(
+            "Slice", [f"{p}input_shape", f"{p}first", f"{p}second", f"{p}first"], [f"{p}batch"], name=f"{p}batch"
+        ),
+        helper.make_node(
+            "Concat", [f"{p}batch", f"{p}channel_taps"], [f"{p}index_shape"], name=f"{p}index_shape", axis=0
+        ),
+        helper.make_node("Expand", [VIRTUAL_INDEX, f"{p}index_shape"], [f"{p}index"], name=f"{p}expand_index"),
+        helper.make_node(
+            "Split", [f"{p}planar", f"{p}ones"], [f"{p}channel{c}" for c in range(3)], name=f"{p}split", axis=1
+        ),
+        *(
+            helper.make_node(
+                "GatherElements", [f"{p}channel{c}", f"{p}index"], [f"{p}taps{c}"], name=f"{p}gather{c}", axis=2
+            )
+            for c in range(3)
+        ),
+        helper.make_node("Concat", [f"{p}taps{c}" for c in range(3)], [f"{p}taps"], name=f"{p}channels", axis=1),
+        helper.make_node("Cast", [f"{p}taps"], [f"{p}tapsf"], name=f"{p}to_float", to=TensorProto.FLOAT),
+        helper.make_node("Reshape", [f"{p}tapsf", f"{p}taps_shape"], [f"{p}taps4"], name=f"{p}group_taps"),
+        helper.make_node("Mul", [f"{p}taps4", VIRTUAL_WEIGHT], [f"{p}weighed"], name=f"{p}weigh"),
+        helper.make_node("ReduceSum", [f"{p}weighed", f"{p}tap_axis"], [f"{p}sum"], name=f"{p}sum_taps", keepdims=0),
         helper.make_node("Add", [f"{p}sum", VIRTUAL_FILL], [f"{p}filled"], name=f"{p}fill"),
         helper.make_node("Add", [f"{p}filled", f"{p}half"], [f"{p}shifted"], name=f"{p}round_half_up"),
         helper.make_node("Floor", [f"{p}shifted"], [f"{p}rounded"], name=f"{p}floor"),
         helper.make_node("Cast", [f"{p}rounded"], [f"{p}pixels"], name=f"{p}to_uint8", to=TensorProto.UINT8),
-        helper.make_node("Reshape", [f"{p}pixels", f"{p}image_shape"], [TRAINING_IMAGES], name=f"{p}images"),
+        helper.make_node("Reshape", [f"{p}pixels", f"{p}planar_shape"], [f"{p}views"], name=f"{p}views"),
+        helper.make_node("Transpose", [f"{p}views"], [TRAINING_IMAGES], name=f"{p}images", perm=[0, 2, 3, 4, 1]),
     ]
     body = list(graph.node)
     del graph.node[:]
@@ -112,8 +140,8 @@ def detach_front(proto: onnx.ModelProto) -> None:
         raise ArtifactError("the graph has no virtual-camera front end")
     graph = proto.graph
     images = _images_input(proto)
-    image_shape = next(i for i in graph.initializer if i.name == f"{NODE_PREFIX}image_shape")
-    n, ht, wt = (int(d) for d in numpy_helper.to_array(image_shape)[1:4])
+    image_shape = next(i for i in graph.initializer if i.name == f"{NODE_PREFIX}planar_shape")
+    n, ht, wt = (int(d) for d in numpy_helper.to_array(image_shape)[2:5])
     batch = onnx.TensorShapeProto.Dimension()
     batch.CopyFrom(images.type.tensor_type.shape.dim[0])
     kept_nodes = [node for node in graph.node if not node.name.startswith(NODE_PREFIX)]

@@ -8,11 +8,12 @@ Each slot's training image is resampled from its robot camera's raw image with c
 (:func:`~fisheye_infer.geometry.grids.remap_taps`) of the :class:`~fisheye_infer.cameras.virtual_view.VirtualView`
 maps, then ``fill`` is added (mid-grey where the robot camera does not see the training ray) and the sum is rounded
 to uint8 as cv2.remap rounds it. Robot cameras may differ in size: the graph takes them padded to the largest width
-and height, each image in the top-left corner of its slot, and the taps read that layout:
+and height, each image in the top-left corner of its slot, and the taps read that layout. The taps are stored tap by
+tap (all pixels' first tap, then their second, ...), so that the graph gathers and weighs long runs:
 
-    geom.virtual.index    (N*Ht*Wt*4,)    int64    flat padded robot pixel of each tap, slot-major (n*Hp*Wp + y*Wp + x)
-    geom.virtual.weight   (N*Ht*Wt, 1, 4) float32  the taps' weights (products of two k/32 fractions, 0 outside)
-    geom.virtual.fill     (N*Ht*Wt, 1, 1) float32  added to each resampled pixel: ``UNSEEN_FILL`` or 0
+    geom.virtual.index    (1, 1, 4*P)  int32    flat padded robot pixel of each tap (n*Hp*Wp + y*Wp + x), P = N*Ht*Wt
+    geom.virtual.weight   (4, P)       float32  the taps' weights (products of two k/32 fractions, 0 outside)
+    geom.virtual.fill     (P,)         float32  added to each resampled pixel: ``UNSEEN_FILL`` or 0
 """
 
 from __future__ import annotations
@@ -143,8 +144,8 @@ def virtual_front(training: Rig, robot: Rig, order: Sequence[str], depth: float 
             )
         )
     tables: dict[str, np.ndarray] = {
-        VIRTUAL_INDEX: np.concatenate(index).astype(np.int64),
-        VIRTUAL_WEIGHT: np.concatenate(weight).astype(np.float32),
-        VIRTUAL_FILL: np.concatenate(fill).astype(np.float32),
+        VIRTUAL_INDEX: np.concatenate(index).reshape(-1, 4).T.reshape(1, 1, -1).astype(np.int32),
+        VIRTUAL_WEIGHT: np.concatenate(weight).reshape(-1, 4).T.astype(np.float32),
+        VIRTUAL_FILL: np.concatenate(fill).reshape(-1).astype(np.float32),
     }
     return VirtualFront(tables=tables, padded_size=(pw, ph), reports=tuple(reports), views=tuple(views))
