@@ -8,13 +8,15 @@
         tracks = tracker.update(detector.detect(images), stamp, ego_pose=pose)
 """
 
-from fisheye_infer.tracking.config import ClassConfig, TrackerConfig
+from fisheye_infer.tracking.config import DEFAULT_CLASSES, TURNING_CLASSES, ClassConfig, TrackerConfig
 from fisheye_infer.tracking.greedy import GreedyTracker
 from fisheye_infer.tracking.motion import ConstantTurnRate, ConstantVelocity, MotionModel
 from fisheye_infer.tracking.tracker import Tracker
 from fisheye_infer.tracking.tracks import Tracks
 
 __all__ = [
+    "DEFAULT_CLASSES",
+    "TURNING_CLASSES",
     "ClassConfig",
     "ConstantTurnRate",
     "ConstantVelocity",

@@ -17,13 +17,15 @@ fewer cameras than the tracker has seen (``Detections.cameras_used``), or one fl
 own motion neither moves nor speeds them; without, in the ego frame.
 
 The time step is the difference of stamps (dropped frames just make a longer step); the same
-inputs give the same tracks; at most ``max_tracks`` tracks live at once.
+inputs give the same tracks; at most ``max_tracks`` tracks live at once. The tracks of a class are
+held as arrays (``_Bank``), so a frame costs a few array operations per class, not a filter per track;
+association is class-aware, so solving it per class gives the same pairs as solving it whole.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,25 +41,43 @@ __all__ = ["Tracker"]
 
 
 @dataclass
-class _Track:
-    """One live track, in the tracking frame (world with ego poses, else ego)."""
+class _Bank:
+    """The live tracks of one class, as arrays, in the tracking frame (world with ego poses, else ego)."""
 
-    id: int
-    label: int
     model: MotionModel
     gate: float
-    x: np.ndarray
-    p: np.ndarray
-    box: np.ndarray  # (7,) float64: the smoothed box; x, y come from the filter
-    score: float
-    hits: int = 1
-    age: int = 0
-    missed: float = 0.0  # seconds unmatched (degraded frames not counted)
-    matched: bool = True
+    dim: int
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    x: np.ndarray = field(init=False)
+    p: np.ndarray = field(init=False)
+    box: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))  # smoothed boxes; x, y come from the filter
+    score: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hits: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    age: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    missed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # seconds unmatched (degraded frames not counted)
+    matched: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
-    def reach(self) -> float:
-        """Gate plus twice the predicted centre's standard deviation."""
-        return self.gate + 2.0 * math.sqrt(max(self.p[0, 0], self.p[1, 1]))
+    def __post_init__(self) -> None:
+        self.x, self.p = np.zeros((0, self.dim)), np.zeros((0, self.dim, self.dim))
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def keep(self, mask: np.ndarray) -> None:
+        for name in ("ids", "x", "p", "box", "score", "hits", "age", "missed", "matched"):
+            setattr(self, name, getattr(self, name)[mask])
+
+    def add(self, ids: np.ndarray, boxes: np.ndarray, scores: np.ndarray) -> None:
+        x, p = self.model.init(boxes)
+        n = len(ids)
+        self.ids, self.x, self.p = np.append(self.ids, ids), np.vstack([self.x, x]), np.concatenate([self.p, p])
+        self.box, self.score = np.vstack([self.box, boxes]), np.append(self.score, scores)
+        self.hits, self.age = np.append(self.hits, np.ones(n, np.int64)), np.append(self.age, np.zeros(n, np.int64))
+        self.missed, self.matched = np.append(self.missed, np.zeros(n)), np.append(self.matched, np.ones(n, bool))
+
+    def reach(self) -> np.ndarray:
+        """Gate plus twice the predicted centre's standard deviation, per track."""
+        return self.gate + 2.0 * np.sqrt(np.maximum(self.p[:, 0, 0], self.p[:, 1, 1]))
 
 
 class Tracker:
@@ -75,7 +95,7 @@ class Tracker:
 
     def reset(self) -> None:
         """Forget every track and the last stamp (ids keep counting, so an old id never names a new object)."""
-        self._tracks: list[_Track] = []
+        self._banks: dict[int, _Bank] = {}
         self._last_stamp: float | None = None
         self._class_names: tuple[str, ...] | None = None
         self._cameras_seen = 0
@@ -83,7 +103,7 @@ class Tracker:
     @property
     def live(self) -> int:
         """Tracks held now, tentative and coasting ones included."""
-        return len(self._tracks)
+        return sum(len(b) for b in self._banks.values())
 
     def update(
         self, detections: Detections, stamp: float, ego_pose: np.ndarray | None = None, degraded: bool | None = None
@@ -123,97 +143,150 @@ class Tracker:
         scores = np.asarray(detections.scores[keep], np.float64)
         labels = np.asarray(detections.labels[keep], np.int64)
         high = scores >= cfg.score_threshold
-
-        for tr in self._tracks:
-            if dt > 0:
-                tr.x, tr.p = tr.model.predict(tr.x, tr.p, dt)
-            tr.matched = False
-        pairs = self._associate(boxes, labels, np.flatnonzero(high), self._tracks)
-        rest = [tr for tr in self._tracks if not tr.matched and tr.hits >= cfg.min_hits]
-        pairs += self._associate(boxes, labels, np.flatnonzero(~high), rest)
-        used = np.zeros(len(boxes), bool)
-        for tr, j in pairs:
-            self._correct(tr, boxes[j], float(scores[j]))
-            used[j] = True
-
-        survivors = []
-        for tr in self._tracks:
-            if not tr.matched and not degraded:
-                if tr.hits < cfg.min_hits:
-                    continue
-                tr.missed += dt
-            if tr.missed > cfg.max_coast:
-                continue
-            tr.age += 1
-            survivors.append(tr)
-        self._tracks = survivors
-        self._births(boxes, scores, labels, np.flatnonzero(high & ~used))
+        unused_high = high.copy()
+        for label, bank in sorted(self._banks.items()):
+            used = self._step(bank, label, boxes, scores, labels, high, dt, degraded)
+            unused_high[used] = False
+        self._births(boxes, scores, labels, np.flatnonzero(unused_high))
         return self._report(t, pose)
 
-    def _associate(
-        self, boxes: np.ndarray, labels: np.ndarray, det_index: np.ndarray, tracks: list[_Track]
-    ) -> list[tuple[_Track, int]]:
-        """Pairs (track, detection index) among ``tracks`` and the detections ``det_index``."""
-        if not len(tracks) or not len(det_index):
-            return []
-        track_xy = np.array([tr.x[:2] for tr in tracks])
-        track_labels = np.array([tr.label for tr in tracks], np.int64)
-        gates = np.array([tr.reach() for tr in tracks])
-        cost, valid = centre_cost(track_xy, track_labels, boxes[det_index, :2], labels[det_index], gates)
-        rows, cols = assign(cost, valid)
-        return [(tracks[i], int(det_index[j])) for i, j in zip(rows, cols)]
+    def _step(
+        self,
+        bank: _Bank,
+        label: int,
+        boxes: np.ndarray,
+        scores: np.ndarray,
+        labels: np.ndarray,
+        high: np.ndarray,
+        dt: float,
+        degraded: bool,
+    ) -> np.ndarray:
+        """Predict, associate (two stages), correct, and count misses and deaths of one class; returns the detection
+        indices it took."""
+        cfg = self.config
+        bank.matched[:] = False
+        if len(bank) and dt > 0:
+            bank.x, bank.p = bank.model.predict(bank.x, bank.p, dt)
+        mine = labels == label
+        rows, cols = _pairs(bank, np.arange(len(bank)), boxes, np.flatnonzero(mine & high))
+        bank.matched[rows] = True
+        rest = np.flatnonzero(~bank.matched & (bank.hits >= cfg.min_hits))
+        rows2, cols2 = _pairs(bank, rest, boxes, np.flatnonzero(mine & ~high))
+        rows, cols = np.concatenate([rows, rows2]), np.concatenate([cols, cols2])
+        if len(rows):
+            self._correct(bank, rows, boxes[cols], scores[cols])
+        if not degraded:
+            missed = ~bank.matched
+            bank.keep(~(missed & (bank.hits < cfg.min_hits)))  # a tentative track dies at its first miss
+            bank.missed[~bank.matched] += dt
+        bank.keep(bank.missed <= cfg.max_coast)
+        bank.age += 1
+        return cols
 
-    def _correct(self, tr: _Track, box: np.ndarray, score: float) -> None:
-        """Kalman update with a matched box; height and size smoothed, yaw from the filter's heading where it has
-        one (turned by half a turn to the box's own), else the box's."""
-        tr.x, tr.p = tr.model.update(tr.x, tr.p, box)
+    def _correct(self, bank: _Bank, rows: np.ndarray, boxes: np.ndarray, scores: np.ndarray) -> None:
+        """Kalman updates with the matched boxes; height and size smoothed, yaw from the filter's heading where it
+        has one (turned by half a turn to the box's own), else the box's."""
         a = self.config.size_smoothing
-        tr.box[2:6] = (1 - a) * tr.box[2:6] + a * box[2:6]
-        tr.box[6] = box[6] + float(wrap_angle(tr.x[2] - box[6], math.pi)) if len(tr.x) == 5 else box[6]
-        tr.score, tr.hits, tr.missed, tr.matched = score, tr.hits + 1, 0.0, True
+        x, p = bank.model.update(bank.x[rows], bank.p[rows], boxes)
+        new = boxes.copy()
+        new[:, 2:6] = (1 - a) * bank.box[rows, 2:6] + a * boxes[:, 2:6]
+        if x.shape[1] == 5:
+            new[:, 6] += wrap_angle(x[:, 2] - new[:, 6], math.pi)
+        bank.x[rows], bank.p[rows], bank.box[rows], bank.score[rows] = x, p, new, scores
+        bank.hits[rows] += 1
+        bank.missed[rows] = 0.0
+        bank.matched[rows] = True
 
     def _births(self, boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, index: np.ndarray) -> None:
         """Tentative tracks from unpaired confident detections, highest score first, within ``max_tracks``."""
         assert self._class_names is not None
-        cfg = self.config
-        for j in index[np.argsort(-scores[index], kind="stable")]:
-            if len(self._tracks) >= cfg.max_tracks and not self._make_room(float(scores[j])):
+        order = self._clear(boxes, labels, index[np.argsort(-scores[index], kind="stable")])
+        room = self.config.max_tracks - self.live
+        born = list(order[: max(room, 0)])
+        for j in order[max(room, 0) :]:
+            if not self._make_room(float(scores[j])):
                 break
-            cc = cfg.for_class(self._class_names[labels[j]])
-            x, p = cc.model.init(boxes[j])
-            track = _Track(self._next_id, int(labels[j]), cc.model, cc.gate, x, p, boxes[j].copy(), float(scores[j]))
-            self._tracks.append(track)
-            self._next_id += 1
+            born.append(j)
+        ids = self._next_id + np.arange(len(born), dtype=np.int64)
+        self._next_id += len(born)
+        born_arr = np.array(born, np.int64)
+        for label in sorted(set(labels[born_arr].tolist())):
+            if label not in self._banks:
+                cc = self.config.for_class(self._class_names[label])
+                dim = cc.model.init(np.zeros((1, 7)))[0].shape[1]
+                self._banks[label] = _Bank(cc.model, cc.gate, dim)
+            mine = labels[born_arr] == label
+            self._banks[label].add(ids[mine], boxes[born_arr[mine]], scores[born_arr[mine]])
+
+    def _clear(self, boxes: np.ndarray, labels: np.ndarray, order: np.ndarray) -> np.ndarray:
+        """The candidates of ``order`` (best first) not within ``birth_clearance`` of a live track of their class
+        or of a better candidate kept."""
+        gap = self.config.birth_clearance
+        if gap <= 0 or not len(order):
+            return order
+        kept: list[int] = []
+        for j in order.tolist():
+            bank = self._banks.get(int(labels[j]))
+            near = bank is not None and len(bank) and np.min(np.hypot(*(bank.x[:, :2] - boxes[j, :2]).T)) < gap
+            if not near and all(
+                labels[k] != labels[j] or math.hypot(*(boxes[k, :2] - boxes[j, :2])) >= gap for k in kept
+            ):
+                kept.append(j)
+        return np.array(kept, np.int64)
 
     def _make_room(self, score: float) -> bool:
         """Drop the least certain track (tentative first, then longest unmatched, then lowest score) if a new one
         with ``score`` ranks above it."""
-        rank = [(tr.hits >= self.config.min_hits, -tr.missed, tr.score) for tr in self._tracks]
-        worst = min(range(len(rank)), key=rank.__getitem__)
-        if rank[worst] >= (False, 0.0, score):
+        worst: tuple[tuple[bool, float, float], int, int] | None = None
+        for label, bank in self._banks.items():
+            for k in range(len(bank)):
+                rank = (bool(bank.hits[k] >= self.config.min_hits), -float(bank.missed[k]), float(bank.score[k]))
+                if worst is None or rank < worst[0]:
+                    worst = (rank, label, k)
+        if worst is None or worst[0] >= (False, 0.0, score):
             return False
-        del self._tracks[worst]
+        bank = self._banks[worst[1]]
+        bank.keep(np.arange(len(bank)) != worst[2])
         return True
 
     def _report(self, stamp: float, pose: np.ndarray | None) -> Tracks:
         assert self._class_names is not None
-        shown = [tr for tr in self._tracks if tr.matched and tr.hits >= self.config.min_hits]
-        shown.sort(key=lambda tr: tr.id)
-        if not shown:
+        parts = []
+        for label, bank in self._banks.items():
+            shown = bank.matched & (bank.hits >= self.config.min_hits)
+            if shown.any():
+                box = bank.box[shown].copy()
+                box[:, :2] = bank.x[shown, :2]
+                v = bank.model.velocity(bank.x[shown])
+                score = bank.score[shown] * (1 - self.config.young_weight ** bank.hits[shown])
+                parts.append((bank.ids[shown], box, v, score, np.full(int(shown.sum()), label), bank.age[shown]))
+        if not parts:
             return Tracks.empty(self._class_names, stamp)
-        boxes = np.array([tr.box for tr in shown])
-        boxes[:, :2] = [tr.x[:2] for tr in shown]
-        velocities = np.array([tr.model.velocity(tr.x) for tr in shown])
+        ids, boxes, velocities, scores, labels, ages = (np.concatenate(c) for c in zip(*parts))
+        order = np.argsort(ids)
+        boxes, velocities = boxes[order], velocities[order]
         if pose is not None:
             boxes, velocities = from_world(boxes, pose), velocities_to_ego(velocities, pose)
         boxes[:, 6] = wrap_angle(boxes[:, 6])
         return Tracks(
-            ids=np.array([tr.id for tr in shown], np.int64),
+            ids=ids[order].astype(np.int64),
             boxes=boxes.astype(np.float32),
             velocities=velocities.astype(np.float32),
-            scores=np.array([tr.score for tr in shown], np.float32),
-            labels=np.array([tr.label for tr in shown], np.int64),
-            ages=np.array([tr.age for tr in shown], np.int64),
+            scores=scores[order].astype(np.float32),
+            labels=labels[order].astype(np.int64),
+            ages=ages[order].astype(np.int64),
             class_names=self._class_names,
             stamp=stamp,
         )
+
+
+def _pairs(bank: _Bank, rows: np.ndarray, boxes: np.ndarray, dets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Optimal pairs (track row, detection index) among the bank's ``rows`` and the detections ``dets``."""
+    if not len(rows) or not len(dets):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    same = np.zeros(len(rows), np.int64)
+    cost, valid = centre_cost(
+        bank.x[rows, :2], same, boxes[dets, :2], np.zeros(len(dets), np.int64), bank.reach()[rows]
+    )
+    r, c = assign(cost, valid)
+    return rows[r], dets[c]

@@ -10,6 +10,7 @@ import pytest
 
 from fisheye_infer import Detections, FrameError, GreedyTracker, OptionError, Tracker, TrackerConfig, Tracks
 from fisheye_infer.runtime.records import CLASSES
+from fisheye_infer.tracking import TURNING_CLASSES
 
 CAR, PED = CLASSES.index("Car"), CLASSES.index("Pedestrian")
 
@@ -52,6 +53,32 @@ def test_two_cars_crossing_keep_their_ids() -> None:
         assert id_at(tracks, 10.0, -13.0 + t * 10.0) == north
 
 
+def test_turning_model_follows_a_car_round_a_bend() -> None:
+    # 10 m/s on a 20 m circle; the constant-turn-rate filter learns the turn and keeps one id
+    frames, tracker = [], Tracker(TrackerConfig(classes=TURNING_CLASSES))
+    for k in range(40):
+        a = 0.5 * 0.1 * k
+        frames.append(dets([(20 * math.sin(a), 20 * (1 - math.cos(a)), CAR, 0.9, a)]))
+    out = run(tracker, frames)
+    assert len({int(o.ids[0]) for o in out}) == 1
+    a = 0.5 * 3.9
+    np.testing.assert_allclose(out[-1].velocities[0], [10 * math.cos(a), 10 * math.sin(a)], atol=0.5)
+
+
+def test_duplicates_of_one_object_start_one_track() -> None:
+    tracker = Tracker()
+    out = tracker.update(dets([(10, 0, CAR, 0.9), (10.6, 0.3, CAR, 0.7), (10, 0, PED, 0.8), (16, 0, CAR, 0.5)]), 0.0)
+    assert sorted(out.names) == ["Car", "Car", "Pedestrian"]  # the second car box is within 2 m of a better one
+    out = tracker.update(dets([(10, 0, CAR, 0.9), (10.6, 0.3, CAR, 0.7), (16, 0, CAR, 0.5)]), 0.1)
+    assert len(out) == 2 and tracker.live == 3  # near a live track: no birth either
+
+
+def test_young_tracks_report_lower_scores() -> None:
+    tracker = Tracker(TrackerConfig(young_weight=0.5))
+    scores = [float(tracker.update(dets([(5, 5, CAR, 0.8)]), 0.1 * k).scores[0]) for k in range(4)]
+    assert scores == pytest.approx([0.8 * (1 - 0.5**h) for h in (1, 2, 3, 4)])
+
+
 def test_pedestrians_walking_past_each_other_do_not_swap() -> None:
     frames = [dets([(0.1 * k, 0.0, PED, 0.8), (3.0 - 0.1 * k, 0.6, PED, 0.8)]) for k in range(30)]
     out = run(Tracker(), frames)
@@ -87,7 +114,7 @@ def test_low_score_detections_keep_a_confirmed_track_alive() -> None:
 
 
 def test_death_after_max_coast_and_tentative_tracks_die_at_once() -> None:
-    tracker = Tracker(TrackerConfig(max_coast=0.25))
+    tracker = Tracker(TrackerConfig(max_coast=0.25, min_hits=2))
     for k in range(3):
         tracker.update(dets([(5, 5, CAR, 0.9)]), 0.1 * k)
     tracker.update(dets([(20, 20, CAR, 0.9)]), 0.3)  # a tentative track far away, and a miss for the first
@@ -172,7 +199,7 @@ def test_records_carry_ids_and_velocities() -> None:
         tracks = tracker.update(dets([(10.0 * 0.1 * k, 0.0, CAR, 0.9)]), 0.1 * k)
     (rec,) = tracks.to_nuscenes()
     assert rec["tracking_id"] == str(tracks.ids[0]) and rec["tracking_name"] == "Car"
-    assert rec["tracking_score"] == pytest.approx(0.9) and len(rec["velocity"]) == 2
+    assert rec["tracking_score"] == pytest.approx(0.9 * (1 - 0.5**5)) and len(rec["velocity"]) == 2  # young_weight
     (det,) = tracks.detection_records()
     assert det["velocity"] == rec["velocity"] and det["detection_name"] == "Car"
 
