@@ -50,7 +50,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--threads", type=int, help="ONNX Runtime intra-op threads")
     data.add_argument(
         "--save-results",
-        help="also write the predictions to this JSON file and the ground truth beside it (pred.json -> pred.gt.json)",
+        help="also write the predictions to this JSON file and the ground truth beside it (pred.json -> pred.gt.json); "
+        "with --tracking the predictions are nuScenes tracking results, and pred.detections.json holds them as "
+        "detection records with the velocity from the track",
     )
     track = parser.add_argument_group("tracking")
     track.add_argument(
@@ -174,6 +176,13 @@ def _run_tracking(args: argparse.Namespace, config: EvalConfig) -> int:
         tokens = [f.token for s in sequences for f in s.frames]
         save_results(path, dict(zip(tokens, [r for s in results for r in s.pred])), {**meta, "use_tracking": True})
         save_results(path.with_suffix(".gt.json"), dict(zip(tokens, [r for s in results for r in s.gt])), meta)
+        renamed = {"tracking_name": "detection_name", "tracking_score": "detection_score"}
+        detections = [
+            [{renamed.get(k, k): v for k, v in r.items() if k != "tracking_id"} for r in rs]
+            for s in results
+            for rs in s.pred
+        ]
+        save_results(path.with_suffix(".detections.json"), dict(zip(tokens, detections)), meta)
     report = evaluate_tracking(results, config)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

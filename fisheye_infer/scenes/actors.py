@@ -6,8 +6,9 @@ Vehicles (Car, Van, Truck, Bus) drive smooth paths: the speed follows a target d
 quarter of them parked at 0) with bounded acceleration and braking, the curvature wanders and
 returns to straight, limited by the class's turning circle and by a lateral acceleration of 3 m/s^2.
 Cyclists ride at 2-6 m/s with livelier steering; pedestrians walk at 0.5-1.8 m/s, turn at random and
-stop now and then. An actor about to run into another one brakes hard (stops, on foot, or when braking
-is not enough). Everything is
+stop now and then. A vehicle or cyclist that would come within 0.5 m of another actor in the next 1.5 s
+(both keeping their motion) brakes at 6 m/s^2, at 10 m/s^2 when it is a step away (boxes may then touch);
+a pedestrian stops. Everything is
 drawn from the caller's seeded generator, in a fixed order, so a seed gives the same paths.
 """
 
@@ -41,11 +42,12 @@ def _targets(rng: np.random.Generator, labels: np.ndarray) -> np.ndarray:
     return out
 
 
-def _blocked(i: int, to: np.ndarray, xy: np.ndarray, radii: np.ndarray) -> bool:
-    """Whether actor ``i`` moving to ``to`` comes within 0.5 m of another actor while closing in on it."""
-    others = np.arange(len(xy)) != i
-    now, then = np.hypot(*(xy[i] - xy[others]).T), np.hypot(*(to - xy[others]).T)
-    return bool(np.any((then - radii[i] - radii[others] < 0.5) & (then < now)))
+def _blocked(i: int, mine: np.ndarray, others: np.ndarray, xy: np.ndarray, radii: np.ndarray) -> bool:
+    """Whether actor ``i`` at ``mine`` comes within 0.5 m of another actor (at ``others``, one row per actor) while
+    closing in on it from where both are now (``xy``)."""
+    rest = np.arange(len(xy)) != i
+    now, then = np.hypot(*(xy[i] - xy[rest]).T), np.hypot(*(mine - others[rest]).T)
+    return bool(np.any((then - radii[i] - radii[rest] < 0.5) & (then < now)))
 
 
 def simulate_actors(
@@ -92,14 +94,14 @@ def simulate_actors(
         limit = np.minimum(kmax, lateral / np.maximum(speed, 1e-3) ** 2)
         curvature = np.clip(curvature, -limit, limit)
         turn = np.where(walker, steer * 0.8, speed * curvature)
-        step = speed * dt
-        proposal = xy + step[:, None] * np.stack([np.cos(heading), np.sin(heading)], 1)
+        ahead = np.stack([np.cos(heading), np.sin(heading)], 1)
+        moving = speed[:, None] * ahead
         for i in range(n):
-            if _blocked(i, proposal[i], xy, radii):
-                speed[i] = 0.0 if walker[i] else max(0.0, speed[i] - 6.0 * dt)
-                proposal[i] = xy[i] + speed[i] * dt * np.array([math.cos(heading[i]), math.sin(heading[i])])
-                if _blocked(i, proposal[i], xy, radii):
-                    speed[i], proposal[i] = 0.0, xy[i]
+            if any(_blocked(i, xy[i] + moving[i] * tau, xy + moving * tau, xy, radii) for tau in (0.5, 1.0, 1.5)):
+                speed[i] = 0.0 if walker[i] else max(0.0, speed[i] - 6.0 * dt)  # brake, or stop on foot
+            elif _blocked(i, xy[i] + moving[i] * dt, xy + moving * dt, xy, radii):
+                speed[i] = 0.0 if walker[i] else max(0.0, speed[i] - 10.0 * dt)  # emergency braking
+        proposal = xy + (speed * dt)[:, None] * ahead
         out[t, :, 0:2], out[t, :, 2], out[t, :, 3], out[t, :, 4] = xy, heading, speed, turn
         xy = proposal
         heading = (heading + turn * dt + math.pi) % (2 * math.pi) - math.pi

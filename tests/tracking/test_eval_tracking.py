@@ -30,6 +30,9 @@ def test_eval_tracking_reports_and_saves_tracks(small_export, tmp_path: Path) ->
     gt = json.loads(saved.with_suffix(".gt.json").read_text())["results"]
     assert all("tracking_id" in r for rs in gt.values() for r in rs)
     assert "## Tracking, 0-30 m" in out.with_suffix(".md").read_text()
+    dets = json.loads(saved.with_suffix(".detections.json").read_text())["results"]
+    first = next(r for rs in dets.values() for r in rs)
+    assert {"detection_name", "detection_score", "velocity", "translation"} <= set(first) and "tracking_id" not in first
 
 
 def test_eval_tracking_needs_a_model(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
