@@ -234,6 +234,8 @@ def test_bad_settings_are_named() -> None:
         TrackerConfig(score_threshold=0.3, low_score=0.5)
     with pytest.raises(OptionError, match="max_tracks"):
         TrackerConfig(max_tracks=0)
+    with pytest.raises(OptionError, match="score_threshold"):
+        GreedyTracker(score_threshold=1.5)
 
 
 def test_update_at_100_detections_is_fast() -> None:
