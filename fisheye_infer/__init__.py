@@ -1,10 +1,12 @@
 """fisheye-infer: run surround-view fisheye 3D object detectors with ONNX Runtime.
 
-The core (this package) needs numpy, onnxruntime, OpenCV, simplejpeg and pydantic only. Its
-subpackages follow the data path: ``cameras`` (camera models, rigs) -> ``geometry`` (the tables the
-detectors are built on) -> ``runtime`` (``Detector``: an exported file and frames in, ``Detections``
-out) -> ``eval`` (FDS and mAP); beside it ``deploy`` (Ray Data, Triton), ``scenes`` (synthetic
-frames), ``tools`` (bench, viz), ``commands`` (the CLI) and ``precision`` (the int8/fp16 policy).
+The core (this package) needs numpy, onnxruntime, OpenCV, simplejpeg, pydantic and scipy (the
+tracker's assignment solver) only. Its subpackages follow the data path: ``cameras`` (camera models,
+rigs) -> ``geometry`` (the tables the detectors are built on) -> ``runtime`` (``Detector``: an
+exported file and frames in, ``Detections`` out) -> ``tracking`` (``Tracker``: tracks over a stream)
+-> ``eval`` (FDS, mAP and the tracking metrics); beside it ``deploy`` (Ray Data, Triton), ``scenes``
+(synthetic frames and sequences), ``tools`` (bench, viz), ``commands`` (the CLI) and ``precision``
+(the int8/fp16 policy).
 ``fisheye_infer.models`` and ``fisheye_infer.export`` need the ``[export]`` extra (torch, onnx);
 ``fisheye_infer.service`` needs ``[serve]``; its Ray Serve deployment and
 ``fisheye_infer.deploy.ray_batch`` (Ray Data) need ``[ray]``; ``fisheye_infer.deploy.triton.TritonDetector``
@@ -43,6 +45,7 @@ from fisheye_infer.errors import (
 from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.detector import Detector, DetectorInfo
 from fisheye_infer.runtime.nms import NmsConfig
+from fisheye_infer.tracking import GreedyTracker, Tracker, TrackerConfig, Tracks
 
 _moved.install()
 
@@ -62,6 +65,7 @@ __all__ = [
     "FISHEYE3DOD_CAMERAS",
     "FisheyeInferError",
     "FrameError",
+    "GreedyTracker",
     "InferenceError",
     "KannalaBrandt",
     "DistortedPinhole",
@@ -77,6 +81,9 @@ __all__ = [
     "Rig",
     "RigCamera",
     "RigError",
+    "Tracker",
+    "TrackerConfig",
+    "Tracks",
     "default_rig",
     "fit_ocam",
     "fit_ocam_from_kb",

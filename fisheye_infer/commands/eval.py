@@ -2,10 +2,13 @@
 
     fisheye-infer eval --results pred.json --ground-truth gt.json --out report.json
     fisheye-infer eval model.onnx --data ROOT --split val [--limit N] [--cameras front,rear] --out report.json
+    fisheye-infer eval model.onnx --data seqs/ --tracking [--track-score 0.3] --out report.json
 
 Writes the report JSON, a Markdown report beside it (same name, ``.md``) and prints the tables.
 The model form runs the ONNX runtime ``Detector`` on every frame of the split and evaluates its
-unthresholded output, as the official numbers are computed.
+unthresholded output, as the official numbers are computed. With ``--tracking`` it runs the detector and
+a ``Tracker`` over each sequence of the split (``fisheye-infer synth --sequences``) and reports
+nuScenes' tracking metrics (AMOTA, AMOTP, MOTA, MOTP, IDS, FRAG, recall) at 0-30 and 0-48 m.
 """
 
 from __future__ import annotations
@@ -47,7 +50,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--threads", type=int, help="ONNX Runtime intra-op threads")
     data.add_argument(
         "--save-results",
-        help="also write the predictions to this JSON file and the ground truth beside it (pred.json -> pred.gt.json)",
+        help="also write the predictions to this JSON file and the ground truth beside it (pred.json -> pred.gt.json); "
+        "with --tracking the predictions are nuScenes tracking results, and pred.detections.json holds them as "
+        "detection records with the velocity from the track",
+    )
+    track = parser.add_argument_group("tracking")
+    track.add_argument(
+        "--tracking", action="store_true", help="track each sequence of --data and report the tracking metrics"
+    )
+    track.add_argument(
+        "--track-score", type=float, default=0.3, help="score from which detections start tracks (default: 0.3)"
+    )
+    track.add_argument(
+        "--track-low",
+        type=float,
+        help="score from which detections keep tracks alive (default: a third of --track-score)",
     )
     parser.add_argument("--config", help="metric settings as JSON (default: the official Fisheye3DOD settings)")
     parser.add_argument(
@@ -89,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
     if Path(args.out).suffix.lower() == ".md":
         return _fail(f"--out names the report JSON; the Markdown report is written beside it (got {args.out})")
     if args.model is None:
+        if args.tracking:
+            return _fail("--tracking runs a MODEL on --data (sequences written by `fisheye-infer synth --sequences`)")
         if not (args.results and args.ground_truth):
             return _fail("give --results and --ground-truth, or a MODEL with --data")
         if args.data:
@@ -102,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail("a MODEL is evaluated on --data; --results/--ground-truth are for saved results")
     if not args.data:
         return _fail("a MODEL needs --data ROOT (a Fisheye3DOD-layout folder)")
+    if args.tracking:
+        return _run_tracking(args, config)
     from fisheye_infer.eval.dataset import Fisheye3DOD, camera_name
     from fisheye_infer.runtime.detector import Detector
 
@@ -121,4 +142,52 @@ def run(args: argparse.Namespace) -> int:
         save_results(path, pred, meta)
         save_results(path.with_suffix(".gt.json"), gt, meta)
     _write_report(evaluate_results(gt, pred, config), args.out)
+    return 0
+
+
+def _run_tracking(args: argparse.Namespace, config: EvalConfig) -> int:
+    """``--tracking``: detector + tracker over every sequence of the split, scored with the tracking metrics."""
+    from fisheye_infer.eval.dataset import Fisheye3DOD, camera_name
+    from fisheye_infer.eval.evaluate import save_results
+    from fisheye_infer.eval.sequences import read_sequences
+    from fisheye_infer.eval.track_run import run_on, track_sequences
+    from fisheye_infer.eval.tracking import evaluate_tracking
+    from fisheye_infer.runtime.detector import Detector
+    from fisheye_infer.tools.progress import Progress
+    from fisheye_infer.tracking import Tracker, TrackerConfig
+
+    if args.limit is not None:
+        return _fail("--limit cuts sequences short; choose whole sequences with --scenes")
+    low = args.track_low if args.track_low is not None else args.track_score / 3
+    tracker = Tracker(TrackerConfig(score_threshold=args.track_score, low_score=low))
+    detector = Detector(args.model, threads=args.threads)
+    if tuple(detector.info.classes) != tuple(config.class_names):
+        return _fail(
+            f"the model's classes {list(detector.info.classes)} differ from the metric's {list(config.class_names)}"
+        )
+    cameras = [camera_name(c) for c in args.cameras] if args.cameras else list(detector.info.cameras)
+    dataset = Fisheye3DOD(args.data, args.split, cameras=cameras, scenes=args.scenes, class_names=config.class_names)
+    sequences = read_sequences(args.data, args.split, config.class_names, scenes=args.scenes)
+    bar = Progress(sum(len(s.frames) for s in sequences))
+    results = track_sequences(run_on(detector, dataset), sequences, tracker, progress=bar.update)
+    if args.save_results:
+        path = Path(args.save_results)
+        meta = {"model": str(args.model), "data": str(args.data), "split": args.split, "cameras": cameras}
+        tokens = [f.token for s in sequences for f in s.frames]
+        save_results(path, dict(zip(tokens, [r for s in results for r in s.pred])), {**meta, "use_tracking": True})
+        save_results(path.with_suffix(".gt.json"), dict(zip(tokens, [r for s in results for r in s.gt])), meta)
+        renamed = {"tracking_name": "detection_name", "tracking_score": "detection_score"}
+        detections = [
+            [{renamed.get(k, k): v for k, v in r.items() if k != "tracking_id"} for r in rs]
+            for s in results
+            for rs in s.pred
+        ]
+        save_results(path.with_suffix(".detections.json"), dict(zip(tokens, detections)), meta)
+    report = evaluate_tracking(results, config)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(report.to_json(indent=1) + "\n")
+    out.with_suffix(".md").write_text(report.to_markdown())
+    print(report.to_markdown())
+    print(f"wrote {out} and {out.with_suffix('.md')}")
     return 0

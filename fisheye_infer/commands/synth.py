@@ -2,6 +2,7 @@
 
 fisheye-infer synth --rig default --frames 4 --out data/synth [--seed 0] [--scale 0.25]
 fisheye-infer synth --stream val --rig runs/compact/rig.json --frames 200 --out data/heldout
+fisheye-infer synth --stream val --sequences 8 --length 40 --out seqs/ [--rate 10] [--ego-speed 8]
 """
 
 from __future__ import annotations
@@ -46,7 +47,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "the split file defaults to the stream's name",
     )
     parser.add_argument(
-        "--first", type=int, default=0, help="with --stream: index of the first frame written (default 0)"
+        "--first", type=int, default=0, help="with --stream: index of the first frame (or sequence) written (default 0)"
+    )
+    seq = parser.add_argument_group("sequences (with --stream): the same scene over time, for tracking")
+    seq.add_argument("--sequences", type=int, help="write this many sequences of the stream instead of single frames")
+    seq.add_argument("--length", type=int, default=40, help="frames per sequence (default: 40)")
+    seq.add_argument("--rate", type=float, default=10.0, help="frames per second: 1, 2, 4, 5, 10 or 20 (default: 10)")
+    seq.add_argument(
+        "--ego-speed", type=float, default=8.0, help="fastest ego drive in m/s; 0 keeps the ego parked (default: 8)"
     )
     parser.set_defaults(run=run)
 
@@ -62,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     rig = resolve_rig(args.rig)
     if args.scale != 1.0:
         rig = resized_rig(rig, args.scale)
+    if args.sequences is not None:
+        return _write_sequences(args, rig)
     if args.stream:
         return _write_stream(args, rig)
     if args.first != 0:
@@ -126,4 +136,39 @@ def _write_stream(args: argparse.Namespace, rig: Rig) -> int:
     )
     print(f"first token: {tokens[0]}")
     print(f"next: fisheye-infer eval MODEL --data {args.out} --split {split} --out report.json")
+    return 0
+
+
+def _write_sequences(args: argparse.Namespace, rig: Rig) -> int:
+    """``--sequences``: sequences of moving objects (and ego), in the Fisheye3DOD layout with ego poses and ids."""
+    from fisheye_infer.scenes.sequences import SyntheticSequences, write_sequences
+
+    problem = None
+    if not args.stream:
+        problem = "--sequences needs --stream train or val (the split its seeds come from)"
+    elif args.sequences < 1 or args.length < 1:
+        problem = f"--sequences and --length must be at least 1, got {args.sequences} and {args.length}"
+    try:
+        seqs = (
+            None
+            if problem
+            else SyntheticSequences(
+                rig, args.stream, args.seed, length=args.length, rate=args.rate, ego_speed=args.ego_speed
+            )
+        )
+    except ValueError as exc:
+        problem = str(exc)
+    if problem or seqs is None:
+        print(f"fisheye-infer synth: error: {problem}", file=sys.stderr)
+        return 2
+    split = args.split or args.stream
+    t0 = time.perf_counter()
+    scenes = write_sequences(seqs, args.out, range(args.first, args.first + args.sequences), split=split)
+    seconds = time.perf_counter() - t0
+    print(
+        f"wrote {len(scenes)} sequence(s) of {args.length} frames at {args.rate:g} Hz of the {args.stream} stream "
+        f"(seed {args.seed}) to {args.out}, split {split}, {seconds / (len(scenes) * args.length):.2f} s per frame"
+    )
+    print(f"first scene: {scenes[0]}")
+    print(f"next: fisheye-infer eval MODEL --data {args.out} --split {split} --tracking --out report.json")
     return 0

@@ -11,7 +11,10 @@ columns, ``metrics`` the config and report types, ``evaluate`` the orchestration
 reader and ``writer`` its inverse, ``random_boxes`` ground truth and predictions without images,
 ``top_match`` the share of a reference's top boxes a candidate finds again (how an int8 or fp16 file
 is judged against its fp32 file), ``bootstrap`` how sure a difference between two models scored on
-the same frames is (a paired bootstrap over the frames). The commands are ``fisheye_infer.commands.eval``/``synth``.
+the same frames is (a paired bootstrap over the frames). For tracking: ``sequences`` reads a split as
+sequences (stamps, ego poses, instance ids), ``track_run`` runs a detector and a tracker over them,
+``tracking`` scores the tracks as nuScenes' tracking evaluation does, on ``mot``'s CLEAR-MOT events.
+The commands are ``fisheye_infer.commands.eval``/``synth``.
 """
 
 from fisheye_infer.eval.algo import accumulate, calc_ap, calc_tp, center_distance, scale_iou, yaw_diff

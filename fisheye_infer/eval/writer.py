@@ -229,9 +229,10 @@ class Fisheye3DODWriter:
         labels: np.ndarray,
         ids: Sequence[int] | None = None,
         class_names: Sequence[str] = CLASSES,
+        velocities: np.ndarray | None = None,
     ) -> None:
         """``label_3d/<frame_id>.json`` from runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw``, stored
-        gravity-centred."""
+        gravity-centred; ``velocities`` (K, 2), m/s in the lidar frame's axes, become each object's ``velocity``."""
         frame_id = f"{int(frame_id):08d}"
         label_boxes = bottom_to_gravity(boxes)
         lab = np.asarray(labels, np.int64)
@@ -245,6 +246,9 @@ class Fisheye3DODWriter:
             }
             for i, c, box in zip(actor, lab.tolist(), label_boxes)
         ]
+        if velocities is not None:
+            for obj, v in zip(objects, np.asarray(velocities, np.float64).reshape(-1, 2).tolist()):
+                obj["velocity"] = v
         (self.folder / "label_3d").mkdir(parents=True, exist_ok=True)
         (self.folder / "label_3d" / f"{frame_id}.json").write_text(json.dumps(objects))
         entry = {
@@ -267,6 +271,7 @@ class Fisheye3DODWriter:
         lidar_pose: CarlaPose,
         ids: Sequence[int] | None = None,
         class_names: Sequence[str] = CLASSES,
+        velocities: np.ndarray | None = None,
     ) -> Rig:
         """Poses, images (one per rig camera) and labels of one frame; returns the rig as it will be read."""
         missing = [c for c in rig.names if c not in images]
@@ -274,7 +279,7 @@ class Fisheye3DODWriter:
             raise DatasetError(f"frame {frame_id}: no image for camera(s) {', '.join(missing)}")
         written = self.write_poses(frame_id, rig, lidar_pose)
         self.write_images(frame_id, images)
-        self.write_labels(frame_id, boxes, labels, ids, class_names)
+        self.write_labels(frame_id, boxes, labels, ids, class_names, velocities)
         return written
 
     def close(self) -> Path:

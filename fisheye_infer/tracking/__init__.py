@@ -1,0 +1,28 @@
+"""Tracks over a stream of detections: ``Tracker`` (Kalman filters, optimal two-stage association) and
+``GreedyTracker`` (CenterPoint's greedy matching, the baseline), both returning ``Tracks``.
+
+    from fisheye_infer import Detector, Tracker
+
+    detector, tracker = Detector("model.onnx"), Tracker()
+    for images, stamp, pose in stream:
+        tracks = tracker.update(detector.detect(images), stamp, ego_pose=pose)
+"""
+
+from fisheye_infer.tracking.config import DEFAULT_CLASSES, TURNING_CLASSES, ClassConfig, TrackerConfig
+from fisheye_infer.tracking.greedy import GreedyTracker
+from fisheye_infer.tracking.motion import ConstantTurnRate, ConstantVelocity, MotionModel
+from fisheye_infer.tracking.tracker import Tracker
+from fisheye_infer.tracking.tracks import Tracks
+
+__all__ = [
+    "DEFAULT_CLASSES",
+    "TURNING_CLASSES",
+    "ClassConfig",
+    "ConstantTurnRate",
+    "ConstantVelocity",
+    "GreedyTracker",
+    "MotionModel",
+    "Tracker",
+    "TrackerConfig",
+    "Tracks",
+]

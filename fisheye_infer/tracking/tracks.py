@@ -1,0 +1,114 @@
+"""``Tracks``: what a tracker reports for one frame, as equal-length numpy arrays.
+
+    tracks = tracker.update(detections, stamp)
+    for i, box, v in zip(tracks.ids, tracks.boxes, tracks.velocities): ...
+    tracks.to_nuscenes()            # nuScenes tracking results records
+    tracks.detection_records()      # detection records with the velocity filled from the track
+
+Boxes are (K, 7) ``x, y, z_bottom, l, w, h, yaw`` in the frame of the detections they came from
+(the ego frame at ``stamp``); velocities are over ground (the ego's own motion taken out when the
+tracker was given ego poses), in that frame's axes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fisheye_infer.runtime.box_geometry import check_boxes
+from fisheye_infer.runtime.records import boxes_to_records
+
+__all__ = ["Tracks"]
+
+
+@dataclass(frozen=True)
+class Tracks:
+    """The tracks of one frame that a detection confirmed at ``stamp``, in order of track id."""
+
+    ids: np.ndarray  # (K,) int64, unique while the tracker lives (and after a reset: never reused)
+    boxes: np.ndarray  # (K, 7) float32
+    velocities: np.ndarray  # (K, 2) float32, m/s over ground
+    scores: np.ndarray  # (K,) float32, the score of the detection the track took at this frame
+    labels: np.ndarray  # (K,) int64
+    ages: np.ndarray  # (K,) int64, frames since the track was born (0 on its first frame)
+    class_names: tuple[str, ...]
+    stamp: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_boxes(self.boxes)
+        k = len(self.boxes)
+        for name, shape in (("ids", (k,)), ("velocities", (k, 2)), ("scores", (k,)), ("labels", (k,)), ("ages", (k,))):
+            if np.shape(getattr(self, name)) != shape:
+                raise ValueError(f"{name}: expected shape {shape} to match boxes, got {np.shape(getattr(self, name))}")
+
+    @classmethod
+    def empty(cls, class_names: Sequence[str], stamp: float = 0.0) -> Tracks:
+        z = np.zeros(0, np.int64)
+        return cls(
+            z, np.zeros((0, 7), np.float32), np.zeros((0, 2), np.float32), np.zeros(0, np.float32), z, z,
+            tuple(class_names), float(stamp),
+        )  # fmt: skip
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def __getitem__(self, index: Any) -> Tracks:
+        """Select by integer array, slice or boolean mask; returns a new ``Tracks``."""
+        if isinstance(index, (int, np.integer)):
+            index = [index]
+        return Tracks(
+            self.ids[index], self.boxes[index], self.velocities[index], self.scores[index], self.labels[index],
+            self.ages[index], self.class_names, self.stamp,
+        )  # fmt: skip
+
+    @property
+    def names(self) -> list[str]:
+        """Class name of each track."""
+        return [self.class_names[i] for i in self.labels]
+
+    def detection_records(self) -> list[dict[str, Any]]:
+        """nuScenes-style detection records (as ``Detections.to_nuscenes``) with ``velocity`` from the track."""
+        records = boxes_to_records(self.boxes, self.scores, self.labels, self.class_names)
+        for record, v in zip(records, self.velocities.tolist()):
+            record["velocity"] = [float(v[0]), float(v[1])]
+        return records
+
+    def to_nuscenes(self) -> list[dict[str, Any]]:
+        """nuScenes tracking results records: ``translation``, ``size``, ``rotation``, ``velocity``,
+        ``tracking_id`` (a string), ``tracking_name``, ``tracking_score``."""
+        out = []
+        for record, track_id in zip(self.detection_records(), self.ids.tolist()):
+            out.append(
+                {
+                    "translation": record["translation"],
+                    "size": record["size"],
+                    "rotation": record["rotation"],
+                    "velocity": record["velocity"],
+                    "tracking_id": str(track_id),
+                    "tracking_name": record["detection_name"],
+                    "tracking_score": record["detection_score"],
+                }
+            )
+        return out
+
+    def to_dicts(self) -> list[dict[str, Any]]:
+        """One plain dict per track, in this object's layout (bottom-centred, ego frame)."""
+        keys = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
+        return [
+            {
+                "track_id": int(i),
+                **{k: float(v) for k, v in zip(keys, box)},
+                "vx": float(v[0]),
+                "vy": float(v[1]),
+                "score": float(s),
+                "label": int(label),
+                "class_name": self.class_names[label],
+                "age": int(a),
+            }
+            for i, box, v, s, label, a in zip(
+                self.ids, self.boxes, self.velocities, self.scores, self.labels, self.ages
+            )
+        ]
