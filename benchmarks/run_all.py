@@ -74,6 +74,7 @@ STEPS = (
     Step("scale_out", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("ray", "httpx")),
     Step("replay", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("rosbags", "mcap")),
     Step("tracking", modules=("torch", "onnx")),
+    Step("virtual_cameras", modules=("torch", "onnx")),
     Step(
         "official_configs",
         quick=lambda m: ["--only", "fisheye_bevdet", "nusc_petr"],
