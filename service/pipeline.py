@@ -22,12 +22,16 @@ from fisheye_infer.service.intake import EncodedFrame, decode_frames
 from fisheye_infer.service.queue import RunResult
 from fisheye_infer.service.schemas import DetectOptions
 from fisheye_infer.service.state import Service
+from fisheye_infer.tracking import Tracker
 
 __all__ = ["run_frames", "finish"]
 
 
-def finish(result: RunResult, options: DetectOptions, decode_ms: float) -> dict[str, Any]:
-    """A ``FrameResult`` document for one frame, after the request's options."""
+def finish(
+    result: RunResult, options: DetectOptions, decode_ms: float, track: tuple[Tracker, float] | None = None
+) -> dict[str, Any]:
+    """A ``FrameResult`` document for one frame, after the request's options; with ``track`` (a stream's tracker
+    and the frame's time, seconds) also its ``tracks``, the tracker fed every box (before the options)."""
     dets = result.detections
     t0 = time.perf_counter()
     if options.score_threshold is not None or options.classes is not None:
@@ -43,21 +47,33 @@ def finish(result: RunResult, options: DetectOptions, decode_ms: float) -> dict[
         "inference": t.get("inference", 0.0),
         "postprocess": t.get("postprocess", 0.0) + extra_ms,
     }
-    return {
+    document = {
         "detections": dets.to_dicts(),
         "records": dets.to_nuscenes(),
         "cameras_used": list(dets.cameras_used),
         "timings_ms": timings,
         "batch_size": result.batch_size,
     }
+    if track is not None:
+        tracker, stamp = track
+        document["tracks"] = tracker.update(result.detections, stamp).to_dicts()
+    return document
 
 
-def _finish_all(results: list[RunResult], options: DetectOptions, decode_ms: list[float]) -> list[dict[str, Any]]:
-    return [finish(r, options, ms) for r, ms in zip(results, decode_ms, strict=True)]
+def _finish_all(
+    results: list[RunResult], options: DetectOptions, decode_ms: list[float], track: tuple[Tracker, float] | None
+) -> list[dict[str, Any]]:
+    return [finish(r, options, ms, track) for r, ms in zip(results, decode_ms, strict=True)]
 
 
-async def run_frames(service: Service, frames: list[EncodedFrame], options: DetectOptions) -> list[dict[str, Any]]:
-    """Decode (thread) -> queue place -> run (worker) -> options (thread); one document per frame, in order."""
+async def run_frames(
+    service: Service,
+    frames: list[EncodedFrame],
+    options: DetectOptions,
+    track: tuple[Tracker, float] | None = None,
+) -> list[dict[str, Any]]:
+    """Decode (thread) -> queue place -> run (worker) -> options (thread); one document per frame, in order.
+    ``track``: one frame's tracker and time (a stream's), whose tracks join its document."""
     if service.spec is None:
         raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
     service.refuse_if_full()  # no decoding for a request the queue would refuse
@@ -70,7 +86,7 @@ async def run_frames(service: Service, frames: list[EncodedFrame], options: Dete
         results = await ticket.run(loaded)
     finally:
         ticket.release()
-    documents = await anyio.to_thread.run_sync(_finish_all, results, options, decode_ms)
+    documents = await anyio.to_thread.run_sync(_finish_all, results, options, decode_ms, track)
     for doc in documents:
         service.metrics.observe_stages(doc["timings_ms"])
     return documents

@@ -30,6 +30,7 @@ __all__ = [
     "DetectResponse",
     "BatchResponse",
     "StreamResult",
+    "TrackOut",
     "StreamError",
     "ImageSize",
     "Limits",
@@ -128,6 +129,15 @@ class BatchResponse(BaseModel):
     frames: list[FrameResult]
 
 
+class TrackOut(DetectionOut):
+    """One track as ``Tracks.to_dicts()`` gives it: its id, box (ego frame) and velocity over ground (m/s)."""
+
+    track_id: int
+    vx: float
+    vy: float
+    age: int = Field(description="frames since the track started")
+
+
 class StreamResult(DetectResponse):
     """The answer to one stream frame."""
 
@@ -136,6 +146,7 @@ class StreamResult(DetectResponse):
     dropped: list[int] = Field(
         description="frame ids replaced by newer frames since the previous answer (latest frame wins)"
     )
+    tracks: list[TrackOut] | None = Field(default=None, description="with track=true: the connection's tracks")
 
 
 class ErrorOut(BaseModel):

@@ -1,8 +1,13 @@
 """``WebSocket /stream``: frames in (binary, see ``protocol.py``), JSON answers out, latest frame wins.
 
     ws://127.0.0.1:8000/stream?score_threshold=0.3&classes=Car,Van&nms=rotated
+    ws://127.0.0.1:8000/stream?track=true&track_score=0.15
 
-Options are query parameters (the ``/detect`` form fields). Each connection runs two tasks:
+Options are query parameters (the ``/detect`` form fields). ``track=true`` gives the connection a tracker of its
+own (:class:`~fisheye_infer.tracking.Tracker`, ``track_score`` starts tracks, a third of it keeps them alive; default
+the score threshold, else the tracker's): every answer then carries ``tracks`` (ids, boxes, velocities over ground,
+ages), the tracker fed every box of the frame at the time the server received it. A new connection starts new
+tracks; the tracker goes with its connection. Each connection runs two tasks:
 
 - the receiver reads every message as it arrives and keeps only the newest one as *pending*;
   a pending frame replaced by a newer one is *dropped*, and its id is reported in the next
@@ -28,18 +33,28 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from typing import Any
 
 from fastapi import APIRouter, WebSocket
 
 from fisheye_infer.errors import FisheyeInferError
 from fisheye_infer.service.deps import check_api_key
-from fisheye_infer.service.errors import PayloadTooLarge, ServiceError, Unauthorized, Unavailable, error_body
+from fisheye_infer.service.errors import (
+    PayloadTooLarge,
+    RequestInvalid,
+    ServiceError,
+    Unauthorized,
+    Unavailable,
+    error_body,
+    shown,
+)
 from fisheye_infer.service.intake import check_frame, parse_options
 from fisheye_infer.service.pipeline import run_frames
 from fisheye_infer.service.protocol import StreamProtocolError, decode_frame, peek_frame_id
 from fisheye_infer.service.schemas import DetectOptions
 from fisheye_infer.service.state import Service
+from fisheye_infer.tracking import Tracker, TrackerConfig
 
 __all__ = ["router", "StreamSession"]
 
@@ -54,11 +69,14 @@ class _Gone(Exception):
 class StreamSession:
     """One connection's receiver and processor (see the module docstring)."""
 
-    def __init__(self, websocket: WebSocket, service: Service, options: DetectOptions) -> None:
+    def __init__(
+        self, websocket: WebSocket, service: Service, options: DetectOptions, tracker: Tracker | None = None
+    ) -> None:
         self.ws = websocket
         self.service = service
         self.options = options
-        self.pending: tuple[int, bytes] | None = None
+        self.tracker = tracker
+        self.pending: tuple[int, bytes, float] | None = None
         self.dropped: list[int] = []
         self._wake = asyncio.Event()
         self._send_lock = asyncio.Lock()
@@ -144,7 +162,7 @@ class StreamSession:
                 metrics.stream_frames.labels("dropped").inc()
             else:
                 metrics.stream_pending.inc()
-            self.pending = (frame_id, data)
+            self.pending = (frame_id, data, time.monotonic())
             self._wake.set()
 
     async def _process(self) -> None:
@@ -157,22 +175,23 @@ class StreamSession:
                     return
                 if self.pending is None:
                     continue
-                (frame_id, data), self.pending = self.pending, None
+                (frame_id, data, received), self.pending = self.pending, None
                 self.service.metrics.stream_pending.dec()
-                await self._answer(frame_id, data)
+                await self._answer(frame_id, data, received)
                 if self.pending is not None:
                     self._wake.set()
         except _Gone:
             return
 
-    async def _answer(self, frame_id: int, data: bytes) -> None:
+    async def _answer(self, frame_id: int, data: bytes, received: float) -> None:
         service = self.service
+        track = None if self.tracker is None else (self.tracker, received)
         try:
             if service.spec is None:
                 raise Unavailable("model: not loaded yet", field="model", retry_after=service.settings.retry_after_s)
             frame = decode_frame(data)
             check_frame(frame.images, service.spec, self.options)
-            documents = await run_frames(service, [frame.images], self.options)
+            documents = await run_frames(service, [frame.images], self.options, track)
         except FisheyeInferError as exc:
             await self._refuse(exc, frame_id)
             return
@@ -221,13 +240,35 @@ async def stream(websocket: WebSocket) -> None:
             1013,
         )
         return
+    params = dict(websocket.query_params)
     try:
-        options = parse_options(dict(websocket.query_params), service.spec)
+        tracker = _tracker(params.pop("track", ""), params.pop("track_score", ""), params.get("score_threshold", ""))
+        options = parse_options(params, service.spec)
     except ServiceError as exc:
         await _deny(websocket, exc, 1008)
         return
     await websocket.accept()
-    await StreamSession(websocket, service, options).run()
+    await StreamSession(websocket, service, options, tracker).run()
+
+
+def _tracker(track: str, track_score: str, score_threshold: str) -> Tracker | None:
+    """The connection's tracker, or None: ``track`` true/false (1/0), ``track_score`` in [0, 1]."""
+    if track.lower() not in ("true", "1", "false", "0", ""):
+        raise RequestInvalid(f"track: expected true or false, got {shown(track)}", field="track")
+    if track.lower() not in ("true", "1"):
+        if track_score:
+            raise RequestInvalid("track_score: applies to track=true", field="track_score")
+        return None
+    given = track_score or score_threshold
+    try:
+        score = float(given) if given else TrackerConfig().score_threshold
+        if not 0.0 <= score <= 1.0:
+            raise ValueError
+    except ValueError:
+        raise RequestInvalid(
+            f"track_score: expected a number in [0, 1], got {shown(given)}", field="track_score"
+        ) from None
+    return Tracker(TrackerConfig(score_threshold=score, low_score=score / 3))
 
 
 async def _deny(websocket: WebSocket, exc: FisheyeInferError, code: int) -> None:
