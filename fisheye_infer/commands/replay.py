@@ -45,6 +45,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         type=float,
         help="keep the messages' boxes scoring at least this (default: every box); the records keep every box",
     )
+    parser.add_argument(
+        "--track",
+        action="store_true",
+        help="write tracks instead of boxes: each Detection3D's id its track id, one Foxglove entity per track with "
+        "its velocity and recent path; --score-threshold then starts tracks (default 0.3)",
+    )
     parser.add_argument("--frame-id", default="lidar", help="frame id of the detections (default: lidar)")
     parser.add_argument(
         "--tolerance-ms",
@@ -91,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         queue_size=args.queue,
         batch=args.batch,
         threads=args.threads,
+        track=args.track,
         progress=progress,
     )
     print(report.summary())

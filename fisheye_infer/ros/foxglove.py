@@ -2,6 +2,7 @@
 through that camera's own model.
 
     scene = scene_update(detections, stamp, "lidar")          # foxglove.SceneUpdate: one cube per box
+    scene = track_scene(tracks, paths, stamp, "lidar")        # one entity per track: box, velocity, path
     overlays = image_annotations(detections, rig, stamp)      # {camera: foxglove.ImageAnnotations}
 
 Visualisers project 3D boxes onto images with a pinhole model, which is wrong for a fisheye lens. Here
@@ -12,11 +13,16 @@ leaves the field of view or the image: straight edges curve as the lens bends th
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+
 import numpy as np
+from foxglove_schemas_protobuf.ArrowPrimitive_pb2 import ArrowPrimitive
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
 from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.Point2_pb2 import Point2
+from foxglove_schemas_protobuf.Point3_pb2 import Point3
 from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
@@ -31,8 +37,9 @@ from fisheye_infer.runtime.box_geometry import centres, project_boxes
 from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.records import yaw_to_quaternion
 from fisheye_infer.tools.viz import class_colour
+from fisheye_infer.tracking.tracks import Tracks
 
-__all__ = ["image_annotations", "scene_update"]
+__all__ = ["image_annotations", "scene_update", "track_scene"]
 
 
 def _timestamp(stamp: int) -> Timestamp:
@@ -60,6 +67,63 @@ def scene_update(detections: Detections, stamp: int, frame_id: str) -> SceneUpda
     ]
     entity = SceneEntity(timestamp=_timestamp(stamp), frame_id=frame_id, id="detections", cubes=cubes)
     return SceneUpdate(entities=[entity])
+
+
+def track_scene(
+    tracks: Tracks, paths: Mapping[int, Sequence[tuple[float, float, float]]], stamp: int, frame_id: str
+) -> SceneUpdate:
+    """One ``SceneEntity`` per track, keyed by its id (so the viewer follows an object): its box, an arrow of its
+    velocity (one second ahead) and its recent path (``paths``: track id -> centres, oldest first)."""
+    q = yaw_to_quaternion(tracks.boxes[:, 6].astype(np.float64))
+    entities = []
+    for track_id, c, r, b, v, label in zip(
+        tracks.ids.tolist(),
+        centres(tracks.boxes),
+        q.tolist(),
+        tracks.boxes,
+        tracks.velocities,
+        tracks.labels,
+        strict=True,
+    ):
+        colour = _colour(tracks.class_names[label], 0.5)
+        cube = CubePrimitive(
+            pose=Pose(
+                position=Vector3(x=float(c[0]), y=float(c[1]), z=float(c[2])),
+                orientation=Quaternion(w=r[0], x=r[1], y=r[2], z=r[3]),
+            ),
+            size=Vector3(x=float(b[3]), y=float(b[4]), z=float(b[5])),
+            color=colour,
+        )
+        speed = float(np.hypot(v[0], v[1]))
+        heading = float(np.arctan2(v[1], v[0]))
+        arrow = ArrowPrimitive(
+            pose=Pose(
+                position=Vector3(x=float(c[0]), y=float(c[1]), z=float(c[2])),
+                orientation=Quaternion(w=float(np.cos(heading / 2)), x=0.0, y=0.0, z=float(np.sin(heading / 2))),
+            ),
+            shaft_length=max(speed, 1e-3),
+            shaft_diameter=0.1,
+            head_length=0.3,
+            head_diameter=0.3,
+            color=_colour(tracks.class_names[label], 1.0),
+        )
+        path = [Point3(x=x, y=y, z=z) for x, y, z in paths.get(track_id, ())]
+        lines = (
+            [LinePrimitive(type=LinePrimitive.LINE_STRIP, points=path, thickness=0.1, color=colour)]
+            if len(path) > 1
+            else []
+        )
+        entities.append(
+            SceneEntity(
+                timestamp=_timestamp(stamp),
+                frame_id=frame_id,
+                id=f"track-{track_id}",
+                cubes=[cube],
+                arrows=[arrow],
+                lines=lines,
+            )
+        )
+    return SceneUpdate(entities=entities)
 
 
 def image_annotations(detections: Detections, rig: Rig, stamp: int) -> dict[str, ImageAnnotations]:

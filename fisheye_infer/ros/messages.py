@@ -15,6 +15,7 @@ frame); the class name is the hypothesis id, as ``vision_msgs`` asks.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import lru_cache
 from typing import Any
 
@@ -229,8 +230,9 @@ def _poses(detections: Detections) -> list[Any]:
     ]
 
 
-def detection_array(detections: Detections, stamp: int, frame_id: str) -> Any:
-    """``vision_msgs/msg/Detection3DArray``: one ``Detection3D`` per box, the class name as hypothesis id."""
+def detection_array(detections: Detections, stamp: int, frame_id: str, ids: Sequence[int] | None = None) -> Any:
+    """``vision_msgs/msg/Detection3DArray``: one ``Detection3D`` per box, the class name as hypothesis id; each
+    detection's ``id`` its index, or its track's id from ``ids``."""
     store = typestore().types
     vector, covariance = store["geometry_msgs/msg/Vector3"], store["geometry_msgs/msg/PoseWithCovariance"]
     hypothesis, with_pose = store["vision_msgs/msg/ObjectHypothesis"], store["vision_msgs/msg/ObjectHypothesisWithPose"]
@@ -245,7 +247,8 @@ def detection_array(detections: Detections, stamp: int, frame_id: str) -> Any:
             pose=covariance(pose=pose, covariance=np.zeros(36, np.float64)),
         )
         size = vector(x=float(b[3]), y=float(b[4]), z=float(b[5]))
-        items.append(detection(header=header, results=[result], bbox=box(center=pose, size=size), id=str(i)))
+        ident = str(i if ids is None else ids[i])
+        items.append(detection(header=header, results=[result], bbox=box(center=pose, size=size), id=ident))
     return store[DETECTION_ARRAY](header=header, detections=items)
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,11 +42,14 @@ from rosbags.highlevel import AnyReader
 
 from fisheye_infer.errors import BagError, OptionError
 from fisheye_infer.eval.evaluate import save_results
+from fisheye_infer.runtime.box_geometry import centres
+from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.runtime.options import check_score_threshold
 from fisheye_infer.tools.files import pending_file
+from fisheye_infer.tracking import Tracker, TrackerConfig, Tracks
 
-from .foxglove import image_annotations, scene_update
+from .foxglove import image_annotations, scene_update, track_scene
 from .messages import (
     DETECTION_ARRAY,
     IMAGE_TYPES,
@@ -64,6 +67,9 @@ from .sync import SyncedSet, Synchroniser
 __all__ = ["DETECTIONS_TOPIC", "ReplayReport", "replay"]
 
 DETECTIONS_TOPIC = "/detections"
+#: Centres kept of each track's recent path (2 s at 10 Hz), and the most tracks whose paths are kept.
+PATH_POINTS = 20
+MAX_PATHS = 1000
 
 
 @dataclass
@@ -127,12 +133,16 @@ def replay(
     queue_size: int = 10,
     batch: int = 4,
     threads: int | None = None,
+    track: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> ReplayReport:
     """Replay ``bags`` through ``model`` into ``out`` (an ``.mcap`` file) and ``out`` with ``.json``; see the
     module docstring. ``topics`` maps each camera the model names to its image topic; ``foxglove``: also the
     Foxglove channels (protobuf; without them the file holds ROS 2 messages only); ``score_threshold``
-    keeps the messages' boxes at or above it (the records keep every box, as evaluation needs); ``progress``
+    keeps the messages' boxes at or above it (the records keep every box, as evaluation needs); ``track``: the
+    messages carry tracks instead of boxes (a :class:`~fisheye_infer.tracking.Tracker` fed every box, its score
+    threshold ``score_threshold`` or the tracker's; each ``Detection3D`` id the track id, one Foxglove entity per
+    track with its velocity and recent path); ``progress``
     is told the frames done and the most there can be (the fewest messages of one camera)."""
     started = time.perf_counter()
     check_score_threshold(score_threshold)
@@ -141,6 +151,10 @@ def replay(
     for flag, value in (("--batch", batch), ("--queue", queue_size)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise OptionError(f"{flag} {value!r}: expected a whole number, 1 or more")
+    tracker = None
+    if track:
+        score = TrackerConfig().score_threshold if score_threshold is None else score_threshold
+        tracker = Tracker(TrackerConfig(score_threshold=score, low_score=score / 3))
     detector = Detector(model, threads=threads)
     cameras = list(detector.info.cameras)
     missing = [c for c in cameras if c not in topics]
@@ -191,7 +205,10 @@ def replay(
                 if not frames:
                     return
                 for synced, detections in zip(kept, detector.detect_batch(frames), strict=True):
-                    writer.write_frame(synced, detections.filter(min_score=score_threshold), frame_id)
+                    if tracker is None:
+                        writer.write_frame(synced, detections.filter(min_score=score_threshold), frame_id)
+                    else:
+                        writer.write_tracks(synced, tracker.update(detections, synced.stamp / 1e9), frame_id)
                     results[str(synced.stamp)] = detections.to_nuscenes()
                     report.frames += 1
                     if progress is not None:
@@ -326,6 +343,7 @@ class _McapWriter:
                 topic = f"/{camera}/detections"
                 self.channels[topic] = self.writer.register_channel(topic, "protobuf", annotations)
         self.image_topics = {c.topic: self._ros_channel(c.topic, c.msgtype) for c in image_connections}
+        self.paths: dict[int, deque[tuple[float, float, float]]] = {}  # track id -> recent centres
 
     def _ros_channel(self, topic: str, msgtype: str) -> int:
         text, _ = self.store.generate_msgdef(msgtype, ros_version=2)
@@ -335,18 +353,25 @@ class _McapWriter:
     def _write(self, topic: str, data: bytes | memoryview, stamp: int) -> None:
         self.writer.add_message(self.channels[topic], stamp, bytes(data), stamp)
 
-    def write_frame(self, synced: SyncedSet, detections: Any, frame_id: str) -> None:
+    def write_frame(
+        self,
+        synced: SyncedSet,
+        detections: Any,
+        frame_id: str,
+        ids: list[int] | None = None,
+        scene: Any = None,
+    ) -> None:
         stamp = synced.stamp
         self._write(
             DETECTIONS_TOPIC,
-            self.store.serialize_cdr(detection_array(detections, stamp, frame_id), DETECTION_ARRAY),
+            self.store.serialize_cdr(detection_array(detections, stamp, frame_id, ids), DETECTION_ARRAY),
             stamp,
         )
         markers = self.store.serialize_cdr(marker_array(detections, stamp, frame_id), MARKER_ARRAY)
         self._write(DETECTIONS_TOPIC + "/markers", markers, stamp)
         if self.foxglove:
-            scene = scene_update(detections, stamp, frame_id).SerializeToString()
-            self._write(DETECTIONS_TOPIC + "/scene", scene, stamp)
+            scene = scene if scene is not None else scene_update(detections, stamp, frame_id)
+            self._write(DETECTIONS_TOPIC + "/scene", scene.SerializeToString(), stamp)
             for camera, overlay in image_annotations(detections, self.rig, stamp).items():
                 self._write(f"/{camera}/detections", overlay.SerializeToString(), stamp)
         for connection, msg in synced.items:
@@ -354,6 +379,17 @@ class _McapWriter:
                 cdr = self.store.serialize_cdr(ros2_image(msg), connection.msgtype)
                 when = stamp_ns(msg.header)
                 self.writer.add_message(self.image_topics[connection.topic], when, bytes(cdr), when)
+
+    def write_tracks(self, synced: SyncedSet, tracks: Tracks, frame_id: str) -> None:
+        """A frame's tracks: the detection array (track ids), markers, the Foxglove scene keyed by track, the
+        overlays and the images, as ``write_frame`` writes boxes."""
+        for track_id, (x, y, z) in zip(tracks.ids.tolist(), centres(tracks.boxes).tolist()):
+            self.paths.setdefault(track_id, deque(maxlen=PATH_POINTS)).append((x, y, z))
+        if len(self.paths) > MAX_PATHS:  # bounded: the paths of tracks not seen at this frame go
+            self.paths = {i: self.paths[i] for i in tracks.ids.tolist()}
+        boxes = Detections(tracks.boxes, tracks.scores, tracks.labels, tracks.class_names)
+        scene = track_scene(tracks, self.paths, synced.stamp, frame_id) if self.foxglove else None
+        self.write_frame(synced, boxes, frame_id, ids=tracks.ids.tolist(), scene=scene)
 
     def finish(self) -> None:
         self.writer.finish()

@@ -310,3 +310,26 @@ def test_image_encodings_are_read_or_refused_by_name() -> None:
     )
     with pytest.raises(FrameError, match="compressed format '16UC1; compressedDepth' is not read"):
         image_from_message(depth)
+
+
+def test_replay_track_writes_track_ids_and_one_entity_per_track(
+    small_export, recording: Recording, tmp_path: Path
+) -> None:
+    from fisheye_infer.tracking import Tracker, TrackerConfig
+
+    rig = read_meta(small_export.onnx).rig
+    out = tmp_path / "tracks.mcap"
+    replay(small_export.onnx, [recording.mcap], _topics(rig.names), out, threads=1, track=True, score_threshold=0.0)
+    store, written = typestore(), _read_mcap(out)
+    arrays = [store.deserialize_cdr(data, "vision_msgs/msg/Detection3DArray") for _, data in written["/detections"]]
+    detector, tracker = (
+        Detector(small_export.onnx, threads=1),
+        Tracker(TrackerConfig(score_threshold=0.0, low_score=0.0)),
+    )
+    for n, (array, images, stamp) in enumerate(zip(arrays, recording.images, recording.stamps, strict=True)):
+        tracks = tracker.update(detector.detect(images), stamp / 1e9)
+        assert len(tracks.ids) > 0 and [d.id for d in array.detections] == [str(i) for i in tracks.ids]
+        scene = SceneUpdate.FromString(written["/detections/scene"][n][1])
+        assert [e.id for e in scene.entities] == [f"track-{i}" for i in tracks.ids]
+        assert all(len(e.arrows) == 1 and len(e.cubes) == 1 for e in scene.entities)
+    assert any(len(e.lines) == 1 for e in scene.entities)  # the recent path of a track seen in earlier frames
