@@ -10,7 +10,8 @@ view transform's warp (the first nodes that combine the image features with a ge
 that depends on the images alone (as int8 quantization finds it), the view transform ends at the
 last node reading a ``geom.pool.*`` table (FisheyeBEVDet: warp, depth/context net, lift,
 pooling) or at the last node reading the warp's taps (FisheyePETR: the warp), and the head is
-everything else. Each stage becomes a model of its own, fed with the values
+everything else (a virtual-camera front end, which makes the training images from the robot's, counts with the
+image trunk). Each stage becomes a model of its own, fed with the values
 the full graph computes at its cut, and is timed with the same session options. The stages
 cannot be fused across a cut, so their sum is compared with the full graph's time.
 
@@ -30,6 +31,7 @@ import onnxruntime as ort
 
 from fisheye_infer.errors import ArtifactError
 from fisheye_infer.geometry.tables import POOL_PREFIX, PREFIX, WARP
+from fisheye_infer.geometry.virtual import VIRTUAL
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES
 from fisheye_infer.runtime.session import Provider, open_session
 
@@ -66,7 +68,8 @@ def image_region(model: onnx.ModelProto) -> list[str]:
     ``ArtifactError`` when no node samples the image features with a geometry table.
     """
     graph = model.graph
-    from_geometry = {i.name for i in graph.initializer if i.name.startswith(PREFIX)}
+    # a virtual-camera front end's tables (geom.virtual.*) make the training images: part of the image path
+    from_geometry = {i.name for i in graph.initializer if i.name.startswith(PREFIX) and not i.name.startswith(VIRTUAL)}
     tainted = set(from_geometry) | {INPUT_CAMERA_VALID}  # values that must not feed the region
     from_images = {INPUT_IMAGES}
     producer: dict[str, onnx.NodeProto] = {}

@@ -374,3 +374,22 @@ def test_rebake_refuses_what_is_not_a_regular_file(tmp_path: Path) -> None:
 
     with pytest.raises(ArtifactError, match="/dev/zero: no such file"):
         rebake("/dev/zero", TRAINING, tmp_path / "x.onnx")
+
+
+def test_the_front_end_counts_with_the_image_trunk(small_export, tmp_path: Path) -> None:
+    """Stage timing and int8's region: the resampling belongs to the image trunk, ahead of the backbone."""
+    from fisheye_infer.export.graph_stages import image_region, name_nodes
+
+    rebake(small_export.onnx, _robot_of(small_export), tmp_path / "v.onnx")
+    proto = onnx.load(str(tmp_path / "v.onnx"))
+    name_nodes(proto)
+    region = image_region(proto)
+    assert {f"virtual_front/gather{c}" for c in range(3)} <= set(region)
+    assert any(name.startswith("virtual_front/") is False and "Conv" in name for name in region)
+
+
+def _robot_of(exported) -> Rig:
+    rig = read_meta(exported.onnx).rig
+    return rig.model_copy(
+        update={"cameras": tuple(c.model_copy(update={"name": f"r{i}"}) for i, c in enumerate(rig.cameras))}
+    )
