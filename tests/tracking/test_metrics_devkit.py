@@ -21,7 +21,7 @@ from nuscenes.eval.tracking.data_classes import TrackingBox
 from nuscenes.eval.tracking.loaders import interpolate_tracks
 
 from fisheye_infer.eval.metrics import EvalConfig
-from fisheye_infer.eval.tracking import SequenceResults, evaluate_tracking
+from fisheye_infer.eval.tracking import TRACKING_METRICS, SequenceResults, evaluate_tracking
 
 config_factory("tracking_nips_2019")  # registers the devkit's tracking class names
 NAMES = {
@@ -128,23 +128,7 @@ def test_equal_to_the_devkit(seed: int) -> None:
         for ours, theirs in NAMES.items():
             want = devkit_metrics(gt, pred, theirs)
             got = report.classes[ref][ours]
-            for metric in (
-                "amota",
-                "amotp",
-                "mota",
-                "motp",
-                "motar",
-                "recall",
-                "ids",
-                "frag",
-                "tp",
-                "fp",
-                "fn",
-                "gt",
-                "mt",
-                "ml",
-                "faf",
-            ):
+            for metric in TRACKING_METRICS:
                 assert got[metric] == pytest.approx(want.get(metric, math.nan), nan_ok=True, abs=1e-9), (
                     ref,
                     ours,
