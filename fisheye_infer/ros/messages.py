@@ -25,6 +25,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from fisheye_infer.errors import FrameError
+from fisheye_infer.ros.autoware import AUTOWARE_MSGS
 from fisheye_infer.runtime.box_geometry import centres
 from fisheye_infer.runtime.codec import JPEG_SIGNATURE, PNG_SIGNATURE, decode_image, encoded_image_size
 from fisheye_infer.runtime.detections import Detections
@@ -65,10 +66,10 @@ _VISION_MSGS = {
 
 @lru_cache(maxsize=1)
 def typestore() -> Typestore:
-    """ROS 2 Humble's message types with ``vision_msgs`` registered."""
+    """ROS 2 Humble's message types with ``vision_msgs`` and Autoware's tracked objects registered."""
     store = get_typestore(Stores.ROS2_HUMBLE)
     types: dict[str, Any] = {}
-    for name, text in _VISION_MSGS.items():
+    for name, text in {**_VISION_MSGS, **AUTOWARE_MSGS}.items():
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store

@@ -12,7 +12,8 @@ synchronised frame and stamped with its first camera's header stamp:
   (``visualization_msgs/msg/MarkerArray``), ROS 2 messages in CDR;
 - ``/detections/scene`` (``foxglove.SceneUpdate``) and ``/<camera>/detections`` (``foxglove.ImageAnnotations``:
   the boxes drawn through that camera's model), Foxglove's protobuf schemas;
-- with ``images``, each camera's input message again, on its own topic, as recorded.
+- with ``images``, each camera's input message again, on its own topic, as recorded;
+- with ``track``, tracks instead of boxes, and ``/tracks`` (``autoware_perception_msgs/msg/TrackedObjects``).
 
 ``score_threshold`` thins the messages' boxes; the records keep every box. Without ``foxglove`` the file
 holds the ROS 2 channels only.
@@ -30,46 +31,32 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import mcap.writer
-from mcap_protobuf.schema import register_schema
 from rosbags.highlevel import AnyReader
 
 from fisheye_infer.errors import BagError, OptionError
 from fisheye_infer.eval.evaluate import save_results
-from fisheye_infer.runtime.box_geometry import centres
-from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.runtime.options import check_score_threshold
 from fisheye_infer.tools.files import pending_file
-from fisheye_infer.tracking import Tracker, TrackerConfig, Tracks
+from fisheye_infer.tracking import Tracker, TrackerConfig
 
-from .foxglove import image_annotations, scene_update, track_scene
+from .mcap_output import DETECTIONS_TOPIC, McapOutput
 from .messages import (
-    DETECTION_ARRAY,
     IMAGE_TYPES,
-    MARKER_ARRAY,
     ImageRefused,
-    detection_array,
     image_from_message,
-    marker_array,
-    ros2_image,
     stamp_ns,
     typestore,
 )
 from .sync import SyncedSet, Synchroniser
 
 __all__ = ["DETECTIONS_TOPIC", "ReplayReport", "replay"]
-
-DETECTIONS_TOPIC = "/detections"
-#: Centres kept of each track's recent path (2 s at 10 Hz), and the most tracks whose paths are kept.
-PATH_POINTS = 20
-MAX_PATHS = 1000
 
 
 @dataclass
@@ -185,7 +172,7 @@ def replay(
         expected = min(sum(c.msgcount for c in connections if c.topic == t) for t in topics.values())
         size_of = dict(zip(detector.info.cameras, detector.info.camera_sizes))  # each camera's own
         with pending_file(out) as pending, open(pending.path, "wb") as stream:
-            writer = _McapWriter(stream, connections if images else [], detector, foxglove)
+            writer = McapOutput(stream, connections if images else [], detector, foxglove, track)
             pending_sets: list[SyncedSet] = []
             counted: Counter[str] = Counter()
 
@@ -316,80 +303,3 @@ def _camera_connections(reader: AnyReader, topics: Mapping[str, str]) -> list[An
                 )
         chosen += found
     return chosen
-
-
-class _McapWriter:
-    """The output MCAP: ROS 2 channels (CDR, ``ros2msg`` schemas) and Foxglove channels (protobuf)."""
-
-    def __init__(self, stream: Any, image_connections: Sequence[Any], detector: Detector, foxglove: bool) -> None:
-        self.writer = mcap.writer.Writer(stream)
-        self.writer.start(profile="ros2", library="fisheye-infer")
-        self.store = typestore()
-        self.rig = detector.info.meta.rig
-        self.channels: dict[str, int] = {}
-        self.channels[DETECTIONS_TOPIC] = self._ros_channel(DETECTIONS_TOPIC, DETECTION_ARRAY)
-        self.channels[DETECTIONS_TOPIC + "/markers"] = self._ros_channel(DETECTIONS_TOPIC + "/markers", MARKER_ARRAY)
-        self.foxglove = foxglove
-        if foxglove:
-            from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
-            from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
-
-            scene = register_schema(self.writer, SceneUpdate)
-            annotations = register_schema(self.writer, ImageAnnotations)
-            self.channels[DETECTIONS_TOPIC + "/scene"] = self.writer.register_channel(
-                DETECTIONS_TOPIC + "/scene", "protobuf", scene
-            )
-            for camera in self.rig.names:
-                topic = f"/{camera}/detections"
-                self.channels[topic] = self.writer.register_channel(topic, "protobuf", annotations)
-        self.image_topics = {c.topic: self._ros_channel(c.topic, c.msgtype) for c in image_connections}
-        self.paths: dict[int, deque[tuple[float, float, float]]] = {}  # track id -> recent centres
-
-    def _ros_channel(self, topic: str, msgtype: str) -> int:
-        text, _ = self.store.generate_msgdef(msgtype, ros_version=2)
-        schema = self.writer.register_schema(msgtype, "ros2msg", text.encode())
-        return self.writer.register_channel(topic, "cdr", schema)
-
-    def _write(self, topic: str, data: bytes | memoryview, stamp: int) -> None:
-        self.writer.add_message(self.channels[topic], stamp, bytes(data), stamp)
-
-    def write_frame(
-        self,
-        synced: SyncedSet,
-        detections: Any,
-        frame_id: str,
-        ids: list[int] | None = None,
-        scene: Any = None,
-    ) -> None:
-        stamp = synced.stamp
-        self._write(
-            DETECTIONS_TOPIC,
-            self.store.serialize_cdr(detection_array(detections, stamp, frame_id, ids), DETECTION_ARRAY),
-            stamp,
-        )
-        markers = self.store.serialize_cdr(marker_array(detections, stamp, frame_id), MARKER_ARRAY)
-        self._write(DETECTIONS_TOPIC + "/markers", markers, stamp)
-        if self.foxglove:
-            scene = scene if scene is not None else scene_update(detections, stamp, frame_id)
-            self._write(DETECTIONS_TOPIC + "/scene", scene.SerializeToString(), stamp)
-            for camera, overlay in image_annotations(detections, self.rig, stamp).items():
-                self._write(f"/{camera}/detections", overlay.SerializeToString(), stamp)
-        for connection, msg in synced.items:
-            if connection.topic in self.image_topics:
-                cdr = self.store.serialize_cdr(ros2_image(msg), connection.msgtype)
-                when = stamp_ns(msg.header)
-                self.writer.add_message(self.image_topics[connection.topic], when, bytes(cdr), when)
-
-    def write_tracks(self, synced: SyncedSet, tracks: Tracks, frame_id: str) -> None:
-        """A frame's tracks: the detection array (track ids), markers, the Foxglove scene keyed by track, the
-        overlays and the images, as ``write_frame`` writes boxes."""
-        for track_id, (x, y, z) in zip(tracks.ids.tolist(), centres(tracks.boxes).tolist()):
-            self.paths.setdefault(track_id, deque(maxlen=PATH_POINTS)).append((x, y, z))
-        if len(self.paths) > MAX_PATHS:  # bounded: the paths of tracks not seen at this frame go
-            self.paths = {i: self.paths[i] for i in tracks.ids.tolist()}
-        boxes = Detections(tracks.boxes, tracks.scores, tracks.labels, tracks.class_names)
-        scene = track_scene(tracks, self.paths, synced.stamp, frame_id) if self.foxglove else None
-        self.write_frame(synced, boxes, frame_id, ids=tracks.ids.tolist(), scene=scene)
-
-    def finish(self) -> None:
-        self.writer.finish()

@@ -333,3 +333,20 @@ def test_replay_track_writes_track_ids_and_one_entity_per_track(
         assert [e.id for e in scene.entities] == [f"track-{i}" for i in tracks.ids]
         assert all(len(e.arrows) == 1 and len(e.cubes) == 1 for e in scene.entities)
     assert any(len(e.lines) == 1 for e in scene.entities)  # the recent path of a track seen in earlier frames
+    from fisheye_infer.ros.autoware import AUTOWARE_LABELS, track_uuid
+
+    last = store.deserialize_cdr(written["/tracks"][-1][1], "autoware_perception_msgs/msg/TrackedObjects")
+    assert [bytes(o.object_id.uuid) for o in last.objects] == [track_uuid(i) for i in tracks.ids]
+    names = [tracks.class_names[label] for label in tracks.labels]
+    for obj, box, velocity, name in zip(last.objects, tracks.boxes, tracks.velocities, names, strict=True):
+        assert obj.classification[0].label == AUTOWARE_LABELS[name]
+        twist = obj.kinematics.twist_with_covariance.twist.linear
+        yaw = box[6]  # the twist is the velocity over ground in the box's own axes
+        assert np.allclose(
+            [twist.x * np.cos(yaw) - twist.y * np.sin(yaw), twist.x * np.sin(yaw) + twist.y * np.cos(yaw)],
+            velocity,
+            atol=1e-5,
+        )
+        assert np.allclose(
+            [obj.shape.dimensions.x, obj.shape.dimensions.y, obj.shape.dimensions.z], box[3:6], atol=1e-5
+        )

@@ -1,0 +1,111 @@
+"""The MCAP file ``replay`` writes: ROS 2 channels (CDR, ``ros2msg`` schemas) and Foxglove channels (protobuf)."""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Sequence
+from typing import Any
+
+import mcap.writer
+from mcap_protobuf.schema import register_schema
+
+from fisheye_infer.runtime.box_geometry import centres
+from fisheye_infer.runtime.detections import Detections
+from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.tracking import Tracks
+
+from .autoware import TRACKED_OBJECTS, tracked_objects
+from .foxglove import image_annotations, scene_update, track_scene
+from .messages import DETECTION_ARRAY, MARKER_ARRAY, detection_array, marker_array, ros2_image, stamp_ns, typestore
+from .sync import SyncedSet
+
+__all__ = ["DETECTIONS_TOPIC", "TRACKS_TOPIC", "McapOutput"]
+
+DETECTIONS_TOPIC = "/detections"
+TRACKS_TOPIC = "/tracks"  # autoware_perception_msgs/TrackedObjects, with --track
+#: Centres kept of each track's recent path (2 s at 10 Hz), and the most tracks whose paths are kept.
+PATH_POINTS = 20
+MAX_PATHS = 1000
+
+
+class McapOutput:
+    """The output MCAP: ROS 2 channels (CDR, ``ros2msg`` schemas) and Foxglove channels (protobuf)."""
+
+    def __init__(
+        self, stream: Any, image_connections: Sequence[Any], detector: Detector, foxglove: bool, track: bool
+    ) -> None:
+        self.writer = mcap.writer.Writer(stream)
+        self.writer.start(profile="ros2", library="fisheye-infer")
+        self.store = typestore()
+        self.rig = detector.info.meta.rig
+        self.channels: dict[str, int] = {}
+        self.channels[DETECTIONS_TOPIC] = self._ros_channel(DETECTIONS_TOPIC, DETECTION_ARRAY)
+        self.channels[DETECTIONS_TOPIC + "/markers"] = self._ros_channel(DETECTIONS_TOPIC + "/markers", MARKER_ARRAY)
+        self.foxglove = foxglove
+        if foxglove:
+            from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+            from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+            scene = register_schema(self.writer, SceneUpdate)
+            annotations = register_schema(self.writer, ImageAnnotations)
+            self.channels[DETECTIONS_TOPIC + "/scene"] = self.writer.register_channel(
+                DETECTIONS_TOPIC + "/scene", "protobuf", scene
+            )
+            for camera in self.rig.names:
+                topic = f"/{camera}/detections"
+                self.channels[topic] = self.writer.register_channel(topic, "protobuf", annotations)
+        self.image_topics = {c.topic: self._ros_channel(c.topic, c.msgtype) for c in image_connections}
+        self.paths: dict[int, deque[tuple[float, float, float]]] = {}  # track id -> recent centres
+        if track:
+            self.channels[TRACKS_TOPIC] = self._ros_channel(TRACKS_TOPIC, TRACKED_OBJECTS)
+
+    def _ros_channel(self, topic: str, msgtype: str) -> int:
+        text, _ = self.store.generate_msgdef(msgtype, ros_version=2)
+        schema = self.writer.register_schema(msgtype, "ros2msg", text.encode())
+        return self.writer.register_channel(topic, "cdr", schema)
+
+    def _write(self, topic: str, data: bytes | memoryview, stamp: int) -> None:
+        self.writer.add_message(self.channels[topic], stamp, bytes(data), stamp)
+
+    def write_frame(
+        self,
+        synced: SyncedSet,
+        detections: Any,
+        frame_id: str,
+        ids: list[int] | None = None,
+        scene: Any = None,
+    ) -> None:
+        stamp = synced.stamp
+        self._write(
+            DETECTIONS_TOPIC,
+            self.store.serialize_cdr(detection_array(detections, stamp, frame_id, ids), DETECTION_ARRAY),
+            stamp,
+        )
+        markers = self.store.serialize_cdr(marker_array(detections, stamp, frame_id), MARKER_ARRAY)
+        self._write(DETECTIONS_TOPIC + "/markers", markers, stamp)
+        if self.foxglove:
+            scene = scene if scene is not None else scene_update(detections, stamp, frame_id)
+            self._write(DETECTIONS_TOPIC + "/scene", scene.SerializeToString(), stamp)
+            for camera, overlay in image_annotations(detections, self.rig, stamp).items():
+                self._write(f"/{camera}/detections", overlay.SerializeToString(), stamp)
+        for connection, msg in synced.items:
+            if connection.topic in self.image_topics:
+                cdr = self.store.serialize_cdr(ros2_image(msg), connection.msgtype)
+                when = stamp_ns(msg.header)
+                self.writer.add_message(self.image_topics[connection.topic], when, bytes(cdr), when)
+
+    def write_tracks(self, synced: SyncedSet, tracks: Tracks, frame_id: str) -> None:
+        """A frame's tracks: the detection array (track ids), markers, the Foxglove scene keyed by track, the
+        overlays and the images, as ``write_frame`` writes boxes."""
+        for track_id, (x, y, z) in zip(tracks.ids.tolist(), centres(tracks.boxes).tolist()):
+            self.paths.setdefault(track_id, deque(maxlen=PATH_POINTS)).append((x, y, z))
+        if len(self.paths) > MAX_PATHS:  # bounded: the paths of tracks not seen at this frame go
+            self.paths = {i: self.paths[i] for i in tracks.ids.tolist()}
+        boxes = Detections(tracks.boxes, tracks.scores, tracks.labels, tracks.class_names)
+        scene = track_scene(tracks, self.paths, synced.stamp, frame_id) if self.foxglove else None
+        self.write_frame(synced, boxes, frame_id, ids=tracks.ids.tolist(), scene=scene)
+        message = tracked_objects(tracks, synced.stamp, frame_id, self.store)
+        self._write(TRACKS_TOPIC, self.store.serialize_cdr(message, TRACKED_OBJECTS), synced.stamp)
+
+    def finish(self) -> None:
+        self.writer.finish()
