@@ -37,12 +37,12 @@ from typing import Any
 
 import cv2
 import numpy as np
-from pydantic import TypeAdapter, ValidationError
 
-from fisheye_infer.cameras.camera_models import AnyCameraModel, OCamModel, Pinhole
+from fisheye_infer.cameras.camera_models import OCamModel, Pinhole
 from fisheye_infer.cameras.carla_poses import CarlaPose, Convention, cam2lidar_from_poses, parse_sensor_metadata
 from fisheye_infer.cameras.rig import FISHEYE3DOD_CAMERAS, PINHOLE_CAMERAS, Rig
-from fisheye_infer.errors import CameraModelError, DatasetError, RigError
+from fisheye_infer.errors import DatasetError, RigError
+from fisheye_infer.eval.lens_files import camera_lens, read_lens
 from fisheye_infer.runtime.records import CLASSES, boxes_to_records, gravity_to_bottom
 
 __all__ = [
@@ -58,9 +58,6 @@ __all__ = [
     "camera_name",
     "IMAGESETS",
 ]
-
-#: A fisheye camera's own lens as JSON, in its folder, for a model that ``calib_results.txt`` (OCam) cannot express.
-CAMERA_MODEL_FILE = "camera_model.json"
 
 IMAGESETS = "ImageSets-2hz"
 
@@ -207,30 +204,6 @@ class Frame:
         return boxes_to_records(self.gt_boxes, None, self.gt_labels, self.class_names)
 
 
-def _read_lens(path: Path, fov: float) -> OCamModel:
-    try:
-        return OCamModel.from_file(path, fov=fov)
-    except CameraModelError as exc:
-        raise DatasetError(str(exc)) from exc
-
-
-def _camera_lens(folder: Path, root_lens: OCamModel | None, fov: float, what: str) -> Any:
-    """A fisheye camera's lens: its folder's ``camera_model.json`` (a model OCam cannot express) or
-    ``calib_results.txt``, else the dataset root's ``calib_results.txt``."""
-    model_file = folder / CAMERA_MODEL_FILE
-    if model_file.is_file():
-        try:
-            return TypeAdapter(AnyCameraModel).validate_json(model_file.read_bytes())
-        except (OSError, ValidationError) as exc:
-            raise DatasetError(f"{what}: {model_file} is not a camera model ({str(exc).splitlines()[0]})") from None
-    own = folder / "calib_results.txt"
-    if own.is_file():
-        return _read_lens(own, fov)
-    if root_lens is None:
-        raise DatasetError(f"{what}: calib_results.txt not found, neither in {folder} nor at the dataset root")
-    return root_lens
-
-
 class _Sequence:
     """One ``<scene>/<vehicle>`` folder: its sensor poses, parsed once."""
 
@@ -250,7 +223,7 @@ class _Sequence:
             except OSError as exc:
                 raise DatasetError(f"scene {token}: {path} cannot be read ({exc.strerror})") from exc
             if sensor in FISHEYE3DOD_CAMERAS:
-                self.lenses[sensor] = _camera_lens(folder / sensor, lens, fov, f"scene {token}: camera '{sensor}'")
+                self.lenses[sensor] = camera_lens(folder / sensor, lens, fov, f"scene {token}: camera '{sensor}'")
 
     def pinhole(self, camera: str, image: Path, token: str) -> Pinhole:
         """The converter's pinhole model for ``camera``, at the size of its first image read (a PNG header)."""
@@ -311,7 +284,7 @@ class Fisheye3DOD:
         self.model: OCamModel | None = None  # the root's, for the cameras without a calib_results.txt of their own
         calib = self.root / "calib_results.txt"
         if calib.is_file() and any(c in FISHEYE3DOD_CAMERAS for c in self.cameras):
-            self.model = _read_lens(calib, fov)
+            self.model = read_lens(calib, fov)
         entries = read_split(self.root, split)
         if scenes is not None:
             known = {e.scene for e in entries}

@@ -36,7 +36,8 @@ from fisheye_infer.cameras.carla_poses import (
     pose_matrix,
 )
 from fisheye_infer.cameras.rig import Rig
-from fisheye_infer.eval.dataset import CAMERA_MODEL_FILE, IMAGESETS, PINHOLE_CAMERAS, DatasetError, converter_pinhole
+from fisheye_infer.eval.dataset import IMAGESETS, PINHOLE_CAMERAS, DatasetError, converter_pinhole
+from fisheye_infer.eval.lens_files import CAMERA_MODEL_FILE
 from fisheye_infer.runtime.records import CLASSES, bottom_to_gravity
 
 __all__ = ["Fisheye3DODWriter", "pose_from_matrix", "camera_poses", "format_record", "update_split"]
