@@ -6,11 +6,13 @@ y left, z up; yaw about +z from +x, counter-clockwise), the detectors' output la
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
 
-__all__ = ["BOX_EDGES", "check_boxes", "corners", "bev_corners", "centres", "box_diff", "project_boxes"]
+__all__ = ["BOX_EDGES", "check_boxes", "corners", "bev_corners", "centres", "box_diff", "Polylines", "project_edges", "project_boxes"]
 
 #: Corner index pairs of the 12 box edges; corners 0-3 are the bottom face, 4-7 the top,
 #: 0 = front-left, 1 = front-right, 2 = rear-right, 3 = rear-left (in the box's own frame).
@@ -58,38 +60,85 @@ def centres(boxes: np.ndarray) -> np.ndarray:
     return np.stack([b[:, 0], b[:, 1], b[:, 2] + b[:, 5] / 2], axis=-1)
 
 
-def project_boxes(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> dict[str, list[list[np.ndarray]]]:
-    """Each box's edges as pixel polylines in every camera, following the lens's curvature.
+@dataclass(frozen=True)
+class Polylines:
+    """Pixel polylines packed into arrays: line ``i`` is ``points[starts[i]:starts[i + 1]]`` and belongs to box
+    ``boxes[i]``. Lines come in box order, a box's in edge order (``BOX_EDGES``), an edge's pieces in order along it.
 
-    Edges are sampled in 3D and projected through the camera model; a polyline is cut where
-    its points leave the camera's valid area (outside the fov or the image). Returns, per
-    camera name, one list per box of (M, 2) float arrays.
+    Attributes:
+        points (np.ndarray): (P, 2) pixels (u, v) of every line, one after another.
+        starts (np.ndarray): (L + 1,) int64 offsets of the lines in ``points``, ending with P.
+        boxes (np.ndarray): (L,) int64 index of each line's box.
+    """
+
+    points: np.ndarray
+    starts: np.ndarray
+    boxes: np.ndarray
+
+    def lines(self) -> list[np.ndarray]:
+        """Each line's (M, 2) points, as views of ``points``.
+
+        Returns:
+            list[np.ndarray]: the L lines in order.
+        """
+        return np.split(self.points, self.starts[1:-1]) if len(self.boxes) else []
+
+
+def project_edges(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> dict[str, Polylines]:
+    """Every box's edges as pixel polylines in every camera, following the lens's curvature, packed.
+
+    Each edge is sampled at ``samples_per_edge`` points in 3D and all samples go through each camera's model in
+    one call; a polyline is cut where its points leave the camera's valid area (outside the fov or the image),
+    and a piece of a single point is dropped (unless it is the whole edge).
+
+    Args:
+        boxes (np.ndarray): (K, 7) boxes ``x, y, z_bottom, l, w, h, yaw`` in the lidar frame.
+        rig (Rig): the cameras, their models and extrinsics.
+        samples_per_edge (int): points sampled along each edge, its two corners included.
+
+    Returns:
+        dict[str, Polylines]: per camera name, the visible pieces of the edges.
     """
     pts3d = corners(boxes)
+    edges = len(BOX_EDGES)
     t = np.linspace(0.0, 1.0, samples_per_edge)
     a = pts3d[:, [e[0] for e in BOX_EDGES]]  # K x 12 x 3
     b = pts3d[:, [e[1] for e in BOX_EDGES]]
     samples = a[:, :, None] + (b - a)[:, :, None] * t[None, None, :, None]  # K x 12 x S x 3
     flat = samples.reshape(-1, 3)
-    result: dict[str, list[list[np.ndarray]]] = {}
+    result: dict[str, Polylines] = {}
     for cam, lidar2cam in zip(rig.cameras, rig.lidar2cam()):
-        cam_pts = flat @ lidar2cam[:3, :3].T + lidar2cam[:3, 3]
-        uv, valid = cam.model.project(cam_pts)
-        uv = uv.reshape(len(samples), len(BOX_EDGES), samples_per_edge, 2)
-        valid = valid.reshape(len(samples), len(BOX_EDGES), samples_per_edge)
-        whole: np.ndarray = np.all(valid, axis=2)  # (K, 12): most edges are all in view or none
-        seen: np.ndarray = np.any(valid, axis=2)
-        per_box = []
-        for k in range(len(samples)):
-            lines: list[np.ndarray] = []
-            for e in np.flatnonzero(seen[k]):
-                if whole[k, e]:
-                    lines.append(uv[k, e])
-                    continue
-                runs = np.split(
-                    np.arange(samples_per_edge), np.flatnonzero(np.diff(valid[k, e].astype(np.int8)) != 0) + 1
-                )
-                lines.extend(uv[k, e, run] for run in runs if len(run) > 1 and valid[k, e, run[0]])
-            per_box.append(lines)
-        result[cam.name] = per_box
+        uv, valid = cam.model.project(flat @ lidar2cam[:3, :3].T + lidar2cam[:3, 3])
+        padded = np.zeros((len(pts3d) * edges, samples_per_edge + 2), np.int8)  # each edge's flags, False either side
+        padded[:, 1:-1] = valid.reshape(-1, samples_per_edge)
+        step = np.diff(padded, axis=1)
+        edge, first = np.nonzero(step == 1)  # where each run of valid points starts, edge by edge
+        last = np.nonzero(step == -1)[1]  # and ends (exclusive); runs do not interleave, so they pair up in order
+        length = last - first
+        keep = (length > 1) | (length == samples_per_edge)
+        edge, first, length = edge[keep], first[keep], length[keep]
+        starts = np.zeros(len(length) + 1, np.int64)
+        np.cumsum(length, out=starts[1:])
+        index = np.arange(starts[-1]) + np.repeat(edge * samples_per_edge + first - starts[:-1], length)
+        result[cam.name] = Polylines(uv[index], starts, (edge // edges).astype(np.int64))
+    return result
+
+
+def project_boxes(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> dict[str, list[list[np.ndarray]]]:
+    """Each box's edges as pixel polylines in every camera, following the lens's curvature (``project_edges``).
+
+    Args:
+        boxes (np.ndarray): (K, 7) boxes ``x, y, z_bottom, l, w, h, yaw`` in the lidar frame.
+        rig (Rig): the cameras, their models and extrinsics.
+        samples_per_edge (int): points sampled along each edge, its two corners included.
+
+    Returns:
+        dict[str, list[list[np.ndarray]]]: per camera name, one list per box of (M, 2) float arrays.
+    """
+    result: dict[str, list[list[np.ndarray]]] = {}
+    for name, packed in project_edges(boxes, rig, samples_per_edge).items():
+        per_box: list[list[np.ndarray]] = [[] for _ in range(len(boxes))]
+        for k, line in zip(packed.boxes.tolist(), packed.lines(), strict=True):
+            per_box[k].append(line)
+        result[name] = per_box
     return result
