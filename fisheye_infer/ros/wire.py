@@ -1,0 +1,141 @@
+"""Protobuf's wire format written from numpy arrays, for messages with thousands of small repeated entries.
+
+    points = point2_entries(3, uv)                      # (P, 20) uint8: each pixel as a Point2 in field 3
+    data = length_delimited(2, heads, head_of, points, starts)   # repeated field 2 of messages, encoded
+
+A ``foxglove.ImageAnnotations`` of a hundred boxes holds some 40,000 ``Point2`` entries; building each as a
+protobuf object costs a Python call per point. Here each entry is a fixed 20-byte record (field key, length,
+``x`` and ``y`` as doubles) written by numpy, and each message of a repeated field is the encoding of its
+other fields (``heads``, serialised once by protobuf itself) followed by its entries. Protobuf reads a
+message's fields in any order and appends the entries of a repeated field wherever they occur, so the bytes
+parse to the same message as one built field by field.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["key", "length_delimited", "point2_entries", "varint"]
+
+#: A ``Point2`` as an entry of a repeated field: key, length (18), then ``x`` (field 1) and ``y`` (field 2),
+#: each a key and a little-endian double.
+_POINT2 = np.dtype([("key", "u1"), ("size", "u1"), ("x_key", "u1"), ("x", "<f8"), ("y_key", "u1"), ("y", "<f8")])
+_LENGTH_DELIMITED = 2
+_FIXED64 = 1
+
+
+def key(field: int, wire_type: int = _LENGTH_DELIMITED) -> bytes:
+    """A field's key (its number and wire type) as protobuf encodes it.
+
+    Args:
+        field (int): the field number, 1 or more.
+        wire_type (int): protobuf's wire type (2: length-delimited).
+
+    Returns:
+        bytes: the key's varint.
+    """
+    return varint(field << 3 | wire_type)
+
+
+def varint(value: int) -> bytes:
+    """A non-negative integer as a protobuf varint.
+
+    Args:
+        value (int): 0 or more.
+
+    Returns:
+        bytes: seven bits a byte, least significant first, the high bit set on all but the last.
+    """
+    out = bytearray()
+    while value > 0x7F:
+        out.append(value & 0x7F | 0x80)
+        value >>= 7
+    out.append(value)
+    return bytes(out)
+
+
+def _varints(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Non-negative integers as varints: an (N, W) uint8 array of their bytes (W the longest) and their lengths."""
+    values = np.asarray(values, np.int64)
+    widths = np.ones(len(values), np.int64)
+    width = 1
+    while (values >> 7 * width).any():
+        widths += (values >> 7 * width) > 0
+        width += 1
+    out = np.empty((len(values), width), np.uint8)
+    for j in range(width):
+        out[:, j] = (values >> 7 * j) & 0x7F | np.where(widths > j + 1, 0x80, 0)
+    return out, widths
+
+
+def point2_entries(field: int, points: np.ndarray) -> np.ndarray:
+    """Pixels as ``foxglove.Point2`` entries of a message's repeated field ``field``.
+
+    Args:
+        field (int): the repeated field's number, 1 to 15 (a one-byte key).
+        points (np.ndarray): (P, 2) x, y.
+
+    Returns:
+        np.ndarray: (P, 20) uint8, one encoded entry a row.
+
+    Raises:
+        ValueError: a field number outside 1 to 15.
+    """
+    if not 1 <= field <= 15:
+        raise ValueError(f"field {field}: expected 1 to 15")
+    entries = np.empty(len(points), _POINT2)
+    entries["key"] = field << 3 | _LENGTH_DELIMITED
+    entries["size"] = _POINT2.itemsize - 2
+    entries["x_key"] = 1 << 3 | _FIXED64
+    entries["y_key"] = 2 << 3 | _FIXED64
+    entries["x"] = points[:, 0]
+    entries["y"] = points[:, 1]
+    return entries.view(np.uint8).reshape(len(points), _POINT2.itemsize)
+
+
+def length_delimited(
+    field: int, heads: Sequence[bytes], head_of: np.ndarray, entries: np.ndarray, starts: np.ndarray
+) -> bytes:
+    """Messages as the entries of a repeated field ``field``: message ``i`` is ``heads[head_of[i]]`` followed by
+    rows ``starts[i]:starts[i + 1]`` of ``entries``.
+
+    Args:
+        field (int): the repeated field's number.
+        heads (Sequence[bytes]): encoded fields the messages share (each a protobuf ``SerializeToString()``).
+        head_of (np.ndarray): (L,) int, the head of each message.
+        entries (np.ndarray): (E, R) uint8, encoded rows of R bytes each (``point2_entries``, or R = 1 for bytes).
+        starts (np.ndarray): (L + 1,) int, each message's first row in ``entries``, ending with E.
+
+    Returns:
+        bytes: the L messages, each its field key, length and body.
+    """
+    if len(head_of) == 0:
+        return b""
+    tag = np.frombuffer(key(field), np.uint8)
+    counts = np.diff(starts)
+    head_sizes = np.array([len(h) for h in heads], np.int64)
+    lengths, widths = _varints(head_sizes[head_of] + counts * entries.shape[1])
+    # each message's prefix (key, length, head) as a row of a table, then all of them in order
+    prefix_sizes = len(tag) + widths + head_sizes[head_of]
+    table = np.zeros((len(head_of), len(tag) + lengths.shape[1] + int(head_sizes.max())), np.uint8)
+    table[:, : len(tag)] = tag
+    table[:, len(tag) : len(tag) + lengths.shape[1]] = lengths
+    padded_heads = np.zeros((len(heads), int(head_sizes.max())), np.uint8)
+    for h, head in enumerate(heads):
+        padded_heads[h, : len(head)] = np.frombuffer(head, np.uint8)
+    for width in np.unique(widths).tolist():
+        rows = np.flatnonzero(widths == width)
+        table[rows, len(tag) + width : len(tag) + width + padded_heads.shape[1]] = padded_heads[head_of[rows]]
+    prefixes = table[np.arange(table.shape[1]) < prefix_sizes[:, None]]
+    # the prefixes go in before each message's entries, which follow one another as they do in ``entries``
+    before = np.zeros(len(head_of), np.int64)
+    np.cumsum(prefix_sizes[:-1], out=before[1:])
+    at = starts[:-1] * entries.shape[1] + before  # where each prefix begins in the output
+    is_prefix = np.zeros(len(prefixes) + entries.size, bool)
+    is_prefix[np.arange(len(prefixes)) + np.repeat(at - before, prefix_sizes)] = True
+    out = np.empty(len(is_prefix), np.uint8)
+    out[is_prefix] = prefixes
+    out[~is_prefix] = entries.reshape(-1)
+    return out.tobytes()
