@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from rosbags.highlevel import AnyReader
 
 from fisheye_infer.errors import BagError, OptionError
@@ -176,19 +177,27 @@ def replay(
             pending_sets: list[SyncedSet] = []
             counted: Counter[str] = Counter()
 
+            def decode(item: tuple[str, Any, Any]) -> np.ndarray | ImageRefused:
+                cam, connection, msg = item
+                try:
+                    return image_from_message(msg, connection.topic, size_of[cam])
+                except ImageRefused as exc:
+                    return exc
+
             def run(sets: list[SyncedSet]) -> None:
+                items = [(cam, *item) for synced in sets for cam, item in zip(cameras, synced.items, strict=True)]
+                decoded = iter(detector.map_images(decode, items))  # on the decode threads, in order
                 frames, kept = [], []
                 for synced in sets:
-                    frame = {}
-                    for cam, (connection, msg) in zip(cameras, synced.items, strict=True):
-                        try:
-                            frame[cam] = image_from_message(msg, connection.topic, size_of[cam])
-                        except ImageRefused as exc:
-                            report.note(report.unread, exc.reason, f"{_where(connection, msg)}: {exc}")
-                            break
-                    else:
-                        frames.append(frame)
-                        kept.append(synced)
+                    images = dict(zip(cameras, decoded))
+                    refused = [(i, got) for i, got in enumerate(images.values()) if isinstance(got, ImageRefused)]
+                    if refused:  # the first camera's reason, as a frame counts once
+                        i, exc = refused[0]
+                        connection, msg = synced.items[i]
+                        report.note(report.unread, exc.reason, f"{_where(connection, msg)}: {exc}")
+                        continue
+                    frames.append(images)
+                    kept.append(synced)
                 if not frames:
                     return
                 for synced, detections in zip(kept, detector.detect_batch(frames), strict=True):
