@@ -8,6 +8,9 @@
    batches of 4, write detections, markers, the Foxglove scene and per-camera overlays) timed end to end,
    in turns: every box the model outputs, the same with ``--images``, and ``--score-threshold 0.3`` with
    ``--images`` (fewer boxes to draw): frames per second;
+   and in the same turns the model's own frame rate: ``Detector.detect_batch`` on the bag's frames, decoded
+   beforehand, in the batches replay runs (4 frames) with the same threads, timed alone after a warm-up batch.
+   Each setting's ``replay/model`` is its median rate over the model's median rate, from the same run;
 3. ``docs/assets/replay-overlay.png``: a frame's front camera image with the overlay read back from the
    MCAP file of the third setting (``/<camera>/detections``, drawn as written), beside
    ``fisheye-infer detect --viz``'s picture of the same frame and boxes.
@@ -16,7 +19,9 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import harness
@@ -24,6 +29,10 @@ import numpy as np
 from model_files import ARTIFACTS, MODEL_HELP, model_path
 
 FRAMES_HZ = 10
+#: Frames per model run, as ``fisheye-infer replay`` runs them by default.
+BATCH = 4
+#: The row of the model's own frame rate.
+MODEL = "model alone (Detector.detect_batch)"
 #: The score threshold of the third setting and of the picture.
 SHOWN = 0.3
 OVERLAY = Path(__file__).resolve().parents[1] / "docs" / "assets" / "replay-overlay.png"
@@ -90,8 +99,28 @@ def overlay_picture(model: Path, out_mcap: Path, camera: str, index: int = 0) ->
     return np.hstack([left, viz])
 
 
+def decoded_batches(bag: Path, topics: dict[str, str], detector: Any, batch: int) -> list[list[dict[str, np.ndarray]]]:
+    """The bag's frames (each camera's n-th message) decoded as replay decodes them, in batches of ``batch``."""
+    from rosbags.highlevel import AnyReader
+
+    from fisheye_infer.ros.messages import image_from_message, typestore
+
+    size_of = dict(zip(detector.info.cameras, detector.info.camera_sizes))
+    images: dict[str, list[np.ndarray]] = {camera: [] for camera in topics}
+    camera_of = {topic: camera for camera, topic in topics.items()}
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        wanted = [c for c in reader.connections if c.topic in camera_of]
+        for connection, _, raw in reader.messages(connections=wanted):
+            camera = camera_of[connection.topic]
+            msg = reader.deserialize(raw, connection.msgtype)
+            images[camera].append(image_from_message(msg, connection.topic, size_of[camera]))
+    frames = [dict(zip(images, row)) for row in zip(*images.values())]
+    return [frames[i : i + batch] for i in range(0, len(frames), batch)]
+
+
 def main(argv: list[str] | None = None) -> int:
     from fisheye_infer.ros.replay import replay
+    from fisheye_infer.runtime.detector import Detector
     from fisheye_infer.tools.viz import save_png
 
     bench = harness.Benchmark(__file__, __doc__, quick="20 frames, 2 rounds")
@@ -115,25 +144,45 @@ def main(argv: list[str] | None = None) -> int:
 
         topics = {camera: f"/{camera}/image/compressed" for camera in read_meta(model).rig.names}
 
+    detector = Detector(model, threads=args.threads)
+    batches = decoded_batches(bag, topics, detector, BATCH)
+
+    def model_rate() -> float:
+        detector.detect_batch(batches[0])
+        started = time.perf_counter()
+        for frames in batches:
+            detector.detect_batch(frames)
+        return sum(map(len, batches)) / (time.perf_counter() - started)
+
     def run(images: bool, threshold: float | None = None) -> float:
         out = work / f"out-{images}-{threshold}.mcap"
-        report = replay(model, [bag], topics, out, images=images, score_threshold=threshold, threads=args.threads)
+        report = replay(
+            model, [bag], topics, out, images=images, score_threshold=threshold, batch=BATCH, threads=args.threads
+        )
         if report.frames != args.frames or not report.complete:
             raise SystemExit(f"replay: {report.summary()}")
         return report.frames / report.seconds
 
     settings = {
+        MODEL: model_rate,
         "every box": lambda: run(False),
         "every box, with --images": lambda: run(True),
         "--score-threshold 0.3, with --images": lambda: run(True, SHOWN),
     }
     rates = harness.in_turns(settings, args.rounds, flip=True)
+    alone = float(np.median(rates[MODEL]))
     rows = [
-        {"output": name, "frames": args.frames, "frames/s median": float(np.median(r)), "frames/s min": min(r)}
+        {
+            "output": name,
+            "frames": args.frames,
+            "frames/s median": float(np.median(r)),
+            "frames/s min": min(r),
+            "replay/model": float(np.median(r)) / alone,
+        }
         for name, r in rates.items()
     ]
     save_png(OVERLAY, overlay_picture(model, work / f"out-True-{SHOWN}.mcap", next(iter(topics))))
-    bench.save(args, {f"Replay of {args.frames} frames, {args.threads} threads, batches of 4": rows})
+    bench.save(args, {f"Replay of {args.frames} frames, {args.threads} threads, batches of {BATCH}": rows})
     print(f"wrote {OVERLAY}")
     return 0
 
