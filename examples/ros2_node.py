@@ -20,16 +20,8 @@ from sensor_msgs.msg import CompressedImage, Image
 from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
-from fisheye_infer.ros.messages import (
-    DETECTION_ARRAY,
-    MARKER_ARRAY,
-    ImageRefused,
-    detection_array,
-    image_from_message,
-    marker_array,
-    stamp_ns,
-    typestore,
-)
+from fisheye_infer.ros.cdr import detection_array_cdr, marker_array_cdr
+from fisheye_infer.ros.messages import ImageRefused, image_from_message, stamp_ns, typestore
 from fisheye_infer.ros.sync import Synchroniser
 from fisheye_infer.runtime.detector import Detector
 
@@ -63,12 +55,10 @@ class DetectorNode(Node):
                 self.get_logger().warning(f"frame at {synced.stamp} ns dropped ({exc.reason}): {exc}")
                 continue
             detections = self.detector.detect(frame)
-            array = detection_array(detections, synced.stamp, self.frame_id)
-            markers = marker_array(detections, synced.stamp, self.frame_id)
-            self.detections.publish(
-                deserialize_message(self.store.serialize_cdr(array, DETECTION_ARRAY), Detection3DArray)
-            )
-            self.markers.publish(deserialize_message(self.store.serialize_cdr(markers, MARKER_ARRAY), MarkerArray))
+            array = detection_array_cdr(detections, synced.stamp, self.frame_id)
+            markers = marker_array_cdr(detections, synced.stamp, self.frame_id)
+            self.detections.publish(deserialize_message(array, Detection3DArray))
+            self.markers.publish(deserialize_message(markers, MarkerArray))
 
 
 def main(argv: list[str]) -> None:

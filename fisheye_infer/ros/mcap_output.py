@@ -20,8 +20,9 @@ from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.tracking import Tracks
 
 from .autoware import TRACKED_OBJECTS, tracked_objects
+from .cdr import detection_array_cdr, marker_array_cdr
 from .foxglove import image_annotations, scene_update, track_scene
-from .messages import DETECTION_ARRAY, MARKER_ARRAY, detection_array, marker_array, ros2_image, stamp_ns, typestore
+from .messages import DETECTION_ARRAY, MARKER_ARRAY, ros2_image, stamp_ns, typestore
 from .sync import SyncedSet
 
 __all__ = ["DETECTIONS_TOPIC", "TRACKS_TOPIC", "McapOutput"]
@@ -81,13 +82,8 @@ class McapOutput:
         scene: Any = None,
     ) -> None:
         stamp = synced.stamp
-        self._write(
-            DETECTIONS_TOPIC,
-            self.store.serialize_cdr(detection_array(detections, stamp, frame_id, ids), DETECTION_ARRAY),
-            stamp,
-        )
-        markers = self.store.serialize_cdr(marker_array(detections, stamp, frame_id), MARKER_ARRAY)
-        self._write(DETECTIONS_TOPIC + "/markers", markers, stamp)
+        self._write(DETECTIONS_TOPIC, detection_array_cdr(detections, stamp, frame_id, ids), stamp)
+        self._write(DETECTIONS_TOPIC + "/markers", marker_array_cdr(detections, stamp, frame_id), stamp)
         if self.foxglove:
             scene = scene if scene is not None else scene_update(detections, stamp, frame_id)
             self._write(DETECTIONS_TOPIC + "/scene", scene.SerializeToString(), stamp)

@@ -1,21 +1,17 @@
-"""ROS 2 messages in and out, with ``rosbags`` (pure Python, CDR): camera images to frames, detections to
-``vision_msgs/Detection3DArray`` and ``visualization_msgs/MarkerArray``.
+"""ROS 2 messages in, with ``rosbags`` (pure Python, CDR): camera images to frames; the types the messages out
+are (``vision_msgs/Detection3DArray`` and ``visualization_msgs/MarkerArray``, encoded by ``cdr``).
 
     store = typestore()                                  # ROS 2 Humble's types plus vision_msgs
     image = image_from_message(msg)                      # sensor_msgs/Image or CompressedImage -> BGR uint8
-    array = detection_array(detections, stamp, "lidar")  # vision_msgs/msg/Detection3DArray
 
 Images: ``sensor_msgs/Image`` in ``bgr8``, ``rgb8`` or ``mono8``; ``sensor_msgs/CompressedImage`` in JPEG or
 PNG (``compressed_image_transport``'s formats), decoded through the service's checked decoder
 (``runtime.codec``: the size read from the header before decoding, the JPEG scan limit, strict decoding);
-anything else is refused by name, with a short reason to count it by (``ImageRefused.reason``). Boxes go out at their
-gravity centre with their yaw as a quaternion about z, in the frame the caller names (the rig's lidar
-frame); the class name is the hypothesis id, as ``vision_msgs`` asks.
+anything else is refused by name, with a short reason to count it by (``ImageRefused.reason``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from functools import lru_cache
 from typing import Any
 
@@ -26,20 +22,14 @@ from rosbags.typesys.store import Typestore
 
 from fisheye_infer.errors import FrameError
 from fisheye_infer.ros.autoware import AUTOWARE_MSGS
-from fisheye_infer.runtime.box_geometry import centres
 from fisheye_infer.runtime.codec import JPEG_SIGNATURE, PNG_SIGNATURE, decode_image, encoded_image_size
-from fisheye_infer.runtime.detections import Detections
-from fisheye_infer.runtime.records import yaw_to_quaternion
-from fisheye_infer.tools.viz import class_colour
 
 __all__ = [
     "DETECTION_ARRAY",
     "IMAGE_TYPES",
     "ImageRefused",
     "MARKER_ARRAY",
-    "detection_array",
     "image_from_message",
-    "marker_array",
     "ros2_image",
     "stamp_ns",
     "typestore",
@@ -215,90 +205,3 @@ def _header(stamp: int, frame_id: str) -> Any:
     store = typestore().types
     time = store["builtin_interfaces/msg/Time"](sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
     return store["std_msgs/msg/Header"](stamp=time, frame_id=frame_id)
-
-
-def _poses(detections: Detections) -> list[Any]:
-    """Each box's gravity centre and yaw as a ``geometry_msgs/Pose``."""
-    store = typestore().types
-    point, quaternion, pose = (store[f"geometry_msgs/msg/{n}"] for n in ("Point", "Quaternion", "Pose"))
-    q = yaw_to_quaternion(detections.boxes[:, 6].astype(np.float64))  # (w, x, y, z)
-    return [
-        pose(
-            position=point(x=float(c[0]), y=float(c[1]), z=float(c[2])),
-            orientation=quaternion(x=r[1], y=r[2], z=r[3], w=r[0]),
-        )
-        for c, r in zip(centres(detections.boxes), q.tolist(), strict=True)
-    ]
-
-
-def detection_array(detections: Detections, stamp: int, frame_id: str, ids: Sequence[int] | None = None) -> Any:
-    """``vision_msgs/msg/Detection3DArray``: one ``Detection3D`` per box, the class name as hypothesis id; each
-    detection's ``id`` its index, or its track's id from ``ids``."""
-    store = typestore().types
-    vector, covariance = store["geometry_msgs/msg/Vector3"], store["geometry_msgs/msg/PoseWithCovariance"]
-    hypothesis, with_pose = store["vision_msgs/msg/ObjectHypothesis"], store["vision_msgs/msg/ObjectHypothesisWithPose"]
-    box, detection = store["vision_msgs/msg/BoundingBox3D"], store["vision_msgs/msg/Detection3D"]
-    header = _header(stamp, frame_id)
-    items = []
-    for i, (pose, name, score, b) in enumerate(
-        zip(_poses(detections), detections.names, detections.scores.tolist(), detections.boxes, strict=True)
-    ):
-        result = with_pose(
-            hypothesis=hypothesis(class_id=name, score=float(score)),
-            pose=covariance(pose=pose, covariance=np.zeros(36, np.float64)),
-        )
-        size = vector(x=float(b[3]), y=float(b[4]), z=float(b[5]))
-        ident = str(i if ids is None else ids[i])
-        items.append(detection(header=header, results=[result], bbox=box(center=pose, size=size), id=ident))
-    return store[DETECTION_ARRAY](header=header, detections=items)
-
-
-def marker_array(detections: Detections, stamp: int, frame_id: str) -> Any:
-    """``visualization_msgs/msg/MarkerArray``: a DELETEALL marker, then one CUBE per box (namespace: its class)."""
-    store = typestore().types
-    marker_type: Any = store["visualization_msgs/msg/Marker"]  # its constants (CUBE, ADD, ...) are class attributes
-    colour = store["std_msgs/msg/ColorRGBA"]
-    vector, duration = store["geometry_msgs/msg/Vector3"], store["builtin_interfaces/msg/Duration"]
-    header = _header(stamp, frame_id)
-    origin = store["geometry_msgs/msg/Pose"](
-        position=store["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
-        orientation=store["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-    )
-
-    def marker(**fields: Any) -> Any:
-        defaults = {
-            "header": header,
-            "ns": "",
-            "id": 0,
-            "type": marker_type.CUBE,
-            "action": marker_type.ADD,
-            "pose": origin,
-            "scale": vector(x=0.0, y=0.0, z=0.0),
-            "color": colour(r=0.0, g=0.0, b=0.0, a=0.0),
-            "lifetime": duration(sec=0, nanosec=0),
-            "frame_locked": False,
-            "points": [],
-            "colors": [],
-            "texture_resource": "",
-            "texture": store["sensor_msgs/msg/CompressedImage"](header=header, format="", data=np.zeros(0, np.uint8)),
-            "uv_coordinates": [],
-            "text": "",
-            "mesh_resource": "",
-            "mesh_file": store["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
-            "mesh_use_embedded_materials": False,
-        }
-        return marker_type(**{**defaults, **fields})
-
-    markers = [marker(action=marker_type.DELETEALL)]
-    for i, (pose, name, b) in enumerate(zip(_poses(detections), detections.names, detections.boxes, strict=True)):
-        bl, g, r = (v / 255 for v in class_colour(name))
-        markers.append(
-            marker(
-                ns=name,
-                id=i,
-                pose=pose,
-                scale=vector(x=float(b[3]), y=float(b[4]), z=float(b[5])),
-                color=colour(r=r, g=g, b=bl, a=0.5),
-            )
-        )
-    return store[MARKER_ARRAY](markers=markers)

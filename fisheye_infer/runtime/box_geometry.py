@@ -12,7 +12,17 @@ import numpy as np
 
 from fisheye_infer.cameras.rig import Rig
 
-__all__ = ["BOX_EDGES", "check_boxes", "corners", "bev_corners", "centres", "box_diff", "Polylines", "project_edges", "project_boxes"]
+__all__ = [
+    "BOX_EDGES",
+    "check_boxes",
+    "corners",
+    "bev_corners",
+    "centres",
+    "box_diff",
+    "Polylines",
+    "project_edges",
+    "project_boxes",
+]
 
 #: Corner index pairs of the 12 box edges; corners 0-3 are the bottom face, 4-7 the top,
 #: 0 = front-left, 1 = front-right, 2 = rear-right, 3 = rear-left (in the box's own frame).
