@@ -1,7 +1,7 @@
 """Foxglove messages (the official protobuf schemas): the boxes in 3D, and drawn on each camera's image
 through that camera's own model.
 
-    scene = scene_update(detections, stamp, "lidar")          # foxglove.SceneUpdate: one cube per box
+    scene = scene_update(detections, stamp, "lidar")          # encoded foxglove.SceneUpdate: one cube per box
     scene = track_scene(tracks, paths, stamp, "lidar")        # one entity per track: box, velocity, path
     overlays = image_annotations(detections, rig, stamp)      # {camera: encoded foxglove.ImageAnnotations}
 
@@ -37,7 +37,7 @@ from fisheye_infer.runtime.records import yaw_to_quaternion
 from fisheye_infer.tools.viz import class_colour
 from fisheye_infer.tracking.tracks import Tracks
 
-from .wire import key, length_delimited, point2_entries, varint
+from .wire import COLOR, POINT2, QUATERNION, VECTOR3, entries, key, length_delimited, varint
 
 __all__ = ["image_annotations", "scene_update", "track_scene"]
 
@@ -46,6 +46,9 @@ __all__ = ["image_annotations", "scene_update", "track_scene"]
 _ANNOTATIONS_POINTS, _ANNOTATIONS_TEXTS = 2, 3
 _POINTS_POINTS = 3
 _TEXT_POSITION, _TEXT_TEXT = 2, 3
+_UPDATE_ENTITIES, _ENTITY_CUBES = 2, 8
+#: ``CubePrimitive``: pose (position, orientation), size, color.
+_CUBE = ((1, ((1, VECTOR3), (2, QUATERNION))), (2, VECTOR3), (3, COLOR))
 
 
 def _timestamp(stamp: int) -> Timestamp:
@@ -57,22 +60,27 @@ def _colour(name: str, alpha: float) -> Color:
     return Color(r=r, g=g, b=b, a=alpha)
 
 
-def scene_update(detections: Detections, stamp: int, frame_id: str) -> SceneUpdate:
-    """One ``SceneEntity`` holding a cube per box (gravity centre, yaw, l x w x h), coloured by class."""
-    q = yaw_to_quaternion(detections.boxes[:, 6].astype(np.float64))
-    cubes = [
-        CubePrimitive(
-            pose=Pose(
-                position=Vector3(x=float(c[0]), y=float(c[1]), z=float(c[2])),
-                orientation=Quaternion(w=r[0], x=r[1], y=r[2], z=r[3]),
-            ),
-            size=Vector3(x=float(b[3]), y=float(b[4]), z=float(b[5])),
-            color=_colour(name, 0.5),
-        )
-        for c, r, b, name in zip(centres(detections.boxes), q.tolist(), detections.boxes, detections.names, strict=True)
-    ]
-    entity = SceneEntity(timestamp=_timestamp(stamp), frame_id=frame_id, id="detections", cubes=cubes)
-    return SceneUpdate(entities=[entity])
+def scene_update(detections: Detections, stamp: int, frame_id: str) -> bytes:
+    """An encoded ``foxglove.SceneUpdate``: one ``SceneEntity`` holding a cube per box (gravity centre, yaw,
+    l x w x h), coloured by class at half opacity; the cubes are written from arrays (``wire.entries``).
+
+    Args:
+        detections (Detections): the boxes.
+        stamp (int): the frame's stamp in nanoseconds.
+        frame_id (str): the frame the boxes are in.
+
+    Returns:
+        bytes: the serialised ``SceneUpdate``.
+    """
+    q = yaw_to_quaternion(detections.boxes[:, 6].astype(np.float64))  # (w, x, y, z)
+    colours = {name: _colour(name, 0.5) for name in set(detections.names)}
+    rgba = np.array([[c.r, c.g, c.b, c.a] for c in (colours[name] for name in detections.names)], np.float64)
+    values = np.concatenate(
+        [centres(detections.boxes), q[:, 1:], q[:, :1], detections.boxes[:, 3:6], rgba.reshape(-1, 4)], axis=1
+    )
+    cubes = entries(_ENTITY_CUBES, _CUBE, values)
+    entity = SceneEntity(timestamp=_timestamp(stamp), frame_id=frame_id, id="detections").SerializeToString()
+    return length_delimited(_UPDATE_ENTITIES, [entity], np.zeros(1, np.int64), cubes, np.array([0, len(cubes)]))
 
 
 def track_scene(
@@ -171,7 +179,7 @@ def image_annotations(detections: Detections, rig: Rig, stamp: int) -> dict[str,
     ]
     out = {}
     for camera, lines in project_edges(detections.boxes, rig).items():
-        points = point2_entries(_POINTS_POINTS, lines.points)
+        points = entries(_POINTS_POINTS, POINT2, lines.points)
         drawn = length_delimited(_ANNOTATIONS_POINTS, line_heads, kind_of[lines.boxes], points, lines.starts)
         out[camera] = drawn + _texts(lines, labels, kind_of, text_heads)
     return out
@@ -184,7 +192,7 @@ def _texts(lines: Polylines, labels: Sequence[bytes], kind_of: np.ndarray, heads
     first = np.flatnonzero(np.r_[True, lines.boxes[1:] != lines.boxes[:-1]])  # each box's first line
     boxes = lines.boxes[first]
     corner = np.minimum.reduceat(lines.points, lines.starts[first], axis=0)
-    positions = point2_entries(_TEXT_POSITION, corner)
+    positions = entries(_TEXT_POSITION, POINT2, corner)
     bodies = [
         positions[i].tobytes() + key(_TEXT_TEXT) + varint(len(labels[k])) + labels[k]
         for i, k in enumerate(boxes.tolist())

@@ -76,17 +76,27 @@ class McapOutput:
     def write_frame(
         self,
         synced: SyncedSet,
-        detections: Any,
+        detections: Detections,
         frame_id: str,
         ids: list[int] | None = None,
-        scene: Any = None,
+        scene: bytes | None = None,
     ) -> None:
+        """A frame's boxes: the detection array, markers, the Foxglove scene (``scene``, encoded, or one cube per
+        box) and overlays, and the frame's images when they are written.
+
+        Args:
+            synced (SyncedSet): the frame's camera messages and stamp.
+            detections (Detections): the boxes to write.
+            frame_id (str): the frame the boxes are in.
+            ids (list[int] | None): each detection's id, a track's; by default its index.
+            scene (bytes | None): the encoded ``SceneUpdate`` to write instead of the boxes' cubes.
+        """
         stamp = synced.stamp
         self._write(DETECTIONS_TOPIC, detection_array_cdr(detections, stamp, frame_id, ids), stamp)
         self._write(DETECTIONS_TOPIC + "/markers", marker_array_cdr(detections, stamp, frame_id), stamp)
         if self.foxglove:
             scene = scene if scene is not None else scene_update(detections, stamp, frame_id)
-            self._write(DETECTIONS_TOPIC + "/scene", scene.SerializeToString(), stamp)
+            self._write(DETECTIONS_TOPIC + "/scene", scene, stamp)
             for camera, overlay in image_annotations(detections, self.rig, stamp).items():
                 self._write(f"/{camera}/detections", overlay, stamp)
         for connection, msg in synced.items:
@@ -103,7 +113,7 @@ class McapOutput:
         if len(self.paths) > MAX_PATHS:  # bounded: the paths of tracks not seen at this frame go
             self.paths = {i: self.paths[i] for i in tracks.ids.tolist()}
         boxes = Detections(tracks.boxes, tracks.scores, tracks.labels, tracks.class_names)
-        scene = track_scene(tracks, self.paths, synced.stamp, frame_id) if self.foxglove else None
+        scene = track_scene(tracks, self.paths, synced.stamp, frame_id).SerializeToString() if self.foxglove else None
         self.write_frame(synced, boxes, frame_id, ids=tracks.ids.tolist(), scene=scene)
         message = tracked_objects(tracks, synced.stamp, frame_id, self.store)
         self._write(TRACKS_TOPIC, self.store.serialize_cdr(message, TRACKED_OBJECTS), synced.stamp)

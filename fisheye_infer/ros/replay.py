@@ -143,7 +143,7 @@ def replay(
     if track:
         score = TrackerConfig().score_threshold if score_threshold is None else score_threshold
         tracker = Tracker(TrackerConfig(score_threshold=score, low_score=score / 3))
-    detector = Detector(model, threads=threads)
+    detector = Detector(model, threads=threads, warmup=False)  # the first batch warms it up
     cameras = list(detector.info.cameras)
     missing = [c for c in cameras if c not in topics]
     extra = [c for c in topics if c not in cameras]

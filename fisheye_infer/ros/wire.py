@@ -1,12 +1,13 @@
 """Protobuf's wire format written from numpy arrays, for messages with thousands of small repeated entries.
 
-    points = point2_entries(3, uv)                      # (P, 20) uint8: each pixel as a Point2 in field 3
+    points = entries(3, POINT2, uv)                     # (P, 20) uint8: each pixel as a Point2 in field 3
     data = length_delimited(2, heads, head_of, points, starts)   # repeated field 2 of messages, encoded
 
 A ``foxglove.ImageAnnotations`` of a hundred boxes holds some 40,000 ``Point2`` entries; building each as a
-protobuf object costs a Python call per point. Here each entry is a fixed 20-byte record (field key, length,
-``x`` and ``y`` as doubles) written by numpy, and each message of a repeated field is the encoding of its
-other fields (``heads``, serialised once by protobuf itself) followed by its entries. Protobuf reads a
+protobuf object costs a Python call per point. Here each entry of doubles (a ``Point2``, a ``CubePrimitive``)
+is a fixed record (field keys and lengths around the doubles) written by numpy, and each message of a
+repeated field is the encoding of its other fields (``heads``, serialised once by protobuf itself) followed
+by its entries. Protobuf reads a
 message's fields in any order and appends the entries of a repeated field wherever they occur, so the bytes
 parse to the same message as one built field by field.
 """
@@ -17,11 +18,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["key", "length_delimited", "point2_entries", "varint"]
+__all__ = ["COLOR", "POINT2", "Layout", "QUATERNION", "VECTOR3", "entries", "key", "length_delimited", "varint"]
 
-#: A ``Point2`` as an entry of a repeated field: key, length (18), then ``x`` (field 1) and ``y`` (field 2),
-#: each a key and a little-endian double.
-_POINT2 = np.dtype([("key", "u1"), ("size", "u1"), ("x_key", "u1"), ("x", "<f8"), ("y_key", "u1"), ("y", "<f8")])
+#: A message of doubles: its fields in order, each ``(number, None)`` for a double or ``(number, layout)``.
+Layout = tuple[tuple[int, "Layout | None"], ...]
+#: Foxglove's ``Point2`` (x, y), ``Vector3`` (x, y, z), ``Quaternion`` (x, y, z, w) and ``Color`` (r, g, b, a).
+POINT2: Layout = ((1, None), (2, None))
+VECTOR3: Layout = ((1, None), (2, None), (3, None))
+QUATERNION: Layout = ((1, None), (2, None), (3, None), (4, None))
+COLOR: Layout = QUATERNION
 _LENGTH_DELIMITED = 2
 _FIXED64 = 1
 
@@ -70,29 +75,53 @@ def _varints(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return out, widths
 
 
-def point2_entries(field: int, points: np.ndarray) -> np.ndarray:
-    """Pixels as ``foxglove.Point2`` entries of a message's repeated field ``field``.
+def _template(layout: Layout) -> tuple[bytes, list[int]]:
+    """A message of ``layout`` with every double 0: its bytes, and where each double goes in them."""
+    body = bytearray()
+    offsets: list[int] = []
+    for number, inner in layout:
+        if inner is None:
+            body += key(number, _FIXED64)
+            offsets.append(len(body))
+            body += bytes(8)
+        else:
+            nested, nested_offsets = _template(inner)
+            body += key(number) + varint(len(nested))
+            offsets += [len(body) + o for o in nested_offsets]
+            body += nested
+    return bytes(body), offsets
+
+
+def entries(field: int, layout: Layout, values: np.ndarray) -> np.ndarray:
+    """Messages of doubles (and messages of doubles) as the entries of a repeated field, one a row.
 
     Args:
-        field (int): the repeated field's number, 1 to 15 (a one-byte key).
-        points (np.ndarray): (P, 2) x, y.
+        field (int): the repeated field's number.
+        layout (Layout): the message's fields in order, each ``(number, None)`` for a double or
+            ``(number, layout)`` for a message, e.g. ``((1, None), (2, None))`` for a ``Point2``.
+        values (np.ndarray): (N, D) the doubles of each message in the layout's order, depth first.
 
     Returns:
-        np.ndarray: (P, 20) uint8, one encoded entry a row.
+        np.ndarray: (N, R) uint8, each row the field's key, the message's length and the message.
 
     Raises:
-        ValueError: a field number outside 1 to 15.
+        ValueError: ``values`` without one column per double of the layout.
     """
-    if not 1 <= field <= 15:
-        raise ValueError(f"field {field}: expected 1 to 15")
-    entries = np.empty(len(points), _POINT2)
-    entries["key"] = field << 3 | _LENGTH_DELIMITED
-    entries["size"] = _POINT2.itemsize - 2
-    entries["x_key"] = 1 << 3 | _FIXED64
-    entries["y_key"] = 2 << 3 | _FIXED64
-    entries["x"] = points[:, 0]
-    entries["y"] = points[:, 1]
-    return entries.view(np.uint8).reshape(len(points), _POINT2.itemsize)
+    body, offsets = _template(layout)
+    head = key(field) + varint(len(body))
+    if values.ndim != 2 or values.shape[1] != len(offsets):
+        raise ValueError(f"values: expected (N, {len(offsets)}) for the layout's doubles, got {values.shape}")
+    size = len(head) + len(body)
+    out = np.empty((len(values), size), np.uint8)
+    out[:] = np.frombuffer(head + body, np.uint8)
+    names = [f"d{i}" for i in range(len(offsets))]
+    doubles = np.dtype(
+        {"names": names, "formats": ["<f8"] * len(names), "offsets": [len(head) + o for o in offsets], "itemsize": size}
+    )
+    records = out.reshape(-1).view(doubles)
+    for i, name in enumerate(names):
+        records[name] = values[:, i]
+    return out
 
 
 def length_delimited(
@@ -105,7 +134,7 @@ def length_delimited(
         field (int): the repeated field's number.
         heads (Sequence[bytes]): encoded fields the messages share (each a protobuf ``SerializeToString()``).
         head_of (np.ndarray): (L,) int, the head of each message.
-        entries (np.ndarray): (E, R) uint8, encoded rows of R bytes each (``point2_entries``, or R = 1 for bytes).
+        entries (np.ndarray): (E, R) uint8, encoded rows of R bytes each (``entries``, or R = 1 for bytes).
         starts (np.ndarray): (L + 1,) int, each message's first row in ``entries``, ending with E.
 
     Returns:

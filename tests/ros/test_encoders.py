@@ -11,15 +11,21 @@ pytest.importorskip("rosbags")
 pytest.importorskip("foxglove_schemas_protobuf")
 
 from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
 from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.Point2_pb2 import Point2
 from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
+from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.ros.cdr import detection_array_cdr, marker_array_cdr
-from fisheye_infer.ros.foxglove import image_annotations
+from fisheye_infer.ros.foxglove import image_annotations, scene_update
 from fisheye_infer.ros.messages import typestore
 from fisheye_infer.ros.wire import _varints, varint
 from fisheye_infer.runtime.box_geometry import BOX_EDGES, centres, corners, project_boxes, project_edges
@@ -150,6 +156,25 @@ def test_packed_edges_are_each_edge_projected_on_its_own(rig: Rig, samples: int)
         )
         assert packed[camera].boxes.tolist() == [k for k, pieces in enumerate(per_box) for _ in pieces]
         assert [len(p) for p in split[camera]] == [len(p) for p in per_box]
+
+
+@pytest.mark.parametrize("count", [0, 1, 30])
+def test_the_scene_is_the_message_built_cube_by_cube(count: int) -> None:
+    detections = _detections(count, seed=4)
+    q = yaw_to_quaternion(detections.boxes[:, 6].astype(np.float64))
+    cubes = [
+        CubePrimitive(
+            pose=Pose(position=Vector3(x=c[0], y=c[1], z=c[2]), orientation=Quaternion(w=r[0], x=r[1], y=r[2], z=r[3])),
+            size=Vector3(x=float(b[3]), y=float(b[4]), z=float(b[5])),
+            color=_colour(name, 0.5),
+        )
+        for c, r, b, name in zip(
+            centres(detections.boxes).tolist(), q.tolist(), detections.boxes, detections.names, strict=True
+        )
+    ]
+    when = Timestamp(seconds=STAMP // 10**9, nanos=STAMP % 10**9)
+    expected = SceneUpdate(entities=[SceneEntity(timestamp=when, frame_id="lidar", id="detections", cubes=cubes)])
+    assert SceneUpdate.FromString(scene_update(detections, STAMP, "lidar")) == expected
 
 
 def test_varints_are_protobufs() -> None:
