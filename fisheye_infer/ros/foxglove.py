@@ -174,30 +174,25 @@ def image_annotations(detections: Detections, rig: Rig, stamp: int) -> dict[str,
         ).SerializeToString()
         for name in kinds
     ]
-    labels = [
-        f"{name} {score:.2f}".encode() for name, score in zip(detections.names, detections.scores.tolist(), strict=True)
+    labels = [f"{name} {score:.2f}".encode() for name, score in zip(detections.names, detections.scores.tolist())]
+    label_heads = [  # each box's label with the fields of its class's labels
+        text_heads[kind] + key(_TEXT_TEXT) + varint(len(label)) + label
+        for kind, label in zip(kind_of.tolist(), labels, strict=True)
     ]
     out = {}
     for camera, lines in project_edges(detections.boxes, rig).items():
         points = entries(_POINTS_POINTS, POINT2, lines.points)
         drawn = length_delimited(_ANNOTATIONS_POINTS, line_heads, kind_of[lines.boxes], points, lines.starts)
-        out[camera] = drawn + _texts(lines, labels, kind_of, text_heads)
+        out[camera] = drawn + _texts(lines, label_heads)
     return out
 
 
-def _texts(lines: Polylines, labels: Sequence[bytes], kind_of: np.ndarray, heads: Sequence[bytes]) -> bytes:
-    """The ``texts`` of an ``ImageAnnotations``: each box with lines, its label at its lines' smallest u and v."""
+def _texts(lines: Polylines, label_heads: Sequence[bytes]) -> bytes:
+    """The ``texts`` of an ``ImageAnnotations``: each box with lines, its label (``label_heads``: each box's
+    ``TextAnnotation`` but its position) at its lines' smallest u and v."""
     if not len(lines.boxes):
         return b""
     first = np.flatnonzero(np.r_[True, lines.boxes[1:] != lines.boxes[:-1]])  # each box's first line
-    boxes = lines.boxes[first]
     corner = np.minimum.reduceat(lines.points, lines.starts[first], axis=0)
     positions = entries(_TEXT_POSITION, POINT2, corner)
-    bodies = [
-        positions[i].tobytes() + key(_TEXT_TEXT) + varint(len(labels[k])) + labels[k]
-        for i, k in enumerate(boxes.tolist())
-    ]
-    starts = np.zeros(len(bodies) + 1, np.int64)
-    np.cumsum([len(b) for b in bodies], out=starts[1:])
-    flat = np.frombuffer(b"".join(bodies), np.uint8).reshape(-1, 1)
-    return length_delimited(_ANNOTATIONS_TEXTS, heads, kind_of[boxes], flat, starts)
+    return length_delimited(_ANNOTATIONS_TEXTS, label_heads, lines.boxes[first], positions, np.arange(len(first) + 1))

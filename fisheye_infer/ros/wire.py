@@ -15,6 +15,7 @@ parse to the same message as one built field by field.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import lru_cache
 
 import numpy as np
 
@@ -107,21 +108,28 @@ def entries(field: int, layout: Layout, values: np.ndarray) -> np.ndarray:
     Raises:
         ValueError: ``values`` without one column per double of the layout.
     """
-    body, offsets = _template(layout)
-    head = key(field) + varint(len(body))
-    if values.ndim != 2 or values.shape[1] != len(offsets):
-        raise ValueError(f"values: expected (N, {len(offsets)}) for the layout's doubles, got {values.shape}")
-    size = len(head) + len(body)
-    out = np.empty((len(values), size), np.uint8)
-    out[:] = np.frombuffer(head + body, np.uint8)
-    names = [f"d{i}" for i in range(len(offsets))]
-    doubles = np.dtype(
-        {"names": names, "formats": ["<f8"] * len(names), "offsets": [len(head) + o for o in offsets], "itemsize": size}
-    )
+    template, doubles, names = _entry(field, layout)
+    if values.ndim != 2 or values.shape[1] != len(names):
+        raise ValueError(f"values: expected (N, {len(names)}) for the layout's doubles, got {values.shape}")
+    out = np.empty((len(values), len(template)), np.uint8)
+    out[:] = template
     records = out.reshape(-1).view(doubles)
     for i, name in enumerate(names):
         records[name] = values[:, i]
     return out
+
+
+@lru_cache(maxsize=64)
+def _entry(field: int, layout: Layout) -> tuple[np.ndarray, np.dtype, tuple[str, ...]]:
+    """An entry of ``layout`` in field ``field`` with every double 0, a record type of its doubles in place, and
+    their names in it."""
+    body, offsets = _template(layout)
+    head = key(field) + varint(len(body))
+    names = tuple(f"d{i}" for i in range(len(offsets)))
+    places = [len(head) + o for o in offsets]
+    size = len(head) + len(body)
+    doubles = np.dtype({"names": names, "formats": ["<f8"] * len(names), "offsets": places, "itemsize": size})
+    return np.frombuffer(head + body, np.uint8), doubles, names
 
 
 def length_delimited(
@@ -151,9 +159,10 @@ def length_delimited(
     table = np.zeros((len(head_of), len(tag) + lengths.shape[1] + int(head_sizes.max())), np.uint8)
     table[:, : len(tag)] = tag
     table[:, len(tag) : len(tag) + lengths.shape[1]] = lengths
-    padded_heads = np.zeros((len(heads), int(head_sizes.max())), np.uint8)
-    for h, head in enumerate(heads):
-        padded_heads[h, : len(head)] = np.frombuffer(head, np.uint8)
+    widest = int(head_sizes.max())
+    padded_heads = np.frombuffer(b"".join(h.ljust(widest, b"\x00") for h in heads), np.uint8).reshape(
+        len(heads), widest
+    )
     for width in np.unique(widths).tolist():
         rows = np.flatnonzero(widths == width)
         table[rows, len(tag) + width : len(tag) + width + padded_heads.shape[1]] = padded_heads[head_of[rows]]
