@@ -4,8 +4,9 @@
                     "detections.mcap")
 
 Reads rosbag2 (MCAP or sqlite3) and ROS 1 bags (``rosbags.highlevel.AnyReader``), synchronises the
-cameras' messages by header stamp (``sync.Synchroniser``), decodes them (``messages.image_from_message``),
-runs the ``Detector`` on batches of frames, and writes one MCAP file (the ``mcap`` library) with, per
+cameras' messages by header stamp (``sync.Synchroniser``), decodes them (``messages.image_from_message``,
+on the ``Detector``'s decode threads), runs the ``Detector`` on batches of frames, and writes one MCAP file
+(the ``mcap`` library; each batch on a thread of its own while the next one runs, in order) with, per
 synchronised frame and stamped with its first camera's header stamp:
 
 - ``/detections`` (``vision_msgs/msg/Detection3DArray``) and ``/detections/markers``
@@ -33,6 +34,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,6 +44,7 @@ from rosbags.highlevel import AnyReader
 
 from fisheye_infer.errors import BagError, OptionError
 from fisheye_infer.eval.evaluate import save_results
+from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.runtime.options import check_score_threshold
 from fisheye_infer.tools.files import pending_file
@@ -172,8 +175,13 @@ def replay(
         connections = _camera_connections(reader, topics)
         expected = min(sum(c.msgcount for c in connections if c.topic == t) for t in topics.values())
         size_of = dict(zip(detector.info.cameras, detector.info.camera_sizes))  # each camera's own
-        with pending_file(out) as pending, open(pending.path, "wb") as stream:
+        with (
+            pending_file(out) as pending,
+            open(pending.path, "wb") as stream,
+            ThreadPoolExecutor(1, thread_name_prefix="replay-write") as write_thread,  # done before the file closes
+        ):
             writer = McapOutput(stream, connections if images else [], detector, foxglove, track)
+            writing: Future[None] | None = None  # the batch being written while the next one runs
             pending_sets: list[SyncedSet] = []
             counted: Counter[str] = Counter()
 
@@ -185,6 +193,7 @@ def replay(
                     return exc
 
             def run(sets: list[SyncedSet]) -> None:
+                nonlocal writing
                 items = [(cam, *item) for synced in sets for cam, item in zip(cameras, synced.items, strict=True)]
                 decoded = iter(detector.map_images(decode, items))  # on the decode threads, in order
                 frames, kept = [], []
@@ -200,7 +209,13 @@ def replay(
                     kept.append(synced)
                 if not frames:
                     return
-                for synced, detections in zip(kept, detector.detect_batch(frames), strict=True):
+                found = detector.detect_batch(frames)
+                if writing is not None:
+                    writing.result()  # the batch before is written (or its error raised) first
+                writing = write_thread.submit(write, kept, found)
+
+            def write(kept: list[SyncedSet], found: list[Detections]) -> None:
+                for synced, detections in zip(kept, found, strict=True):
                     if tracker is None:
                         writer.write_frame(synced, detections.filter(min_score=score_threshold), frame_id)
                     else:
@@ -231,6 +246,8 @@ def replay(
                         run(pending_sets)
                         pending_sets = []
             run(pending_sets)
+            if writing is not None:
+                writing.result()
             silent = [t for t in topics.values() if not counted[t]]
             if silent:
                 raise BagError(
