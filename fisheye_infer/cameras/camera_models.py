@@ -81,6 +81,11 @@ def incidence_angle(points: np.ndarray) -> np.ndarray:
     return np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2])
 
 
+def _nonzero(p: np.ndarray) -> np.ndarray:
+    """Points other than the origin (``p.any(axis=1)``, column by column: several times faster on (N, 3))."""
+    return (p[:, 0] != 0) | (p[:, 1] != 0) | (p[:, 2] != 0)
+
+
 def _inside_image(uv: np.ndarray, width: int, height: int) -> np.ndarray:
     """Pixel centres run from 0 to size - 1; anything within half a pixel of them is in the image."""
     return (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
@@ -249,7 +254,7 @@ class OCamModel(_Frozen):
         if self.fov < 360:
             uv[(theta > self.theta_max) & ~on_axis] = -1.0
         uv[on_axis] = (self.center_col, self.center_row)
-        uv[~p.any(axis=1)] = -1.0
+        uv[~_nonzero(p)] = -1.0
         return uv
 
     def cam2world(self, uv: np.ndarray) -> np.ndarray:
@@ -288,7 +293,7 @@ class OCamModel(_Frozen):
         rho = self._invpol(theta)
         uv = self._affine(p[:, 0] / safe * rho, p[:, 1] / safe * rho)
         in_fov = (theta <= self.theta_max) | (rho_xy == 0) & (p[:, 2] > 0)
-        valid = in_fov & p.any(axis=1) & _inside_image(uv, self.width, self.height)
+        valid = in_fov & _nonzero(p) & _inside_image(uv, self.width, self.height)
         return uv, valid
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
@@ -351,7 +356,7 @@ class KannalaBrandt(_Frozen):
         safe = np.where(rho_xy == 0, 1.0, rho_xy)
         r = self.distort(theta)
         uv = np.stack([self.fx * r * p[:, 0] / safe + self.cx, self.fy * r * p[:, 1] / safe + self.cy], axis=-1)
-        valid = (theta <= math.radians(self.fov / 2)) & p.any(axis=1) & _inside_image(uv, self.width, self.height)
+        valid = (theta <= math.radians(self.fov / 2)) & _nonzero(p) & _inside_image(uv, self.width, self.height)
         return uv, valid
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
@@ -401,7 +406,7 @@ class Pinhole(_Frozen):
 
 def _within_fov(points: np.ndarray, fov: float) -> np.ndarray:
     """Rays within ``fov`` (degrees, full angle) of the optical axis."""
-    return (incidence_angle(points) <= math.radians(fov / 2)) & points.any(axis=1)
+    return (incidence_angle(points) <= math.radians(fov / 2)) & _nonzero(points)
 
 
 def _radtan(x: np.ndarray, y: np.ndarray, d: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
