@@ -1,6 +1,6 @@
 """Bag replay throughput: a recorded drive through a model into an MCAP file, with and without the images.
 
-    python benchmarks/replay.py compact [--frames 100 --rounds 3 --threads 2] [--quick]
+    python benchmarks/replay.py compact [--frames 100 --rounds 5 --threads 2] [--quick]
 
 1. ``--frames`` synthetic frames of the model's rig at 10 Hz, each camera a ``sensor_msgs/CompressedImage``
    (JPEG) with its stamp jittered by up to 2 ms, written as a rosbag2 MCAP bag with ``rosbags``;
@@ -10,7 +10,8 @@
    ``--images`` (fewer boxes to draw): frames per second;
    and in the same turns the model's own frame rate: ``Detector.detect_batch`` on the bag's frames, decoded
    beforehand, in the batches replay runs (4 frames) with the same threads, timed alone after a warm-up batch.
-   Each setting's ``replay/model`` is its median rate over the model's median rate, from the same run;
+   each setting's ``replay/model`` is the median over rounds of its rate over the model's in the same round
+   (a round runs every setting once, so a neighbour's load falls on both alike);
 3. ``docs/assets/replay-overlay.png``: a frame's front camera image with the overlay read back from the
    MCAP file of the third setting (``/<camera>/detections``, drawn as written), beside
    ``fisheye-infer detect --viz``'s picture of the same frame and boxes.
@@ -127,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     p = bench.parser
     p.add_argument("model", nargs="?", default="compact", help=MODEL_HELP)
     p.add_argument("--frames", type=int, default=100, help="frames in the bag (default 100)")
-    p.add_argument("--rounds", type=int, default=3, help="replays per setting, settings in turns (default 3)")
+    p.add_argument("--rounds", type=int, default=5, help="replays per setting, settings in turns (default 5)")
     p.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads (default 2)")
     args = bench.parse(argv)
     if args.quick:
@@ -170,14 +171,13 @@ def main(argv: list[str] | None = None) -> int:
         "--score-threshold 0.3, with --images": lambda: run(True, SHOWN),
     }
     rates = harness.in_turns(settings, args.rounds, flip=True)
-    alone = float(np.median(rates[MODEL]))
     rows = [
         {
             "output": name,
             "frames": args.frames,
             "frames/s median": float(np.median(r)),
             "frames/s min": min(r),
-            "replay/model": float(np.median(r)) / alone,
+            "replay/model": float(np.median(np.divide(r, rates[MODEL]))),
         }
         for name, r in rates.items()
     ]
