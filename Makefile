@@ -12,6 +12,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install torch==2.13.0
 	# ray and triton: the Ray Serve / Ray Data / Triton client paths the tests exercise
 	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,ros]'
+	# a real Triton server for the tests (Linux x86-64, glibc 2.35+): the wheel's bundled tritonserver and Python
+	# backend only; --no-deps because its Python package pins numpy below 2 and is not used
+	if [ "$$(uname -sm)" = "Linux x86_64" ] && [ "$$(getconf GNU_LIBC_VERSION | awk '{split($$2, v, "."); print (v[1] > 2 || v[2] >= 35)}')" = 1 ]; \
+	then $(BIN)/pip install --no-deps nvidia-pytriton==0.7.0; else echo "no Triton server on this platform: its tests skip"; fi
 	touch $(STAMP)
 
 install: $(STAMP)

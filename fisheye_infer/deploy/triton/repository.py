@@ -1,12 +1,20 @@
-"""An exported ONNX file -> a Triton model repository for the ONNX Runtime backend.
+"""An exported ONNX file -> a Triton model repository, for Triton's ONNX Runtime backend or its Python backend.
 
     write_repository("model.onnx", "model_repository", TritonOptions(max_batch_size=4, instances=2))
+    write_repository("model.onnx", "model_repository", TritonOptions(backend="python"))
 
     model_repository/
       <name>/
         config.pbtxt      inputs and outputs read from the file, dynamic batching, instance groups,
                           optional TensorRT, the fisheye-infer metadata as a parameter
         1/model.onnx      the file, copied byte for byte
+        1/model.py        backend="python" only: the model of ``python_backend`` (ONNX Runtime on the CPU,
+                          the runtime's session and checks)
+
+The two forms take the same inputs and give the same outputs. The ONNX Runtime form is for Triton's own
+images (GPU instances, TensorRT); the Python form is for a server without that backend (the ``tritonserver``
+that the ``nvidia-pytriton`` wheel bundles: ``fisheye_infer.deploy.triton.server``) and for CPU deployments that
+want the runtime's checks of each request.
 
 The configuration is first built as a plain dict in the JSON form of Triton's ``ModelConfig``
 (what Triton answers at ``GET /v2/models/<name>/config``), then rendered to protobuf text
@@ -25,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from fisheye_infer.deploy.triton.python_backend import MODEL_PY
 from fisheye_infer.errors import ArtifactError, ExportError
 from fisheye_infer.runtime.artifact import METADATA_KEY, inspection_session, parse_meta
 from fisheye_infer.runtime.detector import check_interface
@@ -64,6 +73,7 @@ class TritonOptions:
     | option | default | meaning |
     |---|---|---|
     | ``name`` | the file's stem | the model's name in the repository and in URLs |
+    | ``backend`` | ``onnxruntime`` | ``onnxruntime`` (Triton's backend) or ``python`` (``python_backend``; CPU only) |
     | ``max_batch_size`` | 4 | frames per batched run; 0 turns batching off (the batch axis is then part of the dims) |
     | ``max_queue_delay_us`` | 5000 | dynamic batching: how long a request waits for others |
     | ``preferred_batch_sizes`` | none | dynamic batching: batch sizes to form when possible |
@@ -78,6 +88,7 @@ class TritonOptions:
     """
 
     name: str | None = None
+    backend: Literal["onnxruntime", "python"] = "onnxruntime"
     max_batch_size: int = 4
     max_queue_delay_us: int = 5000
     preferred_batch_sizes: tuple[int, ...] = ()
@@ -96,6 +107,10 @@ class TritonOptions:
                 f"name: {self.name!r} is not a usable model name "
                 "(letters, digits, '_', '.', '-'; not starting with '.' or '-')"
             )
+        if self.backend not in ("onnxruntime", "python"):
+            raise ValueError(f"backend: expected onnxruntime or python, got {self.backend!r}")
+        if self.backend == "python" and (self.kind == "gpu" or self.tensorrt):
+            raise ValueError("backend: the python form runs ONNX Runtime on the CPU; use kind='cpu' or 'auto'")
         if self.max_batch_size < 0:
             raise ValueError(f"max_batch_size: expected 0 (no batching) or more, got {self.max_batch_size}")
         if self.max_queue_delay_us < 0:
@@ -144,7 +159,19 @@ def _io(items: list[Any], batched: bool, source: str) -> list[dict[str, Any]]:
 
 
 def model_config(model_path: str | Path, options: TritonOptions | None = None) -> dict[str, Any]:
-    """The ``ModelConfig`` of ``model_path`` for the ONNX Runtime backend, as a JSON-form dict."""
+    """The ``ModelConfig`` of ``model_path`` for the backend ``options`` name, as a JSON-form dict.
+
+    Args:
+        model_path: An ONNX file written by ``fisheye-infer export``.
+        options: The repository form and how Triton runs the model (default ``TritonOptions()``).
+
+    Returns:
+        dict: The configuration in the JSON form of Triton's ``ModelConfig``.
+
+    Raises:
+        ArtifactError: The file is not a fisheye-infer model, or a tensor's type has no Triton data type.
+        ExportError: A tensor's batch axis is fixed while ``max_batch_size`` asks for batching.
+    """
     options = options or TritonOptions()
     path = Path(model_path)
     session = inspection_session(path)
@@ -156,8 +183,8 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
     batched = options.max_batch_size > 0
     config: dict[str, Any] = {
         "name": options.name or model_name(path),
-        "backend": "onnxruntime",
-        "default_model_filename": "model.onnx",
+        "backend": options.backend,
+        **({"default_model_filename": "model.onnx"} if options.backend == "onnxruntime" else {}),
         "max_batch_size": options.max_batch_size,
         "input": _io(session.get_inputs(), batched, f"model {path}"),
         "output": _io(session.get_outputs(), batched, f"model {path}"),
@@ -167,9 +194,10 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
         if options.preferred_batch_sizes:
             batching["preferred_batch_size"] = list(options.preferred_batch_sizes)
         config["dynamic_batching"] = batching
+    kind = "cpu" if options.backend == "python" else options.kind
     group: dict[str, Any] = {
         "count": options.instances,
-        "kind": {"auto": "KIND_AUTO", "cpu": "KIND_CPU", "gpu": "KIND_GPU"}[options.kind],
+        "kind": {"auto": "KIND_AUTO", "cpu": "KIND_CPU", "gpu": "KIND_GPU"}[kind],
     }
     if options.gpus:
         group["gpus"] = list(options.gpus)
@@ -184,8 +212,10 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
         config["optimization"] = {
             "execution_accelerators": {"gpu_execution_accelerator": [{"name": "tensorrt", "parameters": trt}]}
         }
-    # The runtime's own choice (session.py): no memory-pattern planning, which keeps peak RSS low.
-    parameters = {"enable_mem_pattern": {"string_value": "0"}, METADATA_KEY: {"string_value": document}}
+    parameters = {METADATA_KEY: {"string_value": document}}
+    if options.backend == "onnxruntime":
+        # The runtime's own choice (session.py): no memory-pattern planning, which keeps peak RSS low.
+        parameters["enable_mem_pattern"] = {"string_value": "0"}
     if options.threads:
         parameters["intra_op_thread_count"] = {"string_value": str(options.threads)}
     config["parameters"] = parameters
@@ -245,10 +275,23 @@ def render_pbtxt(config: dict[str, Any]) -> str:
 def write_repository(
     model_path: str | Path, out: str | Path, options: TritonOptions | None = None, *, force: bool = False
 ) -> Path:
-    """Write ``out/<name>/config.pbtxt`` and ``out/<name>/1/model.onnx``; returns ``out/<name>``.
+    """Write the model folder ``out/<name>``: ``config.pbtxt``, ``1/model.onnx``, and ``1/model.py`` (python form).
 
     The model folder appears complete or not at all (it is built beside its place and renamed),
     and an existing one is replaced only with ``force``.
+
+    Args:
+        model_path: An ONNX file written by ``fisheye-infer export``.
+        out: The model repository (created; other models in it are left alone).
+        options: The repository form and how Triton runs the model (default ``TritonOptions()``).
+        force: Replace an existing model folder of the same name.
+
+    Returns:
+        Path: The model folder.
+
+    Raises:
+        ExportError: The folder exists and ``force`` is not given, or the file's batch axis is fixed while batching.
+        ArtifactError: The file is not a fisheye-infer model.
     """
     config = model_config(model_path, options)
     root = Path(out)
@@ -260,6 +303,8 @@ def write_repository(
     try:
         (staging / "1").mkdir()
         shutil.copyfile(model_path, staging / "1" / "model.onnx")
+        if config["backend"] == "python":
+            (staging / "1" / "model.py").write_text(MODEL_PY)
         (staging / "config.pbtxt").write_text(render_pbtxt(config))
         if target.exists():
             shutil.rmtree(target)
