@@ -59,6 +59,17 @@ def bundled_server() -> Path:
     return root
 
 
+_LIBPYTHON = f"libpython{sys.version_info.major}.{sys.version_info.minor}.so.1.0"
+
+
+def _libpython() -> Path | None:
+    """The folder holding this interpreter's shared ``libpython`` for the stub, or None where there is none."""
+    libdir = sysconfig.get_config_var("LIBDIR")
+    if libdir and sysconfig.get_config_var("Py_ENABLE_SHARED") and (Path(libdir) / _LIBPYTHON).exists():
+        return Path(libdir)
+    return None
+
+
 def server_unavailable() -> str | None:
     """Why a Triton server cannot start here, or None when it can.
 
@@ -71,6 +82,8 @@ def server_unavailable() -> str | None:
         bundled_server()
     except ConfigError as exc:
         return str(exc)
+    if _libpython() is None:
+        return f"the Python backend's stub embeds {_LIBPYTHON}, which this Python does not provide (a shared build)"
     return None
 
 
@@ -147,9 +160,9 @@ class TritonServer:
     def _environment(self, root: Path) -> dict[str, str]:
         env = dict(os.environ)
         libs = [root.parent.parent / "nvidia_pytriton.libs"]
-        libdir = sysconfig.get_config_var("LIBDIR")
-        if libdir and sysconfig.get_config_var("Py_ENABLE_SHARED"):
-            libs.insert(0, Path(libdir))  # the stub embeds this interpreter's libpython
+        libpython = _libpython()
+        if libpython is not None:
+            libs.insert(0, libpython)  # the stub embeds this interpreter's libpython
         env["LD_LIBRARY_PATH"] = os.pathsep.join([*map(str, libs), *filter(None, [env.get("LD_LIBRARY_PATH")])])
         env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
         return env
