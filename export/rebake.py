@@ -5,10 +5,10 @@
 
 ``virtual`` (the default for a rig that is not the file's training rig): the file takes the robot's raw images, each
 camera at its own size, and a front end in the graph resamples each into the image its training camera would have
-taken (:mod:`fisheye_infer.geometry.virtual`, :mod:`.virtual_front`); the network and its geometry tables stay as
+taken ([`fisheye_infer.geometry.virtual`][fisheye_infer.geometry.virtual], [`virtual_front`][fisheye_infer.export.virtual_front]); the network and its geometry tables stay as
 trained, but for FisheyePETR's key mask and embedding, which also mask the keys that read pixels the robot cameras do
 not see. Robot cameras are mapped onto the model's by ``camera_map`` or by heading
-(:func:`~fisheye_infer.cameras.camera_map.map_cameras`).
+([`map_cameras`][fisheye_infer.cameras.camera_map.map_cameras]).
 
 ``tables``: every ``geom.*`` initializer recomputed for the rig. The metadata of an exported file records the
 parameters of its geometry tables (and, for FisheyePETR, the position-encoder weights the key embedding needs), so
@@ -61,7 +61,7 @@ def rebake(
 
     Args:
         model_path: A file written by ``fisheye-infer export`` (or by ``rebake``).
-        rig: The new rig: a rig file, a folder, ``default``, or a :class:`~fisheye_infer.cameras.rig.Rig`.
+        rig: The new rig: a rig file, a folder, ``default``, or a [`Rig`][fisheye_infer.cameras.rig.Rig].
         out: Where to write the new file (never ``model_path``).
         mode: ``virtual``: a front end resamples the rig's cameras into the training cameras; ``tables``: the
             geometry tables are recomputed for the rig; ``auto``: ``tables`` for the file's training rig itself,

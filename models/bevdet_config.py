@@ -1,9 +1,9 @@
 """Typed configuration of FisheyeBEVDet with the defaults of the official ``configs/fisheye_bevdet.py``.
 
-A tree of frozen dataclasses (see :mod:`.config`): ``image``, ``backbone``, ``view_transform``,
+A tree of frozen dataclasses (see [`config`][fisheye_infer.models.config]): ``image``, ``backbone``, ``view_transform``,
 ``bev_encoder``, ``head`` and ``class_names``. ``BEVDetConfig.from_mmdet3d_config`` reads an
 official config file without executing it and maps the mmdet3d dict onto it; the cylindrical
-variant (:mod:`.cyl_config`) changes only how the view transform is read.
+variant ([`cyl_config`][fisheye_infer.models.cyl_config]) changes only how the view transform is read.
 """
 
 from __future__ import annotations

@@ -10,9 +10,9 @@ so a model, an exported artifact and a checkpoint can be compared field by field
     cfg.geometry_params()                                        # the parameters of its geom.* tables
     BEVDetConfig.from_dict(cfg.to_dict()) == cfg
 
-Every configuration has the sections ``image`` (:class:`ImageConfig`) and ``backbone``
-(:class:`BackboneConfig`); the rest are the architecture's. The readers of official files use
-:class:`~.mmconfig.Section`.
+Every configuration has the sections ``image`` (`ImageConfig`) and ``backbone``
+(`BackboneConfig`); the rest are the architecture's. The readers of official files use
+[`Section`][fisheye_infer.models.mmconfig.Section].
 """
 
 from __future__ import annotations

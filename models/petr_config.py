@@ -1,6 +1,6 @@
 """Typed configuration of FisheyePETR with the defaults of the official ``configs/fisheye_petr.py``.
 
-The same shape as every configuration (see :mod:`.config`): ``image``, ``backbone``, ``head``
+The same shape as every configuration (see [`config`][fisheye_infer.models.config]): ``image``, ``backbone``, ``head``
 (everything ``pts_bbox_head`` sets: the warp, the 3D position embedding, the transformer and the
 box coder) and ``class_names``. Values that the official config does not set are the head's
 constructor defaults (``depth_num=64``), because that is what the released checkpoint was trained

@@ -2,13 +2,13 @@
 
 ``make_checkpoint(arch, seed)`` builds the registered model, gives it fan-in scaled weights and
 small biases, then calibrates every BatchNorm's running statistics by running the model with BN
-layers in statistics-collection mode on seeded synthetic frames (:func:`calibrate`, per model
+layers in statistics-collection mode on seeded synthetic frames (`calibrate`, per model
 family), so activations stay O(1) at inference. The result is an
 mmengine-style ``{'state_dict', 'meta'}`` dict with every official key (geometry tables included,
 computed from the rig, so they agree with a recomputation) in official order, shape and dtype.
 
 A model taking part implements ``official_state_dict()`` (official names, weights and geometry);
-:func:`batchnorm_statistics`, :func:`temper_attention` and :func:`synthetic_images` are the
+`batchnorm_statistics`, `temper_attention` and `synthetic_images` are the
 building blocks of the calibrations.
 """
 

@@ -14,7 +14,7 @@ training ray is taken to end on a sphere of that radius around the training came
 points at that distance.
 
 Training pixels outside the training lens's field stay black, as in the training images
-(:func:`pixel_rays`' ``inside``); pixels inside it whose ray the robot camera does not see are
+(`pixel_rays`' ``inside``); pixels inside it whose ray the robot camera does not see are
 ``unseen`` and are filled with ``UNSEEN_FILL``: a constant mid-grey reads to the detectors as
 featureless, where black reads as a dark, empty region.
 """

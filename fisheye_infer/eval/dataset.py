@@ -1,6 +1,6 @@
 """Fisheye3DOD reader: split files -> lazy ``Frame`` objects with images, per-frame rig and ground truth.
 
-Layout (§3 of the dataset description)::
+Layout (§3 of the dataset description):
 
     ROOT/calib_results.txt                        the OCam model of every fisheye camera without its own
     ROOT/ImageSets-2hz/{train,val}.json           [{scene_name, vehicle_name, weather, frame_id, prev_id, next_id}, ...]

@@ -165,7 +165,7 @@ class Fisheye3DODWriter:
     def _write_models(self, rig: Rig) -> None:
         """``calib_results.txt`` for the fisheye cameras: one at the root for a lens they share (while the root
         holds none or that one, and the sequence has no camera files yet), else one in each camera's folder;
-        pinhole cameras must be the converter's 90-degree pinhole of their size (:func:`converter_pinhole`),
+        pinhole cameras must be the converter's 90-degree pinhole of their size (`converter_pinhole`),
         which the reader rebuilds from the images."""
         fisheye = [c for c in rig.cameras if c.name not in PINHOLE_CAMERAS]
         for cam in rig.cameras:

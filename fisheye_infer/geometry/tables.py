@@ -3,15 +3,15 @@
 An exported model holds every table that depends on the rig as a named initializer
 (``geom.*``). The PyTorch models are built from these same tables, and ``rebake`` recomputes
 them for a new rig with numpy only; both get them from one geometry object per parameter kind
-(:mod:`.lss`, :mod:`.cyl_lss`, :mod:`.petr`, :mod:`.cyl_petr`, :mod:`.pinhole_lss`, :mod:`.pinhole_petr`;
-:func:`.kinds.tables_for`). The
+([`lss`][fisheye_infer.geometry.lss], [`cyl_lss`][fisheye_infer.geometry.cyl_lss], [`petr`][fisheye_infer.geometry.petr], [`cyl_petr`][fisheye_infer.geometry.cyl_petr], [`pinhole_lss`][fisheye_infer.geometry.pinhole_lss], [`pinhole_petr`][fisheye_infer.geometry.pinhole_petr];
+[`kinds.tables_for`][fisheye_infer.geometry.kinds.tables_for]). The
 parameters that define the tables travel in the model's metadata, so a file carries everything
 needed to re-bake it.
 
 Resampling with a constant grid (the feature warp, the image rectification) is stored as its
 bilinear taps on the sampled source (``Params.source_size``): GridSample's
-(:func:`~fisheye_infer.geometry.grids.bilinear_taps`) for the warp, cv2.remap's
-(:func:`~fisheye_infer.geometry.grids.remap_taps`) for the rectification: the graph gathers four rows of the
+([`bilinear_taps`][fisheye_infer.geometry.grids.bilinear_taps]) for the warp, cv2.remap's
+([`remap_taps`][fisheye_infer.geometry.grids.remap_taps]) for the rectification: the graph gathers four rows of the
 channels-last source per output pixel and weighs them with one batched MatMul: GridSample's bilinear,
 zero-padded, ``align_corners=True`` result, in less time than ONNX Runtime's GridSample kernel.
 
@@ -43,10 +43,10 @@ Cylindrical PETR (fisheye-petr-cyl): geom.rectify.* + geom.petr.key_pos + geom.p
 (all False: the official head masks no key).
 
 The pinhole baselines (standard LSS) take raw camera images too; their front end makes the
-views the backbone sees (:mod:`.views`):
+views the backbone sees ([`views`][fisheye_infer.geometry.views]):
     geom.resize.x.index       (T, Wv)       int64    PIL bicubic resize and crop of pinhole images: the
     geom.resize.x.high, .low  (T, Wv)       float32  columns each output column reads, and the integer
-    geom.resize.y.*           (T, Hv)                weights split in two exact halves (:mod:`.resize`)
+    geom.resize.y.*           (T, Hv)                weights split in two exact halves ([`resize`][fisheye_infer.geometry.resize])
 or geom.rectify.* of the perspective views (fisheye input, each camera's views stacked by yaw); then geom.pool.*
 (pinhole LSS, pinhole-bevdet / fisheye-bevdet-persp) or geom.petr.key_pos + geom.petr.key_mask (all
 False; pinhole PETR, pinhole-petr / fisheye-petr-persp).
@@ -133,7 +133,7 @@ def camera_taps(grids: np.ndarray, height: int, width: int, prefix: str = WARP) 
     """The taps of each camera's grid, ``grids`` (N, H, W, 2), on its own ``height`` x ``width`` source, stacked
     camera after camera with camera n's source pixels offset by ``n * height * width`` (the camera-major layout).
 
-    ``RECTIFY``: cv2.remap's exact taps of :func:`~fisheye_infer.geometry.grids.remap_grid` grids (the official
+    ``RECTIFY``: cv2.remap's exact taps of [`remap_grid`][fisheye_infer.geometry.grids.remap_grid] grids (the official
     image rectification); otherwise GridSample's (the official feature warp).
     """
     g = np.asarray(grids)
@@ -149,7 +149,7 @@ def camera_taps(grids: np.ndarray, height: int, width: int, prefix: str = WARP) 
 
 def sampling_tables(prefix: str, grids: np.ndarray, source_size: tuple[int, int] | None) -> dict[str, np.ndarray]:
     """The taps of the cameras' ``grids`` (N, H, W, 2) on ``source_size`` (H, W) sources as the tables ``prefix``
-    (:func:`camera_taps`)."""
+    (`camera_taps`)."""
     if source_size is None:
         raise ConfigError(
             "geometry parameters: source_size is missing (files exported before the sampling taps held a "
@@ -160,7 +160,7 @@ def sampling_tables(prefix: str, grids: np.ndarray, source_size: tuple[int, int]
 
 
 def resize_tables(prefix: str, taps: ResizeTaps) -> dict[str, np.ndarray]:
-    """One axis of PIL's resize (:class:`~fisheye_infer.geometry.resize.ResizeTaps`) as the tables ``prefix``."""
+    """One axis of PIL's resize ([`ResizeTaps`][fisheye_infer.geometry.resize.ResizeTaps]) as the tables ``prefix``."""
     return {
         f"{prefix}index": taps.index.astype(np.int64),
         f"{prefix}high": taps.high.astype(np.float32),

@@ -5,7 +5,7 @@
     front.reports                                             # what each robot camera covers
 
 Each slot's training image is resampled from its robot camera's raw image with cv2.remap's exact taps
-(:func:`~fisheye_infer.geometry.grids.remap_taps`) of the :class:`~fisheye_infer.cameras.virtual_view.VirtualView`
+([`remap_taps`][fisheye_infer.geometry.grids.remap_taps]) of the [`VirtualView`][fisheye_infer.cameras.virtual_view.VirtualView]
 maps, then ``fill`` is added (mid-grey where the robot camera does not see the training ray) and the sum is rounded
 to uint8 as cv2.remap rounds it. Robot cameras may differ in size: the graph takes them padded to the largest width
 and height, each image in the top-left corner of its slot, and the taps read that layout. The taps are stored tap by
@@ -102,7 +102,7 @@ def virtual_front(training: Rig, robot: Rig, order: Sequence[str], depth: float 
         training: The rig the model was trained with.
         robot: The robot's rig.
         order: The robot camera of each slot of ``training``, in its order
-            (:func:`~fisheye_infer.cameras.camera_map.map_cameras`).
+            ([`map_cameras`][fisheye_infer.cameras.camera_map.map_cameras]).
         depth: None to compensate rotation only; else the distance (m) at which translation is compensated.
 
     Returns:

@@ -1,7 +1,7 @@
 """The one result-record format shared by the runtime, results files and the evaluator.
 
 A record is a nuScenes-style detection dict, the layout the Fisheye3DOD evaluator converts
-every box into before matching::
+every box into before matching:
 
     {"translation": [x, y, z_centre],      # lidar frame, metres, GRAVITY centre
      "size": [w, l, h],                    # nuScenes order: width, length, height

@@ -6,8 +6,8 @@ that falls towards the ground shows a checker-and-noise texture fading into haze
 a sky gradient. Pixels outside the lens's field of view are black, as in real fisheye frames.
 Because the pictures are made with the same camera model and extrinsics the detectors' geometry
 uses, they exercise the whole data path (reader, rig, projection, metric) without the dataset.
-The scene and its look are drawn in ``scenes.scene`` (:func:`random_scene`, ``random_appearance``);
-this module turns them into pixels, and :func:`synthesize` writes whole frames with their labels.
+The scene and its look are drawn in ``scenes.scene`` (`random_scene`, ``random_appearance``);
+this module turns them into pixels, and `synthesize` writes whole frames with their labels.
 
     frames = synthesize(default_rig(), "data/synth", frames=4, seed=0)   # Fisheye3DOD layout
     Fisheye3DOD("data/synth", "val")                                   # reads the same rig and boxes

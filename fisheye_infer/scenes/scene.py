@@ -1,13 +1,13 @@
 """What a synthetic frame holds and how it looks, drawn at random: the boxes of the six classes
-(:class:`Scene`, :func:`random_scene`) and the lighting, ground, sky and object colours
-(:class:`Appearance`, :func:`random_appearance`).
+(`Scene`, `random_scene`) and the lighting, ground, sky and object colours
+(`Appearance`, `random_appearance`).
 
 Kept apart from ``render`` (which ray-casts a scene through a rig) because the depth targets, the
 training streams and the viewer need the scene and the class colours without the renderer; the
 scene is plain data a renderer or a label writer reads.
 
 Everything is drawn from the caller's seeded generator. Box parameters are multiples of 1/256 m
-(yaw of 1/1024 rad, see :func:`quantize`), so the gravity-centre labels written for a scene convert
+(yaw of 1/1024 rad, see `quantize`), so the gravity-centre labels written for a scene convert
 back to the same numbers.
 """
 
@@ -71,7 +71,7 @@ class Scene:
 @dataclass(frozen=True)
 class Appearance:
     """How a scene looks: lighting, ground texture, sky and object colours. The defaults are the
-    renderer's standard look; :func:`random_appearance` varies every field for training data.
+    renderer's standard look; `random_appearance` varies every field for training data.
 
     ``object_colours`` is one BGR colour per box of the scene (None: the class colours).
     """
