@@ -20,15 +20,20 @@ griffe = pytest.importorskip("griffe", reason="needs the [dev] extra (mkdocstrin
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = ROOT / "docs" / "reference" / "api"
-DIRECTIVE = re.compile(r"^::: ([\w.]+)\s*$", re.MULTILINE)
+DIRECTIVE = re.compile(r"^::: ([\w.]+)\s*\n((?:[ \t]+.*\n)*)", re.MULTILINE)
 ARGS_SECTIONS = {"parameters", "other parameters"}
 #: A dataclass or pydantic model documents its constructor's parameters as its fields.
 FIELD_SECTIONS = ARGS_SECTIONS | {"attributes"}
 
 
 def _targets() -> list[tuple[str, str]]:
-    """(page, dotted path) of every ``:::`` directive of the reference."""
-    return [(page.name, m[1]) for page in sorted(PAGES.glob("*.md")) for m in DIRECTIVE.finditer(page.read_text())]
+    """(page, dotted path) of every ``:::`` directive of the reference that renders members (not ``members: false``)."""
+    return [
+        (page.name, m[1])
+        for page in sorted(PAGES.glob("*.md"))
+        for m in DIRECTIVE.finditer(page.read_text() + "\n")
+        if not re.search(r"^\s+members:\s*false\s*$", m[2], re.MULTILINE)
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -79,8 +84,22 @@ def _problems(obj: object) -> Iterator[str]:
             missing = [p for p in _parameters(init) if p not in documented]
             if missing:
                 yield f"{path}: constructor parameters without an Args entry: {', '.join(missing)}"
-        elif obj.docstring is None:  # type: ignore[attr-defined]
-            yield f"{path}: no docstring"
+        else:  # a pydantic model: its annotated fields are its constructor's parameters
+            if obj.docstring is None:  # type: ignore[attr-defined]
+                yield f"{path}: no docstring"
+            documented = _documented(obj.docstring, sections=FIELD_SECTIONS)  # type: ignore[attr-defined]
+            fields = [
+                name
+                for name, member in obj.members.items()  # type: ignore[attr-defined]
+                if member.is_attribute
+                and member.annotation is not None
+                and not name.startswith("_")
+                and name != "model_config"
+                and member.docstring is None
+                and name not in documented
+            ]
+            if fields:
+                yield f"{path}: fields without a docstring or an Attributes entry: {', '.join(fields)}"
         for member in _public(obj):
             if member.is_function:
                 yield from _problems(member)
