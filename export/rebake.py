@@ -5,7 +5,7 @@
 
 ``virtual`` (the default for a rig that is not the file's training rig): the file takes the robot's raw images, each
 camera at its own size, and a front end in the graph resamples each into the image its training camera would have
-taken ([`fisheye_infer.geometry.virtual`][fisheye_infer.geometry.virtual], [`virtual_front`][fisheye_infer.export.virtual_front]); the network and its geometry tables stay as
+taken (`virtual`, `virtual_front`); the network and its geometry tables stay as
 trained, but for FisheyePETR's key mask and embedding, which also mask the keys that read pixels the robot cameras do
 not see. Robot cameras are mapped onto the model's by ``camera_map`` or by heading
 ([`map_cameras`][fisheye_infer.cameras.camera_map.map_cameras]).

@@ -2,7 +2,7 @@
 
 The cylinder-rectified, perspective-rectified and pinhole BEVDet configs all resample the raw
 camera images before the backbone (the front end: each config's ``normalise``), lift the
-stride-16 features of the resulting views with no warp ([`RectifiedLSS`][fisheye_infer.models.view_transform.RectifiedLSS])
+stride-16 features of the resulting views with no warp (`RectifiedLSS`)
 and store the same geometry keys in their checkpoints: ``view_transform.frustum``, ``dx``, ``bx``,
 ``nx``. A front end may make several views of one camera (two perspective views per fisheye):
 the features are grouped by view, and a missing camera masks all of its views

@@ -5,7 +5,7 @@
 
 The official test pipeline resizes each 1280x720 image to 800x450 with PIL's bicubic filter and
 crops rows 50..449 (``ImageAug3D``); here both are the first ops of the graph (``geom.resize.*``,
-PIL's fixed-point arithmetic reproduced exactly, [`resize`][fisheye_infer.models.resize]), so the exported file takes the
+PIL's fixed-point arithmetic reproduced exactly, `resize`), so the exported file takes the
 raw camera images. Then ResNet-18 + FPN (P3 25 x 50), the standard ``LSSTransform`` (depthnet on P3,
 the image-plane frustum undone through the crop, the resize and ``inv(K)``, the bucketed mean
 pool), SECOND + SECONDFPN and TransFusion, with the official module names.

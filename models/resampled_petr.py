@@ -2,7 +2,7 @@
 
 The cylinder-rectified, perspective-rectified and pinhole PETR configs resample the raw camera
 images before the backbone (the front end: each config's ``normalise``), use the stride-16
-features of the resulting views as keys ([`RectifiedPETRHead`][fisheye_infer.models.petr_head.RectifiedPETRHead]), and their
+features of the resulting views as keys (`RectifiedPETRHead`), and their
 checkpoints hold no geometry tensor: every table comes from the rig. A front end may make several
 views of one camera (two perspective views per fisheye): a missing camera masks all of its views
 ([`view_valid`][fisheye_infer.models.base.FisheyeDetector.view_valid]).

@@ -195,7 +195,7 @@ class FisheyeLSS(nn.Module):
     ) -> torch.Tensor:
         """Same as ``forward`` with per-sample extrinsics cam2lidar (B x N x 4 x 4); reference speed.
 
-        The points are transformed by [`fisheye_infer.geometry.frustum.frustum_to_lidar`][fisheye_infer.geometry.frustum.frustum_to_lidar] and
+        The points are transformed by [`frustum_to_lidar`][fisheye_infer.geometry.frustum.frustum_to_lidar] and
         pooled with ``index_add_`` per sample; grid and frustum stay those of this module.
         """
         mats = cam2lidar.detach().cpu().numpy() if isinstance(cam2lidar, torch.Tensor) else np.asarray(cam2lidar)

@@ -57,7 +57,7 @@ views the backbone sees (`views`), for `T` views of `Hv x Wv`:
 
 | table | shape | type | holds |
 |---|---|---|---|
-| `geom.resize.x.index` | `(T, Wv)` | int64 | PIL bicubic resize and crop of pinhole images: the columns each output column reads |
+| `geom.resize.x.index` | `(T, Wv)` | int64 | PIL bicubic resize and crop: the columns each output column reads |
 | `geom.resize.x.high`, `.low` | `(T, Wv)` | float32 | the integer weights split in two exact halves (`resize`) |
 | `geom.resize.y.*` | `(T, Hv)` | | the same for rows |
 

@@ -241,7 +241,7 @@ class TensorRTReport(_Model):
 
 
 class VirtualCameras(_Model):
-    """The robot's cameras standing in for the training cameras ([`fisheye_infer.geometry.virtual`][fisheye_infer.geometry.virtual]).
+    """The robot's cameras standing in for the training cameras ([`virtual`][fisheye_infer.geometry.virtual]).
 
     The file's ``rig``, ``cameras`` and ``image_size`` are the robot's (its cameras in the model's slot order,
     images padded to the largest); the network and its geometry tables are those of ``training_rig``.

@@ -8,7 +8,7 @@ Triton loads ``model.py`` in its Python backend stub, which runs the Python inte
 (``fisheye_infer.deploy.triton.server`` starts it with the current one). Tensors cross the stub by DLPack, never by
 ``as_numpy()`` and ``Tensor(name, array)``: those go through the NumPy C API the stub was built against (NumPy 1),
 which misreads NumPy 2 arrays. The session is the runtime's
-([`fisheye_infer.runtime.session.create_session`][fisheye_infer.runtime.session.create_session]: the project's options, the CPU), its inputs and outputs checked
+(`create_session`: the project's options, the CPU), its inputs and outputs checked
 against the file's metadata when the instance loads. Requests that Triton's dynamic batcher hands over together run
 as one batch; a request whose tensors do not fit the file (a missing input, a wrong type or shape, batches that
 differ between ``images`` and ``camera_valid``) is answered with an error naming the tensor, and the others run.
