@@ -35,8 +35,8 @@ class Tracks:
         ids (np.ndarray): `(K,)` int64 track ids, unique while the tracker lives (never reused, even after a reset).
         boxes (np.ndarray): `(K, 7)` float32 ``x, y, z_bottom, l, w, h, yaw``, metres and radians.
         velocities (np.ndarray): `(K, 2)` float32 velocities over ground, m/s.
-        scores (np.ndarray): `(K,)` float32 score of each track (the detection's at this frame, weighted
-            down for young tracks by ``TrackerConfig.young_weight``).
+        scores (np.ndarray): `(K,)` float32 score of each track: the detection's at this frame (a ``Tracker``
+            weights young tracks down by ``TrackerConfig.young_weight``).
         labels (np.ndarray): `(K,)` int64 class indices into ``class_names``.
         ages (np.ndarray): `(K,)` int64 frames since each track was born (0 on its first frame).
         class_names (tuple[str, ...]): Class names, in label order.
