@@ -145,8 +145,7 @@ def _tensorrt_lines(meta: ArtifactMeta, prefix: str = "") -> list[str]:
 
 @dataclass(frozen=True)
 class ExportResult:
-    """What [`export`][fisheye_infer.export.exporter.export] returns: the fp32 file, its check against PyTorch, and
-    the int8 and fp16 files made from it.
+    """What [`export`][fisheye_infer.export.exporter.export] returns: the fp32 file, its check, the reduced files.
 
     Attributes:
         path (Path | None): The written fp32 file; None when it was not written (its parity check failed).

@@ -81,8 +81,7 @@ class BatchOptions:
 
 @dataclass
 class BatchResult:
-    """What [`detect_frames`][fisheye_infer.deploy.ray_batch.detect_frames] returns: the records per frame, the failed
-    frames and how long the run took.
+    """What [`detect_frames`][fisheye_infer.deploy.ray_batch.detect_frames] returns: records, failures, timing.
 
     Attributes:
         results (dict[str, list[dict[str, Any]]]): Sample token -> that frame's boxes as nuScenes-style records
