@@ -5,7 +5,7 @@
 
 The graph's ``images`` input (B, N, Ht, Wt, 3) uint8 becomes an internal value computed from a new ``images``
 input (B, N, Hp, Wp, 3) uint8, the robot's images padded to the largest camera
-([`virtual`][fisheye_infer.geometry.virtual]): the images made planar (B, 3, N*Hp*Wp), every tap of every output pixel
+(``fisheye_infer.geometry.virtual``): the images made planar (B, 3, N*Hp*Wp), every tap of every output pixel
 read by a GatherElements per channel (the index table expanded over the batch), the four taps weighed and summed,
 the fill added, and the sum rounded to uint8 as cv2.remap rounds (``floor(x + 0.5)``; every product and sum is
 exact in float32), then back to (B, N, Ht, Wt, 3). Every elementwise step runs over long rows of one channel and

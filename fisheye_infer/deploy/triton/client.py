@@ -66,22 +66,44 @@ def _mapped(context: str, error: type[Exception] = InferenceError) -> Iterator[N
 
 
 class TritonDetector(FrameDetector):
-    """A ``FrameDetector`` whose graph runs on a Triton (KServe v2) server. See the module docstring.
+    """[`Detector`][fisheye_infer.runtime.detector.Detector]'s ``detect()``, with the graph run by a Triton server.
+
+    Only the graph run crosses the network: decoding, checks, stacking and post-processing run here, as in
+    ``Detector``, so both return the same boxes for the same file. The model's metadata (classes, cameras, image
+    size, rig) is read from the served model's configuration (the ``fisheye_infer`` parameter that
+    [`write_repository`][fisheye_infer.deploy.triton.repository.write_repository] writes), and the served inputs and
+    outputs are checked against it. Batches larger than the server's ``max_batch_size`` are split. One instance may
+    be shared by threads (each thread gets its own tritonclient client). A failed run raises ``InferenceError``
+    from ``detect``.
 
     Args:
-        url: The server's address, ``host:port`` (``https://`` for TLS).
-        model: The served model's name.
-        protocol: ``http`` or ``grpc`` (the server's gRPC port).
-        version: The model version ('' for the server's choice).
-        headers: Headers sent with every request (authentication).
-        timeout_s: Connection and request timeout.
-        score_threshold: Keep boxes scoring at least this, in [0, 1].
-        nms: NMS after the graph.
-        warmup: One run on a black frame at construction.
+        url (str): The server's address, ``host:port`` (``https://host:port`` for TLS; an ``http://`` prefix is
+            dropped).
+        model (str): The served model's name.
+        protocol (str): ``http`` (KServe v2 over HTTP, the server's HTTP port) or ``grpc`` (the server's gRPC port).
+        version (str): The model version; ``''`` for the server's choice.
+        headers (Mapping[str, str] | None): Headers sent with every request (authentication); None for none.
+        timeout_s (float): Connection and request timeout, in seconds.
+        score_threshold (float | None): Keep boxes scoring at least this, in [0, 1]; None keeps every box.
+        nms (NmsConfig | None): NMS after the graph
+            ([`NmsConfig`][fisheye_infer.runtime.nms.NmsConfig]); None for none.
+        warmup (bool): Run once on a black frame at construction.
 
     Raises:
-        ArtifactError: The model is missing, not ready, or not a fisheye-infer model.
+        ImportError: tritonclient is not installed (the ``[triton]`` extra).
+        ArtifactError: The server cannot be reached, or the model is missing, not ready, or not a fisheye-infer
+            model.
         OptionError: ``protocol`` is neither ``http`` nor ``grpc``.
+
+    Examples:
+        ```python
+        from fisheye_infer.deploy.triton.client import TritonDetector
+
+        detector = TritonDetector("127.0.0.1:8000", "fisheye_bevdet", score_threshold=0.3)
+        dets = detector.detect({"fisheye_camera_front": "front.png", "fisheye_camera_left": "left.png",
+                                "fisheye_camera_right": "right.png", "fisheye_camera_rear": "rear.png"})
+        grpc = TritonDetector("127.0.0.1:8001", "fisheye_bevdet", protocol="grpc")
+        ```
     """
 
     def __init__(

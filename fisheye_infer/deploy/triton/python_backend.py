@@ -8,7 +8,7 @@ Triton loads ``model.py`` in its Python backend stub, which runs the Python inte
 (``fisheye_infer.deploy.triton.server`` starts it with the current one). Tensors cross the stub by DLPack, never by
 ``as_numpy()`` and ``Tensor(name, array)``: those go through the NumPy C API the stub was built against (NumPy 1),
 which misreads NumPy 2 arrays. The session is the runtime's
-(`create_session`: the project's options, the CPU), its inputs and outputs checked
+(``fisheye_infer.runtime.session.create_session``: the project's options, the CPU), its inputs and outputs checked
 against the file's metadata when the instance loads. Requests that Triton's dynamic batcher hands over together run
 as one batch; a request whose tensors do not fit the file (a missing input, a wrong type or shape, batches that
 differ between ``images`` and ``camera_valid``) is answered with an error naming the tensor, and the others run.
@@ -82,14 +82,21 @@ def check_request(arrays: dict[str, np.ndarray | None], shapes: dict[str, list[i
 
 
 class TritonPythonModel:
-    """The Python backend's model: ``initialize`` opens the session, ``execute`` runs the requests handed over."""
+    """The model Triton's Python backend loads from the repository's ``1/model.py``.
+
+    [`write_repository`][fisheye_infer.deploy.triton.repository.write_repository] with
+    ``TritonOptions(backend="python")`` writes a ``model.py`` that imports this class. Triton calls ``initialize``
+    once per instance (it opens ``1/model.onnx`` in ONNX Runtime on the CPU, with the runtime's session options),
+    ``execute`` with the requests its dynamic batcher hands over, and ``finalize`` when it unloads the model. Triton
+    constructs it without arguments; it is not meant to be called directly.
+    """
 
     def initialize(self, args: dict[str, str]) -> None:
         """Open the file beside ``model.py`` and check it against its metadata.
 
         Args:
-            args: Triton's arguments: ``model_config`` (JSON), ``model_repository`` (the model's folder),
-                ``model_version``.
+            args (dict[str, str]): Triton's arguments: ``model_config`` (JSON), ``model_repository`` (the model's
+                folder), ``model_version``.
 
         Raises:
             ArtifactError: The file is missing, not a fisheye-infer model, or its interface does not match its metadata.
@@ -109,8 +116,11 @@ class TritonPythonModel:
     def execute(self, requests: list[Any]) -> list[Any]:
         """Run the requests' frames as one batch; a request that does not fit the file gets its error alone.
 
+        A request with a missing input, a wrong type or shape, or inputs whose batches differ is answered with an
+        error naming the tensor; the others run. A failing run answers every accepted request with its error.
+
         Args:
-            requests: Triton's ``InferenceRequest`` objects.
+            requests (list[Any]): Triton's ``InferenceRequest`` objects.
 
         Returns:
             list: One ``InferenceResponse`` per request, in order.

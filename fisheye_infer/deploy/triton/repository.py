@@ -68,23 +68,30 @@ _MAP_FIELDS = {"parameters"}  # written as repeated {key, value} entries
 
 @dataclass(frozen=True)
 class TritonOptions:
-    """How Triton should run the model.
+    """How Triton should run the model: the repository form, batching, instances and TensorRT.
 
-    | option | default | meaning |
-    |---|---|---|
-    | ``name`` | the file's stem | the model's name in the repository and in URLs |
-    | ``backend`` | ``onnxruntime`` | ``onnxruntime`` (Triton's backend) or ``python`` (``python_backend``; CPU only) |
-    | ``max_batch_size`` | 4 | frames per batched run; 0 turns batching off (the batch axis is then part of the dims) |
-    | ``max_queue_delay_us`` | 5000 | dynamic batching: how long a request waits for others |
-    | ``preferred_batch_sizes`` | none | dynamic batching: batch sizes to form when possible |
-    | ``instances`` | 1 | model instances per device |
-    | ``kind`` | ``auto`` | ``cpu``, ``gpu`` or ``auto`` (GPU when present) |
-    | ``gpus`` | all | GPU ids for ``kind="gpu"`` |
-    | ``threads`` | backend default | ONNX Runtime intra-op threads per instance |
-    | ``tensorrt`` | off | TensorRT as the GPU execution accelerator (needs ``kind="gpu"``) |
-    | ``tensorrt_precision`` | ``FP16`` | ``FP32`` or ``FP16`` |
-    | ``tensorrt_workspace_bytes`` | 1 GiB | TensorRT's scratch memory |
-    | ``tensorrt_cache`` | none | folder where TensorRT engines are cached across restarts |
+    Attributes:
+        name (str | None): The model's name in the repository and in URLs (letters, digits, ``_``, ``.``, ``-``);
+            None for the file's stem ([`model_config`][fisheye_infer.deploy.triton.repository.model_config]).
+        backend (str): ``onnxruntime`` (Triton's ONNX Runtime backend) or ``python`` (the runtime in Triton's Python
+            backend, [`TritonPythonModel`][fisheye_infer.deploy.triton.python_backend.TritonPythonModel]; CPU only).
+        max_batch_size (int): Frames per batched run; 0 turns batching off (the batch axis is then part of the
+            dims).
+        max_queue_delay_us (int): Dynamic batching: how long a request waits for others, in microseconds.
+        preferred_batch_sizes (tuple[int, ...]): Dynamic batching: batch sizes to form when possible, each in
+            ``1..max_batch_size``; empty for Triton's choice.
+        instances (int): Model instances per device; at least 1.
+        kind (str): Where instances run: ``cpu``, ``gpu`` or ``auto`` (GPU when present).
+        gpus (tuple[int, ...]): GPU ids for ``kind="gpu"``; empty for all.
+        threads (int | None): ONNX Runtime intra-op threads per instance; None for the backend's default.
+        tensorrt (bool): TensorRT as the GPU execution accelerator (needs ``kind="gpu"``).
+        tensorrt_precision (str): TensorRT's precision, ``FP32`` or ``FP16``.
+        tensorrt_workspace_bytes (int): TensorRT's scratch memory, in bytes (default 1 GiB).
+        tensorrt_cache (str | None): Folder where TensorRT engines are cached across restarts; None for no cache.
+
+    Raises:
+        ValueError: A value is out of its range, or the options contradict each other (``tensorrt`` or ``gpus``
+            without ``kind="gpu"``, the ``python`` backend with GPU instances).
     """
 
     name: str | None = None
@@ -159,11 +166,15 @@ def _io(items: list[Any], batched: bool, source: str) -> list[dict[str, Any]]:
 
 
 def model_config(model_path: str | Path, options: TritonOptions | None = None) -> dict[str, Any]:
-    """The ``ModelConfig`` of ``model_path`` for the backend ``options`` name, as a JSON-form dict.
+    """The Triton ``ModelConfig`` of an exported file, as a dict in its JSON form.
+
+    This is what Triton answers at ``GET /v2/models/<name>/config`` and what ``config.pbtxt`` holds in protobuf text
+    format; the model's name defaults to the file's stem with characters Triton cannot use replaced by ``_``.
 
     Args:
-        model_path: An ONNX file written by ``fisheye-infer export``.
-        options: The repository form and how Triton runs the model (default ``TritonOptions()``).
+        model_path (str | Path): An ONNX file written by ``fisheye-infer export``.
+        options (TritonOptions | None): The repository form and how Triton runs the model; None for
+            ``TritonOptions()``.
 
     Returns:
         dict: The configuration in the JSON form of Triton's ``ModelConfig``.
@@ -275,16 +286,19 @@ def render_pbtxt(config: dict[str, Any]) -> str:
 def write_repository(
     model_path: str | Path, out: str | Path, options: TritonOptions | None = None, *, force: bool = False
 ) -> Path:
-    """Write the model folder ``out/<name>``: ``config.pbtxt``, ``1/model.onnx``, and ``1/model.py`` (python form).
+    """Write the model folder ``out/<name>`` of an exported file into a Triton model repository.
 
-    The model folder appears complete or not at all (it is built beside its place and renamed),
-    and an existing one is replaced only with ``force``.
+    The folder holds ``config.pbtxt`` (inputs and outputs read from the file, batching, instance groups, optional
+    TensorRT, the fisheye-infer metadata as a parameter), ``1/model.onnx`` (the file, copied byte for byte) and, for
+    ``backend="python"``, ``1/model.py``. The model folder appears complete or not at all (it is built beside its
+    place and renamed), and an existing one is replaced only with ``force``.
 
     Args:
-        model_path: An ONNX file written by ``fisheye-infer export``.
-        out: The model repository (created; other models in it are left alone).
-        options: The repository form and how Triton runs the model (default ``TritonOptions()``).
-        force: Replace an existing model folder of the same name.
+        model_path (str | Path): An ONNX file written by ``fisheye-infer export``.
+        out (str | Path): The model repository (created; other models in it are left alone).
+        options (TritonOptions | None): The repository form and how Triton runs the model; None for
+            ``TritonOptions()``.
+        force (bool): Replace an existing model folder of the same name.
 
     Returns:
         Path: The model folder.
@@ -292,6 +306,14 @@ def write_repository(
     Raises:
         ExportError: The folder exists and ``force`` is not given, or the file's batch axis is fixed while batching.
         ArtifactError: The file is not a fisheye-infer model.
+
+    Examples:
+        ```python
+        from fisheye_infer.deploy.triton.repository import TritonOptions, write_repository
+
+        write_repository("model.onnx", "model_repository", TritonOptions(max_batch_size=4, instances=2))
+        # tritonserver --model-repository=model_repository
+        ```
     """
     config = model_config(model_path, options)
     root = Path(out)

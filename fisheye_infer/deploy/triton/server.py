@@ -71,10 +71,13 @@ def _libpython() -> Path | None:
 
 
 def server_unavailable() -> str | None:
-    """Why a Triton server cannot start here, or None when it can.
+    """Why [`TritonServer`][fisheye_infer.deploy.triton.server.TritonServer] cannot start here, or None when it can.
+
+    Checks the platform (Linux x86-64), the ``nvidia-pytriton`` wheel with its server and the Python backend stub
+    for this Python version, and a shared ``libpython`` for the stub to embed. Nothing is started.
 
     Returns:
-        str | None: The reason (platform or missing wheel), naming the install line.
+        The reason (naming the install line where the wheel is missing), or None when the server can start.
     """
     if sys.platform != "linux" or os.uname().machine != "x86_64":
         return f"the bundled Triton server runs on Linux x86-64 only (this is {sys.platform} {os.uname().machine})"
@@ -94,16 +97,36 @@ def _free_port() -> int:
 
 
 class TritonServer:
-    """The bundled ``tritonserver`` serving a model repository on 127.0.0.1, stopped by its PID.
+    """The ``tritonserver`` bundled with the ``nvidia-pytriton`` wheel, serving a model repository on 127.0.0.1.
+
+    The server has Triton's Python backend only, so it serves the repository form written with
+    ``TritonOptions(backend="python")``; its ``model.py`` runs in this environment's interpreter. Used as a context
+    manager, it is started (and ready) on entry and stopped on exit; it is always stopped by its PID.
+    [`server_unavailable`][fisheye_infer.deploy.triton.server.server_unavailable] says beforehand whether it can
+    start here (install: ``pip install --no-deps nvidia-pytriton==0.7.0``, Linux x86-64, glibc 2.35 or newer).
 
     Args:
-        repository: The model repository folder.
-        http_port: The HTTP port (default: a free one).
-        grpc_port: The gRPC port (default: a free one).
-        exit_on_error: Exit when a model fails to load (Triton's default); False keeps the server up, ready without
-            that model, and the failure readable from the repository index.
-        startup_timeout_s: How long ``start`` waits for readiness.
-        exit_timeout_s: How long the server waits for in-flight requests once told to stop.
+        repository (str | Path): The model repository folder.
+        http_port (int | None): The HTTP port; None for a free one.
+        grpc_port (int | None): The gRPC port; None for a free one.
+        exit_on_error (bool): Exit when a model fails to load (Triton's default); False keeps the server up, ready
+            without that model, and the failure readable from the repository index.
+        startup_timeout_s (float): How long ``start`` waits for readiness, in seconds.
+        exit_timeout_s (int): How long the server waits for in-flight requests once told to stop, in seconds.
+
+    Raises:
+        ConfigError: ``repository`` is not a folder.
+
+    Examples:
+        ```python
+        from fisheye_infer.deploy.triton.client import TritonDetector
+        from fisheye_infer.deploy.triton.repository import TritonOptions, write_repository
+        from fisheye_infer.deploy.triton.server import TritonServer
+
+        write_repository("model.onnx", "model_repository", TritonOptions(name="fisheye_bevdet", backend="python"))
+        with TritonServer("model_repository") as server:
+            detector = TritonDetector(server.grpc_url, "fisheye_bevdet", protocol="grpc")
+        ```
     """
 
     def __init__(
@@ -139,7 +162,7 @@ class TritonServer:
 
     @property
     def log_path(self) -> Path:
-        """The server's log (stdout and stderr)."""
+        """The server's log (stdout and stderr); a ``ConfigError`` before ``start``."""
         if self._workspace is None:
             raise ConfigError("the Triton server has not been started")
         return self._workspace / "tritonserver.log"
@@ -148,7 +171,7 @@ class TritonServer:
         """The end of the server's log.
 
         Args:
-            chars: How many characters from the end.
+            chars (int): How many characters from the end.
 
         Returns:
             str: The log's last ``chars`` characters ('' before the server started).
@@ -174,7 +197,7 @@ class TritonServer:
             TritonServer: This server, ready.
 
         Raises:
-            ConfigError: No bundled server here (``server_unavailable``).
+            ConfigError: No bundled server here (see ``server_unavailable``).
             InferenceError: The server exited or was not ready within ``startup_timeout_s`` (its log's end quoted).
         """
         root = bundled_server()
@@ -227,7 +250,7 @@ class TritonServer:
         The Python backend's stub processes, in the server's process group, are killed with it if they outlive it.
 
         Args:
-            timeout_s: How long to wait for a clean exit.
+            timeout_s (float): How long to wait for a clean exit, in seconds.
         """
         if self.process is not None:
             if self.process.poll() is None:
