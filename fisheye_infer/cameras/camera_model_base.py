@@ -60,39 +60,27 @@ class CameraModel(Protocol):
 
 
 def as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
-    """``points`` as an (N, 3) float64 array.
-
-    Args:
-        points (np.ndarray): points or rays.
-        name (str): what the message calls them.
-
-    Returns:
-        np.ndarray: (N, 3) float64.
+    """``points`` (points or rays) as an (N, 3) float64 array; ``name`` is what an error calls them.
 
     Raises:
         CameraModelError: not an (N, 3) array.
     """
-    arr = np.asarray(points, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise CameraModelError(f"{name}: expected an (N, 3) array, got shape {arr.shape}")
-    return arr
+    return _columns(points, 3, name)
 
 
 def as_pixels(uv: np.ndarray) -> np.ndarray:
-    """``uv`` as an (N, 2) float64 array.
-
-    Args:
-        uv (np.ndarray): pixels.
-
-    Returns:
-        np.ndarray: (N, 2) float64.
+    """``uv`` (pixels) as an (N, 2) float64 array.
 
     Raises:
         CameraModelError: not an (N, 2) array.
     """
-    arr = np.asarray(uv, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise CameraModelError(f"uv: expected an (N, 2) array, got shape {arr.shape}")
+    return _columns(uv, 2, "uv")
+
+
+def _columns(values: np.ndarray, columns: int, name: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != columns:
+        raise CameraModelError(f"{name}: expected an (N, {columns}) array, got shape {arr.shape}")
     return arr
 
 
