@@ -8,10 +8,11 @@ import torch
 
 from .base import FisheyeDetector
 from .bevdet_config import BEVDetConfig
-from .checkpoint import GeometryReport, check_keys, load_checkpoint, load_official_state_dict
+from .checkpoint import GeometryReport, check_keys, load_checkpoint
 from .config import ModelConfig, Preprocessing
 from .cyl_config import BEVDetCylConfig, CylPETRConfig
 from .mmconfig import read_mmdet3d_config
+from .official_loading import load_official_state_dict
 from .petr_config import PETRConfig
 from .pinhole_config import PerspBEVDetConfig, PinholeBEVDetConfig
 from .pinhole_petr_config import PerspPETRConfig, PinholePETRConfig
