@@ -1,12 +1,12 @@
 """Reading official checkpoints and loading them strictly, with geometry checked, never silently.
 
-- :func:`load_checkpoint` reads a ``.pth`` with ``torch.load(weights_only=True)``; mmengine files
+- `load_checkpoint` reads a ``.pth`` with ``torch.load(weights_only=True)``; mmengine files
   (``{'state_dict', 'meta', ...}``) and bare state dicts are both accepted. Files whose metadata
   holds arbitrary Python objects need ``allow_pickle=True``, which can execute code from the file
   and therefore warns.
-- :func:`check_keys` compares a state dict with what a model expects and reports *every* missing,
-  unexpected, mis-shaped or wrongly typed key in one :class:`CheckpointError`.
-- :class:`TableCheck` / :func:`decide_geometry` implement the geometry policy:
+- `check_keys` compares a state dict with what a model expects and reports *every* missing,
+  unexpected, mis-shaped or wrongly typed key in one `CheckpointError`.
+- `TableCheck` / `decide_geometry` implement the geometry policy:
   ``"verify"`` (default) uses the stored tables when they agree with the recomputation within
   float rounding and raises otherwise; ``"checkpoint"`` and ``"rig"`` force a source and warn
   when the two differ.

@@ -1,7 +1,7 @@
 """Loading an official checkpoint into a registered model: every key checked, weights loaded strictly, geometry
 reconciled.
 
-:func:`load_official_state_dict` is the whole procedure (see :class:`OfficialCheckpointModel`): check keys
+`load_official_state_dict` is the whole procedure (see `OfficialCheckpointModel`): check keys
 (``checkpoint.check_keys``), map them with the architecture's registered ``checkpoint_filter``, load weights
 strictly, then reconcile the geometry tables stored in the checkpoint (frustum, sampling grids) with the ones
 recomputed from the rig (``checkpoint.decide_geometry``'s policies).

@@ -9,9 +9,9 @@ An entry holds the model class and its configuration class (whose ``preprocess``
 and geometry parameters describe a built model), the official key manifest, the keys that identify a
 checkpoint of it (``signature_keys`` present, ``absent_keys`` absent), the function that maps
 official keys to the model's (``checkpoint_filter``), the keys loading drops, and what its scores
-mean, and which of its modules stay float32 in an int8 file. :func:`create_model` builds an
-eval-mode model, :func:`list_models` names the registered architectures (the CLI's ``--arch``
-choices), :func:`matching_architectures` tells them apart by a checkpoint's keys. An architecture
+mean, and which of its modules stay float32 in an int8 file. `create_model` builds an
+eval-mode model, `list_models` names the registered architectures (the CLI's ``--arch``
+choices), `matching_architectures` tells them apart by a checkpoint's keys. An architecture
 lives in one module ``fisheye_<name>.py`` of this package (imported on first use of the registry)
 with its key manifest in ``manifests/``; registering it signs it up for strict loading, synthetic
 checkpoints, export, the CLI's ``--arch`` and the tests parametrized over ``list_models()``.

@@ -7,7 +7,7 @@ The camera order is the model's input order (Fisheye3DOD: front, left, right, re
 A rig is read from an OCam ``calib_results.txt`` plus ``lidar2cam.json``, from Fisheye3DOD
 ``sensor_metadata.txt`` files (CARLA poses, "compat" or "exact" convention), from the project's
 own rig file (JSON or YAML) or from a pinhole camera list (``rig-pinhole6/cameras.json``), and
-written to the rig file; ``rig_files`` parses those formats, :class:`Rig` validates the result.
+written to the rig file; ``rig_files`` parses those formats, `Rig` validates the result.
 ``Rig.hash`` is a stable content hash that ties an exported model to the rig its geometry tables
 were computed for.
 """

@@ -16,7 +16,7 @@ function of the step, so a run is a pure function of its options: resuming from 
 continues with exactly the frames and rates the uninterrupted run would have used (the options and the
 schedule are ``options.py``'s, the step batches ``batches.py``'s).
 
-A run folder holds::
+A run folder holds:
 
     config.py        the model configuration as an mmdet3d-style config (for ``fisheye-infer export --config``)
     rig.json         the rig the model was trained for (for ``--rig``)

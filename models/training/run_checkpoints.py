@@ -2,10 +2,10 @@
 be to start or continue a run.
 
 ``Trainer`` writes ``checkpoint.pth`` (weights, optimiser and int8 simulation state, metadata) and ``model.pth``
-(official format) with :func:`atomic_save`; ``--resume`` reads the options back (:func:`saved_options`,
-:func:`recorded_options`) and refuses a checkpoint of another configuration or rig (:func:`check_origin`);
-``--init`` takes a checkpoint of fewer queries too (:func:`grown_queries`); ``--init-backbone`` takes the image
-backbone and neck of any architecture with the same backbone section (:func:`backbone_state`).
+(official format) with `atomic_save`; ``--resume`` reads the options back (`saved_options`,
+`recorded_options`) and refuses a checkpoint of another configuration or rig (`check_origin`);
+``--init`` takes a checkpoint of fewer queries too (`grown_queries`); ``--init-backbone`` takes the image
+backbone and neck of any architecture with the same backbone section (`backbone_state`).
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ def grown_queries(
 
     Returns:
         tuple[dict[str, torch.Tensor], dict[str, Any]]: the grown weights and metadata; any other checkpoint as
-        it is, for :func:`check_origin` to judge.
+        it is, for `check_origin` to judge.
     """
     mine, theirs = config.to_dict(), meta.get("config")
     wanted = mine.get("head", {}).get("num_query")
