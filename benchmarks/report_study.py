@@ -59,7 +59,7 @@ def answer_rows(result: Result) -> list[dict[str, Any]]:
         result: A ``study.py`` result.
 
     Returns:
-        Rows of finding, comparison, paper, ours (with its interval), same direction; by finding.
+        Rows of finding, comparison, the paper's difference, ours (with its interval), same direction; by finding.
     """
     rows = []
     for row in result["measurements"].get(FINDINGS, []):
@@ -68,8 +68,8 @@ def answer_rows(result: Result) -> list[dict[str, Any]]:
             {
                 "finding": finding_of(row["comparison (FDS, 0-48 m)"]),
                 "comparison (FDS, 0-48 m)": row["comparison (FDS, 0-48 m)"],
-                "paper": _difference(row.get("paper")),
-                "ours (90% interval)": ours,
+                "paper's difference": _difference(row.get("paper")),
+                "our difference (90% interval)": ours,
                 "same direction": row.get("same direction"),
             }
         )
