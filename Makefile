@@ -53,8 +53,9 @@ bench: $(STAMP)
 	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,ros,bench]'
 	$(BIN)/python benchmarks/run_all.py $(BENCH_ARGS)
 
-# docs/performance/ generated again from the results under benchmarks/results/
+# docs/performance/, the figures and the charts generated again from the results under benchmarks/results/
 bench-report: $(STAMP)
+	$(BIN)/python -c "import matplotlib" 2>/dev/null || $(BIN)/pip install -e '.[bench]'
 	$(BIN)/python benchmarks/report.py
 
 clean:
