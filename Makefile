@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test test-fast lint docs bench bench-report clean
+.PHONY: install demo test test-fast lint docs docs-check bench bench-report clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -45,6 +45,11 @@ lint: $(STAMP)
 # The documentation site (docs/, mkdocs.yml) into site/; --strict: a broken link or reference fails
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
+# The built site in headless Chromium (Debian: apt install chromium): no sideways scroll, no overflowing table,
+# every picture loads, no page too tall (tests/test_docs_browser.py; skipped where no browser is installed)
+docs-check: $(STAMP)
+	$(BIN)/pytest -q -p no:xdist tests/test_docs_browser.py
 
 # Not part of the tests: every benchmark on this machine, each writing a JSON result under benchmarks/results/,
 # then docs/performance/ generated from them. `make bench BENCH_ARGS=--quick` for the short runs.
