@@ -26,7 +26,7 @@ BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 
 pytestmark = pytest.mark.slow
 
-CHECKER = """<!doctype html><html><body><pre id="result">pending</pre>
+CHECKER = r"""<!doctype html><html><body><pre id="result">pending</pre>
 <iframe id="frame" width="%(width)d" height="%(height)d"></iframe>
 <script>
 const pages = %(pages)s;
