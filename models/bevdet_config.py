@@ -109,7 +109,31 @@ class HeadConfig:
 
 @dataclass(frozen=True)
 class BEVDetConfig(ModelConfig):
-    """Everything the FisheyeBEVDet graph depends on, except the rig."""
+    """Everything the FisheyeBEVDet graph depends on, except the rig (official defaults).
+
+    Attributes:
+        image (ImageConfig): Input images and normalisation.
+        backbone (BackboneConfig): The image backbone (ResNet) and neck (FPN).
+        view_transform (ViewTransformConfig): The LSS view transform: the angular feature grid, the depth bins
+            (``dbound``, metres) and the BEV grid (``xbound``, ``ybound``, ``zbound``: lower, upper, step in
+            metres).
+        bev_encoder (BEVEncoderConfig): The BEV encoder (SECOND + SECONDFPN).
+        head (HeadConfig): The TransFusion head: ``num_proposals`` (the boxes per frame), classes, decoding
+            ranges.
+        class_names (tuple[str, ...]): The label names, in class-index order (``head.num_classes`` of them).
+
+    Raises:
+        ConfigError: Inconsistent sections (each message names both fields).
+
+    Examples:
+        ```python
+        from fisheye_infer.models import BEVDetConfig, create_model
+
+        cfg = BEVDetConfig.from_mmdet3d_config("configs/fisheye_bevdet.py")
+        fewer = cfg.replace(head={"num_proposals": 100})
+        model = create_model("fisheye-bevdet", fewer)
+        ```
+    """
 
     image: ImageConfig = field(default_factory=ImageConfig)
     backbone: BackboneConfig = field(default_factory=BackboneConfig)
@@ -119,7 +143,11 @@ class BEVDetConfig(ModelConfig):
     class_names: tuple[str, ...] = CLASSES
 
     def validate(self) -> None:
-        """Cross-field consistency; each message names both fields."""
+        """Check cross-field consistency (called when the configuration is made).
+
+        Raises:
+            ConfigError: Inconsistent fields; each message names both.
+        """
         vt, enc, head, bb = self.view_transform, self.bev_encoder, self.head, self.backbone
         stage_channels = tuple(bb.base_channels * 2**i for i in bb.out_indices)
         checks = [
@@ -187,9 +215,15 @@ class BEVDetConfig(ModelConfig):
 
     @property
     def num_boxes(self) -> int:
+        """Boxes per frame the model outputs (``head.num_proposals``)."""
         return self.head.num_proposals
 
     def geometry_params(self) -> Any:
+        """The parameters of the model's ``geom.*`` tables (what an exported file records and re-baking reads).
+
+        Returns:
+            Any: The LSS parameters (`LSSParams`).
+        """
         vt = self.view_transform
         return LSSParams(
             feature_size=tuple(vt.feature_size),
@@ -206,7 +240,20 @@ class BEVDetConfig(ModelConfig):
 
     @classmethod
     def from_mmdet3d_dict(cls, cfg: Mapping[str, Any], source: str = "<config>") -> Any:
-        """Read an official ``fisheye_bevdet.py``-style namespace (see ``from_mmdet3d_config``)."""
+        """Read an official ``fisheye_bevdet.py``-style namespace (see ``from_mmdet3d_config``).
+
+        Args:
+            cfg (Mapping[str, Any]): The namespace, as
+                [`read_mmdet3d_config`][fisheye_infer.models.mmconfig.read_mmdet3d_config] returns it.
+            source (str): What error messages call it (the file name).
+
+        Returns:
+            BEVDetConfig: The configuration.
+
+        Raises:
+            ConfigError: Another model type, or a value this implementation does not support (named with its
+                key).
+        """
         d = cls()
         model = Section(cfg.get("model"), "model", source)
         model.type_is("BEVDet", "FisheyeBEVDet")

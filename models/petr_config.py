@@ -8,7 +8,8 @@ with.
 
     cfg = PETRConfig()                                   # official equirectangular FisheyePETR
     cfg = PETRConfig.from_mmdet3d_config("configs/fisheye_petr.py")
-    small = cfg.replace(image={"height": 160, "width": 160}, head={"feature_size": (5, 21), "num_query": 40})
+    small = cfg.replace(image={"height": 160, "width": 160},
+                        head={"feature_size": (5, 21), "num_query": 40, "max_num": 40})
 """
 
 from __future__ import annotations
@@ -89,6 +90,28 @@ class PETRConfig(ModelConfig):
     Preprocessing: the official loader decodes BGR and normalises it with the RGB-ordered ImageNet
     statistics without swapping channels (``image.bgr_to_rgb=False``), so ``mean[0]``/``std[0]``
     apply to the blue channel; ``bgr_to_rgb=True`` swaps the channels before normalising.
+
+    Attributes:
+        image (ImageConfig): Input images and normalisation.
+        backbone (BackboneConfig): The image backbone (ResNet) and neck (FPN).
+        head (PETRHeadConfig): Everything ``pts_bbox_head`` sets: the equirectangular feature warp
+            (``feature_size``, ``cam_fov`` in degrees), the 3D position embedding (``depth_num`` bins from
+            ``depth_start`` metres), the transformer (``num_query``, ``embed_dims``, ``num_layers``) and the box
+            coder (``max_num``: the boxes per frame).
+        class_names (tuple[str, ...]): The label names, in class-index order.
+
+    Raises:
+        ConfigError: Inconsistent sections (each message names the fields).
+
+    Examples:
+        ```python
+        from fisheye_infer.models import PETRConfig, create_model
+
+        cfg = PETRConfig()                                   # the official equirectangular FisheyePETR
+        small = cfg.replace(image={"height": 160, "width": 160},
+                        head={"feature_size": (5, 21), "num_query": 40, "max_num": 40})
+        model = create_model("fisheye-petr", small)
+        ```
     """
 
     image: ImageConfig = field(default_factory=ImageConfig)
@@ -97,6 +120,11 @@ class PETRConfig(ModelConfig):
     class_names: tuple[str, ...] = CLASSES
 
     def validate(self) -> None:
+        """Check cross-field consistency (called when the configuration is made).
+
+        Raises:
+            ConfigError: Inconsistent fields, each message naming them.
+        """
         h = self.head
         if h.embed_dims % h.num_heads:
             raise ConfigError(f"head.embed_dims={h.embed_dims} is not divisible by head.num_heads={h.num_heads}")
@@ -125,9 +153,15 @@ class PETRConfig(ModelConfig):
 
     @property
     def num_boxes(self) -> int:
+        """Boxes per frame the model outputs (``head.max_num``)."""
         return self.head.max_num
 
     def geometry_params(self) -> Any:
+        """The parameters of the model's ``geom.*`` tables (what an exported file records and re-baking reads).
+
+        Returns:
+            Any: The PETR parameters (`PETRParams`).
+        """
         h = self.head
         return PETRParams(
             feature_size=tuple(h.feature_size),
@@ -148,6 +182,18 @@ class PETRConfig(ModelConfig):
         """Read an official ``fisheye_petr.py``-style namespace (see ``from_mmdet3d_config``).
 
         Only the fields this reimplementation uses are read; anything else in the file is ignored.
+
+        Args:
+            cfg (Mapping[str, Any]): The namespace, as
+                [`read_mmdet3d_config`][fisheye_infer.models.mmconfig.read_mmdet3d_config] returns it.
+            source (str): What error messages call it (the file name).
+
+        Returns:
+            PETRConfig: The configuration.
+
+        Raises:
+            ConfigError: Another model type, or a value this implementation does not support (named with its
+                key).
         """
         d = cls()
         model = Section(cfg.get("model"), "model", source)
