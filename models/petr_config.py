@@ -49,20 +49,41 @@ class PETRHeadConfig:
     ``dbound`` only sizes the dead 96-slice ``frustum``/``sphere_grid_3d`` checkpoint tensors;
     the position embedding uses ``depth_num`` LID bins from ``depth_start`` to
     ``position_range[3]``.
+
+    Attributes:
+        cam_fov (float): The lens's full field of view the warp assumes, degrees.
+        feature_size (tuple[int, int]): (H, W) of the equirectangular feature grid (elevation, azimuth).
+        azimuth_range (tuple[float, float]): Azimuths the grid spans, radians.
+        elevation_range (tuple[float, float]): Elevations the grid spans, radians.
+        dbound (tuple[float, float, float]): Start, stop, step of the checkpoint's ``frustum`` depths, metres.
+        depth_num (int): Depth bins of the 3D position embedding.
+        depth_start (float): The first bin's depth, metres.
+        lid (bool): Linear-increasing bin spacing; must be True (uniform bins are not supported).
+        position_range (tuple[float, float, float, float, float, float]): The box the embedded 3D points are
+            normalised to: x, y, z minimum then maximum, metres.
+        num_query (int): Object queries of the decoder.
+        embed_dims (int): Transformer width (divisible by ``num_heads``).
+        num_heads (int): Attention heads.
+        num_layers (int): Decoder layers.
+        ffn_dims (int): Feed-forward channels.
+        num_reg_fcs (int): Linear layers of the regression branch.
+        pe_temperature (float): Temperature of the sinusoidal embedding of the reference points.
+        code_size (int): Length of a box's regression code.
+        point_cloud_range (tuple[float, float, float, float, float, float]): The range box centres are decoded
+            in: x, y, z minimum then maximum, metres.
+        post_center_range (tuple[float, float, float, float, float, float]): Box centres kept, likewise.
+        max_num (int): Boxes per frame (at most ``num_query * num_classes``).
     """
 
-    # equirectangular warp
     cam_fov: float = 220.0
-    feature_size: tuple[int, int] = (25, 100)  # H (elevation), W (azimuth)
+    feature_size: tuple[int, int] = (25, 100)
     azimuth_range: tuple[float, float] = (-_HALF_FOV, _HALF_FOV)
     elevation_range: tuple[float, float] = (-math.pi / 4, math.pi / 4)
     dbound: tuple[float, float, float] = (0.5, 48.5, 0.5)
-    # 3D position embedding
     depth_num: int = 64
     depth_start: float = 0.5
     lid: bool = True
     position_range: tuple[float, float, float, float, float, float] = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0)
-    # transformer
     num_query: int = 900
     embed_dims: int = 256
     num_heads: int = 8
@@ -70,7 +91,6 @@ class PETRHeadConfig:
     ffn_dims: int = 2048
     num_reg_fcs: int = 2
     pe_temperature: float = 10000.0
-    # box coding
     code_size: int = 8
     point_cloud_range: tuple[float, float, float, float, float, float] = (-48.0, -48.0, -5.0, 48.0, 48.0, 5.0)
     post_center_range: tuple[float, float, float, float, float, float] = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0)
