@@ -59,6 +59,18 @@ def load_checkpoint(path: str | Path, *, allow_pickle: bool = False) -> tuple[di
     The weights are read with ``weights_only=True``. ``allow_pickle=True`` lifts that restriction
     (needed for mmengine files whose ``meta``/``message_hub`` hold Python objects) and warns,
     because unpickling can run code from the file.
+
+    Args:
+        path (str | Path): The ``.pth`` file.
+        allow_pickle (bool): Unpickle arbitrary objects (only for files from a trusted source).
+
+    Returns:
+        tuple[dict[str, torch.Tensor], dict[str, Any]]: The state dict (a ``module.`` prefix of a DataParallel
+            save removed) and the file's ``meta`` (empty for a bare state dict).
+
+    Raises:
+        CheckpointError: No such file, a file ``torch.load`` cannot read (naming the Python objects it stores
+            when ``weights_only`` refuses them), or content that is neither form.
     """
     path = Path(path)
     if not path.is_file():
@@ -206,12 +218,23 @@ def warn_of_other_lenses(context: str, camera_names: Sequence[str], tables: np.n
 
 @dataclass(frozen=True)
 class GeometryReport:
-    """What the loader did with the geometry tables."""
+    """What the loader did with the geometry tables.
 
-    source: str  # "checkpoint" or "rig"
+    Attributes:
+        source (str): Where the model's tables came from: ``"checkpoint"`` or ``"rig"``.
+        checks (tuple[TableCheck, ...]): Each stored table next to its recomputation from the rig (``key``,
+            ``max_abs_error``, ``agrees``).
+    """
+
+    source: str
     checks: tuple[TableCheck, ...]
 
     def summary(self) -> str:
+        """One line: the source, and each table's largest difference and tolerance.
+
+        Returns:
+            str: ``geometry from <source>: <key>: max |stored - recomputed| = ... (tolerance ...); ...``.
+        """
         rows = "; ".join(c.describe() for c in self.checks)
         return f"geometry from {self.source}: {rows}"
 

@@ -296,6 +296,25 @@ def read_mmdet3d_config(path: str | Path, *, merge_bases: bool = False) -> dict[
     merged first, child values winning; otherwise ``_base_`` is kept as a plain value. A file of more
     than ``MAX_CONFIG_BYTES``, one that is not UTF-8 text, a ``_base_`` entry that is not a file name,
     bases nested more than ``_MAX_BASE_DEPTH`` deep and a file that is its own base are refused.
+
+    Args:
+        path (str | Path): The official config file (``.py``).
+        merge_bases (bool): Read and merge the ``_base_`` files first.
+
+    Returns:
+        dict[str, Any]: The top-level names and their values (dicts, lists, tuples, numbers, strings).
+
+    Raises:
+        ConfigError: A file that is missing, too large or not UTF-8, a construct outside the evaluated subset
+            (named with its line), a value too large, or a bad ``_base_``.
+
+    Examples:
+        ```python
+        from fisheye_infer.models import read_mmdet3d_config
+
+        cfg = read_mmdet3d_config("configs/fisheye_bevdet.py")
+        cfg["model"]["type"]         # "BEVDet"
+        ```
     """
     return _read(Path(path), merge_bases, ())
 

@@ -31,7 +31,15 @@ __all__ = [
 
 
 class CameraModel(Protocol):
-    """What every camera model offers."""
+    """What every camera model offers: projection of rays to pixels and unprojection of pixels to rays.
+
+    Pixels are (u, v) = (column, row) with integer values at pixel centres; rays are in the OpenCV camera frame
+    (x right, y down, z forward). Every model in this package is a frozen pydantic object with these members.
+
+    Attributes:
+        width (int): Image width, pixels.
+        height (int): Image height, pixels.
+    """
 
     width: int
     height: int
@@ -40,10 +48,14 @@ class CameraModel(Protocol):
         """Pixels of rays, and which of them the camera sees.
 
         Args:
-            points (np.ndarray): (N, 3) points or rays in the camera frame.
+            points (np.ndarray): (N, 3) points or rays in the camera frame; only their direction counts.
 
         Returns:
-            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels and (N,) bool validity.
+            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels (u, v) and (N,) bool validity: the ray is
+                within the model's field of view and its pixel inside the image.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
         """
         ...
 
@@ -51,10 +63,13 @@ class CameraModel(Protocol):
         """Unit rays of pixels.
 
         Args:
-            uv (np.ndarray): (N, 2) pixels.
+            uv (np.ndarray): (N, 2) pixels (u, v).
 
         Returns:
-            np.ndarray: (N, 3) unit rays in the camera frame.
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
         """
         ...
 

@@ -20,6 +20,29 @@ class KannalaBrandt(CameraModelFields):
     Unlike ``cv2.fisheye`` this uses the incidence angle atan2(|xy|, z), so rays beyond 90 degrees
     (a 220-degree lens) project too; in front of the camera both agree. ``fov`` (degrees) bounds
     the rays that are valid.
+
+    Attributes:
+        type (Literal["kannala_brandt"]): The discriminator a rig file stores.
+        width (int): Image width, pixels (> 0).
+        height (int): Image height, pixels (> 0).
+        fx (float): Focal length along x, pixels (> 0).
+        fy (float): Focal length along y, pixels (> 0).
+        cx (float): Principal point column, pixels.
+        cy (float): Principal point row, pixels.
+        k (tuple[float, float, float, float]): Distortion coefficients k1..k4 (OpenCV's ``cv::fisheye`` D).
+        fov (float): Full field of view in degrees, in (0, 360]; rays beyond half of it are not valid.
+
+    Raises:
+        pydantic.ValidationError: A field out of range or not finite.
+
+    Examples:
+        ```python
+        from fisheye_infer.cameras.kannala_brandt import KannalaBrandt
+
+        lens = KannalaBrandt(fx=320.0, fy=320.0, cx=399.5, cy=399.5, k=(0.05, -0.01, 0.0, 0.0),
+                             width=800, height=800, fov=200.0)
+        uv, valid = lens.project(rays)      # rays: (N, 3) in the camera frame
+        ```
     """
 
     type: Literal["kannala_brandt"] = "kannala_brandt"
@@ -40,20 +63,51 @@ class KannalaBrandt(CameraModelFields):
         height: int,
         fov: float = 220.0,
     ) -> KannalaBrandt:
-        """Build from the paper's radius form r(theta) = k0 theta + k1 theta^3 + ... + k4 theta^9 (pixels)."""
+        """Build from the paper's radius form r(theta) = k0 theta + k1 theta^3 + ... + k4 theta^9 (pixels).
+
+        Args:
+            coeffs (tuple[float, float, float, float, float]): k0..k4 of r(theta), pixels; k0 is the focal length.
+            cx (float): Principal point column, pixels.
+            cy (float): Principal point row, pixels.
+            width (int): Image width, pixels.
+            height (int): Image height, pixels.
+            fov (float): Full field of view, degrees.
+
+        Returns:
+            KannalaBrandt: The model with ``fx = fy = k0`` and ``k = (k1, k2, k3, k4) / k0``.
+
+        Raises:
+            CameraModelError: k0 is not positive.
+            pydantic.ValidationError: Another field out of range.
+        """
         k0, *rest = coeffs
         if k0 <= 0:
             raise CameraModelError(f"Kannala-Brandt: k0 (the focal length) must be positive, got {k0}")
         return cls(fx=k0, fy=k0, cx=cx, cy=cy, k=tuple(v / k0 for v in rest), width=width, height=height, fov=fov)
 
     def distort(self, theta: np.ndarray) -> np.ndarray:
-        """theta_d(theta), the normalised image radius."""
+        """theta_d(theta), the normalised image radius.
+
+        Args:
+            theta (np.ndarray): Incidence angles, radians, any shape.
+
+        Returns:
+            np.ndarray: theta_d of the same shape (image radius divided by the focal length).
+        """
         t2 = theta * theta
         k1, k2, k3, k4 = self.k
         return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
 
     def undistort(self, theta_d: np.ndarray, iterations: int = 20) -> np.ndarray:
-        """Invert ``distort`` by Newton's method, as ``cv2.fisheye.undistortPoints`` does."""
+        """Invert ``distort`` by Newton's method, as ``cv2.fisheye.undistortPoints`` does.
+
+        Args:
+            theta_d (np.ndarray): Normalised image radii, any shape.
+            iterations (int): Newton steps.
+
+        Returns:
+            np.ndarray: Incidence angles theta, radians, float64 of the same shape.
+        """
         theta = np.array(theta_d, dtype=np.float64)
         k1, k2, k3, k4 = self.k
         for _ in range(iterations):
@@ -64,6 +118,17 @@ class KannalaBrandt(CameraModelFields):
         return theta
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels of rays; ``valid`` where the ray is within ``fov`` and its pixel in the image.
+
+        Args:
+            points (np.ndarray): (N, 3) points or rays in the camera frame; only their direction counts.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels (u, v) and (N,) bool validity.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
+        """
         p = as_points(points)
         rho_xy = np.hypot(p[:, 0], p[:, 1])
         theta = np.arctan2(rho_xy, p[:, 2])
@@ -74,6 +139,17 @@ class KannalaBrandt(CameraModelFields):
         return uv, valid
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays of pixels (no fov mask).
+
+        Args:
+            uv (np.ndarray): (N, 2) pixels (u, v).
+
+        Returns:
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
+        """
         q = as_pixels(uv)
         a = (q[:, 0] - self.cx) / self.fx
         b = (q[:, 1] - self.cy) / self.fy
@@ -85,7 +161,15 @@ class KannalaBrandt(CameraModelFields):
 
 
 class Equidistant(KannalaBrandt):
-    """The ideal fisheye r = f * theta: Kannala-Brandt with every k zero."""
+    """The ideal fisheye r = f * theta: Kannala-Brandt with every k zero.
+
+    Attributes:
+        type (Literal["equidistant"]): The discriminator a rig file stores; the other fields are
+            [`KannalaBrandt`][fisheye_infer.cameras.kannala_brandt.KannalaBrandt]'s, with ``k`` all zero.
+
+    Raises:
+        pydantic.ValidationError: A non-zero ``k``, or a field out of range.
+    """
 
     type: Literal["equidistant"] = "equidistant"  # type: ignore[assignment]
 

@@ -29,6 +29,36 @@ class OCamModel(CameraModelFields):
     radius to the ray's z (cam2world), ``invpol`` maps theta = incidence - pi/2 to an image
     radius (world2cam); ``c, d, e`` is the affine stretch. ``fov`` (degrees) is not in the file:
     Fisheye3DOD uses 220 everywhere, so that is the default when reading a file.
+
+    Attributes:
+        type (Literal["ocam"]): The discriminator a rig file stores.
+        width (int): Image width, pixels (> 0).
+        height (int): Image height, pixels (> 0).
+        pol (tuple[float, ...]): Coefficients (lowest power first) of the direct polynomial: image radius
+            (pixels) to the ray's -z.
+        invpol (tuple[float, ...]): Coefficients (lowest power first) of the inverse polynomial: theta
+            (radians, incidence - pi/2) to image radius (pixels).
+        center_row (float): Row of the distortion centre, pixels (the file's xc).
+        center_col (float): Column of the distortion centre, pixels (the file's yc).
+        c (float): Affine stretch, 1 for square pixels; ``c - d * e`` must be non-zero.
+        d (float): Affine skew term.
+        e (float): Affine skew term.
+        fov (float): Full field of view in degrees, in (0, 360]; rays beyond half of it do not project.
+
+    Raises:
+        pydantic.ValidationError: A field out of range or not finite, or ``c - d * e`` zero.
+
+    Examples:
+        ```python
+        import numpy as np
+        from fisheye_infer.cameras.ocam_model import OCamModel
+
+        camera = OCamModel.from_file("calib_results.txt")         # fov: 220 degrees
+        rays = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])       # forward, and 90 degrees to the right
+        uv, valid = camera.project(rays)                           # (2, 2) pixels, (2,) bool
+        back = camera.unproject(uv[valid])                         # (n, 3) unit rays
+        assert np.allclose(back, rays[valid], atol=1e-5)
+        ```
     """
 
     type: Literal["ocam"] = "ocam"
@@ -51,7 +81,18 @@ class OCamModel(CameraModelFields):
 
     @classmethod
     def from_file(cls, path: str | Path, fov: float = 220.0) -> OCamModel:
-        """Read an OCamCalib ``calib_results.txt``."""
+        """Read an OCamCalib ``calib_results.txt``.
+
+        Args:
+            path (str | Path): The file.
+            fov (float): Full field of view in degrees, which the file does not hold.
+
+        Returns:
+            OCamModel: The model.
+
+        Raises:
+            CameraModelError: The file is missing, not text, too large or not a valid ``calib_results.txt``.
+        """
         path = Path(path)
         try:
             text = read_text(path, "an OCam calib_results.txt")
@@ -65,6 +106,18 @@ class OCamModel(CameraModelFields):
 
         Blank lines (including CRLF and whitespace-only ones) and ``#`` comments are skipped, so the
         five data rows cannot shift the way they do in ``ocamcamera``'s reader.
+
+        Args:
+            text (str): The file's content.
+            fov (float): Full field of view in degrees, which the file does not hold.
+            source (str): What error messages call the text (a file name).
+
+        Returns:
+            OCamModel: The model.
+
+        Raises:
+            CameraModelError: A row that is not numbers or not finite, fewer than five data rows, a
+                polynomial whose leading count does not match, or a field out of range.
         """
         rows: list[list[float]] = []
         for lineno, line in enumerate(text.splitlines(), start=1):
@@ -118,7 +171,12 @@ class OCamModel(CameraModelFields):
             raise CameraModelError(f"OCam file {source}: {exc}") from exc
 
     def to_text(self) -> str:
-        """Write the model back in the ``calib_results.txt`` layout."""
+        """Write the model back in the ``calib_results.txt`` layout.
+
+        Returns:
+            str: The file's text; [`parse`][fisheye_infer.cameras.ocam_model.OCamModel.parse] reads it back
+                to an equal model (``fov`` aside).
+        """
 
         def row(values: tuple[float, ...]) -> str:
             return " ".join(repr(float(v)) for v in values)
@@ -158,6 +216,15 @@ class OCamModel(CameraModelFields):
 
         Rays beyond the fov and the origin map to the sentinel (-1, -1); a ray on the optical
         axis, in front or behind, maps to the centre without a fov test.
+
+        Args:
+            points (np.ndarray): (N, 3) points or rays in the camera frame.
+
+        Returns:
+            np.ndarray: (N, 2) float64 pixels (u, v), (-1, -1) where none.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
         """
         p = as_points(points)
         rho_xy = np.hypot(p[:, 0], p[:, 1])
@@ -173,7 +240,17 @@ class OCamModel(CameraModelFields):
         return uv
 
     def cam2world(self, uv: np.ndarray) -> np.ndarray:
-        """Unit rays exactly as ``ocamcamera.cam2world`` defines them (no fov mask)."""
+        """Unit rays exactly as ``ocamcamera.cam2world`` defines them (no fov mask).
+
+        Args:
+            uv (np.ndarray): (N, 2) pixels (u, v).
+
+        Returns:
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
+        """
         q = as_pixels(uv)
         det = self.c - self.d * self.e
         du = q[:, 0] - self.center_col
@@ -190,6 +267,9 @@ class OCamModel(CameraModelFields):
 
         Semi-axes are rho_max horizontally and c * rho_max vertically; the skew d, e is ignored,
         as in the reference implementation.
+
+        Returns:
+            np.ndarray: (height, width) uint8, 255 inside the field of view and 0 outside.
         """
         rho_max = float(self._invpol(np.array([self.theta_max]))[0])
         mask = np.zeros((self.height, self.width), dtype=np.uint8)
@@ -200,7 +280,17 @@ class OCamModel(CameraModelFields):
     # -- common interface ----------------------------------------------------------------
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixels for rays within the fov; ``valid`` also requires the pixel to lie in the image."""
+        """Pixels of rays; ``valid`` where the ray is within the fov and its pixel in the image.
+
+        Args:
+            points (np.ndarray): (N, 3) points or rays in the camera frame; only their direction counts.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels (u, v) and (N,) bool validity.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
+        """
         p = as_points(points)
         rho_xy = np.hypot(p[:, 0], p[:, 1])
         safe = np.where(rho_xy == 0, 1.0, rho_xy)
@@ -212,4 +302,15 @@ class OCamModel(CameraModelFields):
         return uv, valid
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays of pixels (``cam2world``; no fov mask).
+
+        Args:
+            uv (np.ndarray): (N, 2) pixels (u, v).
+
+        Returns:
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
+        """
         return self.cam2world(uv)

@@ -15,7 +15,20 @@ __all__ = ["Pinhole", "DistortedPinhole"]
 
 
 class Pinhole(CameraModelFields):
-    """A distortion-free perspective camera; only rays in front of it (z > 0) project."""
+    """A distortion-free perspective camera; only rays in front of it (z > 0) project.
+
+    Attributes:
+        type (Literal["pinhole"]): The discriminator a rig file stores.
+        width (int): Image width, pixels (> 0).
+        height (int): Image height, pixels (> 0).
+        fx (float): Focal length along x, pixels (> 0).
+        fy (float): Focal length along y, pixels (> 0).
+        cx (float): Principal point column, pixels.
+        cy (float): Principal point row, pixels.
+
+    Raises:
+        pydantic.ValidationError: A field out of range or not finite.
+    """
 
     type: Literal["pinhole"] = "pinhole"
     fx: float = Field(gt=0)
@@ -24,6 +37,17 @@ class Pinhole(CameraModelFields):
     cy: float
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels of rays; ``valid`` where the ray is within front of the camera (z > 0) and its pixel in the image.
+
+        Args:
+            points (np.ndarray): (N, 3) points or rays in the camera frame; only their direction counts.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels (u, v) and (N,) bool validity.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
+        """
         p = as_points(points)
         z = p[:, 2]
         safe = np.where(z > 0, z, 1.0)
@@ -31,6 +55,17 @@ class Pinhole(CameraModelFields):
         return uv, (z > 0) & inside_image(uv, self.width, self.height)
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays of pixels (all with z > 0).
+
+        Args:
+            uv (np.ndarray): (N, 2) pixels (u, v).
+
+        Returns:
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
+        """
         q = as_pixels(uv)
         rays = np.stack([(q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy, np.ones(len(q))], axis=-1)
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
@@ -42,6 +77,19 @@ class DistortedPinhole(CameraModelFields):
 
     ``distortion`` in OpenCV's order (k1, k2, p1, p2[, k3[, k4, k5, k6]]). Only rays in front of the
     camera project; unprojection inverts the distortion iteratively, as ``cv2.undistortPoints`` does.
+
+    Attributes:
+        type (Literal["distorted_pinhole"]): The discriminator a rig file stores.
+        width (int): Image width, pixels (> 0).
+        height (int): Image height, pixels (> 0).
+        fx (float): Focal length along x, pixels (> 0).
+        fy (float): Focal length along y, pixels (> 0).
+        cx (float): Principal point column, pixels.
+        cy (float): Principal point row, pixels.
+        distortion (tuple[float, ...]): 4, 5 or 8 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]).
+
+    Raises:
+        pydantic.ValidationError: A field out of range or not finite, or another number of coefficients.
     """
 
     type: Literal["distorted_pinhole"] = "distorted_pinhole"
@@ -59,6 +107,17 @@ class DistortedPinhole(CameraModelFields):
         return value
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels of rays; ``valid`` where the ray is within front of the camera (z > 0) and its pixel in the image.
+
+        Args:
+            points (np.ndarray): (N, 3) points or rays in the camera frame; only their direction counts.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels (u, v) and (N,) bool validity.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
+        """
         p = as_points(points)
         z = p[:, 2]
         safe = np.where(z > 0, z, 1.0)
@@ -67,6 +126,17 @@ class DistortedPinhole(CameraModelFields):
         return uv, (z > 0) & inside_image(uv, self.width, self.height)
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays of pixels (all with z > 0).
+
+        Args:
+            uv (np.ndarray): (N, 2) pixels (u, v).
+
+        Returns:
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
+        """
         q = as_pixels(uv)
         x, y = radtan_undistort((q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy, self.distortion)
         rays = np.stack([x, y, np.ones(len(q))], axis=-1)

@@ -29,6 +29,21 @@ class DoubleSphere(CameraModelFields):
     ``u = fx x / (alpha d2 + (1 - alpha)(xi d1 + z)) + cx`` with ``d1 = |p|`` and
     ``d2 = |(x, y, xi d1 + z)|``. Rays with ``z <= -w2 d1`` do not project (``w2`` from the paper), nor
     rays beyond ``fov`` (degrees; the importers set it to what the image covers).
+
+    Attributes:
+        type (Literal["double_sphere"]): The discriminator a rig file stores.
+        width (int): Image width, pixels (> 0).
+        height (int): Image height, pixels (> 0).
+        fx (float): Focal length along x, pixels (> 0).
+        fy (float): Focal length along y, pixels (> 0).
+        cx (float): Principal point column, pixels.
+        cy (float): Principal point row, pixels.
+        xi (float): Shift of the second sphere along the axis.
+        alpha (float): Pinhole shift parameter, in (0, 1].
+        fov (float): Full field of view in degrees, in (0, 360].
+
+    Raises:
+        pydantic.ValidationError: A field out of range or not finite.
     """
 
     type: Literal["double_sphere"] = "double_sphere"
@@ -47,6 +62,17 @@ class DoubleSphere(CameraModelFields):
         return (w1 + xi) / math.sqrt(2 * w1 * xi + xi * xi + 1)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels of rays; ``valid`` where the ray is within the model's domain and ``fov`` and its pixel in the image.
+
+        Args:
+            points (np.ndarray): (N, 3) points or rays in the camera frame; only their direction counts.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels (u, v) and (N,) bool validity.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
+        """
         p = as_points(points)
         x, y, z = p.T
         d1 = np.linalg.norm(p, axis=1)
@@ -59,6 +85,17 @@ class DoubleSphere(CameraModelFields):
         return uv, valid
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays of pixels; NaN for a pixel outside the model's image of the sphere.
+
+        Args:
+            uv (np.ndarray): (N, 2) pixels (u, v).
+
+        Returns:
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
+        """
         q = as_pixels(uv)
         mx, my = (q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy
         r2 = mx * mx + my * my
@@ -77,6 +114,21 @@ class ExtendedUnified(CameraModelFields):
     ``u = fx x / (alpha d + (1 - alpha) z) + cx`` with ``d = sqrt(beta (x^2 + y^2) + z^2)``: a ray meets
     an ellipsoid, then a pinhole. Rays with ``z <= -w d`` (``w`` from ``alpha``) or beyond ``fov`` do
     not project.
+
+    Attributes:
+        type (Literal["eucm"]): The discriminator a rig file stores.
+        width (int): Image width, pixels (> 0).
+        height (int): Image height, pixels (> 0).
+        fx (float): Focal length along x, pixels (> 0).
+        fy (float): Focal length along y, pixels (> 0).
+        cx (float): Principal point column, pixels.
+        cy (float): Principal point row, pixels.
+        alpha (float): Ellipsoid-to-pinhole weight, in [0, 1].
+        beta (float): Ellipsoid shape (> 0); 1 is the unified model's sphere.
+        fov (float): Full field of view in degrees, in (0, 360].
+
+    Raises:
+        pydantic.ValidationError: A field out of range or not finite.
     """
 
     type: Literal["eucm"] = "eucm"
@@ -89,6 +141,17 @@ class ExtendedUnified(CameraModelFields):
     fov: float = Field(default=180.0, gt=0.0, le=360.0)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels of rays; ``valid`` where the ray is within the model's domain and ``fov`` and its pixel in the image.
+
+        Args:
+            points (np.ndarray): (N, 3) points or rays in the camera frame; only their direction counts.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels (u, v) and (N,) bool validity.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
+        """
         p = as_points(points)
         x, y, z = p.T
         a = self.alpha
@@ -101,6 +164,17 @@ class ExtendedUnified(CameraModelFields):
         return uv, valid
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays of pixels; NaN for a pixel outside the model's image of the sphere.
+
+        Args:
+            uv (np.ndarray): (N, 2) pixels (u, v).
+
+        Returns:
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
+        """
         q = as_pixels(uv)
         mx, my = (q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy
         r2 = mx * mx + my * my
@@ -117,6 +191,21 @@ class Omnidirectional(CameraModelFields):
     A ray is projected onto the unit sphere, shifted by ``xi`` along the axis, and imaged by an
     OpenCV pinhole with ``distortion`` (k1, k2, p1, p2). Rays with ``z <= -w |p|``, ``w = min(xi,
     1 / xi)``, or beyond ``fov`` do not project.
+
+    Attributes:
+        type (Literal["omnidirectional"]): The discriminator a rig file stores.
+        width (int): Image width, pixels (> 0).
+        height (int): Image height, pixels (> 0).
+        fx (float): Focal length along x, pixels (> 0).
+        fy (float): Focal length along y, pixels (> 0).
+        cx (float): Principal point column, pixels.
+        cy (float): Principal point row, pixels.
+        xi (float): Shift of the sphere's centre along the axis (>= 0).
+        distortion (tuple[float, float, float, float]): Radial-tangential coefficients (k1, k2, p1, p2).
+        fov (float): Full field of view in degrees, in (0, 360].
+
+    Raises:
+        pydantic.ValidationError: A field out of range or not finite.
     """
 
     type: Literal["omnidirectional"] = "omnidirectional"
@@ -129,6 +218,17 @@ class Omnidirectional(CameraModelFields):
     fov: float = Field(default=180.0, gt=0.0, le=360.0)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels of rays; ``valid`` where the ray is within the model's domain and ``fov`` and its pixel in the image.
+
+        Args:
+            points (np.ndarray): (N, 3) points or rays in the camera frame; only their direction counts.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: (N, 2) float64 pixels (u, v) and (N,) bool validity.
+
+        Raises:
+            CameraModelError: `points` is not an (N, 3) array.
+        """
         p = as_points(points)
         norm = np.linalg.norm(p, axis=1)
         s = p / np.where(norm > 0, norm, 1.0)[:, None]
@@ -141,6 +241,17 @@ class Omnidirectional(CameraModelFields):
         return uv, valid
 
     def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays of pixels; NaN for a pixel outside the model's image of the sphere.
+
+        Args:
+            uv (np.ndarray): (N, 2) pixels (u, v).
+
+        Returns:
+            np.ndarray: (N, 3) float64 unit rays in the camera frame.
+
+        Raises:
+            CameraModelError: `uv` is not an (N, 2) array.
+        """
         q = as_pixels(uv)
         mx, my = radtan_undistort((q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy, self.distortion)
         r2 = mx * mx + my * my
