@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test test-fast lint docs bench bench-report clean
+.PHONY: install demo test test-fast lint docs docs-check bench bench-report clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,6 +12,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install torch==2.13.0
 	# ray and triton: the Ray Serve / Ray Data / Triton client paths the tests exercise
 	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,ros]'
+	# a real Triton server for the tests (Linux x86-64, glibc 2.35+): the wheel's bundled tritonserver and Python
+	# backend only; --no-deps because its Python package pins numpy below 2 and is not used
+	if [ "$$(uname -sm)" = "Linux x86_64" ] && [ "$$(getconf GNU_LIBC_VERSION | awk '{split($$2, v, "."); print (v[1] > 2 || v[2] >= 35)}')" = 1 ]; \
+	then $(BIN)/pip install --no-deps nvidia-pytriton==0.7.0; else echo "no Triton server on this platform: its tests skip"; fi
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -42,6 +46,11 @@ lint: $(STAMP)
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
+# The built site in headless Chromium (Debian: apt install chromium): no sideways scroll, no overflowing table,
+# every picture loads, no page too tall (tests/test_docs_browser.py; skipped where no browser is installed)
+docs-check: $(STAMP)
+	$(BIN)/pytest -q -p no:xdist tests/test_docs_browser.py
+
 # Not part of the tests: every benchmark on this machine, each writing a JSON result under benchmarks/results/,
 # then docs/performance/ generated from them. `make bench BENCH_ARGS=--quick` for the short runs.
 BENCH_ARGS ?=
@@ -49,8 +58,9 @@ bench: $(STAMP)
 	$(BIN)/pip install -e '.[export,serve,dev,ray,triton,ros,bench]'
 	$(BIN)/python benchmarks/run_all.py $(BENCH_ARGS)
 
-# docs/performance/ generated again from the results under benchmarks/results/
+# docs/performance/, the figures and the charts generated again from the results under benchmarks/results/
 bench-report: $(STAMP)
+	$(BIN)/python -c "import matplotlib" 2>/dev/null || $(BIN)/pip install -e '.[bench]'
 	$(BIN)/python benchmarks/report.py
 
 clean:

@@ -72,6 +72,7 @@ STEPS = (
         "load_service", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("httpx", "uvicorn", "websockets")
     ),
     Step("scale_out", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("ray", "httpx")),
+    Step("triton_server", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("tritonclient", "pytriton")),
     Step("replay", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("rosbags", "mcap")),
     Step("tracking", modules=("torch", "onnx")),
     Step("virtual_cameras", modules=("torch", "onnx")),

@@ -222,17 +222,72 @@ def export(
     progress: Callable[[str], None] = print,
     **legacy: Any,
 ) -> ExportResult:
-    """Export ``ckpt`` to ``out``; see the module docstring. Raises ``ParityError`` when parity fails.
+    """Export a checkpoint to one verified, self-contained ONNX file, and optionally its int8 and fp16 files.
 
-    ``config`` is the official config file the checkpoint was trained with (read, never executed)
-    or a configuration object; by default the official configuration of the architecture. The fp32
-    file is checked on ``frames`` seeded frames plus ``verify_images`` at each of ``threads``.
-    ``int8`` (``True`` for the default ``Int8Options``): once the fp32 file is written, also write
-    ``export_int8``'s file next to it (``model.onnx`` -> ``model.int8.onnx``); ``fp16``: likewise
-    ``export_fp16``'s file (``model.fp16.onnx``), for GPU execution providers. ``out`` always stays
-    the verified fp32 file. Each reduced file is judged by ``comparison`` (default: ``Comparison``
-    with ``verify_images`` added to its frames). Every file's metadata carries ``check_tensorrt``'s
-    verdict on its graph (``tensorrt``).
+    The checkpoint is read (weights only), its architecture picked, the plain-PyTorch model built for the rig and
+    loaded strictly, then traced to ONNX with the geometry tables as named initializers. The file is run in ONNX
+    Runtime against the PyTorch model in float64 on seeded synthetic frames (plus ``verify_images``) at each of
+    ``threads``, and appears at ``out`` only when that check passes (or with ``force``); nothing is left behind
+    otherwise. Every file's metadata carries the parity report and
+    [`check_tensorrt`][fisheye_infer.export.tensorrt_check.check_tensorrt]'s verdict on its graph. ``out`` always
+    stays the fp32 file; the reduced files go next to it ([`export_int8`][fisheye_infer.export.reduced.export_int8],
+    [`export_fp16`][fisheye_infer.export.reduced.export_fp16]).
+
+    Args:
+        ckpt (str | Path): The checkpoint (``.pth``) to export.
+        out (str | Path): The ONNX file to write; must end in ``.onnx``.
+        arch (str | None): The registered architecture (``fisheye-bevdet``, ``fisheye-petr``, ...); None infers it
+            from the checkpoint's keys (and ``config``).
+        config (str | Path | object | None): The official config file the checkpoint was trained with (read, never
+            executed) or a configuration object; None for the architecture's official configuration.
+        rig (str | Path | Rig | None): The cameras: a rig file or folder, ``default``, or a ``Rig``; None for the
+            default rig.
+        geometry (str): The geometry tables stored in the checkpoint against those recomputed for the rig:
+            ``verify`` (they must agree), ``checkpoint`` (use the stored ones) or ``rig`` (use the recomputed ones).
+        verify_images (str | Path | None): A folder of your own frames added to the parity check (and to the
+            reduced files' comparison); None for synthetic frames only.
+        frames (int): Seeded synthetic frames for the check against PyTorch.
+        threads (Sequence[int]): ONNX Runtime thread counts the file is checked at; the last one also runs the
+            reduced files' comparison.
+        force (bool): Write the files even when their check fails (the result still reports the failure).
+        allow_pickle (bool): Read a checkpoint that holds arbitrary Python objects; this can run code from the
+            file, so only for trusted checkpoints.
+        int8 (Int8Options | bool | None): Also write the int8 file (``model.onnx`` -> ``model.int8.onnx``): an
+            [`Int8Options`][fisheye_infer.export.options.Int8Options], or True for the default options; None or
+            False for none.
+        fp16 (bool): Also write the float16 file for GPU execution providers (``model.fp16.onnx``).
+        comparison (Comparison | None): How the reduced files are judged against the fp32 file
+            ([`Comparison`][fisheye_infer.export.options.Comparison]); None for ``Comparison`` with
+            ``verify_images`` and the last of ``threads``.
+        progress (Callable[[str], None]): Called with one line per step; ``print`` by default.
+        **legacy (Any): The previous release's keywords (``calib_images=``, ``min_kept=``, ...), folded into
+            ``int8`` and ``comparison`` with a ``DeprecationWarning``.
+
+    Returns:
+        ExportResult: The written file (or None), its metadata, its parity report, sizes, time, and the int8 and fp16
+            results where asked for.
+
+    Raises:
+        ExportError: ``out`` does not end in ``.onnx``, the architecture cannot be told or does not fit, or the rig
+            does not fit the configuration.
+        CheckpointError: The checkpoint cannot be read, its keys or shapes do not fit the model, or its stored
+            geometry differs from the rig's with ``geometry="verify"``.
+        RigError: The rig cannot be read.
+        ParityError: The fp32 file disagrees with PyTorch beyond tolerance (no file written), or an int8 or fp16 file
+            finds too few of the fp32 file's boxes (the fp32 file is kept); not with ``force``.
+        TypeError: An unknown keyword argument.
+
+    Examples:
+        ```python
+        from fisheye_infer.export.exporter import export
+        from fisheye_infer.export.options import Comparison, Int8Options
+
+        result = export("fisheye_bevdet.pth", "model.onnx", rig="rig.yaml", verify_images="frames/")
+        print(result.summary())
+        result = export("fisheye_petr.pth", "petr.onnx", config="fisheye_petr.py",
+                        int8=Int8Options(calib_images="frames/"), fp16=True, comparison=Comparison(frames=8))
+        print(result.int8.path, result.fp16.path)  # petr.int8.onnx petr.fp16.onnx
+        ```
     """
     start = time.perf_counter()
     out = Path(out)

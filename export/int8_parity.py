@@ -19,7 +19,7 @@ from fisheye_infer.eval.top_match import MATCH_RADIUS_M, top_matched
 from fisheye_infer.precision import MIN_TOP_MATCHED
 from fisheye_infer.runtime.artifact import OUTPUTS, ReducedParityReport
 
-from .verify import run_onnx
+from .parity_runs import run_onnx
 
 __all__ = ["file_outputs", "int8_parity"]
 

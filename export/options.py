@@ -26,15 +26,26 @@ AUTO = "auto"
 
 @dataclass(frozen=True)
 class Int8Options:
-    """How the int8 file is made.
+    """How the int8 file is made: calibration frames, what stays float32, weight bits.
 
-    ``calib_frames`` seeded synthetic renders of the file's rig plus the frames in ``calib_images``
-    calibrate the activation ranges. By default (``scope`` ``AUTO``, ``keep_float`` None) the int8 search
-    chooses what stays float32, starting from the architecture's own ``int8_float``, until the file passes
-    its comparison (``int8_search``). Chosen by hand: ``scope`` one of ``SCOPES`` (``AUTO`` with
-    ``keep_float`` given is ``network``) and ``keep_float`` the modules (state-dict prefixes) left float32,
-    None for the architecture's ``int8_float``. ``weight_bits`` is 7, or 8 only to measure what 7 costs
-    (``fisheye_infer.precision``).
+    ``calib_frames`` seeded synthetic renders of the file's rig plus the frames in ``calib_images`` calibrate the
+    activation ranges. By default (``scope="auto"``, ``keep_float=None``) the int8 search chooses what stays
+    float32, starting from the architecture's own ``int8_float`` modules, until the file passes its comparison.
+    Every value is checked here, so a bad option fails before anything is computed.
+
+    Attributes:
+        calib_images (str | Path | None): A file or folder of your own frames added to the calibration; None for
+            synthetic frames only.
+        calib_frames (int): Seeded synthetic calibration frames of the file's rig; 0 only with ``calib_images``.
+        scope (str): ``auto`` (the int8 search chooses), ``network`` (the image trunk and every weighted layer
+            beyond it) or ``trunk`` (the image trunk only). ``auto`` with ``keep_float`` given means ``network``.
+        keep_float (Sequence[str] | None): Modules (state-dict prefixes) left float32, chosen by hand; None lets
+            the search choose (``scope="auto"``) or keeps the architecture's ``int8_float``.
+        weight_bits (int): Bits of the int8 weights: 7 (default; every x86 CPU computes the same integers), or 8
+            only to measure what 7 costs.
+
+    Raises:
+        ExportError: A value is out of range, there are no calibration frames, or ``calib_images`` does not exist.
     """
 
     calib_images: str | Path | None = None
@@ -70,11 +81,22 @@ class Int8Options:
 
 @dataclass(frozen=True)
 class Comparison:
-    """How a reduced-precision file is judged against its fp32 file, ONNX against ONNX.
+    """How a reduced-precision file (int8 or fp16) is judged against its fp32 file, ONNX against ONNX.
 
-    On ``frames`` seeded synthetic frames (the first ones are the fp32 export's own verification
-    frames) plus the frames in ``images``, at ``threads`` threads; the file is written when it finds
-    ``min_kept`` of the fp32 file's top-50 boxes again (``fisheye_infer.eval.top_match``).
+    The file is written when it finds ``min_kept`` of the fp32 file's top-50 boxes again (same label, within the
+    match radius) on the comparison frames.
+
+    Attributes:
+        frames (int): Seeded synthetic frames (the first ones are the fp32 export's own verification frames);
+            default 32; 0 only with ``images``.
+        min_kept (float): The share of the fp32 file's top-50 boxes the file must find again, in (0, 1]; default
+            0.95.
+        images (str | Path | None): A folder of your own frames added to the comparison; None for synthetic frames
+            only.
+        threads (int): ONNX Runtime threads for both files; at least 1.
+
+    Raises:
+        ExportError: A value is out of range.
     """
 
     frames: int = COMPARE_FRAMES

@@ -68,12 +68,20 @@ def int8_path_for(fp32_path: str | Path) -> Path:
 
 
 class FrameReader(CalibrationDataReader):
-    """Calibration frames for ``quantize_static``: one (1, N, H, W, 3) uint8 frame per call.
+    """Calibration frames for [`quantize`][fisheye_infer.export.quantize.quantize]: one frame per call.
 
-    ``set_range`` lets the calibrator take the frames one at a time (``quantize`` asks for that):
-    it keeps every recorded tensor of the frames it is given until it has folded them into its
-    histograms, and on the full-size FisheyePETR that is about 3.5 GB per frame (eight frames at
-    once did not fit in 24 GB).
+    An ONNX Runtime ``CalibrationDataReader`` that feeds one `(1, N, H, W, 3)` uint8 frame with its camera mask per
+    call. ``set_range`` lets the calibrator take the frames one at a time (``quantize`` asks for that): it keeps
+    every recorded tensor of the frames it is given until it has folded them into its histograms, about 3.5 GB per
+    frame on the full-size FisheyePETR.
+
+    Args:
+        frames (np.ndarray): The calibration frames, a non-empty `(F, N, H, W, 3)` uint8 array (F frames of N
+            cameras, in the file's camera order and image size).
+        valid (np.ndarray | None): Which cameras of each frame are present, an `(F, N)` bool array; None for all.
+
+    Raises:
+        ExportError: ``frames`` is not a non-empty 5-D uint8 array.
     """
 
     def __init__(self, frames: np.ndarray, valid: np.ndarray | None = None) -> None:
@@ -91,13 +99,25 @@ class FrameReader(CalibrationDataReader):
             yield {INPUT_IMAGES: self.frames[i : i + 1], INPUT_CAMERA_VALID: self.valid[i : i + 1]}
 
     def get_next(self) -> dict[str, np.ndarray] | None:
+        """The next frame's inputs in the current range.
+
+        Returns:
+            The graph's inputs (``images``, ``camera_valid``) for one frame; None once the range is used up.
+        """
         return next(self._items, None)
 
     def set_range(self, start_index: int, end_index: int) -> None:
+        """Serve only frames ``start_index`` to ``end_index`` (exclusive), from the first of them.
+
+        Args:
+            start_index (int): The first frame.
+            end_index (int): One past the last frame (clipped to the frame count).
+        """
         self._range = (start_index, end_index)
         self._items: Iterator[dict[str, np.ndarray]] = self._feeds(start_index, end_index)
 
     def rewind(self) -> None:
+        """Start the current range again from its first frame."""
         self._items = self._feeds(*self._range)
 
     def __len__(self) -> int:
@@ -131,22 +151,50 @@ def quantize(
     weight_bits: int = WEIGHT_BITS,
     calibration_cache: str | Path | None = None,
 ) -> Path:
-    """Static QDQ quantization of ``onnx_path``'s ``int8_nodes(scope, keep_float)`` into ``out``; returns ``out``.
-    ``keep_float`` defaults to the file's architecture's (``architecture_float``).
+    """Quantize an fp32 file to a static QDQ int8 file, without judging it.
 
-    U8 activations (ranges: the ``CALIBRATION_PERCENTILE`` of each tensor's values over the reader's
-    frames; ORT records the tensors of every node whose op type is quantized, which is why
-    ``int8_nodes`` leaves data movement out), S8 weights of ``weight_bits`` bits (per output channel by
-    default; ``check_weight_range`` holds the written file to them; 8 only to measure what 7 costs, since
-    such a file can give other boxes on CPUs without VNNI). Only the
-    chosen nodes get QDQ pairs; every other node, initializer and the metadata are carried over unchanged (the
-    exporter then replaces the metadata with the int8 parity report).
+    U8 activations (ranges: the 99.99th percentile of each tensor's values over the reader's frames) and S8
+    weights of ``weight_bits`` bits, per output channel by default; the written file is checked to hold its weights
+    to that range. Only the nodes of the chosen scope get QDQ pairs (the geometry, attention products, softmax,
+    norms, box decoding and the ``keep_float`` modules stay float); every other node, initializer and the metadata
+    are carried over unchanged, and the geometry tables are checked to be byte-identical. The input file is never
+    modified; ``out`` appears only when quantization has finished. Whether the file is good enough is judged by
+    [`export_int8`][fisheye_infer.export.reduced.export_int8], which calls this.
 
-    ``calibration_cache``: a JSON file of activation ranges (ONNX Runtime's calibration cache). Missing,
-    the ranges are computed and saved there; present, they are read instead of running the frames again.
-    A cache serves every later call on the same file and frames whose scope is within the first call's
-    (ranges are recorded for every tensor of the quantized op types): how ``int8_search`` builds many
-    files from one calibration.
+    Args:
+        onnx_path (str | Path): An fp32 file written by ``fisheye-infer export``.
+        out (str | Path): Where to write the int8 file (never ``onnx_path``).
+        reader (FrameReader): The calibration frames
+            ([`FrameReader`][fisheye_infer.export.quantize.FrameReader]).
+        scope (str): ``network`` (the image trunk and every weighted layer beyond it) or ``trunk`` (the image
+            trunk only).
+        keep_float (Sequence[str] | None): Modules (state-dict prefixes) left float32; None for the file's
+            architecture's ``int8_float``.
+        per_channel (bool): Weight scales per output channel (True) or per tensor.
+        weight_bits (int): 7, or 8 only to measure what 7 costs (an 8-bit file can give other boxes on CPUs
+            without VNNI).
+        calibration_cache (str | Path | None): A JSON file of activation ranges (ONNX Runtime's calibration
+            cache). Missing, the ranges are computed and saved there; present, they are read instead of running
+            the frames again (valid for the same file and frames and a scope within the first call's). None for no
+            cache.
+
+    Returns:
+        Path: ``out``.
+
+    Raises:
+        ExportError: ``weight_bits`` is not 7 or 8, ``out`` is the input, ONNX Runtime's quantizer fails, the
+            geometry tables changed, or the written weights fall outside their range.
+        ArtifactError: ``keep_float`` is None and the file's metadata cannot be read.
+
+    Examples:
+        ```python
+        import numpy as np
+
+        from fisheye_infer.export.quantize import FrameReader, quantize
+
+        frames = np.load("calibration.npy")  # (F, N, H, W, 3) uint8, the file's cameras and image size
+        quantize("model.onnx", "model.int8.onnx", FrameReader(frames), scope="trunk")
+        ```
     """
     src, out = Path(onnx_path), Path(out)
     if weight_bits not in WEIGHT_QMAX:

@@ -5,10 +5,10 @@
 
 ``virtual`` (the default for a rig that is not the file's training rig): the file takes the robot's raw images, each
 camera at its own size, and a front end in the graph resamples each into the image its training camera would have
-taken (:mod:`fisheye_infer.geometry.virtual`, :mod:`.virtual_front`); the network and its geometry tables stay as
-trained, but for FisheyePETR's key mask and embedding, which also mask the keys that read pixels the robot cameras do
-not see. Robot cameras are mapped onto the model's by ``camera_map`` or by heading
-(:func:`~fisheye_infer.cameras.camera_map.map_cameras`).
+taken (``fisheye_infer.geometry.virtual``, ``virtual_front``); the network and its geometry tables stay as trained,
+but for FisheyePETR's key mask and embedding, which also mask the keys that read pixels the robot cameras do not see.
+Robot cameras are mapped onto the model's by ``camera_map`` or by heading
+(``fisheye_infer.cameras.camera_map.map_cameras``).
 
 ``tables``: every ``geom.*`` initializer recomputed for the rig. The metadata of an exported file records the
 parameters of its geometry tables (and, for FisheyePETR, the position-encoder weights the key embedding needs), so
@@ -57,25 +57,44 @@ def rebake(
     camera_map: Mapping[str, str] | None = None,
     depth: float | None = None,
 ) -> ArtifactMeta:
-    """Write ``out``: ``model_path`` for the cameras of ``rig``.
+    """Write an exported file for the cameras of another rig, with numpy and onnx only (no torch).
+
+    ``virtual`` mode: the new file takes the rig's raw images, each camera at its own size, and a front end in the
+    graph resamples each into the image its training camera would have taken; the network and its geometry tables
+    stay as trained (FisheyePETR's key mask also hides the pixels the new cameras do not see). ``tables`` mode:
+    every ``geom.*`` initializer is recomputed for the rig from the parameters the metadata records; the network
+    then sees pictures through lenses and mounts it was not trained on. The TensorRT check is run again on the new
+    file; the input file is never modified.
 
     Args:
-        model_path: A file written by ``fisheye-infer export`` (or by ``rebake``).
-        rig: The new rig: a rig file, a folder, ``default``, or a :class:`~fisheye_infer.cameras.rig.Rig`.
-        out: Where to write the new file (never ``model_path``).
-        mode: ``virtual``: a front end resamples the rig's cameras into the training cameras; ``tables``: the
-            geometry tables are recomputed for the rig; ``auto``: ``tables`` for the file's training rig itself,
-            ``virtual`` otherwise.
-        camera_map: ``virtual``: the model's camera name -> the rig's camera name for every camera; None maps
-            them by heading.
-        depth: ``virtual``: None compensates rotation only; a distance (m) compensates the cameras' offsets there.
+        model_path (str | Path): A file written by ``fisheye-infer export`` (or by ``rebake``).
+        rig (str | Path | Rig): The new rig: a rig file, a folder, ``default``, or a ``Rig``.
+        out (str | Path): Where to write the new file (never ``model_path``).
+        mode (str): ``virtual``: a front end resamples the rig's cameras into the training cameras; ``tables``: the
+            geometry tables are recomputed for the rig (same camera names, order and image size); ``auto``:
+            ``tables`` for the file's training rig itself, ``virtual`` otherwise.
+        camera_map (Mapping[str, str] | None): ``virtual`` only: the model's camera name -> the rig's camera name
+            for every camera; None maps them by heading.
+        depth (float | None): ``virtual`` only: None compensates rotation only; a distance in metres compensates
+            the cameras' offsets at that distance.
 
     Returns:
-        ArtifactMeta: The new file's metadata.
+        ArtifactMeta: The new file's metadata
+            ([`ArtifactMeta`][fisheye_infer.runtime.artifact.ArtifactMeta]).
 
     Raises:
         ArtifactError: The input cannot be read, is the output, or its tables do not fit this version.
-        RigError: The rig does not fit (camera names or sizes in ``tables`` mode; the camera map in ``virtual``).
+        RigError: The rig cannot be read or does not fit (camera names or sizes in ``tables`` mode; the camera map
+            in ``virtual``), or ``camera_map`` is given with ``mode="tables"``.
+
+    Examples:
+        ```python
+        from fisheye_infer.export.rebake import rebake
+
+        meta = rebake("model.onnx", "robot_rig.yaml", "model_robot.onnx")  # virtual cameras
+        rebake("model.onnx", "recalibrated.yaml", "model_new.onnx", mode="tables")  # new tables, no resampling
+        print(meta.model_id, meta.cameras, meta.tensorrt.compatible)
+        ```
     """
     model_path, out = Path(model_path), Path(out)
     if out.resolve() == model_path.resolve():

@@ -56,10 +56,31 @@ def export_fp16(
     progress: Callable[[str], None] = print,
     **legacy: Any,
 ) -> Fp16Result:
-    """A verified fp32 file -> its float16 file for GPU execution providers; see ``fp16`` and ``fp16_parity``.
+    """Make the float16 file of a verified fp32 file, for GPU execution providers, and judge it.
 
-    Evidence: the fp16 file against the fp32 file in ONNX Runtime's CPU execution provider, on the
-    ``comparison``'s frames.
+    Weights and compute become float16; the geometry tables, index arithmetic and the interface stay as in the fp32
+    file. The fp16 file is compared with the fp32 file in ONNX Runtime's CPU execution provider on the
+    ``comparison``'s frames and written only when it passes (or with ``force``). Its metadata carries the
+    comparison, a ``quantization`` record and the TensorRT check of its own graph.
+
+    Args:
+        fp32_path (str | Path): An fp32 file written by ``fisheye-infer export``.
+        out (str | Path | None): Where to write; None for ``model.fp16.onnx`` next to ``model.onnx``.
+        comparison (Comparison | None): How the file is judged
+            ([`Comparison`][fisheye_infer.export.options.Comparison]); None for ``Comparison()``.
+        force (bool): Write the file even when its comparison fails.
+        progress (Callable[[str], None]): Called with one line per step; ``print`` by default.
+        **legacy (Any): The previous release's keywords (``frames=``, ``verify_images=``, ``threads=``,
+            ``min_kept=``), folded into ``comparison`` with a ``DeprecationWarning``.
+
+    Returns:
+        Fp16Result: The written file (None when its comparison failed and ``force`` is not given), its metadata,
+            comparison, time and size.
+
+    Raises:
+        ExportError: ``fp32_path`` is already a reduced-precision file.
+        ArtifactError: ``fp32_path`` is missing or not a fisheye-infer model.
+        TypeError: An unknown keyword argument.
     """
     _, comparison = options_from_keywords(
         None, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS, caller="export_fp16"
@@ -92,12 +113,42 @@ def export_int8(
     progress: Callable[[str], None] = print,
     **legacy: Any,
 ) -> Int8Result:
-    """A verified fp32 file -> its static-QDQ int8 file; see ``quantize`` and ``Int8Options``.
+    """Make the static-QDQ int8 file of a verified fp32 file and judge it against the fp32 file.
 
-    Calibration: the options' seeded synthetic renders of the file's own rig (seeds from
-    ``CALIBRATION_SEED``, disjoint from the comparison's) plus the user's calibration frames.
-    Evidence: the int8 file against the fp32 file on the ``comparison``'s frames. By default what stays
-    float32 is searched for until the file passes (``int8_search``); its record is in the metadata.
+    Calibration uses the options' seeded synthetic renders of the file's own rig (seeds disjoint from the
+    comparison's) plus your calibration frames. The int8 file is compared with the fp32 file on the
+    ``comparison``'s frames and written only when it passes (or with ``force``). By default what stays float32 is
+    searched for until the file passes; the search's record is in the metadata.
+
+    Args:
+        fp32_path (str | Path): An fp32 file written by ``fisheye-infer export``.
+        out (str | Path | None): Where to write; None for ``model.int8.onnx`` next to ``model.onnx``.
+        options (Int8Options | None): Calibration, scope, float32 modules and weight bits
+            ([`Int8Options`][fisheye_infer.export.options.Int8Options]); None for ``Int8Options()``.
+        comparison (Comparison | None): How the file is judged
+            ([`Comparison`][fisheye_infer.export.options.Comparison]); None for ``Comparison()``.
+        force (bool): Write the file even when its comparison fails.
+        progress (Callable[[str], None]): Called with one line per step; ``print`` by default.
+        **legacy (Any): The previous release's keywords (``calib_frames=``, ``min_kept=``, ...), folded into
+            ``options`` and ``comparison`` with a ``DeprecationWarning``.
+
+    Returns:
+        Int8Result: The written file (None when its comparison failed and ``force`` is not given), its metadata,
+            comparison, time and size.
+
+    Raises:
+        ExportError: ``fp32_path`` is already quantized, or quantization fails.
+        ArtifactError: ``fp32_path`` is missing or not a fisheye-infer model.
+        TypeError: An unknown keyword argument.
+
+    Examples:
+        ```python
+        from fisheye_infer.export.options import Comparison, Int8Options
+        from fisheye_infer.export.reduced import export_int8
+
+        result = export_int8("model.onnx", options=Int8Options(calib_images="frames/"), comparison=Comparison(frames=8))
+        print(result.summary())  # model.int8.onnx, if it finds 95% of the fp32 file's top-50 boxes again
+        ```
     """
     options, comparison = options_from_keywords(
         options, comparison or Comparison(), legacy, comparison_names=_COMPARISON_KEYWORDS, caller="export_int8"

@@ -18,8 +18,16 @@ __all__ = ["ExportResult", "Fp16Result", "Int8Result", "ReducedResult"]
 
 @dataclass(frozen=True)
 class ReducedResult:
-    """A reduced-precision file derived from a verified fp32 file: where it went (None: not written,
-    its parity failed), its metadata and parity, how long it took and its size."""
+    """A reduced-precision file derived from a verified fp32 file, and how it compared.
+
+    Attributes:
+        path (Path | None): The written file; None when it was not written (its comparison failed).
+        meta (ArtifactMeta): The file's metadata, with its parity report and ``quantization`` record.
+        parity (ReducedParityReport): The comparison with the fp32 file: the share of the fp32 file's top-50 boxes
+            found again, and whether that passed.
+        seconds (float): How long making and comparing the file took, in seconds.
+        file_bytes (int): The written file's size in bytes; 0 when not written.
+    """
 
     path: Path | None
     meta: ArtifactMeta
@@ -29,9 +37,19 @@ class ReducedResult:
 
 
 class Int8Result(ReducedResult):
-    """The int8 file written next to the fp32 one (``export_int8``)."""
+    """The int8 file made from an fp32 file ([`export_int8`][fisheye_infer.export.reduced.export_int8]).
+
+    Its fields are those of [`ReducedResult`][fisheye_infer.export.results.ReducedResult]: ``path``, ``meta``,
+    ``parity``, ``seconds``, ``file_bytes``.
+    """
 
     def summary(self) -> str:
+        """What ``fisheye-infer export --int8`` prints for the file.
+
+        Returns:
+            str: Lines on the file, how it was quantized, its comparison with the fp32 file, the int8 search and the
+                TensorRT check.
+        """
         p, q = self.parity, self.meta.quantization
         how = (
             f"{q.mode}, {q.scope}, {q.weight_bits}-bit weights, calibrated on {q.calibration_frames} frame(s)"
@@ -53,9 +71,18 @@ class Int8Result(ReducedResult):
 
 
 class Fp16Result(ReducedResult):
-    """The fp16 file written next to the fp32 one (``export_fp16``)."""
+    """The fp16 file made from an fp32 file ([`export_fp16`][fisheye_infer.export.reduced.export_fp16]).
+
+    Its fields are those of [`ReducedResult`][fisheye_infer.export.results.ReducedResult]: ``path``, ``meta``,
+    ``parity``, ``seconds``, ``file_bytes``.
+    """
 
     def summary(self) -> str:
+        """What ``fisheye-infer export --fp16`` prints for the file.
+
+        Returns:
+            str: Lines on the file, its comparison with the fp32 file and the TensorRT check.
+        """
         p, q = self.parity, self.meta.quantization
         lines = [
             f"fp16 {'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; "
@@ -118,8 +145,23 @@ def _tensorrt_lines(meta: ArtifactMeta, prefix: str = "") -> list[str]:
 
 @dataclass(frozen=True)
 class ExportResult:
-    """The fp32 file (None: not written, its parity failed), its metadata and parity against PyTorch,
-    how long the export took, its size, and the int8 and fp16 files made from it, if asked for."""
+    """What [`export`][fisheye_infer.export.exporter.export] returns: the fp32 file, its check, the reduced files.
+
+    Attributes:
+        path (Path | None): The written fp32 file; None when it was not written (its parity check failed).
+        meta (ArtifactMeta): The file's metadata
+            ([`ArtifactMeta`][fisheye_infer.runtime.artifact.ArtifactMeta]), parity report included.
+        parity (ParityReport): The check of the ONNX file against PyTorch in float64: largest differences,
+            tolerances and whether it passed.
+        seconds (float): How long the export took, in seconds (reduced files included).
+        file_bytes (int): The fp32 file's size in bytes; 0 when not written.
+        initializer_bytes (int): Bytes of every initializer: weights and geometry tables.
+        geometry_bytes (int): Bytes of the ``geom.*`` initializers alone.
+        int8 (Int8Result | None): The int8 file's result
+            ([`Int8Result`][fisheye_infer.export.results.Int8Result]); None when not asked for.
+        fp16 (Fp16Result | None): The fp16 file's result
+            ([`Fp16Result`][fisheye_infer.export.results.Fp16Result]); None when not asked for.
+    """
 
     path: Path | None
     meta: ArtifactMeta
@@ -132,6 +174,11 @@ class ExportResult:
     fp16: Fp16Result | None = None
 
     def summary(self) -> str:
+        """What ``fisheye-infer export`` prints: the files, their checks, and the commands to try next.
+
+        Returns:
+            str: The summary, one line per fact, the int8 and fp16 files' summaries included.
+        """
         p = self.parity
         lines = [
             f"{'wrote' if self.path else 'not written'}: {self.path or '-'}  ({self.file_bytes / 1e6:.1f} MB; "

@@ -75,7 +75,32 @@ __all__ = [
 
 
 def check_tensorrt(model: onnx.ModelProto) -> TensorRTReport:
-    """The findings of every check in the module docstring on ``model``; ``compatible`` when none is an error."""
+    """Check statically whether TensorRT 10's ONNX parser would take a graph; no TensorRT needed.
+
+    The rules come from onnx-tensorrt's operator support matrix and importer for TensorRT 10: the opset (9 to 20),
+    custom domains, supported op types and element types, and the attribute values and constant inputs the
+    importer requires (TopK, GridSample, ScatterND, Resize, pooling, Squeeze, Clip, quantization zero points, ...),
+    graph input ranks and tensors of more than 8 dimensions. [`export`][fisheye_infer.export.exporter.export] and
+    [`rebake`][fisheye_infer.export.rebake.rebake] store the report in every file's metadata (``tensorrt``).
+
+    Args:
+        model (onnx.ModelProto): The graph to check (``onnx.load("model.onnx")``).
+
+    Returns:
+        TensorRTReport: ``target`` (the TensorRT version the rules are for), ``compatible`` (no finding is an
+            error) and ``findings``: ``error`` (the parser or the engine build refuses the node) or ``note``
+            (accepted, but worth knowing: DOUBLE cast to FLOAT, INT64 tensors, dynamic input dimensions).
+
+    Examples:
+        ```python
+        import onnx
+
+        from fisheye_infer.export.tensorrt_check import check_tensorrt
+
+        report = check_tensorrt(onnx.load("model.onnx"))
+        print(report.compatible, report.summary())
+        ```
+    """
     g = GraphFacts.read(model)
     found = Findings()
     _check_opset(model, found)

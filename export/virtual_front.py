@@ -5,7 +5,7 @@
 
 The graph's ``images`` input (B, N, Ht, Wt, 3) uint8 becomes an internal value computed from a new ``images``
 input (B, N, Hp, Wp, 3) uint8, the robot's images padded to the largest camera
-(:mod:`fisheye_infer.geometry.virtual`): the images made planar (B, 3, N*Hp*Wp), every tap of every output pixel
+(``fisheye_infer.geometry.virtual``): the images made planar (B, 3, N*Hp*Wp), every tap of every output pixel
 read by a GatherElements per channel (the index table expanded over the batch), the four taps weighed and summed,
 the fill added, and the sum rounded to uint8 as cv2.remap rounds (``floor(x + 0.5)``; every product and sum is
 exact in float32), then back to (B, N, Ht, Wt, 3). Every elementwise step runs over long rows of one channel and
@@ -57,7 +57,7 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
 
     Args:
         proto: An exported graph (its ``images`` input: the training cameras' images).
-        front: The tables and padded size of :func:`~fisheye_infer.geometry.virtual.virtual_front`.
+        front: The tables and padded size of [`virtual_front`][fisheye_infer.geometry.virtual.virtual_front].
     """
     if has_front(proto):
         detach_front(proto)
@@ -131,7 +131,7 @@ def detach_front(proto: onnx.ModelProto) -> None:
     """Remove the front end of ``proto`` (in place): its ``images`` input takes the training cameras' images again.
 
     Args:
-        proto: A graph with a front end (:func:`attach_front`).
+        proto: A graph with a front end (`attach_front`).
 
     Raises:
         ArtifactError: ``proto`` has no front end.

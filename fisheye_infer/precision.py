@@ -35,7 +35,16 @@ COMPARE_FRAMES: Final = 32
 
 
 def under_module(name: str, prefix: str) -> bool:
-    """Whether the module ``name`` is the module ``prefix`` or inside it, as state-dict names nest
-    (``img_backbone.conv1`` is under ``img_backbone``, ``img_backbone_x`` is not): how an int8 file's
-    float modules (``keep_float``) are matched, in the export and in its training simulation."""
+    """Whether the module ``name`` is the module ``prefix`` or inside it, as state-dict names nest.
+
+    ``img_backbone.conv1`` is under ``img_backbone``, ``img_backbone_x`` is not: how an int8 file's float modules
+    (``keep_float``) are matched, in the export and in its training simulation.
+
+    Args:
+        name: A module's dotted name in the state dict.
+        prefix: The dotted name of the module it may be inside.
+
+    Returns:
+        bool: True when ``name`` is ``prefix`` or one of its submodules.
+    """
     return name == prefix or name.startswith(prefix + ".")

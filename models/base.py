@@ -6,10 +6,10 @@
             super().__init__(config, rig, geometry)     # self.config, self.camera_names, self.rig_geometry
             ...                                         # the layers, in the official order
 
-The geometry comes from :func:`fisheye_infer.geometry.kinds.geometry_from_rig` for the
+The geometry comes from [`geometry_from_rig`][fisheye_infer.geometry.kinds.geometry_from_rig] for the
 configuration's ``geometry_params()``: the model never computes a table, it installs the
 geometry object's tables as buffers. A subclass that needs more of the rig than its camera count
-overrides :meth:`FisheyeDetector._check_rig`.
+overrides `FisheyeDetector._check_rig`.
 
 Both families run the same stages, which this class names so that callers (export, calibration,
 tests) need not know the family:
@@ -118,7 +118,7 @@ class FisheyeDetector(nn.Module):
         """Image features (B, V, C, h, w) -> what the head reads (BEVDet: (B, C, X, Y) BEV features from the view
         transform; PETR: (B, Q, C) object queries decoded against the keys and their 3D position embedding).
 
-        ``camera_valid`` (B, V) masks missing views (:meth:`view_valid` expands a per-camera mask);
+        ``camera_valid`` (B, V) masks missing views (`view_valid` expands a per-camera mask);
         ``tables`` replaces the installed geometry tables (the exporter passes them as graph
         inputs); ``cam2lidar`` (B, N, 4, 4) replaces the baked extrinsics per frame (a reference
         path for parity on dataset frames, not exportable).

@@ -1,9 +1,9 @@
 """Typed configuration of FisheyeBEVDet with the defaults of the official ``configs/fisheye_bevdet.py``.
 
-A tree of frozen dataclasses (see :mod:`.config`): ``image``, ``backbone``, ``view_transform``,
+A tree of frozen dataclasses (see [`config`][fisheye_infer.models.config]): ``image``, ``backbone``, ``view_transform``,
 ``bev_encoder``, ``head`` and ``class_names``. ``BEVDetConfig.from_mmdet3d_config`` reads an
 official config file without executing it and maps the mmdet3d dict onto it; the cylindrical
-variant (:mod:`.cyl_config`) changes only how the view transform is read.
+variant ([`cyl_config`][fisheye_infer.models.cyl_config]) changes only how the view transform is read.
 """
 
 from __future__ import annotations
@@ -27,11 +27,25 @@ Bound = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class ViewTransformConfig:
-    """FisheyeLSSTransform: equirectangular warp, depth/context head, lift and BEV mean pooling."""
+    """FisheyeLSSTransform: equirectangular warp, depth/context head, lift and BEV mean pooling.
+
+    Attributes:
+        in_channels (int): Channels of the image features (the neck's output).
+        out_channels (int): Channels of the lifted context features (the BEV encoder's input).
+        feature_size (tuple[int, int]): (H, W) of the angular grid the features are warped onto (elevation,
+            azimuth).
+        azimuth_range (tuple[float, float]): Azimuths the grid spans, radians.
+        elevation_range (tuple[float, float]): Elevations the grid spans, radians.
+        xbound (tuple[float, float, float]): BEV grid along x: lower, upper, step, metres.
+        ybound (tuple[float, float, float]): BEV grid along y: lower, upper, step, metres.
+        zbound (tuple[float, float, float]): The one z cell: lower, upper, step, metres.
+        dbound (tuple[float, float, float]): Depth bins along each ray: start, stop, step, metres.
+        ocam_fov (float): The lens's full field of view the warp assumes, degrees.
+    """
 
     in_channels: int = 256
     out_channels: int = 96
-    feature_size: tuple[int, int] = (25, 100)  # H_e x W_e of the angular grid
+    feature_size: tuple[int, int] = (25, 100)
     azimuth_range: tuple[float, float] = (-math.radians(110.0), math.radians(110.0))
     elevation_range: tuple[float, float] = (-math.pi / 4, math.pi / 4)
     xbound: Bound = (-48.0, 48.0, 0.3)
@@ -42,6 +56,7 @@ class ViewTransformConfig:
 
     @property
     def num_depth_bins(self) -> int:
+        """Depth bins per ray: ``ceil((stop - start) / step)`` of ``dbound``."""
         start, stop, step = self.dbound
         return int(math.ceil((stop - start) / step))
 
@@ -56,7 +71,19 @@ class ViewTransformConfig:
 
 @dataclass(frozen=True)
 class BEVEncoderConfig:
-    """SECOND + SECONDFPN (BN eps 1e-3)."""
+    """SECOND + SECONDFPN (BN eps 1e-3).
+
+    Attributes:
+        in_channels (int): Channels of the BEV features (the view transform's output).
+        out_channels (tuple[int, ...]): Channels of each SECOND stage.
+        layer_nums (tuple[int, ...]): Convolutions per stage.
+        layer_strides (tuple[int, ...]): Stride of each stage.
+        fpn_in_channels (tuple[int, ...]): Channels the FPN takes (the stages').
+        fpn_out_channels (tuple[int, ...]): Channels of each FPN output; their sum is the head's input.
+        upsample_strides (tuple[float, ...]): Upsampling of each FPN branch.
+        use_conv_for_no_stride (bool): A convolution rather than a transposed one where the stride is 1.
+        bn_eps (float): BatchNorm epsilon.
+    """
 
     in_channels: int = 96
     out_channels: tuple[int, ...] = (128, 256)
@@ -71,7 +98,30 @@ class BEVEncoderConfig:
 
 @dataclass(frozen=True)
 class HeadConfig:
-    """TransFusionHead and its TransFusionBBoxCoder / test_cfg."""
+    """TransFusionHead and its TransFusionBBoxCoder / test_cfg.
+
+    Attributes:
+        in_channels (int): Channels of the BEV features (the FPN outputs' sum).
+        hidden_channel (int): Channels inside the head.
+        num_classes (int): Classes of the heatmap (``len(class_names)``).
+        num_proposals (int): Boxes per frame: the heatmap peaks taken as queries.
+        nms_kernel_size (int): Size of the heatmap's local-maximum window.
+        num_decoder_layers (int): Transformer decoder layers.
+        num_heads (int): Attention heads.
+        ffn_channels (int): Feed-forward channels of the decoder.
+        head_conv (int): Channels of the prediction branches.
+        common_heads (tuple[tuple[str, tuple[int, int]], ...]): Each regression branch: name, (output channels,
+            convolutions).
+        dataset (str): ``"Fisheye3DOD"`` leaves Pedestrian and Cyclist out of the heatmap NMS.
+        grid_size (tuple[int, int, int]): The voxel grid (X, Y, Z) the head decodes against.
+        out_size_factor (int): Voxels per BEV cell.
+        voxel_size (tuple[float, float]): Voxel size along x and y, metres.
+        pc_range (tuple[float, float]): Lower x and y of the grid, metres.
+        post_center_range (tuple[float, float, float, float, float, float]): Box centres kept: x, y, z minimum
+            then maximum, metres.
+        score_threshold (float): Must be 0 (the official value, no filtering).
+        nms_type (str | None): Must be None (no box NMS at test time).
+    """
 
     in_channels: int = 512
     hidden_channel: int = 128
@@ -99,6 +149,7 @@ class HeadConfig:
 
     @property
     def bev_size(self) -> tuple[int, int]:
+        """(X, Y) cells of the heatmap: ``grid_size[:2] // out_size_factor``."""
         return (self.grid_size[0] // self.out_size_factor, self.grid_size[1] // self.out_size_factor)
 
     @property
@@ -109,7 +160,31 @@ class HeadConfig:
 
 @dataclass(frozen=True)
 class BEVDetConfig(ModelConfig):
-    """Everything the FisheyeBEVDet graph depends on, except the rig."""
+    """Everything the FisheyeBEVDet graph depends on, except the rig (official defaults).
+
+    Attributes:
+        image (ImageConfig): Input images and normalisation.
+        backbone (BackboneConfig): The image backbone (ResNet) and neck (FPN).
+        view_transform (ViewTransformConfig): The LSS view transform: the angular feature grid, the depth bins
+            (``dbound``, metres) and the BEV grid (``xbound``, ``ybound``, ``zbound``: lower, upper, step in
+            metres).
+        bev_encoder (BEVEncoderConfig): The BEV encoder (SECOND + SECONDFPN).
+        head (HeadConfig): The TransFusion head: ``num_proposals`` (the boxes per frame), classes, decoding
+            ranges.
+        class_names (tuple[str, ...]): The label names, in class-index order (``head.num_classes`` of them).
+
+    Raises:
+        ConfigError: Inconsistent sections (each message names both fields).
+
+    Examples:
+        ```python
+        from fisheye_infer.models import BEVDetConfig, create_model
+
+        cfg = BEVDetConfig.from_mmdet3d_config("configs/fisheye_bevdet.py")
+        fewer = cfg.replace(head={"num_proposals": 100})
+        model = create_model("fisheye-bevdet", fewer)
+        ```
+    """
 
     image: ImageConfig = field(default_factory=ImageConfig)
     backbone: BackboneConfig = field(default_factory=BackboneConfig)
@@ -119,7 +194,11 @@ class BEVDetConfig(ModelConfig):
     class_names: tuple[str, ...] = CLASSES
 
     def validate(self) -> None:
-        """Cross-field consistency; each message names both fields."""
+        """Check cross-field consistency (called when the configuration is made).
+
+        Raises:
+            ConfigError: Inconsistent fields; each message names both.
+        """
         vt, enc, head, bb = self.view_transform, self.bev_encoder, self.head, self.backbone
         stage_channels = tuple(bb.base_channels * 2**i for i in bb.out_indices)
         checks = [
@@ -187,9 +266,15 @@ class BEVDetConfig(ModelConfig):
 
     @property
     def num_boxes(self) -> int:
+        """Boxes per frame the model outputs (``head.num_proposals``)."""
         return self.head.num_proposals
 
     def geometry_params(self) -> Any:
+        """The parameters of the model's ``geom.*`` tables (what an exported file records and re-baking reads).
+
+        Returns:
+            Any: The LSS parameters (`LSSParams`).
+        """
         vt = self.view_transform
         return LSSParams(
             feature_size=tuple(vt.feature_size),
@@ -206,7 +291,20 @@ class BEVDetConfig(ModelConfig):
 
     @classmethod
     def from_mmdet3d_dict(cls, cfg: Mapping[str, Any], source: str = "<config>") -> Any:
-        """Read an official ``fisheye_bevdet.py``-style namespace (see ``from_mmdet3d_config``)."""
+        """Read an official ``fisheye_bevdet.py``-style namespace (see ``from_mmdet3d_config``).
+
+        Args:
+            cfg (Mapping[str, Any]): The namespace, as
+                [`read_mmdet3d_config`][fisheye_infer.models.mmconfig.read_mmdet3d_config] returns it.
+            source (str): What error messages call it (the file name).
+
+        Returns:
+            BEVDetConfig: The configuration.
+
+        Raises:
+            ConfigError: Another model type, or a value this implementation does not support (named with its
+                key).
+        """
         d = cls()
         model = Section(cfg.get("model"), "model", source)
         model.type_is("BEVDet", "FisheyeBEVDet")

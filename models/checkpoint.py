@@ -1,16 +1,12 @@
 """Reading official checkpoints and loading them strictly, with geometry checked, never silently.
 
-- :func:`load_checkpoint` reads a ``.pth`` with ``torch.load(weights_only=True)``; mmengine files
+- `load_checkpoint` reads a ``.pth`` with ``torch.load(weights_only=True)``; mmengine files
   (``{'state_dict', 'meta', ...}``) and bare state dicts are both accepted. Files whose metadata
   holds arbitrary Python objects need ``allow_pickle=True``, which can execute code from the file
   and therefore warns.
-- :func:`check_keys` compares a state dict with what a model expects and reports *every* missing,
-  unexpected, mis-shaped or wrongly typed key in one :class:`CheckpointError`.
-- :func:`load_official_state_dict` is the whole procedure for a registered model (see
-  :class:`OfficialCheckpointModel`): check keys, map them with the architecture's registered
-  ``checkpoint_filter``, load weights strictly, then reconcile the geometry tables stored in the
-  checkpoint (frustum, sampling grids) with the ones recomputed from the rig.
-- :class:`TableCheck` / :func:`decide_geometry` implement the geometry policy:
+- `check_keys` compares a state dict with what a model expects and reports *every* missing,
+  unexpected, mis-shaped or wrongly typed key in one `CheckpointError`.
+- `TableCheck` / `decide_geometry` implement the geometry policy:
   ``"verify"`` (default) uses the stored tables when they agree with the recomputation within
   float rounding and raises otherwise; ``"checkpoint"`` and ``"rig"`` force a source and warn
   when the two differ.
@@ -23,7 +19,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -39,8 +35,6 @@ __all__ = [
     "TableCheck",
     "decide_geometry",
     "warn_of_other_lenses",
-    "OfficialCheckpointModel",
-    "load_official_state_dict",
     "GeometryReport",
 ]
 
@@ -65,6 +59,18 @@ def load_checkpoint(path: str | Path, *, allow_pickle: bool = False) -> tuple[di
     The weights are read with ``weights_only=True``. ``allow_pickle=True`` lifts that restriction
     (needed for mmengine files whose ``meta``/``message_hub`` hold Python objects) and warns,
     because unpickling can run code from the file.
+
+    Args:
+        path (str | Path): The ``.pth`` file.
+        allow_pickle (bool): Unpickle arbitrary objects (only for files from a trusted source).
+
+    Returns:
+        tuple[dict[str, torch.Tensor], dict[str, Any]]: The state dict (a ``module.`` prefix of a DataParallel
+            save removed) and the file's ``meta`` (empty for a bare state dict).
+
+    Raises:
+        CheckpointError: No such file, a file ``torch.load`` cannot read (naming the Python objects it stores
+            when ``weights_only`` refuses them), or content that is neither form.
     """
     path = Path(path)
     if not path.is_file():
@@ -212,68 +218,25 @@ def warn_of_other_lenses(context: str, camera_names: Sequence[str], tables: np.n
 
 @dataclass(frozen=True)
 class GeometryReport:
-    """What the loader did with the geometry tables."""
+    """What the loader did with the geometry tables.
 
-    source: str  # "checkpoint" or "rig"
+    Attributes:
+        source (str): Where the model's tables came from: ``"checkpoint"`` or ``"rig"``.
+        checks (tuple[TableCheck, ...]): Each stored table next to its recomputation from the rig (``key``,
+            ``max_abs_error``, ``agrees``).
+    """
+
+    source: str
     checks: tuple[TableCheck, ...]
 
     def summary(self) -> str:
+        """One line: the source, and each table's largest difference and tolerance.
+
+        Returns:
+            str: ``geometry from <source>: <key>: max |stored - recomputed| = ... (tolerance ...); ...``.
+        """
         rows = "; ".join(c.describe() for c in self.checks)
         return f"geometry from {self.source}: {rows}"
-
-
-@runtime_checkable
-class OfficialCheckpointModel(Protocol):
-    """What a model provides to be loaded from an official checkpoint."""
-
-    def official_keys(self) -> dict[str, KeySpec]:
-        """Every key of the official checkpoint, with shape and dtype, in official names."""
-
-    def apply_checkpoint_geometry(self, state_dict: Mapping[str, torch.Tensor], policy: str) -> GeometryReport:
-        """Compare stored geometry with the recomputation and adopt one of them per ``policy``."""
-
-
-def load_official_state_dict(
-    model: OfficialCheckpointModel,
-    state_dict: Mapping[str, torch.Tensor],
-    *,
-    geometry: str = "verify",
-    ignore: Sequence[str] = (),
-    context: str = "checkpoint",
-) -> GeometryReport:
-    """Check every key, load weights strictly and reconcile geometry. ``ignore`` keys are dropped with a warning."""
-    if geometry not in GEOMETRY_POLICIES:
-        raise CheckpointError(
-            f"geometry={geometry!r} is not a geometry policy (use one of {', '.join(GEOMETRY_POLICIES)})"
-        )
-    present = [k for k in ignore if k in state_dict]
-    if present:
-        warnings.warn(
-            f"{context}: ignoring keys that the inference graph never uses: {', '.join(present)}",
-            UserWarning,
-            stacklevel=2,
-        )
-    expected = model.official_keys()
-    sd = {
-        k: _as_scalar(v) if k in expected and len(expected[k][0]) == 0 else v
-        for k, v in state_dict.items()
-        if k not in present
-    }
-    check_keys(expected, sd, context=context)
-    from .registry import entry_of
-
-    weights = entry_of(model).checkpoint_filter(sd)  # type: ignore[arg-type]
-    result = model.load_state_dict(weights, strict=True)  # type: ignore[attr-defined]
-    if getattr(result, "missing_keys", None) or getattr(result, "unexpected_keys", None):
-        raise CheckpointError(f"{context}: internal key map incomplete: {result}")
-    return model.apply_checkpoint_geometry(sd, geometry)
-
-
-def _as_scalar(value: torch.Tensor) -> torch.Tensor:
-    """A one-element 1-D tensor stored for a 0-D buffer (older checkpoints store ``num_batches_tracked``
-    as shape [1]) as the 0-D tensor it stands for, as ``torch.nn.Module.load_state_dict`` accepts it;
-    anything else unchanged, for ``check_keys`` to name."""
-    return value.reshape(()) if torch.is_tensor(value) and tuple(value.shape) == (1,) else value
 
 
 def as_numpy(t: torch.Tensor) -> np.ndarray:

@@ -10,9 +10,9 @@ so a model, an exported artifact and a checkpoint can be compared field by field
     cfg.geometry_params()                                        # the parameters of its geom.* tables
     BEVDetConfig.from_dict(cfg.to_dict()) == cfg
 
-Every configuration has the sections ``image`` (:class:`ImageConfig`) and ``backbone``
-(:class:`BackboneConfig`); the rest are the architecture's. The readers of official files use
-:class:`~.mmconfig.Section`.
+Every configuration has the sections ``image`` (`ImageConfig`) and ``backbone``
+(`BackboneConfig`); the rest are the architecture's. The readers of official files use
+[`Section`][fisheye_infer.models.mmconfig.Section].
 """
 
 from __future__ import annotations
@@ -52,9 +52,13 @@ C = TypeVar("C", bound="ModelConfig")
 class Preprocessing:
     """What a model takes and how it normalises it: the facts an exported file records.
 
-    ``image_size`` is (width, height) of every camera image, ``colour_order`` the order of the
-    uint8 channels the model takes (OpenCV's BGR), ``mean``/``std`` the per-channel statistics
-    applied to them, ``cameras`` the camera order and ``classes`` the label names.
+    Attributes:
+        image_size (tuple[int, int]): (width, height) of every camera image, pixels.
+        colour_order (Literal["BGR", "RGB"]): The order of the uint8 channels the model takes (OpenCV's BGR).
+        mean (tuple[float, ...]): Per-channel mean subtracted, in channel order as applied.
+        std (tuple[float, ...]): Per-channel standard deviation divided by.
+        cameras (tuple[str, ...]): The camera order.
+        classes (tuple[str, ...]): The label names, in class-index order.
     """
 
     image_size: tuple[int, int]
@@ -71,6 +75,14 @@ class ImageConfig:
 
     ``mean``/``std`` are the ImageNet statistics in RGB order, applied as they are to the BGR
     channels (``bgr_to_rgb=False`` in the official preprocessor): channel 0 (blue) uses 123.675.
+
+    Attributes:
+        height (int): Camera image height, pixels.
+        width (int): Camera image width, pixels.
+        mean (tuple[float, float, float]): Per-channel mean, applied to channels 0, 1, 2 as they come.
+        std (tuple[float, float, float]): Per-channel standard deviation (> 0).
+        bgr_to_rgb (bool): Swap the channels before normalising (the official models: False).
+        camera_names (tuple[str, ...]): The cameras, in the model's input order (Fisheye3DOD's four by default).
     """
 
     height: int = 800
@@ -85,8 +97,18 @@ class ImageConfig:
 class BackboneConfig:
     """mmdet ResNet + FPN; only FPN output 0 (stride 16) is used.
 
-    ``base_channels`` is mmdet ResNet's width (stage i has base_channels * 2**i channels); the
+    ``base_channels`` is mmdet ResNet's width (stage i has `base_channels * 2**i` channels); the
     official models use 64, the compact training configuration a narrower backbone.
+
+    Attributes:
+        depth (int): ResNet depth (18, 34, 50, ...).
+        base_channels (int): Channels of the first stage.
+        strides (tuple[int, int, int, int]): Stride of each stage.
+        dilations (tuple[int, int, int, int]): Dilation of each stage.
+        out_indices (tuple[int, ...]): The stages the FPN takes.
+        neck_in_channels (tuple[int, ...]): Their channels (must equal the stages').
+        neck_out_channels (int): FPN output channels.
+        neck_num_outs (int): FPN output levels (only level 0 is used).
     """
 
     depth: int = 18
@@ -158,7 +180,23 @@ class ModelConfig:
     """Base of the model configurations (each a frozen dataclass of sections and ``class_names``).
 
     Subclasses define their sections, ``validate``, ``num_boxes``, ``geometry_params`` and
-    ``from_mmdet3d_dict``; reading, copying and the preprocessing record are shared.
+    ``from_mmdet3d_dict``; reading, copying and the preprocessing record are shared. A configuration is
+    validated when it is made: an inconsistent one raises `ConfigError` naming the fields.
+
+    Attributes:
+        image (ImageConfig): Input images and normalisation.
+        backbone (BackboneConfig): The image backbone and neck.
+        class_names (tuple[str, ...]): The label names, in class-index order.
+
+    Examples:
+        ```python
+        from fisheye_infer.models import BEVDetConfig
+
+        cfg = BEVDetConfig()                                          # the official defaults
+        cfg = BEVDetConfig.from_mmdet3d_config("fisheye_bevdet.py")   # an official file, read, never executed
+        small = cfg.replace(image={"height": 160, "width": 160}, head={"num_proposals": 50})
+        assert BEVDetConfig.from_dict(small.to_dict()) == small
+        ```
     """
 
     image: ImageConfig
@@ -169,7 +207,11 @@ class ModelConfig:
         self.validate()
 
     def validate(self) -> None:
-        """Cross-field consistency; each message names the fields."""
+        """Check cross-field consistency (called when the configuration is made).
+
+        Raises:
+            ConfigError: Inconsistent fields, each message naming them.
+        """
 
     @property
     def num_boxes(self) -> int:
@@ -182,6 +224,7 @@ class ModelConfig:
 
     @property
     def num_cameras(self) -> int:
+        """Cameras per frame (``image.camera_names``)."""
         return len(self.image.camera_names)
 
     @property
@@ -191,6 +234,7 @@ class ModelConfig:
 
     @property
     def num_classes(self) -> int:
+        """Number of classes (``class_names``)."""
         return len(self.class_names)
 
     @property
@@ -209,11 +253,27 @@ class ModelConfig:
     # -- conversion ----------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
+        """The configuration as plain data (what an exported file and a synthetic checkpoint's meta record).
+
+        Returns:
+            dict[str, Any]: Section name -> dict of its fields, and ``class_names``.
+        """
         return dataclasses.asdict(self)  # type: ignore[call-overload]  # every subclass is a dataclass; this base is not
 
     @classmethod
     def from_dict(cls: type[C], data: Mapping[str, Any]) -> C:
-        """Inverse of ``to_dict``; unknown fields are refused by name."""
+        """Inverse of ``to_dict``; unknown fields are refused by name.
+
+        Args:
+            data (Mapping[str, Any]): Section name -> dict of fields (lists are read as tuples); sections left out
+                keep their defaults.
+
+        Returns:
+            C: The configuration.
+
+        Raises:
+            ConfigError: An unknown section or field, or an inconsistent configuration.
+        """
         sections = _section_types(cls)
         names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
         parts: dict[str, Any] = {}
@@ -227,7 +287,18 @@ class ModelConfig:
         return cls(**parts)
 
     def replace(self: C, **sections: Any) -> C:
-        """Copy with whole sections or per-section field dicts replaced: ``cfg.replace(head={'num_proposals': 50})``."""
+        """Copy with whole sections or per-section field dicts replaced: ``cfg.replace(head={'num_proposals': 50})``.
+
+        Args:
+            **sections (Any): Section name -> a section object, or a dict of the fields to change in it.
+
+        Returns:
+            C: The new configuration (validated).
+
+        Raises:
+            ConfigError: An unknown section, or an inconsistent result.
+            TypeError: An unknown field in a section's dict.
+        """
         names = {f.name for f in dataclasses.fields(self)}  # type: ignore[arg-type]
         updates: dict[str, Any] = {}
         for name, value in sections.items():
@@ -239,12 +310,36 @@ class ModelConfig:
 
     @classmethod
     def from_mmdet3d_config(cls: type[C], path: str | Path) -> C:
-        """Read an official mmdet3d config file (parsed, never executed); see ``from_mmdet3d_dict``."""
+        """Read an official mmdet3d config file (parsed, never executed); see ``from_mmdet3d_dict``.
+
+        Args:
+            path (str | Path): The config file, e.g. the official ``configs/fisheye_bevdet.py``.
+
+        Returns:
+            C: The configuration.
+
+        Raises:
+            ConfigError: A file [`read_mmdet3d_config`][fisheye_infer.models.mmconfig.read_mmdet3d_config]
+                refuses, another model type, or a value this implementation does not support (named with its
+                key).
+        """
         return cls.from_mmdet3d_dict(read_mmdet3d_config(path), source=str(path))
 
     @classmethod
     def from_mmdet3d_dict(cls: type[C], cfg: Mapping[str, Any], source: str = "<config>") -> C:
-        """Build from the top-level namespace of an official config."""
+        """Build from the top-level namespace of an official config.
+
+        Args:
+            cfg (Mapping[str, Any]): The namespace, as
+                [`read_mmdet3d_config`][fisheye_infer.models.mmconfig.read_mmdet3d_config] returns it.
+            source (str): What error messages call it (the file name).
+
+        Returns:
+            C: The configuration.
+
+        Raises:
+            ConfigError: Another model type, or a value this implementation does not support.
+        """
         raise NotImplementedError
 
 

@@ -3,8 +3,8 @@
 The official pipelines resample every raw fisheye image onto a cylinder with ``cv2.remap``
 (INTER_LINEAR, BORDER_CONSTANT 0) *before* mean/std normalisation, on float32 pixels. Here it is
 one bilinear resampling (``grid_sample``'s bilinear, zeros, ``align_corners=True``) with the
-constant grid of :func:`fisheye_infer.geometry.grids.cylindrical_image_grid`, which emulates cv2's
-1/32-pixel rounding of the maps, run as the grid's taps ``geom.rectify.*`` (:mod:`.resample`), so
+constant grid of [`cylindrical_image_grid`][fisheye_infer.geometry.grids.cylindrical_image_grid], which emulates cv2's
+1/32-pixel rounding of the maps, run as the grid's taps ``geom.rectify.*`` (`resample`), so
 an exported graph takes raw uint8 fisheye images.
 Out-of-image taps read 0, as in cv2; after normalisation those pixels are ``-mean / std``.
 """

@@ -11,7 +11,7 @@ model takes raw uint8 fisheye frames like FisheyeBEVDet. After it: the same ResN
 pool through the bucketed plan), SECOND + SECONDFPN and TransFusion. Module names are the official
 ones, so the checkpoint map is the identity apart from the view transform's geometry keys
 (``frustum``, ``dx``, ``bx``, ``nx``), which are checked against the rig and installed separately
-(:mod:`.frustum_bevdet`).
+([`frustum_bevdet`][fisheye_infer.models.frustum_bevdet]).
 """
 
 from __future__ import annotations

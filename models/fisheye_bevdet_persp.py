@@ -64,7 +64,7 @@ class FisheyeBEVDetPersp(FrustumBEVDet):
         """uint8 B x N x H x W x 3 raw fisheye (BGR) -> float32 (B*N*Y) x 3 x h x w normalised views, Y per camera.
 
         Rectification runs on raw pixel values, the uint8 truncation (``perspective.truncate``) and
-        normalisation after it, as in the official pipeline (:func:`.front_end.perspective_views`).
+        normalisation after it, as in the official pipeline (`perspective_views`).
         """
         g, p = self.view_transform.geometry, self.config.perspective
         assert isinstance(g, PinholeLSSGeometry) and g.image_grid is not None  # perspective views have a remap grid

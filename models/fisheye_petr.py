@@ -149,7 +149,7 @@ class FisheyePETR(FisheyeDetector):
         tables: dict[str, torch.Tensor] | None = None,
         cam2lidar: Any = None,
     ) -> dict[str, torch.Tensor]:
-        """As :meth:`FisheyeDetector.predict`, with ``scene_features`` and ``head_outputs`` run as one call of
+        """As `FisheyeDetector.predict`, with ``scene_features`` and ``head_outputs`` run as one call of
         ``pts_bbox_head``: a traced graph then records their nodes under that module, the path the int8
         file's float-kept modules (``INT8_FLOAT``) are named by."""
         tables = tables or self.geometry_tables()
@@ -177,12 +177,12 @@ class FisheyePETR(FisheyeDetector):
         return self.predict(images, camera_valid, tables, cam2lidar)
 
     def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """Deprecated: :meth:`normalise`."""
+        """Deprecated: `normalise`."""
         self._deprecated("normalize", "normalise")
         return self.normalise(images, tables)
 
     def forward_features(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """Deprecated: :meth:`image_features`."""
+        """Deprecated: `image_features`."""
         self._deprecated("forward_features", "image_features")
         return self.image_features(images, tables)
 

@@ -7,9 +7,9 @@
 The official pipeline rectifies each raw fisheye image onto a 400 x 800 cylinder with cv2.remap
 before normalisation; here that is the first op of the graph (``geom.rectify.*``), so an exported
 model takes raw uint8 fisheye frames like FisheyePETR. After it: the same ResNet-18 + FPN (P3
-25 x 50) and :class:`~.petr_head.CylindricalPETRHead`. The checkpoint holds no geometry
+25 x 50) and `CylindricalPETRHead`. The checkpoint holds no geometry
 tensor: its keys are FisheyePETR's minus ``frustum``, ``sphere_grid_3d``, ``sphere_grid_2d`` and
-``unvalid_area``, and every geometry table comes from the rig (:mod:`.resampled_petr`).
+``unvalid_area``, and every geometry table comes from the rig ([`resampled_petr`][fisheye_infer.models.resampled_petr]).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ The official test pipeline rectifies each fisheye image into two 400x400 perspec
 degrees, turned -55 and +55 degrees about the camera's y axis, with cv2.remap
 (``MultiViewFisheyePerspectiveProjection``); unlike BEVDet's, its pipeline normalises the float
 views without a uint8 cast. Here the rectification is the first op of the graph
-(``geom.rectify.*``, :mod:`.front_end`). The eight views go through ResNet-18 + FPN (P3 25 x 25)
+(``geom.rectify.*``, `front_end`). The eight views go through ResNet-18 + FPN (P3 25 x 25)
 and the standard ``PETRHead`` with each view's ``lidar2img`` (ideal pinhole K, pose fisheye
 cam2lidar @ R_y(yaw)).
 

@@ -2,9 +2,9 @@
 
 Both run on raw pixel values, before normalisation, as the official pipelines do:
 
-- :func:`resized_views`: PIL's bicubic resize and the crop of pinhole images (``geom.resize.*``,
-  exact to Pillow's uint8 output, :mod:`.resize`);
-- :func:`perspective_views`: cv2.remap's perspective rectification of fisheye images
+- `resized_views`: PIL's bicubic resize and the crop of pinhole images (``geom.resize.*``,
+  exact to Pillow's uint8 output, [`resize`][fisheye_infer.models.resize]);
+- `perspective_views`: cv2.remap's perspective rectification of fisheye images
   (``geom.rectify.*``, exact to cv2's output), ``len(yaws)`` views per camera, truncated to uint8
   where the official pipeline casts them.
 

@@ -2,11 +2,11 @@
 
 The cylinder-rectified, perspective-rectified and pinhole BEVDet configs all resample the raw
 camera images before the backbone (the front end: each config's ``normalise``), lift the
-stride-16 features of the resulting views with no warp (:class:`~.view_transform.RectifiedLSS`)
+stride-16 features of the resulting views with no warp (`RectifiedLSS`)
 and store the same geometry keys in their checkpoints: ``view_transform.frustum``, ``dx``, ``bx``,
 ``nx``. A front end may make several views of one camera (two perspective views per fisheye):
 the features are grouped by view, and a missing camera masks all of its views
-(:meth:`~.base.FisheyeDetector.view_valid`).
+([`view_valid`][fisheye_infer.models.base.FisheyeDetector.view_valid]).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def has_image_plane_frustum(state_dict: Mapping[str, torch.Tensor]) -> bool:
 
 
 def has_camera_frame_frustum(state_dict: Mapping[str, torch.Tensor]) -> bool:
-    """The complement of :func:`has_image_plane_frustum` for a checkpoint that stores a frustum."""
+    """The complement of `has_image_plane_frustum` for a checkpoint that stores a frustum."""
     return _VT + "frustum" in state_dict and not has_image_plane_frustum(state_dict)
 
 

@@ -1,7 +1,7 @@
 """Read an official mmengine/mmdet3d Python config without executing it.
 
 Official configs are Python files, and running them would execute arbitrary code (``import os``,
-``custom_imports`` of project packages, ...). Instead the file is parsed with :mod:`ast` and only a
+``custom_imports`` of project packages, ...). Instead the file is parsed with `ast` and only a
 small, pure subset is evaluated:
 
 - literals (numbers, strings, booleans, None), lists, tuples, dicts (``**`` unpacking of dicts);
@@ -12,14 +12,14 @@ small, pure subset is evaluated:
 - ``math.radians``, ``math.degrees``, ``math.pi``, ``math.e``, ``np.pi``/``numpy.pi``, after
   ``import math`` / ``import numpy as np`` (these imports only bind the whitelisted names).
 
-Anything else raises :class:`ConfigError` naming the file, the line and the construct. Every
+Anything else raises `ConfigError` naming the file, the line and the construct. Every
 value it builds is bounded: a string, list, tuple or dict of more than ``_MAX_LEN`` items (made by
 ``*``, ``+``, a call or a literal) and more than ``_MAX_TOTAL`` items built over the whole file are
 refused before they are built, as are ``%`` formatting of strings, integers of more than
 ``_MAX_INT_BITS`` bits and expressions nested too deeply, so a hostile file cannot exhaust memory.
 ``_base_`` is returned as a value; bases are merged only on request (``merge_bases=True``).
 
-:class:`Section` reads the evaluated namespace: one dict of it, every value converted to tuples
+`Section` reads the evaluated namespace: one dict of it, every value converted to tuples
 and numbers on the way out, every error naming the file and the key's path. All model
 configurations read their official files through it.
 """
@@ -296,6 +296,25 @@ def read_mmdet3d_config(path: str | Path, *, merge_bases: bool = False) -> dict[
     merged first, child values winning; otherwise ``_base_`` is kept as a plain value. A file of more
     than ``MAX_CONFIG_BYTES``, one that is not UTF-8 text, a ``_base_`` entry that is not a file name,
     bases nested more than ``_MAX_BASE_DEPTH`` deep and a file that is its own base are refused.
+
+    Args:
+        path (str | Path): The official config file (``.py``).
+        merge_bases (bool): Read and merge the ``_base_`` files first.
+
+    Returns:
+        dict[str, Any]: The top-level names and their values (dicts, lists, tuples, numbers, strings).
+
+    Raises:
+        ConfigError: A file that is missing, too large or not UTF-8, a construct outside the evaluated subset
+            (named with its line), a value too large, or a bad ``_base_``.
+
+    Examples:
+        ```python
+        from fisheye_infer.models import read_mmdet3d_config
+
+        cfg = read_mmdet3d_config("configs/fisheye_bevdet.py")
+        cfg["model"]["type"]         # "BEVDet"
+        ```
     """
     return _read(Path(path), merge_bases, ())
 

@@ -1,6 +1,6 @@
 """Typed configuration of FisheyePETR with the defaults of the official ``configs/fisheye_petr.py``.
 
-The same shape as every configuration (see :mod:`.config`): ``image``, ``backbone``, ``head``
+The same shape as every configuration (see [`config`][fisheye_infer.models.config]): ``image``, ``backbone``, ``head``
 (everything ``pts_bbox_head`` sets: the warp, the 3D position embedding, the transformer and the
 box coder) and ``class_names``. Values that the official config does not set are the head's
 constructor defaults (``depth_num=64``), because that is what the released checkpoint was trained
@@ -8,7 +8,8 @@ with.
 
     cfg = PETRConfig()                                   # official equirectangular FisheyePETR
     cfg = PETRConfig.from_mmdet3d_config("configs/fisheye_petr.py")
-    small = cfg.replace(image={"height": 160, "width": 160}, head={"feature_size": (5, 21), "num_query": 40})
+    small = cfg.replace(image={"height": 160, "width": 160},
+                        head={"feature_size": (5, 21), "num_query": 40, "max_num": 40})
 """
 
 from __future__ import annotations
@@ -48,20 +49,41 @@ class PETRHeadConfig:
     ``dbound`` only sizes the dead 96-slice ``frustum``/``sphere_grid_3d`` checkpoint tensors;
     the position embedding uses ``depth_num`` LID bins from ``depth_start`` to
     ``position_range[3]``.
+
+    Attributes:
+        cam_fov (float): The lens's full field of view the warp assumes, degrees.
+        feature_size (tuple[int, int]): (H, W) of the equirectangular feature grid (elevation, azimuth).
+        azimuth_range (tuple[float, float]): Azimuths the grid spans, radians.
+        elevation_range (tuple[float, float]): Elevations the grid spans, radians.
+        dbound (tuple[float, float, float]): Start, stop, step of the checkpoint's ``frustum`` depths, metres.
+        depth_num (int): Depth bins of the 3D position embedding.
+        depth_start (float): The first bin's depth, metres.
+        lid (bool): Linear-increasing bin spacing; must be True (uniform bins are not supported).
+        position_range (tuple[float, float, float, float, float, float]): The box the embedded 3D points are
+            normalised to: x, y, z minimum then maximum, metres.
+        num_query (int): Object queries of the decoder.
+        embed_dims (int): Transformer width (divisible by ``num_heads``).
+        num_heads (int): Attention heads.
+        num_layers (int): Decoder layers.
+        ffn_dims (int): Feed-forward channels.
+        num_reg_fcs (int): Linear layers of the regression branch.
+        pe_temperature (float): Temperature of the sinusoidal embedding of the reference points.
+        code_size (int): Length of a box's regression code.
+        point_cloud_range (tuple[float, float, float, float, float, float]): The range box centres are decoded
+            in: x, y, z minimum then maximum, metres.
+        post_center_range (tuple[float, float, float, float, float, float]): Box centres kept, likewise.
+        max_num (int): Boxes per frame (at most ``num_query * num_classes``).
     """
 
-    # equirectangular warp
     cam_fov: float = 220.0
-    feature_size: tuple[int, int] = (25, 100)  # H (elevation), W (azimuth)
+    feature_size: tuple[int, int] = (25, 100)
     azimuth_range: tuple[float, float] = (-_HALF_FOV, _HALF_FOV)
     elevation_range: tuple[float, float] = (-math.pi / 4, math.pi / 4)
     dbound: tuple[float, float, float] = (0.5, 48.5, 0.5)
-    # 3D position embedding
     depth_num: int = 64
     depth_start: float = 0.5
     lid: bool = True
     position_range: tuple[float, float, float, float, float, float] = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0)
-    # transformer
     num_query: int = 900
     embed_dims: int = 256
     num_heads: int = 8
@@ -69,7 +91,6 @@ class PETRHeadConfig:
     ffn_dims: int = 2048
     num_reg_fcs: int = 2
     pe_temperature: float = 10000.0
-    # box coding
     code_size: int = 8
     point_cloud_range: tuple[float, float, float, float, float, float] = (-48.0, -48.0, -5.0, 48.0, 48.0, 5.0)
     post_center_range: tuple[float, float, float, float, float, float] = (-60.0, -60.0, -10.0, 60.0, 60.0, 10.0)
@@ -89,6 +110,28 @@ class PETRConfig(ModelConfig):
     Preprocessing: the official loader decodes BGR and normalises it with the RGB-ordered ImageNet
     statistics without swapping channels (``image.bgr_to_rgb=False``), so ``mean[0]``/``std[0]``
     apply to the blue channel; ``bgr_to_rgb=True`` swaps the channels before normalising.
+
+    Attributes:
+        image (ImageConfig): Input images and normalisation.
+        backbone (BackboneConfig): The image backbone (ResNet) and neck (FPN).
+        head (PETRHeadConfig): Everything ``pts_bbox_head`` sets: the equirectangular feature warp
+            (``feature_size``, ``cam_fov`` in degrees), the 3D position embedding (``depth_num`` bins from
+            ``depth_start`` metres), the transformer (``num_query``, ``embed_dims``, ``num_layers``) and the box
+            coder (``max_num``: the boxes per frame).
+        class_names (tuple[str, ...]): The label names, in class-index order.
+
+    Raises:
+        ConfigError: Inconsistent sections (each message names the fields).
+
+    Examples:
+        ```python
+        from fisheye_infer.models import PETRConfig, create_model
+
+        cfg = PETRConfig()                                   # the official equirectangular FisheyePETR
+        small = cfg.replace(image={"height": 160, "width": 160},
+                        head={"feature_size": (5, 21), "num_query": 40, "max_num": 40})
+        model = create_model("fisheye-petr", small)
+        ```
     """
 
     image: ImageConfig = field(default_factory=ImageConfig)
@@ -97,6 +140,11 @@ class PETRConfig(ModelConfig):
     class_names: tuple[str, ...] = CLASSES
 
     def validate(self) -> None:
+        """Check cross-field consistency (called when the configuration is made).
+
+        Raises:
+            ConfigError: Inconsistent fields, each message naming them.
+        """
         h = self.head
         if h.embed_dims % h.num_heads:
             raise ConfigError(f"head.embed_dims={h.embed_dims} is not divisible by head.num_heads={h.num_heads}")
@@ -125,9 +173,15 @@ class PETRConfig(ModelConfig):
 
     @property
     def num_boxes(self) -> int:
+        """Boxes per frame the model outputs (``head.max_num``)."""
         return self.head.max_num
 
     def geometry_params(self) -> Any:
+        """The parameters of the model's ``geom.*`` tables (what an exported file records and re-baking reads).
+
+        Returns:
+            Any: The PETR parameters (`PETRParams`).
+        """
         h = self.head
         return PETRParams(
             feature_size=tuple(h.feature_size),
@@ -148,6 +202,18 @@ class PETRConfig(ModelConfig):
         """Read an official ``fisheye_petr.py``-style namespace (see ``from_mmdet3d_config``).
 
         Only the fields this reimplementation uses are read; anything else in the file is ignored.
+
+        Args:
+            cfg (Mapping[str, Any]): The namespace, as
+                [`read_mmdet3d_config`][fisheye_infer.models.mmconfig.read_mmdet3d_config] returns it.
+            source (str): What error messages call it (the file name).
+
+        Returns:
+            PETRConfig: The configuration.
+
+        Raises:
+            ConfigError: Another model type, or a value this implementation does not support (named with its
+                key).
         """
         d = cls()
         model = Section(cfg.get("model"), "model", source)

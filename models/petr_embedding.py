@@ -2,7 +2,7 @@
 
 They act on learned tensors (the reference points), so they live with the model; the key-side
 sine encoding depends only on the calibration mask and comes from
-:func:`fisheye_infer.geometry.petr.sine_position_encoding`. The official float32 op order of
+[`sine_position_encoding`][fisheye_infer.geometry.petr.sine_position_encoding]. The official float32 op order of
 ``pos2posemb3d`` is kept:
 
 * frequencies t_k = temperature ** (2 * floor(k / 2) / num_feats), k = 0 .. num_feats - 1;

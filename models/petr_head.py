@@ -227,7 +227,7 @@ class FisheyePETRHead(nn.Module):
     # ------------------------------------------------------------------ forward
     def warp(self, p3: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """B x N x C x h x w -> B x N x C x H x W on the spherical grid, each camera with its lens's taps
-        (``geom.warp.*``; see :mod:`.resample`)."""
+        (``geom.warp.*``; see [`resample`][fisheye_infer.models.resample])."""
         g = self.geometry
         assert isinstance(g, PETRGeometry)  # the spherical head's; RectifiedPETRHead has no warp
         index, weight = taps_for(tables or self.tables(), WARP, g.grid, g.params.source_size, p3.shape[-2:], p3.device)
@@ -318,7 +318,7 @@ class RectifiedPETRHead(FisheyePETRHead):
 
 class CylindricalPETRHead(RectifiedPETRHead):
     """The official ``CylindricalPETRHead`` at test time: no key mask, and the key rays lie on the cylinder
-    (:class:`~fisheye_infer.geometry.cyl_petr.CylPETRGeometry`). State-dict keys are FisheyePETRHead's
+    ([`CylPETRGeometry`][fisheye_infer.geometry.cyl_petr.CylPETRGeometry]). State-dict keys are FisheyePETRHead's
     minus the four geometry tensors."""
 
 

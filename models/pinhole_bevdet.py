@@ -5,7 +5,7 @@
 
 The official test pipeline resizes each 1280x720 image to 800x450 with PIL's bicubic filter and
 crops rows 50..449 (``ImageAug3D``); here both are the first ops of the graph (``geom.resize.*``,
-PIL's fixed-point arithmetic reproduced exactly, :mod:`.resize`), so the exported file takes the
+PIL's fixed-point arithmetic reproduced exactly, `resize`), so the exported file takes the
 raw camera images. Then ResNet-18 + FPN (P3 25 x 50), the standard ``LSSTransform`` (depthnet on P3,
 the image-plane frustum undone through the crop, the resize and ``inv(K)``, the bucketed mean
 pool), SECOND + SECONDFPN and TransFusion, with the official module names.
@@ -59,7 +59,7 @@ class PinholeBEVDet(FrustumBEVDet):
         """uint8 B x N x H x W x 3 raw pinhole images (BGR) -> float32 (B*N) x 3 x h x w normalised views.
 
         PIL's resize and the crop run on the raw pixel values (the channel order does not matter to
-        them), normalisation after it (:func:`.front_end.resized_views`).
+        them), normalisation after it ([`front_end.resized_views`][fisheye_infer.models.front_end.resized_views]).
         """
         cfg = self.config
         views = resized_views(

@@ -52,7 +52,7 @@ class PinholeViewTransformConfig(ViewTransformConfig):
     """``LSSTransform``: depthnet on the stride-16 features of each view, the image-plane frustum.
 
     ``image_size`` (H, W) is the views' size (the frustum's pixel range), ``feature_size`` their
-    stride-16 features; the angular fields of :class:`ViewTransformConfig` play no part.
+    stride-16 features; the angular fields of `ViewTransformConfig` play no part.
     """
 
     image_size: tuple[int, int] = (400, 800)

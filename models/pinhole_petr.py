@@ -5,9 +5,9 @@
 
 The official test pipeline resizes each 1280x720 image to 800x450 with PIL's bicubic filter and
 crops rows 50..449 (``ResizeCropFlipImage``), updating ``cam2img`` by the same transform; here the
-resize and crop are the first ops of the graph (``geom.resize.*``, :mod:`.front_end`). Then
+resize and crop are the first ops of the graph (``geom.resize.*``, [`front_end`][fisheye_infer.models.front_end]). Then
 ResNet-18 + FPN (P3 25 x 50) and the standard ``PETRHead``: keys at the views' pixels, lifted
-through ``inv(lidar2img)`` (:mod:`fisheye_infer.geometry.pinhole_petr`), the same decoder and
+through ``inv(lidar2img)`` ([`pinhole_petr`][fisheye_infer.geometry.pinhole_petr]), the same decoder and
 NMS-free decoding as FisheyePETR.
 
 The released ``nusc_petr.py`` does not pack ``img_shape`` into the metadata and crashes in the

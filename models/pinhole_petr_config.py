@@ -51,7 +51,7 @@ __all__ = [
 class PinholePETRHeadConfig(PETRHeadConfig):
     """``PETRHead``: keys on the stride-16 features of each view; ``image_size`` (H, W) is the views' size (the
     padded input the key pixels are spread over: the released configs pad to a divisor of 1). The
-    equirectangular fields of :class:`PETRHeadConfig` play no part."""
+    equirectangular fields of `PETRHeadConfig` play no part."""
 
     image_size: tuple[int, int] = (400, 800)
     feature_size: tuple[int, int] = (25, 50)

@@ -4,10 +4,10 @@ test pipeline: the two architectures differ only in the step that names them.
 - pinhole cameras: six 1280x720 images, each resized by PIL's bicubic filter and cropped
   (``ImageAug3D`` / ``ResizeCropFlipImage`` in test mode: crop ``int((1 - mean(bot_pct_lim)) * newH) - fH``
   rows from the top, centred horizontally; the scale is ``mean(resize_lim)`` for ``ImageAug3D``,
-  ``max(fH / H, fW / W)`` for ``ResizeCropFlipImage``): :class:`ImageAugConfig`;
+  ``max(fH / H, fW / W)`` for ``ResizeCropFlipImage``): `ImageAugConfig`;
 - perspective views of fisheye cameras: four 800x800 images, each rectified into ``len(yaws)`` views by
   ``MultiViewFisheyePerspectiveProjection``; an ``ImageAug3D`` after it (BEVDet's, same size, scale 1)
-  truncates the float views to uint8 (``truncate``), PETR's pipeline has none: :class:`PerspectiveConfig`.
+  truncates the float views to uint8 (``truncate``), PETR's pipeline has none: `PerspectiveConfig`.
 
 Kept apart from the two configuration modules (``pinhole_config``, ``pinhole_petr_config``) so each
 architecture's module holds only what is its own, and a change to the view geometry is made once.

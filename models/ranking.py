@@ -33,7 +33,7 @@ __all__ = ["RANKING_OUTPUTS", "TopK", "replay_ranking"]
 class TopK(nn.Module):
     """``torch.topk(scores, k, dim=1)`` (sorted, largest first), or the ranking being replayed.
 
-    The head passes its dense scores through :meth:`dense` before any discrete step and its
+    The head passes its dense scores through `dense` before any discrete step and its
     final scores through ``forward``; outside a replay both are plain.
     """
 

@@ -1,6 +1,6 @@
 """Bilinear resampling with constant grids, one per camera, as the graph runs it: gathers and one batched MatMul.
 
-The tables are :func:`fisheye_infer.geometry.tables.camera_taps` of the cameras' grids (``geom.warp.*``,
+The tables are [`camera_taps`][fisheye_infer.geometry.tables.camera_taps] of the cameras' grids (``geom.warp.*``,
 ``geom.rectify.*``): four source pixels and four weights per output pixel of every camera. The source is
 laid out camera-major and channels-last, one row per pixel of each camera (``n * h * w + pixel``) holding
 that camera's channels of every sample, so each tap gathers one contiguous row and every camera reads its

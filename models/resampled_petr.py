@@ -2,10 +2,10 @@
 
 The cylinder-rectified, perspective-rectified and pinhole PETR configs resample the raw camera
 images before the backbone (the front end: each config's ``normalise``), use the stride-16
-features of the resulting views as keys (:class:`~.petr_head.RectifiedPETRHead`), and their
+features of the resulting views as keys (`RectifiedPETRHead`), and their
 checkpoints hold no geometry tensor: every table comes from the rig. A front end may make several
 views of one camera (two perspective views per fisheye): a missing camera masks all of its views
-(:meth:`~.base.FisheyeDetector.view_valid`).
+([`view_valid`][fisheye_infer.models.base.FisheyeDetector.view_valid]).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ class ResampledPETR(FisheyePETR):
     end) and the head."""
 
     def normalize(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """Deprecated: :meth:`normalise`, whose views come flat, (B*V) x 3 x h x w; this keeps the old
+        """Deprecated: `normalise`, whose views come flat, (B*V) x 3 x h x w; this keeps the old
         B x V x 3 x h x w."""
         self._deprecated("normalize", "normalise")
         x = self.normalise(images, tables)

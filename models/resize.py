@@ -1,12 +1,12 @@
 """Pillow's BICUBIC resize of uint8 images inside the graph, equal to Pillow bit for bit.
 
-The arithmetic is :func:`fisheye_infer.geometry.resize.apply_taps_float32`: Pillow's 22-bit
+The arithmetic is [`apply_taps_float32`][fisheye_infer.geometry.resize.apply_taps_float32]: Pillow's 22-bit
 integer coefficients split into an 11-bit high and low part, so that every product and partial
 sum is an integer below 2**24 and float32 evaluates it exactly, followed by the rounding offset
 and two exact divisions by 2048 with Floor (Pillow's arithmetic shift). It traces to Gather
 (``index_select``), Mul, Add, Div, Floor and Clip only: float32 throughout, no float64 and no
 integer MatMul, so TensorRT runs it as written. The tables come from
-:func:`fisheye_infer.geometry.resize.pil_bicubic_taps`.
+[`fisheye_infer.geometry.resize.pil_bicubic_taps`][fisheye_infer.geometry.resize.pil_bicubic_taps].
 
 Each tap gathers only the ``out`` positions it needs: gathering all T * out positions at once
 would hold a T times larger tensor (about 370 MB for six 1280x720 cameras).
@@ -61,7 +61,7 @@ def pil_resize(
     the vertical tables of the kept rows only. The horizontal pass runs first and its result is
     rounded as Pillow rounds its uint8 intermediate image, which is part of the output. That is
     Pillow's order before version 13, and Pillow 13's wherever
-    :func:`fisheye_infer.geometry.resize.pil_horizontal_first` holds (1280x720 -> 800x450 included).
+    [`pil_horizontal_first`][fisheye_infer.geometry.resize.pil_horizontal_first] holds (1280x720 -> 800x450 included).
     """
     columns_first = images.permute(
         3, 0, 1, 2, 4

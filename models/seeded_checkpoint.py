@@ -2,13 +2,13 @@
 
 ``make_checkpoint(arch, seed)`` builds the registered model, gives it fan-in scaled weights and
 small biases, then calibrates every BatchNorm's running statistics by running the model with BN
-layers in statistics-collection mode on seeded synthetic frames (:func:`calibrate`, per model
+layers in statistics-collection mode on seeded synthetic frames (`calibrate`, per model
 family), so activations stay O(1) at inference. The result is an
 mmengine-style ``{'state_dict', 'meta'}`` dict with every official key (geometry tables included,
 computed from the rig, so they agree with a recomputation) in official order, shape and dtype.
 
 A model taking part implements ``official_state_dict()`` (official names, weights and geometry);
-:func:`batchnorm_statistics`, :func:`temper_attention` and :func:`synthetic_images` are the
+`batchnorm_statistics`, `temper_attention` and `synthetic_images` are the
 building blocks of the calibrations.
 """
 
@@ -320,6 +320,31 @@ def make_checkpoint(
 
     With the default configuration the keys, shapes and dtypes are checked against the
     architecture's manifest. If ``path`` is given the checkpoint is also saved there.
+
+    Args:
+        arch (str): A name of [`list_models`][fisheye_infer.models.registry.list_models].
+        seed (int): The seed of the weights and of the calibration frames; the same seed gives the same weights.
+        path (str | Path | None): Where to save it with ``torch.save``; None: not saved.
+        config (Any): The architecture's configuration object; None: the official one.
+        rig (Any): The [`Rig`][fisheye_infer.cameras.rig.Rig] its geometry tables are computed for; None: the
+            default rig.
+
+    Returns:
+        dict[str, Any]: ``{"state_dict": official keys -> tensors (geometry tables included), "meta": {"arch",
+            "seed", "synthetic": True, "config"}}``.
+
+    Raises:
+        ConfigError: An unknown architecture or a configuration of another class.
+        CheckpointError: With the official configuration, a key, shape or dtype that disagrees with the
+            manifest.
+
+    Examples:
+        ```python
+        from fisheye_infer.models import load_model, make_checkpoint
+
+        ckpt = make_checkpoint("fisheye-petr", seed=0, path="fisheye_petr_seed0.pth")
+        model, report = load_model("fisheye-petr", ckpt)     # loads strictly; tables agree with the rig
+        ```
     """
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(int(seed))
@@ -374,6 +399,22 @@ def calibrated_checkpoint(
     collapsed head); geometry buffers from ``geometry`` (official key names). Every manifest key
     must be covered. PETR's per-layer cls/reg branch copies are made equal, as the official head
     shares one module across its decoder layers.
+
+    Args:
+        arch (str): A name of [`list_models`][fisheye_infer.models.registry.list_models].
+        statistics (Mapping[str, np.ndarray]): BatchNorm ``running_mean``/``running_var`` by official key.
+        geometry (Mapping[str, np.ndarray]): Geometry buffers by official key.
+        seed (int): The seed of the learnable tensors (per key: independent of key order and machine).
+        path (str | Path | None): Where to save it with ``torch.save``; None: not saved.
+
+    Returns:
+        dict[str, Any]: ``{"state_dict", "meta": {"arch", "seed", "synthetic": True, "statistics":
+            "calibrated"}}``, every manifest key in official shape and dtype.
+
+    Raises:
+        ConfigError: An unknown architecture.
+        CheckpointError: The state dict disagrees with the manifest.
+        ValueError: A given array that cannot be reshaped to its key's shape.
     """
     entries = [e for e in read_manifest(arch) if not e.get("uncertain")]
     state: dict[str, torch.Tensor] = {}

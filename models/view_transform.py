@@ -1,6 +1,6 @@
 """Fisheye LSS view transform: warp to an angular grid, predict depth and context, pool into BEV.
 
-All geometry comes from :mod:`fisheye_infer.geometry` (numpy, one source of truth: an
+All geometry comes from [`fisheye_infer.geometry`][fisheye_infer.geometry] (numpy, one source of truth: an
 ``LSSGeometry``; for the baselines without a feature warp a ``CylLSSGeometry`` or a
 ``PinholeLSSGeometry``); this module only holds
 its tables as non-persistent buffers and does the tensor work:
@@ -8,14 +8,14 @@ its tables as non-persistent buffers and does the tensor work:
 1. ``warp``: the official ``grid_sample`` of the stride-16 features with the constant
    equirectangular grid (bilinear, zeros, ``align_corners=True`` although the grid is normalised
    with divisor W, as the official model does), run as the grid's precomputed bilinear taps
-   (:mod:`.resample`);
+   ([`resample`][fisheye_infer.models.resample]);
 2. ``depth_context``: a 1x1 ``depthnet``; softmax over the first D channels, raw context after;
 3. ``pool``: mean pooling of depth x context into the BEV cells with the precomputed bucketed
    plan (Gather + batched MatMul; no scatter, no sort, no boolean indexing).
 
 The official checkpoint's geometry keys (``frustum``, ``sphere_grid_3d``, ``sphere_grid_2d``,
 ``valid_fov_mask``, ``dx``, ``bx``, ``nx``) are not parameters here; the checkpoint loader compares
-them with the recomputation and installs the chosen tables through :meth:`FisheyeLSS.set_geometry`.
+them with the recomputation and installs the chosen tables through `FisheyeLSS.set_geometry`.
 """
 
 from __future__ import annotations
@@ -115,7 +115,7 @@ class FisheyeLSS(nn.Module):
 
     def warp(self, feat: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """B x N x C x Hf x Wf -> B x N x C x H x W with each camera's bilinear taps (``geom.warp.*``; see
-        :mod:`.resample`)."""
+        [`resample`][fisheye_infer.models.resample])."""
         g = self.geometry
         assert isinstance(g, LSSGeometry)  # _check_geometry installs nothing else; RectifiedLSS has no warp
         index, weight = taps_for(
@@ -195,7 +195,7 @@ class FisheyeLSS(nn.Module):
     ) -> torch.Tensor:
         """Same as ``forward`` with per-sample extrinsics cam2lidar (B x N x 4 x 4); reference speed.
 
-        The points are transformed by :func:`fisheye_infer.geometry.frustum.frustum_to_lidar` and
+        The points are transformed by [`frustum_to_lidar`][fisheye_infer.geometry.frustum.frustum_to_lidar] and
         pooled with ``index_add_`` per sample; grid and frustum stay those of this module.
         """
         mats = cam2lidar.detach().cpu().numpy() if isinstance(cam2lidar, torch.Tensor) else np.asarray(cam2lidar)
@@ -212,7 +212,7 @@ class FisheyeLSS(nn.Module):
 class RectifiedLSS(FisheyeLSS):
     """Lift-splat on features that need no warp, with a constant pooling plan (``geom.pool.*``).
 
-    :class:`FisheyeLSS` with the warp removed: the images were resampled (onto a cylinder, into
+    `FisheyeLSS` with the warp removed: the images were resampled (onto a cylinder, into
     perspective views, or resized and cropped) before the backbone, so the stride-16 features
     already sit on the frustum's grid. It keeps the image front end's tables (``geom.rectify.*``
     or ``geom.resize.*``) among its own, read by the model before the backbone, so the model's
@@ -239,7 +239,7 @@ class RectifiedLSS(FisheyeLSS):
 
 
 class CylindricalLSS(RectifiedLSS):
-    """:class:`RectifiedLSS` on cylinder-rectified images (``CylindricalLSS(cfg: CylViewTransformConfig,
+    """`RectifiedLSS` on cylinder-rectified images (``CylindricalLSS(cfg: CylViewTransformConfig,
     geometry: CylLSSGeometry)``)."""
 
     def _check_geometry(self, geometry: AnyLSSGeometry) -> None:

@@ -73,7 +73,34 @@ def _add_protected_docs(app: FastAPI) -> None:
 
 
 def create_app(settings: ServiceSettings, detector: Detector | None = None) -> FastAPI:
-    """The service for ``settings``; see the module docstring."""
+    """Build the service's FastAPI application for ``settings``.
+
+    Nothing heavy happens here: the application's lifespan loads and warms the Detector once, off the event loop,
+    and stops the inference workers at shutdown. The routes are ``POST /detect`` (one frame, multipart or JSON),
+    ``POST /detect/batch``, ``WebSocket /stream``, ``GET /model``, the KServe v2 routes under ``/v2``, ``/healthz``,
+    ``/readyz`` and ``/metrics``; with an ``api_key`` every route but the health endpoints needs ``X-API-Key``.
+
+    Args:
+        settings (ServiceSettings): The model, limits and options
+            ([`ServiceSettings`][fisheye_infer.service.settings.ServiceSettings]).
+        detector (Detector | None): A loaded [`Detector`][fisheye_infer.runtime.detector.Detector] to serve (an
+            application embedding the service, or tests sharing one session); None loads ``settings.model_path``
+            at startup.
+
+    Returns:
+        FastAPI: The application, for uvicorn or any ASGI server.
+
+    Examples:
+        ```python
+        import uvicorn
+
+        from fisheye_infer.service.app import create_app
+        from fisheye_infer.service.settings import ServiceSettings
+
+        app = create_app(ServiceSettings(model_path="model.onnx"))
+        uvicorn.run(app, port=8000)  # or build_server(settings, app).run() for the graceful drain
+        ```
+    """
     service = Service(settings)
     protect_docs = settings.api_key is not None and not settings.docs_public
 

@@ -1,7 +1,7 @@
 """The service's own refusals, and the one place where errors become HTTP answers.
 
 The service extends the runtime's tree (``fisheye_infer.errors``) with the refusals only a
-network front end makes, each carrying its status code::
+network front end makes, each carrying its status code:
 
     FisheyeInferError
      ├── FrameError            422  an image or camera is unusable (the runtime's message)

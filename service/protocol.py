@@ -1,7 +1,7 @@
 """The ``/stream`` binary frame format, version 1: encode (clients) and decode (server).
 
 One WebSocket binary message carries one frame. All integers are unsigned, big-endian
-(network order)::
+(network order):
 
     offset  size  field
     0       4     magic         b"FEYE"

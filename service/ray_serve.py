@@ -40,14 +40,17 @@ __all__ = ["RayServeOptions", "BatchedDetector", "FisheyeReplica", "build_app", 
 
 @dataclass(frozen=True)
 class RayServeOptions:
-    """Replicas and batching.
+    """Replicas and batching of the Ray Serve deployment ([`build_app`][fisheye_infer.service.ray_serve.build_app]).
 
-    | option | default | meaning |
-    |---|---|---|
-    | ``replicas`` | 1 | copies of the app, each with its own Detector |
-    | ``cpus_per_replica`` | 1.0 | CPUs Ray reserves per replica; also its ONNX Runtime threads |
-    | ``max_batch_size`` | 4 | most frames in one ``@serve.batch`` run |
-    | ``batch_wait_ms`` | 10 | how long the first frame of a batch waits for others |
+    Attributes:
+        replicas (int): Copies of the application, each with its own Detector; at least 1.
+        cpus_per_replica (float): CPUs Ray reserves per replica; also its ONNX Runtime threads (rounded down, at
+            least 1) unless the settings name ``threads``.
+        max_batch_size (int): Most frames in one ``@serve.batch`` run, 1 to 16.
+        batch_wait_ms (float): How long the first frame of a batch waits for others, 0 to 1000 ms.
+
+    Raises:
+        ValueError: A value is out of its range.
     """
 
     replicas: int = 1
@@ -66,8 +69,17 @@ class RayServeOptions:
             raise ValueError(f"batch_wait_ms: expected 0..1000, got {self.batch_wait_ms}")
 
     def replica_settings(self, settings: ServiceSettings) -> ServiceSettings:
-        """The app's settings inside a replica: one queue worker per frame a batch can hold, so that
-        that many requests can wait in ``@serve.batch`` together; the queue's own micro-batching off."""
+        """The application's settings inside a replica.
+
+        One queue worker per frame a batch can hold, so that that many requests can wait in ``@serve.batch``
+        together; the queue's own micro-batching off; ``threads`` from ``cpus_per_replica`` unless set.
+
+        Args:
+            settings (ServiceSettings): The service's settings.
+
+        Returns:
+            ServiceSettings: A copy with ``workers``, ``microbatch_max_size`` and ``threads`` set for a replica.
+        """
         threads = settings.threads or max(1, int(self.cpus_per_replica))
         return settings.model_copy(
             update={"workers": max(settings.workers, self.max_batch_size), "microbatch_max_size": 1, "threads": threads}
@@ -157,7 +169,30 @@ class FisheyeReplica:
 
 
 def build_app(settings: ServiceSettings, options: RayServeOptions | None = None) -> Application:
-    """The Ray Serve application: ``options.replicas`` replicas of the service for ``settings``."""
+    """The Ray Serve application: the service's FastAPI application on ``options.replicas`` replicas.
+
+    Each replica holds one Detector and serves the routes of [`create_app`][fisheye_infer.service.app.create_app];
+    frames of concurrent requests are batched with ``@serve.batch``. ``model_path`` is made absolute and must
+    exist on every node that runs a replica. Ray's health check restarts a replica whose Detector is not loaded.
+
+    Args:
+        settings (ServiceSettings): The service's settings
+            ([`ServiceSettings`][fisheye_infer.service.settings.ServiceSettings]).
+        options (RayServeOptions | None): Replicas and batching; None for ``RayServeOptions()``.
+
+    Returns:
+        Application: The bound deployment, for ``serve.run``.
+
+    Examples:
+        ```python
+        from ray import serve
+
+        from fisheye_infer.service.ray_serve import RayServeOptions, build_app
+        from fisheye_infer.service.settings import ServiceSettings
+
+        serve.run(build_app(ServiceSettings(model_path="model.onnx"), RayServeOptions(replicas=2, max_batch_size=4)))
+        ```
+    """
     options = options or RayServeOptions()
     settings = settings.model_copy(
         update={"model_path": settings.model_path.resolve()}
@@ -176,8 +211,22 @@ def build_app(settings: ServiceSettings, options: RayServeOptions | None = None)
 
 
 def app_builder(args: dict[str, str]) -> Application:
-    """``serve run fisheye_infer.service.ray_serve:app_builder model_path=... replicas=2 ...``: the other
-    ``FISHEYE_*`` settings come from the environment, as for ``fisheye-infer serve``."""
+    """The application builder for ``serve run fisheye_infer.service.ray_serve:app_builder model_path=... replicas=2``.
+
+    The settings other than ``model_path`` come from the ``FISHEYE_*`` environment variables, as for
+    ``fisheye-infer serve``.
+
+    Args:
+        args (dict[str, str]): ``serve run``'s ``key=value`` arguments: ``model_path`` (else ``FISHEYE_MODEL_PATH``)
+            and any of ``replicas``, ``cpus_per_replica``, ``max_batch_size``, ``batch_wait_ms``.
+
+    Returns:
+        Application: What [`build_app`][fisheye_infer.service.ray_serve.build_app] returns for them.
+
+    Raises:
+        ValueError: An argument is unknown, or a value does not parse or is out of range.
+        pydantic.ValidationError: The settings are refused (see ``ServiceSettings``).
+    """
     fields = {"replicas": int, "cpus_per_replica": float, "max_batch_size": int, "batch_wait_ms": float}
     unknown = sorted(set(args) - set(fields) - {"model_path"})
     if unknown:

@@ -69,7 +69,24 @@ class DrainingServer(uvicorn.Server):
 
 
 def build_server(settings: ServiceSettings, app: FastAPI | None = None, log_level: str = "info") -> DrainingServer:
-    """A ``DrainingServer`` for ``settings`` (the app is built from them unless given)."""
+    """A uvicorn server for the service, with a graceful drain on the first SIGTERM or SIGINT.
+
+    On the first signal (or ``request_drain()``, for embedding) new requests get 503 with Retry-After while work in
+    flight finishes; after ``drain_timeout_s``, or when nothing is in flight, uvicorn shuts down. A second signal
+    exits at once. ``max_connections``, ``header_timeout_s`` and ``max_body_bytes`` (WebSocket messages) are
+    enforced at the socket; only uvicorn's h11 protocol is used.
+
+    Args:
+        settings (ServiceSettings): Where to listen and the limits
+            ([`ServiceSettings`][fisheye_infer.service.settings.ServiceSettings]).
+        app (FastAPI | None): The application; None builds it with
+            [`create_app`][fisheye_infer.service.app.create_app]``(settings)``. A given app must come from
+            ``create_app``.
+        log_level (str): uvicorn's log level (``debug``, ``info``, ``warning``, ``error``, ``critical``).
+
+    Returns:
+        DrainingServer: A ``uvicorn.Server``; ``run()`` blocks until the drain and shutdown are done.
+    """
     app = app if app is not None else create_app(settings)
     config = uvicorn.Config(
         app,

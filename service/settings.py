@@ -51,7 +51,58 @@ MIN_API_KEY_LENGTH = 16
 
 
 class ServiceSettings(BaseSettings):
-    """See the module docstring for the table of settings."""
+    """Every option and limit of the service, typed and checked, read from ``FISHEYE_*`` environment variables.
+
+    Each field can be given as a keyword or as the environment variable ``FISHEYE_<FIELD>`` (``FISHEYE_QUEUE_SIZE``);
+    keywords win. The settings are frozen; unsafe or contradictory combinations are refused here, not at the first
+    request. ``cors_origins`` and ``providers`` also take comma-separated text.
+
+    Attributes:
+        model_path (Path): The ONNX file written by ``fisheye-infer export``; required.
+        host (str): Where uvicorn listens; loopback (``127.0.0.1``) unless told otherwise.
+        port (int): The port, 0 to 65535 (default 8000).
+        threads (int | None): ONNX Runtime intra-op threads; None for all cores.
+        spin (bool): Whether those threads spin for a while after a call; False makes them sleep at once, leaving
+            the cores to other processes.
+        providers (list[str | tuple[str, dict]]): ONNX Runtime execution providers in order of preference, by name
+            (``CUDAExecutionProvider,CPUExecutionProvider``) or as ``(name, options)`` pairs (a JSON list in the
+            environment), or ``["auto"]`` for the installed accelerated ones; empty for the CPU.
+        workers (int): Inference threads calling the Detector, 1 to 16.
+        queue_size (int): Requests admitted and not yet running; beyond it the answer is 503 with Retry-After.
+        max_body_bytes (int): Largest request body and WebSocket message, in bytes (default 32 MiB; 413 beyond).
+        max_batch_frames (int): Most frames in one ``/detect/batch`` request (422 beyond).
+        microbatch_max_size (int): Single-frame requests grouped into one run; 1 turns micro-batching off. At most
+            ``max_batch_frames``.
+        microbatch_max_wait_ms (float): How long the first request of a group waits for others, 0 to 1000 ms.
+        request_timeout_s (float): Longest wait of a request for its result, in seconds (504 beyond).
+        header_timeout_s (float): Time for a request's headers to arrive, in seconds, at most 300 (then 408 and the
+            connection is closed).
+        body_timeout_s (float): Time for a request's body to arrive, in seconds (then 408 and the connection is
+            closed).
+        max_connections (int): Open connections and requests in progress, at least 2 (beyond: uvicorn answers 503).
+        drain_timeout_s (float): Graceful shutdown: longest wait for in-flight work, in seconds; 0 stops at once.
+        retry_after_s (int): The ``Retry-After`` value sent with 503 answers, in seconds.
+        api_key (SecretStr | None): When set (at least 16 characters), required as the ``X-API-Key`` header; the
+            health endpoints stay open. None for an open service.
+        metrics_public (bool): Serve ``/metrics`` without the API key (for scrapers).
+        docs_public (bool): With an ``api_key``: serve ``/docs`` and ``/openapi.json`` without it.
+        cors_origins (list[str]): Browser origins allowed to call the API; empty for none. ``*`` is refused together
+            with an ``api_key``.
+        warmup (bool): Run the model once when the service starts, before it reports ready.
+
+    Raises:
+        pydantic.ValidationError: A value is out of range, ``model_path`` is missing, a provider is not offered by
+            the installed onnxruntime, ``api_key`` is shorter than 16 characters, ``microbatch_max_size`` exceeds
+            ``max_batch_frames``, or ``cors_origins`` holds ``*`` while an ``api_key`` is set.
+
+    Examples:
+        ```python
+        from fisheye_infer.service.settings import ServiceSettings
+
+        settings = ServiceSettings(model_path="model.onnx", queue_size=16, microbatch_max_size=4)
+        # or from the environment: FISHEYE_MODEL_PATH=model.onnx FISHEYE_QUEUE_SIZE=16 fisheye-infer serve
+        ```
+    """
 
     model_config = SettingsConfigDict(env_prefix="FISHEYE_", extra="ignore", frozen=True)
 
@@ -123,7 +174,7 @@ class ServiceSettings(BaseSettings):
 
     @property
     def session_providers(self) -> str | list[ProviderSetting] | None:
-        """``providers`` as ``Detector`` takes it."""
+        """``providers`` as ``Detector``'s ``providers`` argument takes it: None (the CPU), ``"auto"`` or the list."""
         return None if not self.providers else "auto" if self.providers == ["auto"] else list(self.providers)
 
     @model_validator(mode="after")
@@ -146,4 +197,5 @@ class ServiceSettings(BaseSettings):
 
     @property
     def microbatching(self) -> bool:
+        """Whether single-frame requests are grouped (``microbatch_max_size`` above 1)."""
         return self.microbatch_max_size > 1

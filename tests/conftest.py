@@ -57,6 +57,7 @@ SLOW_FIXTURES = frozenset(
         "exported",
         "petr_fp16",
         "shipped_export",
+        "shipped_exports",
         "full_ckpt",
         "full_petr",
         "full_checkpoint",
@@ -157,6 +158,24 @@ def _export(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
     return _shared(arch, arch, tmp_path_factory, make)
 
 
+def shipped_export_of(name: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
+    """The shipped model ``name`` exported once per run with the export's defaults (its check included): what the
+    shipped-model tests and the docs' runnable snippets share."""
+    pytest.importorskip("torch")
+    from fisheye_infer.export.exporter import export
+    from fisheye_infer.models.pretrained import pretrained
+
+    shipped = pretrained(name)
+
+    def make(folder: Path) -> tuple[Path, Any]:
+        out = folder / f"{name}.onnx"
+        return shipped.checkpoint, export(
+            shipped.checkpoint, out, config=shipped.config, rig=shipped.rig, progress=lambda _: None
+        )
+
+    return _shared(name, f"shipped-{name}", tmp_path_factory, make)
+
+
 def small_export_of(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Exported:
     """The reduced configuration of ``arch`` (``small_configs``) with seeded weights, exported once per run
     for its reduced rig (self-check on one frame at one thread): what the tests of a whole export path share."""
@@ -175,6 +194,12 @@ def small_export_of(arch: str, tmp_path_factory: pytest.TempPathFactory) -> Expo
         return ckpt, export(ckpt, folder / f"{arch}.onnx", config=config, rig=rig, **quiet)
 
     return _shared(arch, f"small-{arch}", tmp_path_factory, make)
+
+
+@pytest.fixture(scope="session")
+def shipped_exports(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Exported]:
+    """``shipped_exports(name)``: the run's export of the shipped model ``name`` (``shipped_export_of``)."""
+    return lambda name: shipped_export_of(name, tmp_path_factory)
 
 
 @pytest.fixture(scope="session")

@@ -26,6 +26,8 @@ FENCE = re.compile(r"^```[^\n]*\n(.*?)^```", re.MULTILINE | re.DOTALL)
 INLINE = re.compile(r"`([^`\n]+)`")
 FLAG = re.compile(r"^--[a-z][a-z0-9-]*")
 LINK = re.compile(r"\]\(([^)\s]+)\)")
+#: reStructuredText that Markdown prints as text: a role (``:func:`x```) or a literal-block marker ending a paragraph.
+LITERAL_REST = re.compile(r":(?:func|mod|class|meth|attr|data|exc|obj|ref):`[^`<]*`|[^:\s]::\s*</p>")
 #: A path into the repository named in code: ``benchmarks/int8.py``, ``tests/service/probe_service.py``.
 REPO_PATH = re.compile(r"(?<![\w./$-])((?:benchmarks|tests|models|export|service|fisheye_infer|docs)/[\w./-]*\w)")
 
@@ -90,9 +92,11 @@ def test_the_site_builds_strictly(tmp_path: Path) -> None:
     cli = (site / "reference" / "cli" / "index.html").read_text(encoding="utf-8")
     for name in _subparsers(build_parser()):
         assert f'id="fisheye-infer-{name}"' in cli, f"the generated CLI reference has no section for {name}"
-    assert "fisheye_infer.models.registry" in (site / "reference" / "api" / "models" / "index.html").read_text(
-        encoding="utf-8"
-    )
+    literal = []
+    for page in site.rglob("*.html"):
+        text = re.sub(r"<(script|pre|code)\b.*?</\1>", "", page.read_text(encoding="utf-8"), flags=re.DOTALL)
+        literal += [f"{page.relative_to(site)}: {m[0]}" for m in LITERAL_REST.finditer(text)]
+    assert not literal, "reStructuredText printed literally:\n" + "\n".join(literal[:20])
 
 
 def test_the_readme_is_short() -> None:

@@ -76,7 +76,17 @@ _OPENCV_XML = re.compile(r"\A\s*(<\?xml[^>]*\?>\s*)?<opencv_storage>")
 
 
 def detect_format(path: str | Path) -> str:
-    """Which of ``FORMATS`` a file is, from its content; a ``RigError`` when none fits."""
+    """Which of ``FORMATS`` a file is, from its content.
+
+    Args:
+        path (str | Path): A calibration file.
+
+    Returns:
+        str: ``"kalibr"``, ``"ros"``, ``"opencv"`` or ``"ocam"``.
+
+    Raises:
+        RigError: The file is missing, not text or none of the formats.
+    """
     path = Path(path)
     text = read_text(path, _WHAT)
     if text.lstrip().startswith(_OCAM_HEADER):
@@ -110,14 +120,29 @@ def read_calibration(
     """The cameras of a calibration file, in file order.
 
     Args:
-        path: the file.
-        format: one of ``FORMATS``; default: recognised from the content (``detect_format``).
-        trust_chain: for a Kalibr camchain carrying both ``T_cn_cnm1`` and ``T_cam_imu``, which places the
-            cameras where the two disagree (``"cn_cnm1"`` or ``"imu"``); default: neither, a disagreement
-            is refused with its size.
+        path (str | Path): The file.
+        format (str | None): ``"kalibr"``, ``"ros"``, ``"opencv"`` or ``"ocam"``; None: recognised from the
+            content ([`detect_format`][fisheye_infer.cameras.calibration_files.detect_format]).
+        trust_chain (TrustChain | None): For a Kalibr camchain carrying both ``T_cn_cnm1`` and ``T_cam_imu``,
+            which places the cameras where the two disagree (``"cn_cnm1"`` or ``"imu"``); None: neither, a
+            disagreement is refused with its size.
 
     Returns:
-        Each camera's name, model and, for a camchain, its pose in the first camera's frame.
+        list[CalibratedCamera]: Each camera's name, model and, for a camchain, its pose in the first camera's
+            frame.
+
+    Raises:
+        RigError: The file is missing, not text or not of the format, a value is missing or not finite, or a
+            camera model cannot be represented (the reason named).
+
+    Examples:
+        ```python
+        from fisheye_infer.cameras.calibration_files import read_calibration
+
+        for cam in read_calibration("camchain.yaml"):         # format recognised from the content
+            print(cam.name, cam.model.type, cam.model.width, cam.model.height)
+        left = read_calibration("left.yaml", "ros")[0]         # a ROS CameraInfo YAML
+        ```
     """
     path = Path(path)
     kind = format or detect_format(path)
@@ -138,7 +163,21 @@ def read_calibrations(
     names: Sequence[str] | None = None,
     trust_chain: TrustChain | None = None,
 ) -> list[tuple[str, list[CalibratedCamera]]]:
-    """Each file and its cameras (``read_calibration``), the cameras renamed in file order by ``names``."""
+    """Each file and its cameras (``read_calibration``), the cameras renamed in file order by ``names``.
+
+    Args:
+        files (Sequence[str | Path]): Calibration files.
+        format (str | None): Their format; None: recognised per file.
+        names (Sequence[str] | None): New names, one per camera over all files in order; None keeps the files'.
+        trust_chain (TrustChain | None): As for
+            [`read_calibration`][fisheye_infer.cameras.calibration_files.read_calibration].
+
+    Returns:
+        list[tuple[str, list[CalibratedCamera]]]: (file, its cameras) per file, in order.
+
+    Raises:
+        RigError: As ``read_calibration``, or a number of ``names`` other than the number of cameras.
+    """
     per_file = [read_calibration(f, format, trust_chain) for f in files]
     if names is not None:
         count = sum(len(cams) for cams in per_file)
@@ -157,7 +196,21 @@ def place_cameras(
 
     A file's chained cameras (a Kalibr camchain) are placed from the first of them in ``given``, its anchor;
     each file from its own. A chained camera also in ``given`` must agree with the chain
-    (``POSE_TOLERANCE_MM``, ``POSE_TOLERANCE_DEG``). Every other camera needs its own entry in ``given``.
+    (``POSE_TOLERANCE_MM``, ``POSE_TOLERANCE_DEG``: 1 mm, 0.06 degrees). Every other camera needs its own
+    entry in ``given``.
+
+    Args:
+        files (Sequence[tuple[str, list[CalibratedCamera]]]): What
+            [`read_calibrations`][fisheye_infer.cameras.calibration_files.read_calibrations] returns.
+        given (dict[str, np.ndarray]): Camera name -> 4x4 cam2lidar, metres.
+        source (str): What error messages call ``given`` (its file).
+
+    Returns:
+        dict[str, np.ndarray]: Camera name -> (4, 4) float64 cam2lidar for every camera of ``files``.
+
+    Raises:
+        RigError: A camera named twice, a camchain none of whose cameras is in ``given``, a chained camera
+            whose given pose disagrees with the chain, or a camera without a pose.
     """
     seen: dict[str, str] = {}
     for file, cameras in files:

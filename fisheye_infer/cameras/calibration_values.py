@@ -39,7 +39,16 @@ POSE_TOLERANCE_DEG: Final = 0.06
 @dataclass(frozen=True)
 class CalibratedCamera:
     """One camera of a calibration file: its name, model and, where the file chains cameras (Kalibr),
-    its pose in the first camera's frame (4x4, camera to first camera); None where the file has none."""
+    its pose in the first camera's frame (4x4, camera to first camera); None where the file has none.
+
+    Attributes:
+        name (str): The camera's name (the file's, or its file name where the format has none).
+        model (Any): Its camera model (a [`KannalaBrandt`][fisheye_infer.cameras.kannala_brandt.KannalaBrandt],
+            [`DistortedPinhole`][fisheye_infer.cameras.pinhole_models.DistortedPinhole],
+            [`OCamModel`][fisheye_infer.cameras.ocam_model.OCamModel], ...).
+        cam2first (np.ndarray | None): (4, 4) float64 transform from this camera's frame to the file's first
+            camera's, metres; None where the file does not chain cameras.
+    """
 
     name: str
     model: Any

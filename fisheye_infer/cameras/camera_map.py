@@ -43,7 +43,7 @@ def parse_camera_map(text: str) -> dict[str, str]:
     """``slot=robot,slot=robot`` (as ``--camera-map`` takes it) as a mapping slot -> robot camera.
 
     Args:
-        text: Comma-separated ``slot=robot`` pairs.
+        text (str): Comma-separated ``slot=robot`` pairs.
 
     Returns:
         dict[str, str]: The model's camera name -> the robot's camera name.
@@ -66,16 +66,28 @@ def map_cameras(training: Rig, robot: Rig, explicit: Mapping[str, str] | None = 
     """The robot camera for each of the training rig's slots, in slot order.
 
     Args:
-        training: The rig the model was trained with (its slots and their poses).
-        robot: The robot's rig (names and order of its own).
-        explicit: Slot name -> robot camera name for every slot; None maps by heading.
+        training (Rig): The rig the model was trained with (its slots and their poses).
+        robot (Rig): The robot's rig (names and order of its own).
+        explicit (Mapping[str, str] | None): Slot name -> robot camera name for every slot; None maps by heading.
 
     Returns:
         list[str]: One robot camera name per slot of ``training``, in its order.
 
     Raises:
         RigError: An unknown or missing name in the map, a robot camera used twice, or a slot whose camera
-            cannot be found by heading (none, or several, within ``MAX_HEADING_GAP_DEG``).
+            cannot be found by heading (none, or several, within ``MAX_HEADING_GAP_DEG``, 45 degrees).
+
+    Examples:
+        ```python
+        from fisheye_infer.cameras.camera_map import map_cameras, parse_camera_map
+        from fisheye_infer.cameras.rig import Rig, default_rig
+
+        robot = Rig.load("robot_rig.yaml")
+        order = map_cameras(default_rig(), robot)          # by heading
+        mapping = parse_camera_map("fisheye_camera_front=cam0,fisheye_camera_left=cam1,"
+                                   "fisheye_camera_right=cam2,fisheye_camera_rear=cam3")
+        order = map_cameras(default_rig(), robot, mapping)     # explicit
+        ```
     """
     if explicit is not None:
         return _explicit(training, robot, explicit)

@@ -37,14 +37,23 @@ __all__ = ["MAX_FIT_ERROR_PX", "OCamFit", "fit_ocam", "fit_ocam_from_kb", "fit_r
 
 @dataclass(frozen=True)
 class OCamFit:
-    """The fitted model and its errors in pixels over the lens's field of view."""
+    """The fitted model and its errors in pixels over the lens's field of view.
+
+    Attributes:
+        model (OCamModel): The fitted OCam model, with the lens's image size, centre and ``fov``.
+        max_project_error_px (float): Largest ``|ocam.project(ray) - lens.project(ray)|`` over rays in the fov,
+            pixels.
+        max_unproject_error_px (float): Largest ``|lens.project(ocam.unproject(uv)) - uv|`` over the lens's
+            pixels of those rays, pixels.
+    """
 
     model: OCamModel
-    max_project_error_px: float  # |OCam.project(ray) - KB.project(ray)|
-    max_unproject_error_px: float  # |KB.project(OCam.unproject(uv)) - uv|
+    max_project_error_px: float
+    max_unproject_error_px: float
 
     @property
     def max_reprojection_error_px(self) -> float:
+        """The larger of the two errors, pixels."""
         return max(self.max_project_error_px, self.max_unproject_error_px)
 
 
@@ -60,10 +69,37 @@ def _lstsq_poly(x: np.ndarray, y: np.ndarray, powers: list[int], scale: float) -
 
 
 def fit_ocam(lens: Any, invpol_degree: int = 12, pol_degree: int = 10, samples: int = 2000) -> OCamFit:
-    """OCam model of a lens over its ``fov`` (within what the model projects, ``domain_fov``), with the fit's
-    max reprojection error. ``lens``: a model with ``fx``, ``fy``, ``cx``, ``cy``, ``fov`` and
-    ``project``/``unproject`` (``KannalaBrandt``, ``DoubleSphere``, ``ExtendedUnified``, ``Omnidirectional``).
-    A fit that gives no finite model is refused (``RigError``)."""
+    """OCam model of a lens over its ``fov`` (within what the model projects), with the fit's max reprojection
+    error.
+
+    Args:
+        lens (Any): A model with ``fx``, ``fy``, ``cx``, ``cy``, ``fov`` and ``project``/``unproject``:
+            [`KannalaBrandt`][fisheye_infer.cameras.kannala_brandt.KannalaBrandt],
+            [`DoubleSphere`][fisheye_infer.cameras.unified_models.DoubleSphere],
+            [`ExtendedUnified`][fisheye_infer.cameras.unified_models.ExtendedUnified] or
+            [`Omnidirectional`][fisheye_infer.cameras.unified_models.Omnidirectional].
+        invpol_degree (int): Degree of the inverse polynomial (world to image).
+        pol_degree (int): Degree of the direct polynomial (image to world).
+        samples (int): Sample points along the radius for each least-squares fit.
+
+    Returns:
+        OCamFit: The model and its errors in pixels.
+
+    Raises:
+        RigError: The fit gives no finite model or error (a lens whose projection is undefined somewhere in
+            its field of view).
+
+    Examples:
+        ```python
+        from fisheye_infer.cameras.kannala_brandt import KannalaBrandt
+        from fisheye_infer.cameras.ocam_fit import fit_ocam
+
+        lens = KannalaBrandt(fx=320.0, fy=320.0, cx=399.5, cy=399.5, k=(0.05, -0.01, 0.0, 0.0),
+                             width=800, height=800, fov=200.0)
+        fit = fit_ocam(lens)
+        fit.model.to_text(), fit.max_reprojection_error_px     # a calib_results.txt, pixels
+        ```
+    """
     fov = min(float(lens.fov), domain_fov(lens))
     alpha_max = math.radians(fov / 2.0)
     f = lens.fx
@@ -115,7 +151,20 @@ def fit_ocam(lens: Any, invpol_degree: int = 12, pol_degree: int = 10, samples: 
 
 
 def fit_ocam_from_kb(kb: KannalaBrandt, invpol_degree: int = 12, pol_degree: int = 10, samples: int = 2000) -> OCamFit:
-    """``fit_ocam`` of a Kannala-Brandt lens."""
+    """[`fit_ocam`][fisheye_infer.cameras.ocam_fit.fit_ocam] of a Kannala-Brandt lens.
+
+    Args:
+        kb (KannalaBrandt): The lens.
+        invpol_degree (int): Degree of the inverse polynomial (world to image).
+        pol_degree (int): Degree of the direct polynomial (image to world).
+        samples (int): Sample points along the radius for each least-squares fit.
+
+    Returns:
+        OCamFit: The model and its errors in pixels.
+
+    Raises:
+        RigError: The fit gives no finite model or error.
+    """
     return fit_ocam(kb, invpol_degree, pol_degree, samples)
 
 
@@ -126,13 +175,17 @@ def fit_rig_ocam(
     ``fit_ocam`` model: the form the fisheye detectors' geometry takes.
 
     Args:
-        rig: the rig to fit.
-        max_error_px: the largest max reprojection error (pixels) accepted.
-        force: accept fits above ``max_error_px`` too (their errors are still returned).
+        rig (Rig): The rig to fit.
+        max_error_px (float): The largest max reprojection error (pixels) accepted.
+        force (bool): Accept fits above ``max_error_px`` too (their errors are still returned).
 
     Returns:
-        The fitted rig, and the fits by camera name. A fit that fails, or one above ``max_error_px``
-        unless ``force``, is refused (``RigError``) naming the camera and its error.
+        tuple[Rig, dict[str, OCamFit]]: The fitted rig (same names, order and poses), and the fits by camera
+            name.
+
+    Raises:
+        RigError: A fit that fails, or one above ``max_error_px`` unless ``force``, naming the camera and its
+            error.
     """
     fits = {}
     for cam in rig.cameras:

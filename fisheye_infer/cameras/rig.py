@@ -7,7 +7,7 @@ The camera order is the model's input order (Fisheye3DOD: front, left, right, re
 A rig is read from an OCam ``calib_results.txt`` plus ``lidar2cam.json``, from Fisheye3DOD
 ``sensor_metadata.txt`` files (CARLA poses, "compat" or "exact" convention), from the project's
 own rig file (JSON or YAML) or from a pinhole camera list (``rig-pinhole6/cameras.json``), and
-written to the rig file; ``rig_files`` parses those formats, :class:`Rig` validates the result.
+written to the rig file; ``rig_files`` parses those formats, `Rig` validates the result.
 ``Rig.hash`` is a stable content hash that ties an exported model to the rig its geometry tables
 were computed for.
 """
@@ -69,7 +69,26 @@ _RIGID_TOLERANCE = 1e-4
 
 
 class RigCamera(BaseModel):
-    """One camera of a rig."""
+    """One camera of a rig: its name, lens and pose.
+
+    Attributes:
+        name (str): The camera's name (non-empty, unique in its rig).
+        model (AnyCameraModel): Its camera model, one of the models above, told apart by ``type``.
+        cam2lidar (tuple[tuple[float, float, float, float], ...]): 4x4 rigid transform from the camera
+            (OpenCV) frame to the lidar frame, metres; the last row is (0, 0, 0, 1).
+
+    Raises:
+        pydantic.ValidationError: ``cam2lidar`` not 4x4, not finite or not rigid (within 1e-4), or an invalid
+            model.
+
+    Examples:
+        ```python
+        from fisheye_infer.cameras.rig import default_rig
+
+        front = default_rig().camera("fisheye_camera_front")
+        front.model.type, front.position, front.heading   # "ocam", (3,) metres, radians (0 = forward)
+        ```
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -111,7 +130,32 @@ class RigCamera(BaseModel):
 
 
 class Rig(BaseModel):
-    """Ordered named cameras; construct through the ``from_*``/``load`` class methods for clear errors."""
+    """Ordered named cameras; construct through the ``from_*``/``load`` class methods for clear errors.
+
+    The camera order is the model's input order. A rig is a frozen pydantic object and saves to a rig file
+    (JSON or YAML) that [`load`][fisheye_infer.cameras.rig.Rig.load] reads back.
+
+    Attributes:
+        schema_version (Literal[1]): The rig file's schema version.
+        name (str): A label for messages and the ``describe`` table; not part of ``hash``.
+        cameras (tuple[RigCamera, ...]): The cameras, at least one, with unique names.
+
+    Raises:
+        pydantic.ValidationError: Constructed directly, with no cameras or repeated names (the ``from_*``
+            methods and ``load`` raise `RigError` instead, naming the camera and field).
+
+    Examples:
+        ```python
+        from fisheye_infer.cameras.rig import Rig
+
+        rig = Rig.load("rig.yaml")                                          # the project's rig file
+        rig = Rig.from_ocam_extrinsics("calib_results.txt", "lidar2cam.json")
+        rig = Rig.from_calibration(["camchain.yaml"], "lidar2cam.json")    # Kalibr, ROS, OpenCV, OCamCalib
+        print(rig.names, rig.hash)
+        print(rig.describe())
+        rig.save("my_rig.json")
+        ```
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -131,7 +175,18 @@ class Rig(BaseModel):
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "rig") -> Rig:
-        """Validate a rig document; every problem is reported with its camera name and field."""
+        """Validate a rig document; every problem is reported with its camera name and field.
+
+        Args:
+            data (Any): The document: ``{"name": ..., "cameras": [{"name", "model", "cam2lidar"}, ...]}``.
+            source (str): What the error message calls the document (a file name).
+
+        Returns:
+            Rig: The rig.
+
+        Raises:
+            RigError: The document is not a valid rig.
+        """
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
@@ -145,7 +200,21 @@ class Rig(BaseModel):
         order: Sequence[str] | None = None,
         name: str = "rig",
     ) -> Rig:
-        """Assemble from per-camera models and cam2lidar matrices, in ``order`` (default: ``models`` order)."""
+        """Assemble from per-camera models and cam2lidar matrices, in ``order`` (default: ``models`` order).
+
+        Args:
+            models (dict[str, Any]): Camera name -> camera model (an object or its dict).
+            cam2lidar (dict[str, np.ndarray]): Camera name -> 4x4 camera-to-lidar transform, metres.
+            order (Sequence[str] | None): The cameras to take, in the rig's order; None takes every one of
+                ``models`` in its order.
+            name (str): The rig's name.
+
+        Returns:
+            Rig: The rig.
+
+        Raises:
+            RigError: A camera of ``order`` without a model or extrinsics, or an invalid model or transform.
+        """
         order = list(order or models)
         for cam in order:
             if cam not in models:
@@ -174,6 +243,21 @@ class Rig(BaseModel):
         """One OCam file shared by all cameras + ``{"cameras": {name: lidar2cam 4x4}}``.
 
         Without ``order``, Fisheye3DOD's order is used when the file has exactly its cameras.
+
+        Args:
+            calib (str | Path): An OCamCalib ``calib_results.txt``.
+            lidar2cam_json (str | Path): JSON ``{"cameras": {name: 4x4 lidar2cam}}``, metres.
+            order (Sequence[str] | None): The camera order; None: Fisheye3DOD's for its four cameras, else the
+                file's.
+            fov (float): The OCam model's full field of view, degrees.
+            name (str | None): The rig's name; None: the extrinsics file's folder name.
+
+        Returns:
+            Rig: The rig, every camera with the same model.
+
+        Raises:
+            RigError: An unreadable or invalid file, a matrix that is not a finite invertible 4x4, or a camera
+                of ``order`` missing from the extrinsics.
         """
         model = read_ocam(calib, fov)
         cam2lidar = read_lidar2cam_json(lidar2cam_json)
@@ -195,6 +279,20 @@ class Rig(BaseModel):
         """Rig of one Fisheye3DOD frame from ``<scene>/<vehicle>/<sensor>/sensor_metadata.txt``.
 
         ``frame_id`` defaults to the first frame that every camera and the lidar recorded.
+
+        Args:
+            vehicle_dir (str | Path): The ``<scene>/<vehicle>`` folder.
+            calib (str | Path): The OCamCalib ``calib_results.txt`` all cameras share.
+            cameras (Sequence[str]): The sensor folders, in the rig's order.
+            frame_id (str | None): The frame whose poses to take; None: the first that all recorded.
+            convention (Convention): ``"compat"`` (the official code's CARLA pose conversion) or ``"exact"``.
+            fov (float): The OCam model's full field of view, degrees.
+
+        Returns:
+            Rig: The rig, named ``<scene>/<vehicle>@<frame>``.
+
+        Raises:
+            RigError: A missing or unreadable file, or a frame that the lidar or a camera did not record.
         """
         root = Path(vehicle_dir)
         model = read_ocam(calib, fov)
@@ -218,6 +316,29 @@ class Rig(BaseModel):
         its cameras there (any other there must agree with the chain: 1 mm, 0.06 degrees), every other camera by
         its own. ``names`` renames the cameras in file order; ``trust_chain`` (``"cn_cnm1"`` or ``"imu"``): which of
         a camchain's ``T_cn_cnm1`` and ``T_cam_imu`` places its cameras where the two disagree.
+
+        Args:
+            files (Sequence[str | Path]): Calibration files (see
+                [`read_calibration`][fisheye_infer.cameras.calibration_files.read_calibration]).
+            extrinsics (str | Path): JSON ``{"cameras": {name: 4x4 lidar2cam}}``, metres.
+            format (str | None): The files' format (``"kalibr"``, ``"ros"``, ``"opencv"``, ``"ocam"``); None
+                recognises each from its content.
+            names (Sequence[str] | None): New camera names, one per camera in file order.
+            name (str | None): The rig's name; None: the first file's stem.
+            trust_chain (TrustChain | None): ``"cn_cnm1"`` or ``"imu"``; None refuses a camchain whose two
+                sources disagree.
+
+        Returns:
+            Rig: The cameras in file order.
+
+        Raises:
+            RigError: An unreadable file, a camera model that cannot be represented, a camera without a pose,
+                or a chain and extrinsics that disagree.
+
+        Examples:
+            ```python
+            rig = Rig.from_calibration(["camchain.yaml"], "lidar2cam.json", names=["front", "left", "right", "rear"])
+            ```
         """
         from fisheye_infer.cameras.calibration_files import place_cameras, read_calibrations
 
@@ -228,7 +349,17 @@ class Rig(BaseModel):
 
     @classmethod
     def load(cls, path: str | Path) -> Rig:
-        """Read a rig file (``.json``, ``.yaml`` or ``.yml``)."""
+        """Read a rig file (``.json``, ``.yaml`` or ``.yml``), or a pinhole camera list (``cameras.json``).
+
+        Args:
+            path (str | Path): The file.
+
+        Returns:
+            Rig: The rig.
+
+        Raises:
+            RigError: A missing or unreadable file, or one that is not a valid rig (named by camera and field).
+        """
         path = Path(path)
         data = read_rig_document(path)
         if is_pinhole_list(data):
@@ -241,24 +372,55 @@ class Rig(BaseModel):
 
         ``cam2lidar`` is ``inv(lidar2cam)`` in float64. A camera with distortion, skew or a K whose
         last row is not (0, 0, 1) is refused by name: the pinhole detectors take ideal pinhole images.
+
+        Args:
+            data (dict[str, Any]): The document: a list of cameras with ``name``, ``width``, ``height``, ``K``
+                and ``lidar2cam``.
+            source (str): What error messages call the document.
+            name (str): The rig's name.
+
+        Returns:
+            Rig: The rig of [`Pinhole`][fisheye_infer.cameras.pinhole_models.Pinhole] cameras.
+
+        Raises:
+            RigError: A missing field, a matrix of the wrong shape, distortion or skew.
         """
         models, cam2lidar = pinhole_list_cameras(data, source)
         return cls.from_cameras(models, cam2lidar, name=name)
 
     def save(self, path: str | Path) -> Path:
-        """Write the rig file; YAML for ``.yaml``/``.yml``, JSON otherwise."""
+        """Write the rig file; YAML for ``.yaml``/``.yml``, JSON otherwise.
+
+        Args:
+            path (str | Path): Where to write it; an existing file is replaced.
+
+        Returns:
+            Path: ``path``.
+        """
         return write_rig_document(self.model_dump(mode="json"), path)
 
     # -- access ---------------------------------------------------------------------------
 
     @property
     def names(self) -> list[str]:
+        """The camera names, in order."""
         return [c.name for c in self.cameras]
 
     def __len__(self) -> int:
         return len(self.cameras)
 
     def camera(self, name: str) -> RigCamera:
+        """The camera called ``name``.
+
+        Args:
+            name (str): A camera name.
+
+        Returns:
+            RigCamera: The camera.
+
+        Raises:
+            RigError: No camera of that name.
+        """
         for cam in self.cameras:
             if cam.name == name:
                 return cam
@@ -266,7 +428,17 @@ class Rig(BaseModel):
 
     def subset(self, names: Sequence[str]) -> Rig:
         """The rig of ``names`` alone, in that order: a reduced layout (two of four fisheye cameras, say) that a
-        model is trained for, rather than one it loses cameras from at run time."""
+        model is trained for, rather than one it loses cameras from at run time.
+
+        Args:
+            names (Sequence[str]): Camera names, each once.
+
+        Returns:
+            Rig: The reduced rig, named ``<name>[a+b]``.
+
+        Raises:
+            RigError: No names, a name repeated or not in the rig.
+        """
         if not names:
             raise RigError(f"cameras: expected at least one of {', '.join(self.names)}")
         repeated = sorted({n for n in names if list(names).count(n) > 1})
@@ -276,16 +448,31 @@ class Rig(BaseModel):
         return self.model_copy(update={"cameras": cameras, "name": f"{self.name}[{'+'.join(names)}]"})
 
     def cam2lidar(self) -> np.ndarray:
-        """(N, 4, 4) float64 in camera order."""
+        """The cameras' poses.
+
+        Returns:
+            np.ndarray: (N, 4, 4) float64 camera-to-lidar transforms, in camera order.
+        """
         return np.stack([c.matrix for c in self.cameras])
 
     def lidar2cam(self) -> np.ndarray:
-        """(N, 4, 4) float64 inverses of ``cam2lidar``, computed in numpy."""
+        """The inverses of the cameras' poses, computed in numpy.
+
+        Returns:
+            np.ndarray: (N, 4, 4) float64 lidar-to-camera transforms, in camera order.
+        """
         return np.linalg.inv(self.cam2lidar())
 
     def shared_model(self) -> Any:
         """The one camera model all cameras share (Fisheye3DOD's rig has one); a rig whose cameras differ is refused,
-        naming the camera."""
+        naming the camera.
+
+        Returns:
+            Any: The camera model.
+
+        Raises:
+            RigError: A camera whose model differs from the first camera's.
+        """
         first = self.cameras[0].model
         for cam in self.cameras[1:]:
             if cam.model != first:
@@ -296,7 +483,15 @@ class Rig(BaseModel):
         return first
 
     def require(self, names: Sequence[str], image_size: tuple[int, int] | None = None) -> None:
-        """Check that the rig has exactly ``names`` in that order and, if given, images of ``image_size`` (W, H)."""
+        """Check that the rig has exactly ``names`` in that order and, if given, images of ``image_size`` (W, H).
+
+        Args:
+            names (Sequence[str]): The camera names expected, in order.
+            image_size (tuple[int, int] | None): (width, height) in pixels every camera must have; None: any.
+
+        Raises:
+            RigError: A camera missing, another order, or another image size (named by camera).
+        """
         for name in names:
             if name not in self.names:
                 raise RigError(f"camera '{name}': missing from the rig (rig has: {', '.join(self.names)})")
@@ -327,7 +522,11 @@ class Rig(BaseModel):
 
     def describe(self) -> str:
         """A human-readable table: camera, model, which calibration (cameras with the same number share one),
-        image size, position and heading."""
+        image size, position and heading.
+
+        Returns:
+            str: The table, one line per camera after a header.
+        """
         width = max(24, *(len(n) for n in self.names))
         calibrations = list(dict.fromkeys(cam.model for cam in self.cameras))
         lines = [f"rig {self.name!r}  hash {self.hash}  frame: lidar (x forward, y left, z up)"]
@@ -363,7 +562,19 @@ def _as_dict(model: Any) -> Any:
 
 @lru_cache(maxsize=1)
 def default_rig() -> Rig:
-    """The Fisheye3DOD rig shipped with the package: one 800x800 220-degree OCam model, four cameras."""
+    """The Fisheye3DOD rig shipped with the package: one 800x800 220-degree OCam model, four cameras.
+
+    Returns:
+        Rig: The rig ``fisheye3dod`` (front, left, right, rear), cached: every call returns the same object.
+
+    Examples:
+        ```python
+        from fisheye_infer.cameras.rig import default_rig
+
+        rig = default_rig()
+        rig.names     # ["fisheye_camera_front", "fisheye_camera_left", "fisheye_camera_right", "fisheye_camera_rear"]
+        ```
+    """
     base = resources.files("fisheye_infer") / "data" / "rig-fisheye3dod"
     with resources.as_file(base) as folder:
         return Rig.from_ocam_extrinsics(folder / "calib_results.txt", folder / "lidar2cam.json", name="fisheye3dod")
@@ -379,7 +590,17 @@ def pinhole_rig() -> Rig:
 
 def resolve_rig(spec: str | Path | None) -> Rig:
     """A rig from what a user types: nothing or ``default`` (the shipped rig), a rig file, or a
-    folder holding ``calib_results.txt`` and ``lidar2cam.json``."""
+    folder holding ``calib_results.txt`` and ``lidar2cam.json``.
+
+    Args:
+        spec (str | Path | None): None or ``"default"``, a rig file (``.json``, ``.yaml``, ``.yml``) or a folder.
+
+    Returns:
+        Rig: The rig.
+
+    Raises:
+        RigError: No such file or folder, a folder without both files, or an invalid rig.
+    """
     if spec is None or str(spec) == "default":
         return default_rig()
     path = Path(spec)

@@ -1,7 +1,7 @@
 """The files a rig is read from and written to, taken apart into camera models and cam2lidar matrices.
 
 Each format has its own parsing and its own error messages, which would otherwise crowd
-:class:`~fisheye_infer.cameras.rig.Rig`: its ``from_*``/``load``/``save`` methods call in here and
+[`Rig`][fisheye_infer.cameras.rig.Rig]: its ``from_*``/``load``/``save`` methods call in here and
 then validate what comes back. Nothing here builds a ``Rig``, so this module does not import
 ``rig`` (no import cycle). The formats:
 
@@ -12,7 +12,7 @@ then validate what comes back. Nothing here builds a ``Rig``, so this module doe
 - a pinhole camera list (``{"cameras": [{"name", "width", "height", "K", "distortion": "none",
   "lidar2cam"}, ...]}``, the layout of ``rig-pinhole6/cameras.json``).
 
-Readers report problems with the file, camera and field they concern, as :class:`RigError`. Files are
+Readers report problems with the file, camera and field they concern, as `RigError`. Files are
 read through ``text_input`` (a binary file is "not a rig file", YAML aliases are refused), and a value that
 is not finite (YAML's ``.nan``, JSON's ``NaN``) is named as such.
 """
@@ -51,7 +51,7 @@ RIG_SCHEMA_VERSION: Final = 1
 
 
 def read_ocam(calib: str | Path, fov: float) -> OCamModel:
-    """The OCam model in ``calib`` (``calib_results.txt``); its problems as :class:`RigError`."""
+    """The OCam model in ``calib`` (``calib_results.txt``); its problems as `RigError`."""
     try:
         return OCamModel.from_file(calib, fov=fov)
     except CameraModelError as exc:

@@ -14,7 +14,7 @@ training ray is taken to end on a sphere of that radius around the training came
 points at that distance.
 
 Training pixels outside the training lens's field stay black, as in the training images
-(:func:`pixel_rays`' ``inside``); pixels inside it whose ray the robot camera does not see are
+(`pixel_rays`' ``inside``); pixels inside it whose ray the robot camera does not see are
 ``unseen`` and are filled with ``UNSEEN_FILL``: a constant mid-grey reads to the detectors as
 featureless, where black reads as a dark, empty region.
 """
@@ -75,15 +75,27 @@ class VirtualView:
     """The training camera's image as resampled from a robot camera's.
 
     Attributes:
-        map_x: (H, W) float32 robot column of each training pixel (cv2.remap's map); ``OUTSIDE`` where it samples
-            nothing.
-        map_y: (H, W) float32 robot row, likewise.
-        inside_lens: (H, W) bool, training pixels inside the training lens's field.
-        seen: (H, W) bool, those whose ray the robot camera sees.
-        rotation_deg: The rotation between the two mounts that the resampling compensates.
-        translation_mm: The distance between the two camera centres, which it does not (unless a depth is given).
-        sampling_scale: Median robot pixels per training pixel (square root of the map's Jacobian determinant) over
-            the seen pixels; below 1 the robot camera resolves less than the network was trained on.
+        map_x (np.ndarray): (H, W) float32 robot column of each training pixel (cv2.remap's map); ``OUTSIDE``
+            (-1) where it samples nothing.
+        map_y (np.ndarray): (H, W) float32 robot row, likewise.
+        inside_lens (np.ndarray): (H, W) bool, training pixels inside the training lens's field.
+        seen (np.ndarray): (H, W) bool, those whose ray the robot camera sees.
+        rotation_deg (float): The rotation between the two mounts that the resampling compensates, degrees.
+        translation_mm (float): The distance between the two camera centres, which it does not (unless a depth
+            is given), millimetres.
+        sampling_scale (float): Median robot pixels per training pixel (square root of the map's Jacobian
+            determinant) over the seen pixels; below 1 the robot camera resolves less than the network was
+            trained on.
+
+    Examples:
+        ```python
+        import cv2
+        from fisheye_infer.cameras.virtual_view import virtual_view
+
+        view = virtual_view(training_rig.camera("fisheye_camera_front"), robot_rig.camera("cam0"))
+        image = cv2.remap(robot_image, view.map_x, view.map_y, cv2.INTER_LINEAR)
+        image[view.unseen] = 128
+        ```
     """
 
     map_x: np.ndarray
@@ -105,7 +117,11 @@ class VirtualView:
         return self.inside_lens & ~self.seen
 
     def fill(self) -> np.ndarray:
-        """(H, W) float32: ``UNSEEN_FILL`` on unseen pixels, 0 elsewhere."""
+        """The fill for pixels the robot camera does not see.
+
+        Returns:
+            np.ndarray: (H, W) float32, ``UNSEEN_FILL`` (128) on unseen pixels, 0 elsewhere.
+        """
         return np.where(self.unseen, np.float32(UNSEEN_FILL), np.float32(0.0)).astype(np.float32)
 
 
@@ -113,13 +129,14 @@ def virtual_view(training: RigCamera, robot: RigCamera, depth: float | None = No
     """Where each pixel of ``training``'s image lands in ``robot``'s image.
 
     Args:
-        training: The camera a model was trained with (lens and mount).
-        robot: The camera that stands in for it.
-        depth: None to compensate rotation only (points at infinity); else the distance in metres at which the
-            training rays are taken to end, so that the camera centres' offset is compensated at that distance.
+        training (RigCamera): The camera a model was trained with (lens and mount).
+        robot (RigCamera): The camera that stands in for it.
+        depth (float | None): None to compensate rotation only (points at infinity); else the distance in metres
+            at which the training rays are taken to end, so that the camera centres' offset is compensated at
+            that distance.
 
     Returns:
-        VirtualView: The remap maps and what they cover.
+        VirtualView: The remap maps (the training camera's image size) and what they cover.
     """
     model = training.model
     height, width = model.height, model.width

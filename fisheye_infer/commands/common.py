@@ -88,15 +88,24 @@ def int_pair(text: str) -> tuple[int, int]:
 
 
 class ArchChoices:
-    """The ``--arch`` choices: the registered architectures (``fisheye_infer.models.list_models()``).
+    """The ``--arch`` choices: the registered architectures (``fisheye_infer.models.list_models()``), or with
+    ``trainable`` those that ``fisheye-infer train`` trains (``fisheye_infer.models.training.trainable.TRAINABLE``).
 
     Looked up only when a value is checked or the help is printed, so building the parser never
     imports torch; without the export extra every name passes, and the command then says which
     extra it needs.
     """
 
+    def __init__(self, trainable: bool = False) -> None:
+        """Choices from the registry, or with ``trainable`` (bool) from the trainable architectures."""
+        self.trainable = trainable
+
     def _names(self) -> list[str] | None:
         try:
+            if self.trainable:
+                from fisheye_infer.models.training.trainable import TRAINABLE
+
+                return list(TRAINABLE)
             from fisheye_infer.models import list_models
         except ImportError:
             return None

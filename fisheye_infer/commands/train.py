@@ -15,24 +15,15 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from fisheye_infer.commands.common import NEEDS_EXPORT, missing_extra
+from fisheye_infer.commands.common import NEEDS_EXPORT, ArchChoices, missing_extra
 
 if TYPE_CHECKING:
     from fisheye_infer.cameras.rig import Rig
 
 __all__ = ["configure", "run", "ARCHITECTURES"]
 
-#: ``--arch``: ``models.training.loop.TRAINABLE``, named here so that the parser needs no torch.
-ARCHITECTURES = (
-    "fisheye-bevdet",
-    "fisheye-petr",
-    "pinhole-bevdet",
-    "fisheye-bevdet-persp",
-    "fisheye-bevdet-cyl",
-    "pinhole-petr",
-    "fisheye-petr-persp",
-    "fisheye-petr-cyl",
-)
+#: ``--arch``: the trainable architectures, looked up when the value is checked so that the parser needs no torch.
+ARCHITECTURES = ArchChoices(trainable=True)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

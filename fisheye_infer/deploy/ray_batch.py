@@ -45,14 +45,17 @@ FrameFiles = tuple[str, Mapping[str, str | Path]]  # (sample token, camera -> im
 
 @dataclass(frozen=True)
 class BatchOptions:
-    """How the work is spread.
+    """How [`detect_frames`][fisheye_infer.deploy.ray_batch.detect_frames] spreads the work over Ray actors.
 
-    | option | default | meaning |
-    |---|---|---|
-    | ``batch_size`` | 2 | frames per ``detect_batch`` call (and per Ray Data batch) |
-    | ``concurrency`` | 1 | Detector actors, each with its own ONNX Runtime session |
-    | ``cpus_per_actor`` | 1.0 | CPUs Ray reserves for each actor |
-    | ``threads`` | ``cpus_per_actor`` | ONNX Runtime intra-op threads per actor |
+    Attributes:
+        batch_size (int): Frames per ``detect_batch`` call and per Ray Data batch; at least 1.
+        concurrency (int): Detector actors, each with its own ONNX Runtime session; at least 1.
+        cpus_per_actor (float): CPUs Ray reserves for each actor; positive (fractions allowed).
+        threads (int | None): ONNX Runtime intra-op threads per actor; None uses ``cpus_per_actor`` rounded down
+            (at least 1).
+
+    Raises:
+        ValueError: A value is out of its range.
     """
 
     batch_size: int = 2
@@ -72,12 +75,22 @@ class BatchOptions:
 
     @property
     def actor_threads(self) -> int:
+        """ONNX Runtime threads per actor: ``threads``, or ``cpus_per_actor`` rounded down (at least 1)."""
         return self.threads or max(1, int(self.cpus_per_actor))
 
 
 @dataclass
 class BatchResult:
-    """Records per sample token (input order), the failed tokens with their reasons, and how it went."""
+    """What [`detect_frames`][fisheye_infer.deploy.ray_batch.detect_frames] returns: records, failures, timing.
+
+    Attributes:
+        results (dict[str, list[dict[str, Any]]]): Sample token -> that frame's boxes as nuScenes-style records
+            (``Detections.to_nuscenes()``, unthresholded), in input order.
+        failed (dict[str, str]): Sample token -> why that frame could not be read or run; empty when all ran.
+        model_id (str): The exported file's ``model_id``.
+        seconds (float): Wall time of the Ray Data run, in seconds.
+        options (BatchOptions): The options the run used.
+    """
 
     results: dict[str, list[dict[str, Any]]]
     failed: dict[str, str]
@@ -87,11 +100,22 @@ class BatchResult:
 
     @property
     def frames_per_second(self) -> float:
+        """Frames (run or failed) per second of wall time; 0.0 for an empty run."""
         return (len(self.results) + len(self.failed)) / self.seconds if self.seconds > 0 else 0.0
 
     def save(self, path: str | Path, meta: Mapping[str, Any] | None = None) -> Path:
-        """``{"meta": {..., "failed": {token: reason}}, "results": {token: [record, ...]}}``, as
-        ``eval --results`` reads."""
+        """Write the results file that ``fisheye-infer eval --results`` reads.
+
+        The file is ``{"meta": {..., "failed": {token: reason}}, "results": {token: [record, ...]}}``; ``meta``
+        holds ``model_id``, the frame count and the failed tokens.
+
+        Args:
+            path (str | Path): The JSON file to write.
+            meta (Mapping[str, Any] | None): Further entries for the file's ``meta`` (they override the defaults).
+
+        Returns:
+            Path: The written file.
+        """
         from fisheye_infer.eval.evaluate import save_results
 
         info = {
@@ -104,7 +128,17 @@ class BatchResult:
 
 
 def dataset_frames(dataset: Any) -> list[FrameFiles]:
-    """The frames of a ``Fisheye3DOD`` split: (sample token, camera -> PNG path); files are not opened here."""
+    """The frames of a Fisheye3DOD split, as [`detect_frames`][fisheye_infer.deploy.ray_batch.detect_frames] takes them.
+
+    The image files are not opened here.
+
+    Args:
+        dataset (Fisheye3DOD): A split read by ``fisheye_infer.eval.dataset.Fisheye3DOD`` (anything with
+            ``entries`` holding ``token`` and an ``image_paths(index)`` method).
+
+    Returns:
+        One ``(sample token, {camera name: image path})`` pair per sample, in the split's order.
+    """
     return [(entry.token, dataset.image_paths(i)) for i, entry in enumerate(dataset.entries)]
 
 
@@ -167,7 +201,41 @@ def detect_frames(
     options: BatchOptions | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> BatchResult:
-    """Run ``model`` over ``frames`` with Ray Data; ``progress(done, total)`` is called as frames finish."""
+    """Run an exported file over frames on disk with Ray Data, one ``Detector`` per actor.
+
+    Each actor decodes its own frames. A frame that cannot be read or run is not skipped: it is listed in the
+    result's ``failed`` with the reason (a batch that fails is retried frame by frame, so one bad frame costs only
+    itself). Ray is started by the caller (``ray.init``) or, if not, by Ray Data on first use.
+
+    Args:
+        model (str | Path): An ONNX file written by ``fisheye-infer export``; it must be readable on every node.
+        frames (Sequence[tuple[str, Mapping[str, str | Path]]]): ``(sample token, {camera name: image path})``
+            pairs, each token once; cameras left out run degraded.
+        options (BatchOptions | None): Batch size, actors and CPUs; None for ``BatchOptions()``.
+        progress (Callable[[int, int], None] | None): Called as ``progress(done, total)`` each time a frame
+            finishes; None for no progress reports.
+
+    Returns:
+        BatchResult: The records per sample token in input order, the failed tokens with their reasons, the
+            model's id and the run's wall time.
+
+    Raises:
+        ImportError: Ray is not installed (the ``[ray]`` extra).
+        ValueError: A token appears twice, or a frame has no image paths.
+        ArtifactError: ``model`` is missing or not a fisheye-infer model (raised before any actor starts).
+        RuntimeError: Ray Data returned no answer for some frames.
+
+    Examples:
+        ```python
+        from fisheye_infer.deploy.ray_batch import BatchOptions, dataset_frames, detect_frames
+        from fisheye_infer.eval.dataset import Fisheye3DOD
+
+        frames = dataset_frames(Fisheye3DOD("Fisheye3DODdataset", "val"))
+        result = detect_frames("model.onnx", frames, BatchOptions(batch_size=2, concurrency=2))
+        result.save("pred.json")  # fisheye-infer eval --results pred.json ...
+        print(f"{result.frames_per_second:.1f} frames/s, {len(result.failed)} failed")
+        ```
+    """
     try:
         import ray
         import ray.data

@@ -23,7 +23,19 @@ __all__ = ["frame_draws", "resampled_fds", "interval", "resolved"]
 
 
 def frame_draws(frames: int, draws: int, seed: int = 0) -> np.ndarray:
-    """(draws, frames) frame indices drawn with replacement: the resamples every compared score is taken on."""
+    """Frame indices drawn with replacement: the resamples every compared score is taken on.
+
+    Args:
+        frames (int): Frames scored (``len(gt.tokens)``).
+        draws (int): Resamples.
+        seed (int): Seed of the draws; the same seed gives the same resamples.
+
+    Returns:
+        np.ndarray: `(draws, frames)` int indices into the frames.
+
+    Raises:
+        ValueError: ``frames`` or ``draws`` is below 1.
+    """
     if frames < 1 or draws < 1:
         raise ValueError(f"frames and draws: expected at least 1 each, got {frames} and {draws}")
     return np.random.default_rng(seed).integers(0, frames, size=(draws, frames))
@@ -32,8 +44,32 @@ def frame_draws(frames: int, draws: int, seed: int = 0) -> np.ndarray:
 def resampled_fds(
     gt: EvalBoxes, pred: EvalBoxes, draws: np.ndarray, config: EvalConfig | None = None, ref_range: float | None = None
 ) -> np.ndarray:
-    """(len(draws),) the FDS on each resample of frames (``ref_range``: the classes' ranges rescaled, as in the
-    report's distance breakdown; default as configured)."""
+    """The FDS on each resample of frames.
+
+    Args:
+        gt (EvalBoxes): Ground-truth boxes.
+        pred (EvalBoxes): Predicted boxes on the same sample tokens, in the same order.
+        draws (np.ndarray): `(D, F)` resamples from [`frame_draws`][fisheye_infer.eval.bootstrap.frame_draws];
+            use the same draws for every model compared.
+        config (EvalConfig | None): The metric's settings (default: ``EvalConfig()``).
+        ref_range (float | None): Rescale the classes' ranges to this reference range, metres, as in the
+            report's distance breakdown (default: as configured).
+
+    Returns:
+        np.ndarray: `(D,)` FDS per resample.
+
+    Raises:
+        ValueError: ``gt`` and ``pred`` do not share their sample tokens in the same order.
+
+    Examples:
+        ```python
+        draws = frame_draws(len(gt_a.tokens), 200)
+        a = resampled_fds(gt_a, pred_a, draws)
+        b = resampled_fds(gt_b, pred_b, draws)
+        low, high = interval(a - b)            # 90% interval of FDS(A) - FDS(B)
+        print(low, high, resolved(low, high))
+        ```
+    """
     if gt.tokens != pred.tokens:
         raise ValueError("gt/pred: the two box sets must share their sample tokens, in the same order")
     config = config or EvalConfig()
@@ -41,7 +77,18 @@ def resampled_fds(
 
 
 def interval(values: np.ndarray, level: float = 0.9) -> tuple[float, float]:
-    """The central ``level`` percentile interval of resampled values."""
+    """The central percentile interval of resampled values.
+
+    Args:
+        values (np.ndarray): Resampled values (e.g. a difference of two models' FDS per resample).
+        level (float): Share of the values the interval holds, in (0, 1).
+
+    Returns:
+        tuple[float, float]: The interval's low and high ends.
+
+    Raises:
+        ValueError: ``level`` is outside (0, 1).
+    """
     if not 0 < level < 1:
         raise ValueError(f"level: expected a share in (0, 1), got {level}")
     tail = 50 * (1 - level)
@@ -50,5 +97,13 @@ def interval(values: np.ndarray, level: float = 0.9) -> tuple[float, float]:
 
 
 def resolved(low: float, high: float) -> bool:
-    """Whether an interval of a difference excludes 0: the frames tell which side is larger."""
+    """Whether an interval of a difference excludes 0: the frames tell which side is larger.
+
+    Args:
+        low (float): The interval's low end.
+        high (float): The interval's high end.
+
+    Returns:
+        bool: True where 0 lies outside [low, high].
+    """
     return low > 0 or high < 0

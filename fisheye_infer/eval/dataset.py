@@ -1,6 +1,6 @@
 """Fisheye3DOD reader: split files -> lazy ``Frame`` objects with images, per-frame rig and ground truth.
 
-Layout (§3 of the dataset description)::
+Layout (§3 of the dataset description):
 
     ROOT/calib_results.txt                        the OCam model of every fisheye camera without its own
     ROOT/ImageSets-2hz/{train,val}.json           [{scene_name, vehicle_name, weather, frame_id, prev_id, next_id}, ...]
@@ -168,7 +168,23 @@ def read_labels(path: str | Path, class_names: Sequence[str] = CLASSES) -> tuple
 
 @dataclass(frozen=True)
 class Frame:
-    """One sample: where its images are, the rig at that instant, and its ground truth."""
+    """One sample: where its images are, the rig at that instant, and its ground truth.
+
+    Attributes:
+        token (str): The sample token, ``<scene>.<vehicle>.<frame_id>``.
+        scene (str): The scene folder.
+        vehicle (str): The vehicle folder (``ego0``...).
+        frame_id (str): The frame's id, eight digits.
+        weather (str): The weather named by the split file.
+        image_paths (dict[str, Path]): Camera name -> PNG file; the fisheye cameras in model order, then the
+            pinhole ones. A [`Detector`][fisheye_infer.runtime.detector.Detector] takes it as a frame.
+        rig (Rig): The fisheye cameras asked for, with this frame's extrinsics.
+        gt_boxes (np.ndarray): `(K, 7)` ``x, y, z_bottom, l, w, h, yaw``, lidar frame, metres and radians.
+        gt_labels (np.ndarray): `(K,)` int64 class indices into ``class_names``.
+        gt_ids (np.ndarray): `(K,)` int64 CARLA actor ids, -1 where the label has none.
+        class_names (tuple[str, ...]): Class names, in label order.
+        pinhole_rig (Rig | None): The pinhole cameras with this frame's extrinsics, where asked for.
+    """
 
     token: str
     scene: str
@@ -184,7 +200,17 @@ class Frame:
     pinhole_rig: Rig | None = field(default=None)
 
     def image(self, camera: str) -> np.ndarray:
-        """(H, W, 3) uint8 BGR, decoded as training decoded it (colour, alpha dropped)."""
+        """One camera's image, decoded as training decoded it (colour, alpha dropped).
+
+        Args:
+            camera (str): A camera of ``image_paths`` (the short names ``front``, ... are accepted).
+
+        Returns:
+            np.ndarray: `(H, W, 3)` uint8 BGR.
+
+        Raises:
+            DatasetError: The camera was not loaded or its file is not a readable image.
+        """
         name = camera_name(camera)
         if name not in self.image_paths:
             raise DatasetError(
@@ -197,10 +223,22 @@ class Frame:
         return image
 
     def images(self) -> dict[str, np.ndarray]:
+        """Every camera's image, as [`image`][fisheye_infer.eval.dataset.Frame.image] decodes it.
+
+        Returns:
+            dict[str, np.ndarray]: Camera name -> `(H, W, 3)` uint8 BGR.
+
+        Raises:
+            DatasetError: An image is not readable.
+        """
         return {name: self.image(name) for name in self.image_paths}
 
     def gt_records(self) -> list[dict[str, Any]]:
-        """Ground truth as evaluation records (score -1.0)."""
+        """Ground truth as evaluation records.
+
+        Returns:
+            list[dict[str, Any]]: One nuScenes-style record per box, score -1.0.
+        """
         return boxes_to_records(self.gt_boxes, None, self.gt_labels, self.class_names)
 
 
@@ -252,7 +290,37 @@ class _Sequence:
 
 
 class Fisheye3DOD:
-    """A split of a Fisheye3DOD-layout folder, read lazily; iterating yields ``Frame`` objects."""
+    """A split of a Fisheye3DOD-layout folder, read lazily: indexing or iterating yields
+    [`Frame`][fisheye_infer.eval.dataset.Frame] objects.
+
+    Args:
+        root (str | Path): The dataset folder (holding ``ImageSets-2hz`` and the scene folders).
+        split (str): The split file's name (``train``, ``val``...).
+        cameras (Sequence[str]): The cameras to load: a non-empty subset of the four fisheye and the pinhole
+            cameras (default: the four fisheye cameras, in model order).
+        pinhole (bool): Also load the pinhole cameras, into ``Frame.pinhole_rig``.
+        scenes (Sequence[str] | None): Keep only these scenes (default: every scene of the split).
+        limit (int | None): Keep only the first this many samples.
+        convention (Convention): How CARLA poses become matrices: ``"compat"`` as the official converter
+            computes them, ``"exact"`` the exact rotation.
+        fov (float): Field of view of the fisheye lenses, degrees (the OCam files do not store it).
+        class_names (Sequence[str]): Class names, in label order.
+
+    Raises:
+        DatasetError: The folder, split or a scene is missing, a camera is unknown, ``limit`` is negative, or
+            a file is malformed (also when a sample is read).
+
+    Examples:
+        ```python
+        from fisheye_infer.eval import Fisheye3DOD
+
+        data = Fisheye3DOD("data/Fisheye3DODdataset", "val", limit=10)
+        for frame in data:
+            dets = detector.detect(frame.image_paths)
+            print(frame.token, len(frame.gt_boxes), len(dets))
+        gt = data.ground_truth()          # reads the label files only
+        ```
+    """
 
     def __init__(
         self,
@@ -304,6 +372,7 @@ class Fisheye3DOD:
 
     @property
     def tokens(self) -> list[str]:
+        """The sample tokens, in split order."""
         return [e.token for e in self.entries]
 
     def __iter__(self) -> Iterator[Frame]:
@@ -334,7 +403,14 @@ class Fisheye3DOD:
             raise DatasetError(f"frame {entry.token}: {exc}") from exc
 
     def image_paths(self, index: int) -> dict[str, Path]:
-        """Where sample ``index``'s images are (camera -> PNG), without reading or checking them."""
+        """Where a sample's images are, without reading or checking them.
+
+        Args:
+            index (int): The sample's position in the split.
+
+        Returns:
+            dict[str, Path]: Camera name -> PNG file.
+        """
         entry = self.entries[index]
         folder = self.root / entry.scene / entry.vehicle
         return {
@@ -366,7 +442,14 @@ class Fisheye3DOD:
         )
 
     def ground_truth(self) -> dict[str, list[dict[str, Any]]]:
-        """``{token: [record, ...]}`` for every sample, reading the label files only."""
+        """The ground truth of every sample, reading the label files only.
+
+        Returns:
+            dict[str, list[dict[str, Any]]]: Sample token -> evaluation records (score -1.0).
+
+        Raises:
+            DatasetError: A label file is missing or malformed.
+        """
         out = {}
         for e in self.entries:
             boxes, labels, _ = read_labels(

@@ -84,7 +84,19 @@ def summarise(gt: EvalBoxes, pred: EvalBoxes, config: EvalConfig, ref_range: flo
 
 
 def evaluate(gt: EvalBoxes, pred: EvalBoxes, config: EvalConfig | None = None) -> MetricsReport:
-    """The full report: the configured metric, then the distance breakdown at each reference range."""
+    """The full report on boxes already in columns: the configured metric, then the distance breakdown.
+
+    Args:
+        gt (EvalBoxes): Ground-truth boxes (``EvalBoxes.from_records(..., ground_truth=True)``).
+        pred (EvalBoxes): Predicted boxes, on the same sample tokens in the same order.
+        config (EvalConfig | None): The metric's settings (default: ``EvalConfig()``, the official metric).
+
+    Returns:
+        MetricsReport: The main summary and one summary per ``config.distance_breakdown`` range.
+
+    Raises:
+        ValueError: ``gt`` and ``pred`` do not share their sample tokens in the same order.
+    """
     config = config or EvalConfig()
     if gt.tokens != pred.tokens:
         raise ValueError(
@@ -122,9 +134,36 @@ def _sample_order(gt: Results, pred: Results, allow_missing: bool) -> list[str]:
 def evaluate_results(
     gt: Results, pred: Results, config: EvalConfig | None = None, allow_missing: bool = False
 ) -> MetricsReport:
-    """``{sample_token: [record, ...]}`` for ground truth and predictions -> report.
+    """Score predictions against ground truth, both as ``{sample_token: [record, ...]}``.
 
-    Ground-truth records need no ``detection_score``; whatever they carry is ignored.
+    Records are nuScenes-style (``translation``, ``size``, ``rotation``, ``detection_name``,
+    ``detection_score``), as [`Detections.to_nuscenes`][fisheye_infer.runtime.detections.Detections.to_nuscenes]
+    and [`Frame.gt_records`][fisheye_infer.eval.dataset.Frame.gt_records] write them. Ground-truth records need
+    no ``detection_score``; whatever they carry is ignored.
+
+    Args:
+        gt (Results): Ground truth per sample token.
+        pred (Results): Predictions per sample token; every token must have ground truth (an empty list for a
+            frame without detections).
+        config (EvalConfig | None): The metric's settings (default: ``EvalConfig()``, the official metric).
+        allow_missing (bool): Score ground-truth samples that have no predictions entry as frames without
+            detections, instead of refusing them.
+
+    Returns:
+        MetricsReport: FDS, mAP, the TP errors, per-class results and the distance breakdown.
+
+    Raises:
+        FrameError: An argument is not a mapping, a predicted token has no ground truth, a ground-truth token has
+            no predictions (unless ``allow_missing``), or a record is malformed.
+
+    Examples:
+        ```python
+        from fisheye_infer.eval import EvalConfig, evaluate_results, load_results
+
+        report = evaluate_results(load_results("gt.json"), load_results("pred.json"), EvalConfig(ref_range=30.0))
+        print(report.FDS, report.mAP, report.main.classes["Car"].ap)
+        print(report.to_markdown())
+        ```
     """
     config = config or EvalConfig()
     for name, results in (("ground truth", gt), ("predictions", pred)):
@@ -180,7 +219,18 @@ def _warn_if_rigs_differ(data_rig: Rig, model_rig: Rig, tolerance: float = 0.01)
 
 
 def load_results(path: str | Path) -> dict[str, list[dict[str, Any]]]:
-    """Read a results file ``{"results": {sample_token: [record, ...]}, "meta": {...}}``; returns the mapping."""
+    """Read a results file ``{"results": {sample_token: [record, ...]}, "meta": {...}}``.
+
+    Args:
+        path (str | Path): The JSON file (as [`save_results`][fisheye_infer.eval.evaluate.save_results] or the
+            nuScenes tools write it).
+
+    Returns:
+        dict[str, list[dict[str, Any]]]: The ``results`` mapping, sample token -> records.
+
+    Raises:
+        FrameError: The file cannot be read, is not JSON, or has no ``results`` object.
+    """
     path = Path(path)
     try:
         doc = json.loads(path.read_text())
@@ -198,7 +248,16 @@ def load_results(path: str | Path) -> dict[str, list[dict[str, Any]]]:
 def save_results(
     path: str | Path, results: Mapping[str, Sequence[Mapping[str, Any]]], meta: Mapping[str, Any] | None = None
 ) -> Path:
-    """Write ``{"meta": ..., "results": ...}``; the format ``load_results`` and nuScenes tools read."""
+    """Write a results file ``{"meta": ..., "results": ...}``, the format ``load_results`` and nuScenes tools read.
+
+    Args:
+        path (str | Path): The JSON file to write; missing folders are created.
+        results (Mapping[str, Sequence[Mapping[str, Any]]]): Sample token -> records.
+        meta (Mapping[str, Any] | None): Anything to keep beside the results (e.g. the model id).
+
+    Returns:
+        Path: The file written.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({"meta": dict(meta or {}), "results": {k: list(v) for k, v in results.items()}}))

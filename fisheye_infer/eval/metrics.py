@@ -35,7 +35,28 @@ REFERENCE_RANGE = 48.0
 
 
 class EvalConfig(BaseModel):
-    """Settings of the FDS/mAP metric; the defaults reproduce the official evaluator."""
+    """Settings of the FDS/mAP metric; the defaults reproduce the official evaluator.
+
+    Attributes:
+        class_names (tuple[str, ...]): The classes scored, in label order.
+        class_range (dict[str, float]): x-y range per class, metres, stated for a 48 m reference range; boxes
+            beyond it are dropped from ground truth and predictions alike.
+        ref_range (float | None): Rescale every class range by ``ref_range / 48`` (the paper's 0-30 m is 30;
+            None: as stated).
+        dist_ths (tuple[float, ...]): Centre-distance thresholds (m) whose APs are averaged.
+        dist_th_tp (float): The threshold whose matches give the TP errors (m); one of ``dist_ths``.
+        min_recall (float): Recall below which the precision curve is ignored, in [0, 1].
+        min_precision (float): Precision below which the curve is ignored, in [0, 1).
+        mean_ap_weight (float): Weight of mAP in FDS.
+        orientation_period (dict[str, float]): Yaw period per class, radians (classes not named: 2 pi).
+        max_boxes_per_sample (int | None): Keep only this many top-scoring predictions per sample
+            (None: all, as officially).
+        distance_breakdown (tuple[float, ...]): Reference ranges (m) the report repeats the metric at.
+
+    Raises:
+        pydantic.ValidationError: A value is out of range, the ranges do not name exactly the classes, or
+            ``dist_th_tp`` is not one of ``dist_ths``.
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -102,19 +123,45 @@ class EvalConfig(BaseModel):
     # -- derived values ----------------------------------------------------------------------
 
     def class_ranges(self, ref_range: float | None = None) -> np.ndarray:
-        """(C,) range per class id in metres, rescaled by ``ref_range`` (default: this config's)."""
+        """The range of each class, rescaled to a reference range.
+
+        Args:
+            ref_range (float | None): Reference range, metres (default: this config's ``ref_range``).
+
+        Returns:
+            np.ndarray: `(C,)` range per class id, metres.
+        """
         ref = self.ref_range if ref_range is None else ref_range
         scale = 1.0 if ref is None else ref / REFERENCE_RANGE
         return np.array([self.class_range[c] * scale for c in self.class_names])
 
     def period(self, class_name: str) -> float:
+        """The yaw period of a class.
+
+        Args:
+            class_name (str): A class name.
+
+        Returns:
+            float: Its period in ``orientation_period``, else 2 pi (radians).
+        """
         return self.orientation_period.get(class_name, 2 * math.pi)
 
     # -- serialisation ------------------------------------------------------------------------
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "eval config") -> EvalConfig:
-        """Validate a config document; each problem is reported with its field."""
+        """Validate a config document.
+
+        Args:
+            data (Any): The document (a dict as ``serialize`` returns).
+            source (str): What to call it in error messages.
+
+        Returns:
+            EvalConfig: The config.
+
+        Raises:
+            ConfigError: The document is invalid; each problem is reported with its field.
+        """
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
@@ -125,17 +172,50 @@ class EvalConfig(BaseModel):
             raise ConfigError(f"{source}: " + "; ".join(parts)) from None
 
     def serialize(self) -> dict[str, Any]:
+        """The config as a JSON-ready dict.
+
+        Returns:
+            dict[str, Any]: Every field.
+        """
         return self.model_dump(mode="json")
 
     @classmethod
     def deserialize(cls, data: dict[str, Any]) -> EvalConfig:
+        """The inverse of ``serialize``.
+
+        Args:
+            data (dict[str, Any]): A dict as ``serialize`` returns.
+
+        Returns:
+            EvalConfig: The config.
+
+        Raises:
+            ConfigError: The document is invalid.
+        """
         return cls.from_dict(data)
 
     def to_json(self) -> str:
+        """The config as an indented JSON document.
+
+        Returns:
+            str: The document ``from_json`` and ``load`` read.
+        """
         return json.dumps(self.serialize(), indent=2)
 
     @classmethod
     def from_json(cls, text: str, source: str = "eval config") -> EvalConfig:
+        """Read a config from JSON text.
+
+        Args:
+            text (str): The JSON document.
+            source (str): What to call it in error messages.
+
+        Returns:
+            EvalConfig: The config.
+
+        Raises:
+            ConfigError: The text is not JSON or the document is invalid.
+        """
         try:
             data = json.loads(text)
         except (ValueError, RecursionError) as exc:  # ValueError: not JSON, a number of 4300+ digits
@@ -144,6 +224,17 @@ class EvalConfig(BaseModel):
 
     @classmethod
     def load(cls, path: str | Path) -> EvalConfig:
+        """Read a config file (``fisheye-infer eval --config``).
+
+        Args:
+            path (str | Path): A JSON file.
+
+        Returns:
+            EvalConfig: The config.
+
+        Raises:
+            ConfigError: The file cannot be read, is not UTF-8 JSON, or the document is invalid.
+        """
         path = Path(path)
         try:
             text = path.read_text()
@@ -235,7 +326,20 @@ class Summary(BaseModel):
 
 
 class MetricsReport(BaseModel):
-    """Everything one evaluation produced: the main summary, the distance breakdown, the config."""
+    """Everything one evaluation produced: the main summary, the distance breakdown, the config.
+
+    ``FDS``, ``mAP``, ``mATE``, ``mASE`` and ``mAOE`` repeat the main summary's (also at the top of the JSON
+    document). FDS and mAP are shares in [0, 1]; mATE in metres, mASE as 1 - IoU, mAOE in radians.
+
+    Attributes:
+        main (Summary): The headline numbers and per-class results (``main.classes[name].ap``, ``.trans_err``,
+            ...) at the configured class ranges.
+        distance (dict[str, Summary]): ``"0-30 m"``, ``"0-48 m"``, ...: the same metric with the class ranges
+            scaled to r / 48.
+        num_samples (int): Samples scored.
+        config (EvalConfig): The settings used.
+        eval_seconds (float): Time the evaluation took, seconds.
+    """
 
     model_config = ConfigDict(frozen=True)
 
@@ -251,30 +355,40 @@ class MetricsReport(BaseModel):
     @computed_field  # type: ignore[prop-decorator]
     @property
     def FDS(self) -> float:
+        """The main summary's FDS (Fisheye Detection Score), in [0, 1]."""
         return self.main.FDS
 
     @computed_field  # type: ignore[prop-decorator]
     @property
     def mAP(self) -> float:
+        """The main summary's mean AP over classes and thresholds, in [0, 1]."""
         return self.main.mAP
 
     @computed_field  # type: ignore[prop-decorator]
     @property
     def mATE(self) -> float:
+        """The main summary's mean translation error, metres."""
         return self.main.mATE
 
     @computed_field  # type: ignore[prop-decorator]
     @property
     def mASE(self) -> float:
+        """The main summary's mean scale error, 1 - IoU."""
         return self.main.mASE
 
     @computed_field  # type: ignore[prop-decorator]
     @property
     def mAOE(self) -> float:
+        """The main summary's mean orientation error, radians."""
         return self.main.mAOE
 
     def details(self) -> dict[str, float]:
-        """The official evaluator's flat keys (``NDS`` is FDS; ``Car_AP@0.5``...), for side-by-side checks."""
+        """The official evaluator's flat keys, for side-by-side checks.
+
+        Returns:
+            dict[str, float]: ``mAP``, ``mATE``, ``mASE``, ``mAOE``, ``NDS`` (the FDS), and per class
+                ``Car_AP``, ``Car_ATE``, ..., ``Car_AP@0.5``, ...
+        """
         m = self.main
         out = {"mAP": m.mAP, "mATE": m.mATE, "mASE": m.mASE, "mAOE": m.mAOE, "NDS": m.FDS}
         for name, c in m.classes.items():
@@ -290,14 +404,37 @@ class MetricsReport(BaseModel):
         return out
 
     def to_json(self, indent: int | None = 2) -> str:
+        """The report as a JSON document.
+
+        Args:
+            indent (int | None): Indentation (None: one line).
+
+        Returns:
+            str: The document ``from_json`` reads.
+        """
         return self.model_dump_json(indent=indent)
 
     @classmethod
     def from_json(cls, text: str) -> MetricsReport:
+        """Read back what ``to_json`` wrote.
+
+        Args:
+            text (str): The JSON document.
+
+        Returns:
+            MetricsReport: The report.
+
+        Raises:
+            pydantic.ValidationError: The text is not a report.
+        """
         return cls.model_validate_json(text)
 
     def to_markdown(self) -> str:
-        """Paper-style tables: FDS and AP in percent, ATE in metres, ASE as 1 - IoU, AOE in radians."""
+        """Paper-style Markdown tables: the headline, per class, and the distance breakdown.
+
+        Returns:
+            str: The tables; FDS and AP in percent, ATE in metres, ASE as 1 - IoU, AOE in radians.
+        """
         m = self.main
         ths = list(next(iter(m.classes.values())).ap_by_threshold) if m.classes else []
         lines = [

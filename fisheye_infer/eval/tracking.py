@@ -69,7 +69,20 @@ NUM_THRESHOLDS, MIN_RECALL = 40, 0.1
 
 @dataclass(frozen=True)
 class SequenceResults:
-    """One sequence's frames in time order: stamps (s), ego poses (F, 4, 4), and per frame ground truth and tracks."""
+    """One sequence's frames in time order, the input of
+    [`evaluate_tracking`][fisheye_infer.eval.tracking.evaluate_tracking].
+
+    Records are in each frame's lidar frame: ground truth with ``tracking_id``, ``tracking_name`` and
+    ``translation``; tracks the same and ``tracking_score``, as
+    [`Tracks.to_nuscenes`][fisheye_infer.tracking.tracks.Tracks.to_nuscenes] writes them.
+
+    Attributes:
+        name (str): The sequence's name.
+        stamps (Sequence[float]): Each frame's time, seconds.
+        poses (np.ndarray): `(F, 4, 4)` ego-to-world pose of each frame.
+        gt (Sequence[Sequence[Mapping[str, Any]]]): Per frame, the ground-truth records.
+        pred (Sequence[Sequence[Mapping[str, Any]]]): Per frame, the track records.
+    """
 
     name: str
     stamps: Sequence[float]
@@ -208,12 +221,30 @@ def _class_metrics(gt: list[list[_Frame]], pred: list[list[_Frame]], label: int,
 
 @dataclass(frozen=True)
 class TrackingReport:
-    """Per reference range (m): metrics per class and overall."""
+    """Tracking metrics per reference range: per class and overall.
+
+    The metrics are ``amota``, ``amotp``, ``mota``, ``motp``, ``motar``, ``recall``, ``ids``, ``frag``, ``tp``,
+    ``fp``, ``fn``, ``gt``, ``mt``, ``ml`` and ``faf``; NaN where a class has no ground truth. Overall values
+    average the classes (rates) or add them (counts).
+
+    Attributes:
+        classes (dict[float, dict[str, dict[str, float]]]): Reference range (m) -> class name -> metric -> value.
+        overall (dict[float, dict[str, float]]): Reference range (m) -> metric -> value.
+    """
 
     classes: dict[float, dict[str, dict[str, float]]]
     overall: dict[float, dict[str, float]]
 
     def to_json(self, **kwargs: Any) -> str:
+        """The report as a JSON document keyed ``"0-30m"``, ``"0-48m"``..., NaN written as null.
+
+        Args:
+            **kwargs: Passed to `json.dumps` (e.g. ``indent=2``).
+
+        Returns:
+            str: The document.
+        """
+
         def clean(v: float) -> float | None:
             return None if math.isnan(v) else v
 
@@ -227,6 +258,11 @@ class TrackingReport:
         return json.dumps(doc, **kwargs)
 
     def to_markdown(self) -> str:
+        """One Markdown table per reference range: AMOTA, AMOTP, MOTA, MOTP, recall, IDS, FRAG and GT per class.
+
+        Returns:
+            str: The tables.
+        """
         cols = ("amota", "amotp", "mota", "motp", "recall", "ids", "frag", "gt")
         lines = []
         for r, per_class in self.classes.items():
@@ -243,6 +279,11 @@ def evaluate_tracking(
     sequences: Sequence[SequenceResults], config: EvalConfig | None = None, ref_ranges: Sequence[float] | None = None
 ) -> TrackingReport:
     """nuScenes tracking metrics of ``sequences`` at each reference range.
+
+    The steps are the nuScenes devkit's tracking evaluation: boxes beyond their class's range are dropped, a
+    track's score becomes its mean over the sequence, gaps are interpolated, and at 40 score thresholds the
+    CLEAR-MOT events of centre distances below ``dist_th_tp`` (in the world frame) give MOTAR, MOTP and the
+    counts; AMOTA and AMOTP average them over the thresholds.
 
     Args:
         sequences (Sequence[SequenceResults]): Ground truth and tracks per frame.

@@ -120,7 +120,28 @@ def _holds(path: Path, model: OCamModel) -> bool:
 
 
 class Fisheye3DODWriter:
-    """Writes the frames of one ``<scene>/<vehicle>`` sequence; call ``close`` to record them in the split."""
+    """Writes the frames of one ``<scene>/<vehicle>`` sequence in the Fisheye3DOD layout, so that
+    [`Fisheye3DOD`][fisheye_infer.eval.dataset.Fisheye3DOD] reads back what was written; call ``close`` to
+    record the frames in the split file.
+
+    Args:
+        root (str | Path): The dataset folder.
+        scene (str): The scene folder's name; its third ``-``-separated part is taken as the weather.
+        vehicle (str): The vehicle folder's name.
+        split (str): The split file the frames are recorded in (``ImageSets-2hz/<split>.json``).
+        convention (Convention): How poses and matrices convert (``"compat"`` or ``"exact"``), as the reader
+            will be told.
+
+    Raises:
+        DatasetError: ``scene`` or ``vehicle`` contains a ``.`` (it separates a token's parts).
+
+    Examples:
+        ```python
+        writer = Fisheye3DODWriter("out", scene="synth-Town00-ClearNoon-0000", split="val")
+        rig_read = writer.write_frame("00001000", rig, images, boxes, labels, lidar_pose)
+        writer.close()                       # writes out/ImageSets-2hz/val.json
+        ```
+    """
 
     def __init__(
         self, root: str | Path, scene: str, vehicle: str = "ego0", split: str = "val", convention: Convention = "compat"
@@ -136,8 +157,19 @@ class Fisheye3DODWriter:
         self._entries: list[dict[str, str]] = []
 
     def write_calib(self, model: OCamModel, camera: str | None = None) -> Path:
-        """``ROOT/calib_results.txt``, the lens of every fisheye camera, or with ``camera`` the lens of that camera
-        alone, in its folder of this sequence; an existing file must describe the same model."""
+        """Write an OCam lens as ``calib_results.txt``.
+
+        Args:
+            model (OCamModel): The lens.
+            camera (str | None): None: ``<root>/calib_results.txt``, the lens of every fisheye camera; a name:
+                the lens of that camera alone, in its folder of this sequence.
+
+        Returns:
+            Path: The file (an existing one describing the same model is kept).
+
+        Raises:
+            DatasetError: ``model`` is not an OCam model, or an existing file holds a different one.
+        """
         if not isinstance(model, OCamModel):
             raise DatasetError(f"calib: the layout stores OCam models of fisheye cameras, got a {type(model).__name__}")
         path = (self.root if camera is None else self.folder / camera) / "calib_results.txt"
@@ -165,7 +197,7 @@ class Fisheye3DODWriter:
     def _write_models(self, rig: Rig) -> None:
         """``calib_results.txt`` for the fisheye cameras: one at the root for a lens they share (while the root
         holds none or that one, and the sequence has no camera files yet), else one in each camera's folder;
-        pinhole cameras must be the converter's 90-degree pinhole of their size (:func:`converter_pinhole`),
+        pinhole cameras must be the converter's 90-degree pinhole of their size (`converter_pinhole`),
         which the reader rebuilds from the images."""
         fisheye = [c for c in rig.cameras if c.name not in PINHOLE_CAMERAS]
         for cam in rig.cameras:
@@ -190,9 +222,19 @@ class Fisheye3DODWriter:
                 self.write_calib(lens, name)
 
     def write_poses(self, frame_id: str, rig: Rig, lidar_pose: CarlaPose) -> Rig:
-        """Append this frame's lidar and camera poses to the sensors' ``sensor_metadata.txt``.
+        """Write this frame's lidar and camera poses to the sensors' ``sensor_metadata.txt`` (and the lenses).
 
-        Returns the rig as the reader will rebuild it from the written text.
+        Args:
+            frame_id (str): The frame's id (a whole number; written with eight digits).
+            rig (Rig): The cameras, their extrinsics relative to the lidar.
+            lidar_pose (CarlaPose): The lidar's world pose, as CARLA prints it (metres, degrees).
+
+        Returns:
+            Rig: The rig as the reader will rebuild it from the written text (decimal poses move cam2lidar by
+                about 1e-15), so a caller can render with the very matrices a reader gets.
+
+        Raises:
+            DatasetError: A lens cannot be stored in the layout, or differs from one already written.
         """
         frame_id = f"{int(frame_id):08d}"
         self._write_models(rig)
@@ -215,7 +257,15 @@ class Fisheye3DODWriter:
         )
 
     def write_images(self, frame_id: str, images: Mapping[str, np.ndarray]) -> None:
-        """``<camera>/<frame_id>.png`` for each (H, W, 3) uint8 BGR image."""
+        """Write ``<camera>/<frame_id>.png`` for each image.
+
+        Args:
+            frame_id (str): The frame's id.
+            images (Mapping[str, np.ndarray]): Camera name -> `(H, W, 3)` uint8 BGR image.
+
+        Raises:
+            DatasetError: An image cannot be written.
+        """
         frame_id = f"{int(frame_id):08d}"
         for camera, image in images.items():
             folder = self.folder / camera
@@ -232,8 +282,17 @@ class Fisheye3DODWriter:
         class_names: Sequence[str] = CLASSES,
         velocities: np.ndarray | None = None,
     ) -> None:
-        """``label_3d/<frame_id>.json`` from runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw``, stored
-        gravity-centred; ``velocities`` (K, 2), m/s in the lidar frame's axes, become each object's ``velocity``."""
+        """Write ``label_3d/<frame_id>.json`` (boxes stored gravity-centred) and queue the frame for the split.
+
+        Args:
+            frame_id (str): The frame's id.
+            boxes (np.ndarray): `(K, 7)` ``x, y, z_bottom, l, w, h, yaw``, lidar frame, metres and radians.
+            labels (np.ndarray): `(K,)` class indices into ``class_names``.
+            ids (Sequence[int] | None): Actor id of each object (default: 1 to K).
+            class_names (Sequence[str]): Class names, in label order.
+            velocities (np.ndarray | None): `(K, 2)` m/s in the lidar frame's axes, stored as each object's
+                ``velocity``.
+        """
         frame_id = f"{int(frame_id):08d}"
         label_boxes = bottom_to_gravity(boxes)
         lab = np.asarray(labels, np.int64)
@@ -274,7 +333,25 @@ class Fisheye3DODWriter:
         class_names: Sequence[str] = CLASSES,
         velocities: np.ndarray | None = None,
     ) -> Rig:
-        """Poses, images (one per rig camera) and labels of one frame; returns the rig as it will be read."""
+        """Write one frame: poses, images and labels.
+
+        Args:
+            frame_id (str): The frame's id.
+            rig (Rig): The cameras and their extrinsics.
+            images (Mapping[str, np.ndarray]): One `(H, W, 3)` uint8 BGR image per rig camera.
+            boxes (np.ndarray): `(K, 7)` runtime boxes, lidar frame.
+            labels (np.ndarray): `(K,)` class indices.
+            lidar_pose (CarlaPose): The lidar's world pose.
+            ids (Sequence[int] | None): Actor id of each object (default: 1 to K).
+            class_names (Sequence[str]): Class names, in label order.
+            velocities (np.ndarray | None): `(K, 2)` velocities, m/s.
+
+        Returns:
+            Rig: The rig as the reader will rebuild it (see ``write_poses``).
+
+        Raises:
+            DatasetError: A rig camera has no image, or a lens or image cannot be written.
+        """
         missing = [c for c in rig.names if c not in images]
         if missing:
             raise DatasetError(f"frame {frame_id}: no image for camera(s) {', '.join(missing)}")
@@ -284,5 +361,9 @@ class Fisheye3DODWriter:
         return written
 
     def close(self) -> Path:
-        """Record the written frames in the split file."""
+        """Record the written frames in the split file (merged with the samples it holds).
+
+        Returns:
+            Path: The split file, ``<root>/ImageSets-2hz/<split>.json``.
+        """
         return update_split(self.root, self.split, self._entries)

@@ -26,7 +26,7 @@ class CylLSSParams(LSSParams, CylParams):
     """fisheye-bevdet-cyl: image rectification, then LSS on the stride-16 features (no feature warp).
 
     LSS's parameters and the cylinder's; depth bins are ``linspace`` over ``dbound`` (see
-    :func:`linspace_depth_bins`) and depth is the cylinder radius.
+    `linspace_depth_bins`) and depth is the cylinder radius.
     """
 
     kind: Literal["cyl_lss"] = "cyl_lss"  # type: ignore[assignment]

@@ -1,10 +1,10 @@
 """fisheye-petr-cyl's geometry: the image rectification grid and the keys' embedding on cylinder rays.
 
-Differences from :mod:`.petr`, as in the official ``CylindricalPETRHead``: no feature warp (the
+Differences from [`petr`][fisheye_infer.geometry.petr], as in the official ``CylindricalPETRHead``: no feature warp (the
 images are rectified before the backbone, ``geom.rectify.*``), no key mask (nothing is masked,
 so the sine encoding is a plain ramp), and the key rays lie on a cylinder,
 q = d (sin phi_w, y_h, cos phi_w), with the official head's swapped unpacking of its ranges
-(:meth:`CylPETRParams.directions`).
+(`CylPETRParams.directions`).
 """
 
 from __future__ import annotations
@@ -29,13 +29,13 @@ class CylPETRParams(PETRParams, CylParams):
     """fisheye-petr-cyl: image rectification, PETR keys on the stride-16 features, no key mask.
 
     PETR's parameters and the cylinder's; the key embedding's rays unpack the ranges swapped, as
-    the official head does (see :func:`cyl_petr_directions`).
+    the official head does (see `cyl_petr_directions`).
     """
 
     kind: Literal["cyl_petr"] = "cyl_petr"  # type: ignore[assignment]
 
     def directions(self) -> np.ndarray:
-        """(H, W, 3) rays of the keys (see :func:`cyl_petr_directions`)."""
+        """(H, W, 3) rays of the keys (see `cyl_petr_directions`)."""
         return cyl_petr_directions(self)
 
 

@@ -31,7 +31,7 @@ def linspace_depth_bins(dbound: tuple[float, float, float] = (0.5, 48.5, 0.5)) -
     """Depths ``linspace(start, stop, int((stop - start) / step))`` (stop included), float32.
 
     The cylindrical LSS of the official baselines spaces its bins this way: 0.5 ... 48.5 in
-    steps of 48/95 by default, one bin count with :func:`depth_bins` but different depths.
+    steps of 48/95 by default, one bin count with `depth_bins` but different depths.
     """
     start, stop, step = dbound
     count = int((stop - start) / step) if step > 0 else 0

@@ -71,7 +71,7 @@ def fisheye_lenses(rig: Rig) -> list[OCamModel]:
 
 
 def per_camera(rig: Rig, table_of: Callable[[OCamModel], np.ndarray]) -> np.ndarray:
-    """(N, ...) float32: ``table_of`` each camera's lens (:func:`fisheye_lenses`), stacked in rig order; a lens
+    """(N, ...) float32: ``table_of`` each camera's lens (`fisheye_lenses`), stacked in rig order; a lens
     shared by several cameras is computed once."""
     lenses = fisheye_lenses(rig)
     tables: dict[OCamModel, np.ndarray] = {}
@@ -85,7 +85,7 @@ def spherical_lens_grids(
     rig: Rig, out_hw: tuple[int, int], azimuth_range: tuple[float, float], elevation_range: tuple[float, float]
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each camera's equirectangular grid (N, H, W, 2) and the share of each cell outside its lens's valid area
-    (N, H, W) float32 (:func:`invalid_mask`): the lens-dependent tables of both fisheye detectors."""
+    (N, H, W) float32 (`invalid_mask`): the lens-dependent tables of both fisheye detectors."""
     grid = per_camera(rig, lambda lens: spherical_grid(lens, out_hw, azimuth_range, elevation_range))
     outside = np.stack([invalid_mask(lens, g) for lens, g in zip(fisheye_lenses(rig), grid)])
     return grid, outside
@@ -240,7 +240,7 @@ def cylindrical_image_grid(
 ) -> np.ndarray:
     """(H, W, 2) float32 grid that rectifies a whole fisheye image onto a cylinder with GridSample.
 
-    Equivalent to ``cv2.remap`` with :func:`cylindrical_remap`'s maps (see :func:`remap_grid`):
+    Equivalent to ``cv2.remap`` with `cylindrical_remap`'s maps (see `remap_grid`):
     output row r, column c reads the ray (sin az_c, y_r, cos az_c) with az and y linspaced over
     ``azimuth_range`` and ``height_range`` (tan of the elevation bounds), both ends included.
     Angles are used as given: the official cylindrical configs pass degrees that their code uses
@@ -282,13 +282,13 @@ def bilinear_taps(grid: np.ndarray, height: int, width: int) -> BilinearTaps:
 
 
 def remap_taps(grid: np.ndarray, height: int, width: int) -> BilinearTaps:
-    """The taps ``cv2.remap`` (OpenCV 4.x) reads for a :func:`remap_grid` grid on a ``height`` x ``width`` image.
+    """The taps ``cv2.remap`` (OpenCV 4.x) reads for a `remap_grid` grid on a ``height`` x ``width`` image.
 
     The grid's pixel positions are multiples of 1/32 (cv2's fixed-point maps), recovered exactly
     from the float32 grid (its rounding is below 1e-4 px); the weights are then cv2's own, products
     of two k/32 fractions, exact in float32. With integer pixel values every product and partial
     sum of the four taps is exact too, so the resampled image equals cv2's to the bit, where
-    :func:`bilinear_taps` of the same grid (PyTorch's arithmetic) misses it by up to ~0.01 grey levels.
+    `bilinear_taps` of the same grid (PyTorch's arithmetic) misses it by up to ~0.01 grey levels.
     """
     g = np.asarray(grid, dtype=np.float64)
     if g.ndim != 3 or g.shape[-1] != 2:
@@ -324,7 +324,7 @@ def _taps_at(x: np.ndarray, y: np.ndarray, height: int, width: int) -> BilinearT
 def sample_bilinear(image: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """``grid_sample(image, grid, 'bilinear', 'zeros', align_corners=True)`` in float32.
 
-    ``image`` is (C, H, W) or (H, W); ``grid`` is (h, w, 2). The taps are :func:`bilinear_taps`'
+    ``image`` is (C, H, W) or (H, W); ``grid`` is (h, w, 2). The taps are `bilinear_taps`'
     and are summed in PyTorch's order (nw, ne, sw, se), in float32.
     """
     img = np.asarray(image, dtype=np.float32)

@@ -37,7 +37,18 @@ GEOMETRY_KINDS: dict[str, type[Geometry]] = {
 
 
 def geometry_from_rig(rig: Rig, params: GeometryParams) -> Geometry:
-    """The geometry object of ``params``' kind for ``rig``."""
+    """The geometry object of ``params``' kind for ``rig``.
+
+    Args:
+        rig: The cameras the tables are computed for.
+        params: The geometry parameters a model's metadata carries (their ``kind`` picks the geometry).
+
+    Returns:
+        Geometry: The geometry object; its ``tables()`` are the file's ``geom.*`` tables.
+
+    Raises:
+        ConfigError: No geometry is known for the parameters' kind.
+    """
     kind = getattr(params, "kind", type(params).__name__)
     if kind not in GEOMETRY_KINDS:
         raise ConfigError(f"geometry: no tables for parameters of kind {kind!r} (known: {', '.join(GEOMETRY_KINDS)})")
@@ -47,6 +58,25 @@ def geometry_from_rig(rig: Rig, params: GeometryParams) -> Geometry:
 def tables_for(rig: Rig, params: GeometryParams, weights: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """The ``geom.*`` tables of a graph described by ``params``, for ``rig`` (what re-baking computes).
 
-    The PETR kinds need the position-encoder weights (``weights``); a missing one is a ``ConfigError``.
+    Args:
+        rig: The cameras the tables are computed for.
+        params: The geometry parameters of the file's metadata.
+        weights: The position-encoder weights the PETR kinds need (``geom.petr.key_pos``); None for the others.
+
+    Returns:
+        dict[str, numpy.ndarray]: Each table by its initializer name.
+
+    Raises:
+        ConfigError: The kind is unknown, or a PETR kind lacks a weight it needs.
+
+    Examples:
+        ```python
+        from fisheye_infer.geometry import tables_for
+        from fisheye_infer.runtime.artifact import read_meta
+
+        meta = read_meta("model.onnx")  # a FisheyeBEVDet file
+        tables = tables_for(meta.rig, meta.geometry)  # the tables it holds
+        print(tables["geom.warp.weight"].shape)
+        ```
     """
     return geometry_from_rig(rig, params).tables(weights)

@@ -89,7 +89,7 @@ class LSSGeometry:
     def with_tables(
         self, *, grid: np.ndarray | None = None, frustum: np.ndarray | None = None, source: str = "checkpoint"
     ) -> LSSGeometry:
-        """Same rig with a checkpoint's grid (H, W, 2) (:func:`stored_for_first_lens`) and/or frustum; the pooling
+        """Same rig with a checkpoint's grid (H, W, 2) (`stored_for_first_lens`) and/or frustum; the pooling
         plan is rebuilt only if the frustum changed."""
         new_grid = self.grid if grid is None else stored_for_first_lens(self.grid, grid)
         new_frustum = self.frustum if frustum is None else np.ascontiguousarray(frustum, dtype=np.float32)

@@ -2,9 +2,9 @@
 
 FisheyePETR embeds each key (camera, row, column of the angular grid) by the lidar-frame
 points of its ray at 64 linear-increasing depths (LID), normalised by ``position_range`` and
-mapped through a clamped inverse sigmoid (:func:`position_coords`), passed through the head's
+mapped through a clamped inverse sigmoid (`position_coords`), passed through the head's
 position encoder, plus the sine encoding of the key mask through ``adapt_pos3d``
-(:func:`key_position_embedding`). None of this depends on the image, so for a fixed rig and
+(`key_position_embedding`). None of this depends on the image, so for a fixed rig and
 fixed weights the whole table is a constant.
 
     geometry = PETRGeometry.from_rig(rig, params)
@@ -266,14 +266,14 @@ class PETRGeometry:
         self, *, grid: np.ndarray | None = None, unvalid_area: np.ndarray | None = None, source: str = "checkpoint"
     ) -> PETRGeometry:
         """Same extrinsics with a checkpoint's one grid (H, W, 2) and/or mask (H, W) in place of the first camera's
-        lens's (:func:`stored_for_first_lens`)."""
+        lens's (`stored_for_first_lens`)."""
         new_grid = self.grid if grid is None else stored_for_first_lens(self.grid, grid)
         new_mask = self.unvalid_area if unvalid_area is None else stored_for_first_lens(self.unvalid_area, unvalid_area)
         return replace(self, grid=new_grid, unvalid_area=new_mask, source=source)
 
     def with_unseen(self, unseen: np.ndarray) -> PETRGeometry:
         """The same geometry with the keys that sample ``unseen`` image pixels masked too: a virtual camera's
-        pixels that its robot camera does not see (:mod:`fisheye_infer.geometry.virtual`).
+        pixels that its robot camera does not see ([`fisheye_infer.geometry.virtual`][fisheye_infer.geometry.virtual]).
 
         Args:
             unseen: (N, H, W) bool, per camera, the image pixels without a picture.
@@ -301,7 +301,7 @@ class PETRGeometry:
         return key_coords(self.cam2lidar if cam2lidar is None else cam2lidar, self.params)
 
     def key_pos(self, weights: dict[str, np.ndarray], coords: np.ndarray | None = None) -> np.ndarray:
-        """(1, N*H*W, C) float32 key embedding with ``weights`` (see :func:`key_position_embedding`)."""
+        """(1, N*H*W, C) float32 key embedding with ``weights`` (see `key_position_embedding`)."""
         return key_position_embedding(
             self.coords() if coords is None else coords, self.key_mask(), weights, self.params
         )

@@ -3,8 +3,8 @@
 The official ``LSSTransform`` lifts each cell of a view's stride-16 features along the pinhole ray
 of its pixel: the frustum holds image coordinates (x over ``linspace(0, W - 1, fW)``, y likewise,
 depth ``arange(*dbound)``), and ``get_geometry`` undoes the image transform, multiplies x, y by the
-depth, applies ``cam2lidar @ inv(K)`` and adds the camera position (:func:`view_points`). The views
-are :mod:`.views`' (pinhole cameras resized and cropped, or perspective views of fisheye cameras).
+depth, applies ``cam2lidar @ inv(K)`` and adds the camera position (`view_points`). The views
+are `views`' (pinhole cameras resized and cropped, or perspective views of fisheye cameras).
 
 The front end that makes the views from the raw camera images is part of the geometry, as the
 cylindrical rectification is: PIL's bicubic resize and the crop (``geom.resize.*``, which depend on
@@ -146,7 +146,7 @@ class PinholeLSSGeometry:
         return replace(self, frustum=new, plan=plan, source=source)
 
     def front_end_tables(self) -> dict[str, np.ndarray]:
-        """The taps that make the views from the raw images (:func:`~.views.front_end_tables`)."""
+        """The taps that make the views from the raw images (`front_end_tables`)."""
         p = self.params
         return front_end_tables(p.views, p.source_size, p.image_size, self.image_grid)
 

@@ -5,9 +5,9 @@ input pixel (w * pad_w / W, h * pad_h / H) (the padded input is the views' size:
 configs pad to a divisor of 1), lifts it to the linear-increasing depths d (LID) as
 (u d, v d, d, 1), maps it to the lidar frame with ``inv(lidar2img)``, normalises by
 ``position_range`` and takes the clamped inverse sigmoid: channel 3 i + axis, as FisheyePETR's
-(:func:`view_coords`). The key mask is all False (the released ``img_shape`` is the loader's,
+(`view_coords`). The key mask is all False (the released ``img_shape`` is the loader's,
 never smaller than the input), so the sine encoding is a plain ramp. The views and their front
-end are :mod:`.views`'.
+end are [`views`][fisheye_infer.geometry.views]'.
 """
 
 from __future__ import annotations

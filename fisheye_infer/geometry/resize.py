@@ -7,12 +7,12 @@ uint8 result of the first), each with integer coefficients of 22 fractional bits
 offset and an arithmetic shift. A float resize that is "close" differs from it by one grey level
 on many pixels, which the trained weights never saw; equality needs the same integer arithmetic.
 The pass order is part of the result: Pillow 13 runs the vertical pass first when the height
-shrinks by more than twice as many pixels as the width (:func:`pil_horizontal_first`); earlier
+shrinks by more than twice as many pixels as the width (`pil_horizontal_first`); earlier
 versions always start with the horizontal pass. Both orders agree on 1280x720 -> 800x450.
 
-This module gives the per-axis coefficient tables (:func:`pil_bicubic_taps`), the exact int64
-evaluation of Pillow's two passes (:func:`resize_reference`) and a float32 evaluation that is
-exact by construction (:func:`apply_taps_float32`): every integer coefficient is split into a
+This module gives the per-axis coefficient tables (`pil_bicubic_taps`), the exact int64
+evaluation of Pillow's two passes (`resize_reference`) and a float32 evaluation that is
+exact by construction (`apply_taps_float32`): every integer coefficient is split into a
 high and a low part of 11 bits so that every product and partial sum stays an integer below
 2**24, where float32 arithmetic has no rounding. That float32 form is the specification of the
 graph's resize (``fisheye_infer.models.resize``), which must stay float32 (no float64, no integer
@@ -185,7 +185,7 @@ def resize_reference(
 
     The first pass's result is rounded to uint8 before the second pass, as in Pillow; that
     intermediate rounding is part of the output. The horizontal pass runs first (Pillow < 13, and
-    Pillow 13 where :func:`pil_horizontal_first` holds); ``horizontal_first=False`` gives Pillow
+    Pillow 13 where `pil_horizontal_first` holds); ``horizontal_first=False`` gives Pillow
     13's other order. ``rows = (first, count)`` keeps the output rows ``first .. first + count - 1``
     (the pipelines' crop after the resize).
     """
@@ -200,7 +200,7 @@ def resize_reference(
 
 
 def _exact_bound(taps: ResizeTaps) -> int:
-    """The largest magnitude any product, partial sum or rounding term of :func:`apply_taps_float32` reaches."""
+    """The largest magnitude any product, partial sum or rounding term of `apply_taps_float32` reaches."""
     high = 255 * int(np.abs(taps.high.astype(np.int64)).sum(axis=0).max())
     low = 255 * int(taps.low.astype(np.int64).sum(axis=0).max()) + _HALF
     return max(high + low // _SPLIT + 1, low)

@@ -3,58 +3,75 @@
 An exported model holds every table that depends on the rig as a named initializer
 (``geom.*``). The PyTorch models are built from these same tables, and ``rebake`` recomputes
 them for a new rig with numpy only; both get them from one geometry object per parameter kind
-(:mod:`.lss`, :mod:`.cyl_lss`, :mod:`.petr`, :mod:`.cyl_petr`, :mod:`.pinhole_lss`, :mod:`.pinhole_petr`;
-:func:`.kinds.tables_for`). The
+(`lss`, `cyl_lss`, `petr`, `cyl_petr`, `pinhole_lss`, `pinhole_petr`;
+[`kinds.tables_for`][fisheye_infer.geometry.kinds.tables_for]). The
 parameters that define the tables travel in the model's metadata, so a file carries everything
 needed to re-bake it.
 
 Resampling with a constant grid (the feature warp, the image rectification) is stored as its
 bilinear taps on the sampled source (``Params.source_size``): GridSample's
-(:func:`~fisheye_infer.geometry.grids.bilinear_taps`) for the warp, cv2.remap's
-(:func:`~fisheye_infer.geometry.grids.remap_taps`) for the rectification: the graph gathers four rows of the
+(`bilinear_taps`) for the warp, cv2.remap's
+(`remap_taps`) for the rectification: the graph gathers four rows of the
 channels-last source per output pixel and weighs them with one batched MatMul: GridSample's bilinear,
 zero-padded, ``align_corners=True`` result, in less time than ONNX Runtime's GridSample kernel.
 
 Every camera has its own taps (its own lens calibration), camera after camera: the source is laid out
-camera-major, one row per pixel of each camera (n * h * w + pixel), so one graph serves a rig whose
+camera-major, one row per pixel of each camera (`n * h * w + pixel`), so one graph serves a rig whose
 cameras share a lens and one whose cameras each have their own.
 
-LSS (FisheyeBEVDet), for N cameras, an H x W angular grid and an X x Y BEV grid:
-    geom.warp.index           (N*H*W*4,)    int64    flat source pixel of each tap, camera-major
-    geom.warp.weight          (N*H*W, 1, 4) float32  the taps' bilinear weights (0 outside the source)
-    geom.pool.counts          (1, X*Y, 1)   float32  points per BEV cell, at least 1 (mean divisor)
-    geom.pool.cell_rows       (X*Y,)        int64    row of each cell in the bucket outputs (+ zero row)
-    geom.pool.points.<b>      (K_b, L_b)    int64    flat point indices of bucket b, padded with P
-    geom.pool.pixels.<b>      (K_b, L_b)    int64    flat context rows of bucket b
-The bucket ladder (L_b) is fixed by the parameters and the graph is exported with K_b
-symbolic, so every rig yields the same graph; only the tables' contents and K_b change.
+LSS (FisheyeBEVDet), for `N` cameras, an `H x W` angular grid and an `X x Y` BEV grid:
 
-PETR (FisheyePETR):
-    geom.warp.index, geom.warp.weight        as above
-    geom.petr.key_pos         (1, N*H*W, C) float32  key position embedding (needs the weights)
-    geom.petr.key_mask        (1, N*H*W)    bool     keys ignored by attention
+| table | shape | type | holds |
+|---|---|---|---|
+| `geom.warp.index` | `(N*H*W*4,)` | int64 | flat source pixel of each tap, camera-major |
+| `geom.warp.weight` | `(N*H*W, 1, 4)` | float32 | the taps' bilinear weights (0 outside the source) |
+| `geom.pool.counts` | `(1, X*Y, 1)` | float32 | points per BEV cell, at least 1 (mean divisor) |
+| `geom.pool.cell_rows` | `(X*Y,)` | int64 | row of each cell in the bucket outputs (+ zero row) |
+| `geom.pool.points.<b>` | `(K_b, L_b)` | int64 | flat point indices of bucket `b`, padded with `P` |
+| `geom.pool.pixels.<b>` | `(K_b, L_b)` | int64 | flat context rows of bucket `b` |
+
+The bucket ladder (`L_b`) is fixed by the parameters and the graph is exported with `K_b`
+symbolic, so every rig yields the same graph; only the tables' contents and `K_b` change.
+
+PETR (FisheyePETR): `geom.warp.index` and `geom.warp.weight` as above, and
+
+| table | shape | type | holds |
+|---|---|---|---|
+| `geom.petr.key_pos` | `(1, N*H*W, C)` | float32 | key position embedding (needs the weights) |
+| `geom.petr.key_mask` | `(1, N*H*W)` | bool | keys ignored by attention |
 
 The cylindrical baselines rectify the raw fisheye images instead of their features, so their
-graphs take the taps of the image grid (cv2.remap emulation) and no ``geom.warp.*``:
-    geom.rectify.index        (N*Hi*Wi*4,)    int64    flat raw-image pixel of each tap, camera-major
-    geom.rectify.weight       (N*Hi*Wi, 1, 4) float32
-Cylindrical LSS (fisheye-bevdet-cyl): geom.rectify.* + the geom.pool.* tables above.
-Cylindrical PETR (fisheye-petr-cyl): geom.rectify.* + geom.petr.key_pos + geom.petr.key_mask
+graphs take the taps of the image grid (cv2.remap emulation) and no `geom.warp.*`:
+
+| table | shape | type | holds |
+|---|---|---|---|
+| `geom.rectify.index` | `(N*Hi*Wi*4,)` | int64 | flat raw-image pixel of each tap, camera-major |
+| `geom.rectify.weight` | `(N*Hi*Wi, 1, 4)` | float32 | the taps' weights |
+
+Cylindrical LSS (fisheye-bevdet-cyl): `geom.rectify.*` and the `geom.pool.*` tables above.
+Cylindrical PETR (fisheye-petr-cyl): `geom.rectify.*`, `geom.petr.key_pos` and `geom.petr.key_mask`
 (all False: the official head masks no key).
 
 The pinhole baselines (standard LSS) take raw camera images too; their front end makes the
-views the backbone sees (:mod:`.views`):
-    geom.resize.x.index       (T, Wv)       int64    PIL bicubic resize and crop of pinhole images: the
-    geom.resize.x.high, .low  (T, Wv)       float32  columns each output column reads, and the integer
-    geom.resize.y.*           (T, Hv)                weights split in two exact halves (:mod:`.resize`)
-or geom.rectify.* of the perspective views (fisheye input, each camera's views stacked by yaw); then geom.pool.*
-(pinhole LSS, pinhole-bevdet / fisheye-bevdet-persp) or geom.petr.key_pos + geom.petr.key_mask (all
+views the backbone sees (`views`), for `T` views of `Hv x Wv`:
+
+| table | shape | type | holds |
+|---|---|---|---|
+| `geom.resize.x.index` | `(T, Wv)` | int64 | PIL bicubic resize and crop: the columns each output column reads |
+| `geom.resize.x.high`, `.low` | `(T, Wv)` | float32 | the integer weights split in two exact halves (`resize`) |
+| `geom.resize.y.*` | `(T, Hv)` | | the same for rows |
+
+or `geom.rectify.*` of the perspective views (fisheye input, each camera's views stacked by yaw); then `geom.pool.*`
+(pinhole LSS, pinhole-bevdet / fisheye-bevdet-persp) or `geom.petr.key_pos` and `geom.petr.key_mask` (all
 False; pinhole PETR, pinhole-petr / fisheye-petr-persp).
 
-The cylindrical ranges are used as given: ``azimuth_range`` / ``elevation_range`` hold the
-official ``horizontal_range`` / ``vertical_range`` as the code reads them, in radians, and the
-cylinder's heights are their tangents. The released configs write degrees (``[-110, 110]``,
-``[-45, 45]``) that their code uses as radians; those numbers reproduce the released geometry.
+A file re-baked onto another rig's cameras also holds `geom.virtual.*`, its front end's resampling
+([`virtual`][fisheye_infer.geometry.virtual]).
+
+The cylindrical ranges are used as given: `azimuth_range` / `elevation_range` hold the
+official `horizontal_range` / `vertical_range` as the code reads them, in radians, and the
+cylinder's heights are their tangents. The released configs write degrees (`[-110, 110]`,
+`[-45, 45]`) that their code uses as radians; those numbers reproduce the released geometry.
 """
 
 from __future__ import annotations
@@ -133,7 +150,7 @@ def camera_taps(grids: np.ndarray, height: int, width: int, prefix: str = WARP) 
     """The taps of each camera's grid, ``grids`` (N, H, W, 2), on its own ``height`` x ``width`` source, stacked
     camera after camera with camera n's source pixels offset by ``n * height * width`` (the camera-major layout).
 
-    ``RECTIFY``: cv2.remap's exact taps of :func:`~fisheye_infer.geometry.grids.remap_grid` grids (the official
+    ``RECTIFY``: cv2.remap's exact taps of [`remap_grid`][fisheye_infer.geometry.grids.remap_grid] grids (the official
     image rectification); otherwise GridSample's (the official feature warp).
     """
     g = np.asarray(grids)
@@ -149,7 +166,7 @@ def camera_taps(grids: np.ndarray, height: int, width: int, prefix: str = WARP) 
 
 def sampling_tables(prefix: str, grids: np.ndarray, source_size: tuple[int, int] | None) -> dict[str, np.ndarray]:
     """The taps of the cameras' ``grids`` (N, H, W, 2) on ``source_size`` (H, W) sources as the tables ``prefix``
-    (:func:`camera_taps`)."""
+    (`camera_taps`)."""
     if source_size is None:
         raise ConfigError(
             "geometry parameters: source_size is missing (files exported before the sampling taps held a "
@@ -160,7 +177,7 @@ def sampling_tables(prefix: str, grids: np.ndarray, source_size: tuple[int, int]
 
 
 def resize_tables(prefix: str, taps: ResizeTaps) -> dict[str, np.ndarray]:
-    """One axis of PIL's resize (:class:`~fisheye_infer.geometry.resize.ResizeTaps`) as the tables ``prefix``."""
+    """One axis of PIL's resize ([`ResizeTaps`][fisheye_infer.geometry.resize.ResizeTaps]) as the tables ``prefix``."""
     return {
         f"{prefix}index": taps.index.astype(np.int64),
         f"{prefix}high": taps.high.astype(np.float32),

@@ -8,7 +8,7 @@ pipeline (``img_aug_matrix``: scale, then shift, in the view's pixels). Two pipe
   rig is one view, resized by ``scale`` and cropped at ``crop`` (left, top);
 - ``Perspective`` (``MultiViewFisheyePerspectiveProjection``): each fisheye camera gives one view per
   yaw, ``cam2lidar = fisheye cam2lidar @ R_y(yaw)``, with the ideal ``K`` of a ``fov``-degree view of
-  ``size``; the images are rectified from the fisheye with ``cv2.remap`` (:func:`perspective_maps`).
+  ``size``; the images are rectified from the fisheye with ``cv2.remap`` (`perspective_maps`).
 
 Views are ordered camera by camera, each camera's yaws in order (the official order: front -55°,
 front +55°, left -55°, ...). Matrices are float64 holding the official float32 values where the
@@ -184,7 +184,7 @@ def perspective_maps(camera: object, source: Perspective) -> tuple[np.ndarray, n
 
 
 def perspective_image_grid(rig: Rig, source: Perspective) -> np.ndarray:
-    """(N, Y * H, W, 2) float32 :func:`remap_grid` of each camera's fisheye lens: its views, stacked by yaw."""
+    """(N, Y * H, W, 2) float32 `remap_grid` of each camera's fisheye lens: its views, stacked by yaw."""
 
     def grid_of(lens: OCamModel) -> np.ndarray:
         map_x, map_y = perspective_maps(lens, source)

@@ -5,7 +5,7 @@
     front.reports                                             # what each robot camera covers
 
 Each slot's training image is resampled from its robot camera's raw image with cv2.remap's exact taps
-(:func:`~fisheye_infer.geometry.grids.remap_taps`) of the :class:`~fisheye_infer.cameras.virtual_view.VirtualView`
+(`remap_taps`) of the `VirtualView`
 maps, then ``fill`` is added (mid-grey where the robot camera does not see the training ray) and the sum is rounded
 to uint8 as cv2.remap rounds it. Robot cameras may differ in size: the graph takes them padded to the largest width
 and height, each image in the top-left corner of its slot, and the taps read that layout. The taps are stored tap by
@@ -47,17 +47,27 @@ VIRTUAL_FILL = "geom.virtual.fill"
 
 
 class VirtualCameraReport(BaseModel):
-    """What one robot camera gives the model slot it stands in."""
+    """What one robot camera gives the model slot it stands in (stored in the file's metadata, printed at re-bake).
+
+    Attributes:
+        slot: The training camera's name.
+        camera: The robot camera's name.
+        image_size: (width, height) of the robot camera's images.
+        coverage: Share of the training lens's field the robot camera sees, in [0, 1].
+        rotation_deg: Rotation between the two mounts (degrees), compensated.
+        translation_mm: Distance between the camera centres (mm), not compensated unless a depth is given.
+        sampling_scale: Robot pixels per training pixel (median); below 1 the robot camera resolves less.
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    slot: str  # the training camera's name
-    camera: str  # the robot camera's name
-    image_size: tuple[int, int]  # (width, height) of the robot camera's images
-    coverage: float  # share of the training lens's field the robot camera sees
-    rotation_deg: float  # rotation between the mounts, compensated
-    translation_mm: float  # distance between the camera centres, not compensated (unless a depth is given)
-    sampling_scale: float  # robot pixels per training pixel (median); below 1 the robot camera resolves less
+    slot: str
+    camera: str
+    image_size: tuple[int, int]
+    coverage: float
+    rotation_deg: float
+    translation_mm: float
+    sampling_scale: float
 
     def summary(self) -> str:
         """One line for the export's report.
@@ -102,7 +112,7 @@ def virtual_front(training: Rig, robot: Rig, order: Sequence[str], depth: float 
         training: The rig the model was trained with.
         robot: The robot's rig.
         order: The robot camera of each slot of ``training``, in its order
-            (:func:`~fisheye_infer.cameras.camera_map.map_cameras`).
+            (`map_cameras`).
         depth: None to compensate rotation only; else the distance (m) at which translation is compensated.
 
     Returns:

@@ -131,7 +131,7 @@ def replay(
     module docstring. ``topics`` maps each camera the model names to its image topic; ``foxglove``: also the
     Foxglove channels (protobuf; without them the file holds ROS 2 messages only); ``score_threshold``
     keeps the messages' boxes at or above it (the records keep every box, as evaluation needs); ``track``: the
-    messages carry tracks instead of boxes (a :class:`~fisheye_infer.tracking.Tracker` fed every box, its score
+    messages carry tracks instead of boxes (a [`Tracker`][fisheye_infer.tracking.Tracker] fed every box, its score
     threshold ``score_threshold`` or the tracker's; each ``Detection3D`` id the track id, one Foxglove entity per
     track with its velocity and recent path); ``progress``
     is told the frames done and the most there can be (the fewest messages of one camera)."""

@@ -241,7 +241,7 @@ class TensorRTReport(_Model):
 
 
 class VirtualCameras(_Model):
-    """The robot's cameras standing in for the training cameras (:mod:`fisheye_infer.geometry.virtual`).
+    """The robot's cameras standing in for the training cameras ([`virtual`][fisheye_infer.geometry.virtual]).
 
     The file's ``rig``, ``cameras`` and ``image_size`` are the robot's (its cameras in the model's slot order,
     images padded to the largest); the network and its geometry tables are those of ``training_rig``.
@@ -254,7 +254,35 @@ class VirtualCameras(_Model):
 
 
 class ArtifactMeta(_Model):
-    """The metadata document; reading a schema-1 or -2 document migrates it to the current schema."""
+    """The metadata document an exported file carries; reading a schema-1 or -2 document migrates it.
+
+    Attributes:
+        schema_version (Literal[3]): Version of this document's schema.
+        architecture (str): The model's architecture (``fisheye_bevdet``, ``fisheye_petr``).
+        model_id (str): Architecture + rig hash + checkpoint digest: names this exact file's behaviour.
+        classes (tuple[str, ...]): Class names, in label order.
+        cameras (tuple[str, ...]): Camera names, in the order of the images input.
+        image_size (tuple[int, int]): (width, height) of every input image, pixels.
+        colour_order (Literal['BGR', 'RGB']): Channel order of the images input.
+        normalisation (Normalisation): Per-channel mean and standard deviation the images are normalised with.
+        num_boxes (int): Boxes the graph returns per frame.
+        box_layout (tuple[str, ...]): The meaning of each of a box's values.
+        box_frame (str): The boxes' coordinate frame and units, in words.
+        score_semantics (str): What a score means, in words.
+        valid_semantics (str): What the ``valid`` output marks, in words.
+        rig (Rig): The camera rig whose geometry is baked into the graph.
+        rig_hash (str): Hash of ``rig``; a mismatch means the file was altered.
+        geometry (GeometryParams): The parameters the geometry tables were computed with.
+        geometry_source (Literal['rig', 'checkpoint']): Whether the tables come from the rig or the checkpoint.
+        geometry_initializers (tuple[str, ...]): Names of the graph initializers holding the geometry tables.
+        checkpoint_sha256 (str | None): Digest of the checkpoint exported.
+        tools (dict[str, str]): Versions of the tools that wrote the file.
+        parity (ParityReport | ReducedParityReport | None): The export's check against PyTorch.
+        quantization (Quantization | None): How the file was quantized (None: fp32).
+        tensorrt (TensorRTReport | None): The TensorRT check's record, where one ran.
+        virtual_cameras (VirtualCameras | None): The front end that resamples a robot's cameras into the
+            model's, where the file has one.
+    """
 
     schema_version: Literal[3] = ARTIFACT_SCHEMA_VERSION
     architecture: str
@@ -297,7 +325,14 @@ class ArtifactMeta(_Model):
         return data
 
     def check(self) -> ArtifactMeta:
-        """Consistency a reader can verify: the rig matches its hash, cameras and image size."""
+        """Check what a reader can verify: the rig matches its hash and the camera list.
+
+        Returns:
+            ArtifactMeta: This document, unchanged.
+
+        Raises:
+            ArtifactError: The rig, the camera list or the virtual cameras disagree.
+        """
         if self.rig.hash != self.rig_hash:
             raise ArtifactError(
                 f"rig_hash: metadata says {self.rig_hash}, the embedded rig hashes to {self.rig.hash}; "
@@ -367,6 +402,23 @@ def inspection_session(path: str | Path) -> Any:
 
 
 def read_meta(path: str | Path) -> ArtifactMeta:
-    """Read the metadata of an ONNX file with ONNX Runtime (the core has no ``onnx`` dependency)."""
+    """Read the metadata of an exported ONNX file with ONNX Runtime, without building a Detector.
+
+    Args:
+        path (str | Path): An ONNX file written by ``fisheye-infer export``.
+
+    Returns:
+        ArtifactMeta: The checked metadata, migrated to the current schema.
+
+    Raises:
+        ArtifactError: The file is missing, ONNX Runtime cannot load it, or its fisheye-infer metadata is
+            absent or invalid.
+
+    Examples:
+        ```python
+        meta = read_meta("model.onnx")
+        print(meta.architecture, meta.classes, meta.image_size, meta.rig.names)
+        ```
+    """
     session = inspection_session(path)
     return parse_meta(session.get_modelmeta().custom_metadata_map.get(METADATA_KEY), source=f"model {path}")

@@ -28,7 +28,35 @@ __all__ = ["Detections"]
 
 @dataclass(frozen=True)
 class Detections:
-    """Detections of one frame, highest proposals first (the model's order, not sorted by score)."""
+    """Detections of one frame, highest proposals first (the model's order, not sorted by score).
+
+    Boxes are `(K, 7)` ``x, y, z_bottom, l, w, h, yaw`` in the lidar frame: the bottom centre and yaw in
+    metres and radians (x forward, y left, z up; yaw about +z, 0 along +x). Constructing one checks that
+    every array has K rows and every label names a class.
+
+    Attributes:
+        boxes (np.ndarray): `(K, 7)` float32 boxes, lidar frame, metres and radians.
+        scores (np.ndarray): `(K,)` float32 confidence of each box, in [0, 1].
+        labels (np.ndarray): `(K,)` int64 index of each box's class in ``class_names``.
+        class_names (tuple[str, ...]): The model's classes, in label order.
+        cameras_used (tuple[str, ...]): The cameras that had an image in this frame (fewer than the model's
+            in degraded mode).
+        timings_ms (dict[str, float]): Milliseconds per stage of the call that produced this
+            (``decode``, ``preprocess``, ``inference``, ``postprocess``).
+        model_id (str): The producing file's model id (architecture, rig hash, checkpoint digest).
+
+    Raises:
+        ValueError: The arrays' shapes disagree, or a label is outside ``class_names``.
+
+    Examples:
+        ```python
+        dets = detector.detect(frame)
+        cars = dets.filter(classes=["Car"], min_score=0.3, max_range=30.0)
+        for name, score, box in zip(cars.names, cars.scores, cars.boxes):
+            print(name, f"{score:.2f}", box[:3])
+        records = dets.to_nuscenes()          # for the evaluator or a results file
+        ```
+    """
 
     boxes: np.ndarray  # (K, 7) float32
     scores: np.ndarray  # (K,) float32
@@ -52,6 +80,14 @@ class Detections:
 
     @classmethod
     def empty(cls, class_names: Sequence[str]) -> Detections:
+        """No boxes.
+
+        Args:
+            class_names (Sequence[str]): The model's classes, in label order.
+
+        Returns:
+            Detections: An object with K = 0.
+        """
         return cls(np.zeros((0, 7), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64), tuple(class_names))
 
     def __len__(self) -> int:
@@ -81,9 +117,19 @@ class Detections:
     def filter(
         self, min_score: float | None = None, classes: Iterable[str] | None = None, max_range: float | None = None
     ) -> Detections:
-        """Boxes with score >= ``min_score``, of the given classes, centre within ``max_range`` m (BEV).
+        """The boxes that pass every given filter; a filter left at None keeps everything.
 
-        Class names the model does not have are an ``OptionError`` naming them.
+        Args:
+            min_score (float | None): Keep boxes scoring at least this.
+            classes (Iterable[str] | None): Keep boxes of these class names.
+            max_range (float | None): Keep boxes whose centre lies within this many metres of the
+                lidar origin in the bird's-eye view.
+
+        Returns:
+            Detections: A new object with the kept boxes, in the same order.
+
+        Raises:
+            OptionError: ``classes`` names a class the model does not have.
         """
         keep = np.ones(len(self), dtype=bool)
         if min_score is not None:
@@ -96,16 +142,33 @@ class Detections:
         return self[keep]
 
     def with_nms(self, config: NmsConfig) -> Detections:
+        """The boxes left after non-maximum suppression (the official output has none).
+
+        Args:
+            config (NmsConfig): What suppression to run and its thresholds
+                ([`NmsConfig`][fisheye_infer.runtime.nms.NmsConfig]).
+
+        Returns:
+            Detections: A new object with the kept boxes.
+        """
         return self[apply_nms(self.boxes, self.scores, self.labels, config, self.class_names)]
 
     # -- geometry and exports -----------------------------------------------------------
 
     def corners(self) -> np.ndarray:
-        """(K, 8, 3) box corners in the lidar frame."""
+        """The corners of every box.
+
+        Returns:
+            np.ndarray: `(K, 8, 3)` corners in the lidar frame, metres.
+        """
         return box_corners(self.boxes)
 
     def to_dicts(self) -> list[dict[str, Any]]:
-        """One plain dict per box, in this object's layout (bottom-centred, lidar frame)."""
+        """One plain dict per box, in this object's layout (bottom-centred, lidar frame).
+
+        Returns:
+            list[dict[str, Any]]: ``x, y, z_bottom, l, w, h, yaw, score, label, class_name`` per box.
+        """
         keys = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
         return [
             {
@@ -118,12 +181,25 @@ class Detections:
         ]
 
     def to_nuscenes(self) -> list[dict[str, Any]]:
-        """nuScenes-style result records (centre z, size w-l-h, quaternion), as the evaluator reads them."""
+        """nuScenes-style result records, as the evaluator reads them.
+
+        Returns:
+            list[dict[str, Any]]: One record per box (see
+                [`boxes_to_records`][fisheye_infer.runtime.records.boxes_to_records]).
+        """
         from fisheye_infer.runtime.records import boxes_to_records
 
         return boxes_to_records(self.boxes, self.scores, self.labels, self.class_names)
 
     def to_json(self, **kwargs: Any) -> str:
+        """A JSON document with the model id, cameras used, timings and one object per box.
+
+        Args:
+            **kwargs: Passed to `json.dumps` (e.g. ``indent=2``).
+
+        Returns:
+            str: The document; [`from_json`][fisheye_infer.runtime.detections.Detections.from_json] reads it back.
+        """
         doc = {
             "model_id": self.model_id,
             "cameras_used": list(self.cameras_used),
@@ -134,7 +210,19 @@ class Detections:
 
     @classmethod
     def from_json(cls, text: str, class_names: Sequence[str]) -> Detections:
-        """Read back what ``to_json`` wrote (e.g. to draw a saved result); a bad row is named."""
+        """Read back what ``to_json`` wrote (e.g. to draw a saved result).
+
+        Args:
+            text (str): The JSON document.
+            class_names (Sequence[str]): The model's classes; each row's ``class_name`` must be one of them.
+
+        Returns:
+            Detections: The boxes, scores and labels, with the model id, cameras and timings stored.
+
+        Raises:
+            FrameError: The text is not JSON, lacks the ``detections`` list, or a row misses a field, has a
+                non-numeric value or an unknown class (the row is named).
+        """
         try:
             doc = json.loads(text)
         except (ValueError, RecursionError) as exc:  # ValueError: not JSON, a number of 4300+ digits

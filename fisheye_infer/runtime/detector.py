@@ -65,7 +65,23 @@ _decoding = threading.local()
 
 @dataclass(frozen=True)
 class DetectorInfo:
-    """What a caller needs to feed the model and read its output."""
+    """What a caller needs to feed the model and read its output (``Detector.info``).
+
+    Attributes:
+        architecture (str): The model's architecture (``fisheye_bevdet``, ``fisheye_petr``).
+        model_id (str): Architecture, rig hash and checkpoint digest: names this file's behaviour.
+        classes (tuple[str, ...]): Class names, in label order.
+        cameras (tuple[str, ...]): Camera names, in the order the model takes them.
+        image_size (tuple[int, int]): (width, height) of the images input, pixels (the largest camera's
+            behind virtual cameras).
+        camera_sizes (tuple[tuple[int, int], ...]): (width, height) of each camera's images, in camera order.
+        colour_order (str): ``"BGR"`` or ``"RGB"``: the channel order decoded arrays must have.
+        num_boxes (int): Boxes the graph returns per frame, before the validity mask.
+        rig (Rig): The camera rig baked into the file.
+        providers (tuple[str, ...]): The ONNX Runtime execution providers the session got, in priority order.
+        meta (ArtifactMeta): The file's full metadata
+            ([`ArtifactMeta`][fisheye_infer.runtime.artifact.ArtifactMeta]).
+    """
 
     architecture: str
     model_id: str
@@ -185,9 +201,18 @@ class FrameDetector:
         )
 
     def map_images(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
-        """``fn`` over ``items`` on the Detector's decode threads, results (and the first error) in order;
-        the service decodes its requests' images with it too. Called from a decode thread, or once
-        the interpreter is shutting down (no new threads then), it runs in the calling thread."""
+        """Apply ``fn`` to ``items`` on the Detector's decode threads.
+
+        Called from a decode thread, or once the interpreter is shutting down (no new threads then), it
+        runs in the calling thread.
+
+        Args:
+            fn (Callable[[Any], Any]): The function to apply (e.g. an image decoder).
+            items (Iterable[Any]): Its arguments.
+
+        Returns:
+            Iterator[Any]: The results in the order of ``items``; iterating re-raises the first error.
+        """
         if getattr(_decoding, "active", False):
             return map(fn, items)
 
@@ -204,7 +229,12 @@ class FrameDetector:
             return map(fn, items)
 
     def warmup(self) -> None:
-        """One run on a black frame, so the first real call does not pay for allocation."""
+        """One run on a black frame, so the first real call does not pay for allocation.
+
+        Raises:
+            ArtifactError: The graph's outputs contradict the file's metadata (box count, class list).
+            InferenceError: The runtime failed running the graph.
+        """
         width, height = self.info.image_size
         images = np.zeros((1, len(self.info.cameras), height, width, 3), np.uint8)
         self._checked_run(images, np.ones((1, len(self.info.cameras)), bool))
@@ -239,7 +269,21 @@ class FrameDetector:
             )
 
     def run_arrays(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
-        """The raw graph outputs (boxes, scores, labels, valid) for a prepared batch."""
+        """The raw graph outputs for a prepared batch, without decoding or post-processing.
+
+        Args:
+            images (np.ndarray): `(B, N, H, W, 3)` uint8 images, N cameras in ``info.cameras`` order,
+                channels in ``info.colour_order``.
+            valid (np.ndarray): `(B, N)` bool, False for a camera without an image.
+
+        Returns:
+            list[np.ndarray]: ``boxes`` `(B, num_boxes, 7)`, ``scores`` `(B, num_boxes)`, ``labels``
+                `(B, num_boxes)` and ``valid`` `(B, num_boxes)` (the official output set).
+
+        Raises:
+            ArtifactError: The outputs contradict the file's metadata.
+            InferenceError: The runtime failed running the graph.
+        """
         return self._checked_run(np.ascontiguousarray(images, np.uint8), np.ascontiguousarray(valid, bool))
 
     def detect(
@@ -250,7 +294,26 @@ class FrameDetector:
         classes: Iterable[str] | None = None,
         nms: NmsConfig | str | None = None,
     ) -> Detections:
-        """Detections for one frame (mapping camera -> image, or a sequence in camera order)."""
+        """Detect the boxes of one frame.
+
+        Args:
+            frame (Frame): Camera name -> image, or a sequence of images in ``info.cameras`` order. An image is
+                a path, encoded bytes (PNG, JPEG) or an `(H, W, 3)` uint8 array in ``info.colour_order``;
+                a camera that is left out or None runs in degraded mode.
+            score_threshold (float | None): Keep boxes scoring at least this, in [0, 1]
+                (default: the Detector's).
+            classes (Iterable[str] | None): Keep boxes of these class names (default: all).
+            nms (NmsConfig | str | None): Suppression for this call ([`NmsConfig`][fisheye_infer.runtime.nms.NmsConfig],
+                or ``"rotated"``/``"circle"`` with defaults; default: the Detector's).
+
+        Returns:
+            Detections: The frame's boxes with the cameras used and the stage timings.
+
+        Raises:
+            FrameError: An image is missing, unreadable or of the wrong size (camera named).
+            OptionError: An option has the wrong type or is out of range.
+            InferenceError: The runtime failed running the graph.
+        """
         return self.detect_batch([frame], score_threshold=score_threshold, classes=classes, nms=nms)[0]
 
     def detect_batch(
@@ -261,7 +324,23 @@ class FrameDetector:
         classes: Iterable[str] | None = None,
         nms: NmsConfig | str | None = None,
     ) -> list[Detections]:
-        """Detections for several frames (a list, or any iterable such as a generator), run as one batch."""
+        """Detect the boxes of several frames, run through the graph as one batch.
+
+        Args:
+            frames (Iterable[Frame]): A list (or any iterable, such as a generator) of frames as
+                [`detect`][fisheye_infer.runtime.detector.Detector.detect] takes them.
+            score_threshold (float | None): As for ``detect``.
+            classes (Iterable[str] | None): As for ``detect``.
+            nms (NmsConfig | str | None): As for ``detect``.
+
+        Returns:
+            list[Detections]: One per frame, in order; each carries the batch's stage timings.
+
+        Raises:
+            FrameError: ``frames`` is empty or a single frame, or one of its images is unusable.
+            OptionError: An option has the wrong type or is out of range.
+            InferenceError: The runtime failed running the graph.
+        """
         score_threshold = check_score_threshold(score_threshold)
         classes = check_classes(classes, self.info.classes)
         nms = check_nms(nms)
@@ -316,10 +395,12 @@ class FrameDetector:
 
 
 class Detector(FrameDetector):
-    """Runs an exported fisheye detector in ONNX Runtime. See the module docstring.
+    """Runs an exported fisheye detector in ONNX Runtime: frames in, boxes out.
 
-    Every argument is checked before any work, and a bad one refused naming it (``OptionError``;
-    ``ConfigError`` for providers, ``ArtifactError`` for a file that is missing or not a model).
+    The default result is exactly the official test-time output set: every box whose centre lies in the
+    model's ``post_center_range``, no score threshold, no NMS; thresholds, class filters and NMS are
+    opt-in, per Detector or per call. One Detector may be shared by threads. Every argument is checked
+    before any work, and a bad one refused naming it.
 
     Args:
         model_path (str | os.PathLike): an ONNX file written by ``fisheye-infer export``.
@@ -333,6 +414,28 @@ class Detector(FrameDetector):
         decode_threads (int | None): threads decoding encoded images, bounded as ``threads``.
         spin (bool): ``False``: the intra-op threads sleep as soon as a call ends instead of
             spinning for a while first (``session_options``), for cores shared with other processes.
+
+    Attributes:
+        info (DetectorInfo): What the model expects and returns
+            ([`DetectorInfo`][fisheye_infer.runtime.detector.DetectorInfo]).
+        path (Path): The model file.
+
+    Raises:
+        OptionError: An option has the wrong type or is out of range.
+        ConfigError: ``providers`` names an unknown or unavailable provider.
+        ArtifactError: The file is missing, not a model, or its metadata or graph is not the
+            fisheye-infer interface.
+
+    Examples:
+        ```python
+        from fisheye_infer import Detector
+
+        detector = Detector("model.onnx", threads=2, score_threshold=0.3)
+        print(detector.info.cameras, detector.info.classes)
+        dets = detector.detect({"fisheye_camera_front": "front.png", "fisheye_camera_left": "left.png",
+                                "fisheye_camera_right": "right.png", "fisheye_camera_rear": "rear.png"})
+        batch = detector.detect_batch([frame_a, frame_b], nms="rotated")
+        ```
     """
 
     def __init__(

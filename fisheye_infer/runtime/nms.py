@@ -25,10 +25,24 @@ __all__ = ["NmsConfig", "bev_iou", "rotated_bev_nms", "circle_nms", "apply_nms"]
 
 
 class NmsConfig(BaseModel):
-    """What suppression to run; thresholds per class name override the default.
+    """What non-maximum suppression to run; thresholds per class name override the default.
 
-    NmsConfig(kind="rotated", iou=0.2, per_class={"Pedestrian": 0.5})
-    NmsConfig(kind="circle", radius=2.0, per_class={"Pedestrian": 0.5, "Bus": 4.0})
+    Attributes:
+        kind (Literal['rotated', 'circle']): ``"rotated"``: suppress by bird's-eye-view IoU of the rotated
+            boxes; ``"circle"``: by centre distance (CenterPoint's).
+        iou (float): Rotated: suppress a box overlapping a better one above this BEV IoU, in (0, 1].
+        radius (float): Circle: suppress a box within this centre distance of a better one, metres, > 0.
+        per_class (dict[str, float]): Class name -> its own IoU or radius.
+        class_aware (bool): Boxes suppress only boxes of their own class.
+
+    Raises:
+        pydantic.ValidationError: A value is out of range or a field is unknown.
+
+    Examples:
+        ```python
+        NmsConfig(kind="rotated", iou=0.2, per_class={"Pedestrian": 0.5})
+        NmsConfig(kind="circle", radius=2.0, per_class={"Pedestrian": 0.5, "Bus": 4.0})
+        ```
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")

@@ -1,7 +1,7 @@
 """The one result-record format shared by the runtime, results files and the evaluator.
 
 A record is a nuScenes-style detection dict, the layout the Fisheye3DOD evaluator converts
-every box into before matching::
+every box into before matching:
 
     {"translation": [x, y, z_centre],      # lidar frame, metres, GRAVITY centre
      "size": [w, l, h],                    # nuScenes order: width, length, height
@@ -99,11 +99,23 @@ def boxes_to_records(
     labels: np.ndarray,
     class_names: Sequence[str] = CLASSES,
 ) -> list[dict[str, Any]]:
-    """Runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw`` -> K records.
+    """Runtime boxes -> nuScenes-style detection records, as the evaluator and results files hold them.
 
-    ``scores=None`` marks ground truth: every record gets ``GT_SCORE`` (-1.0), as the official
-    evaluator stores it. Ground-truth label boxes (gravity-centred) go through
-    ``gravity_to_bottom`` first.
+    Ground-truth label boxes (gravity-centred) go through ``gravity_to_bottom`` first.
+
+    Args:
+        boxes (np.ndarray): `(K, 7)` ``x, y, z_bottom, l, w, h, yaw``, lidar frame, metres and radians.
+        scores (np.ndarray | None): `(K,)` confidences; None marks ground truth: every record gets
+            ``GT_SCORE`` (-1.0), as the official evaluator stores it.
+        labels (np.ndarray): `(K,)` integer class indices into ``class_names``.
+        class_names (Sequence[str]): Class names in label order (default: the six Fisheye3DOD classes).
+
+    Returns:
+        list[dict[str, Any]]: K records with ``translation`` (box centre, m), ``size`` (w, l, h, m),
+            ``rotation`` (w, x, y, z quaternion of the yaw), ``detection_name`` and ``detection_score``.
+
+    Raises:
+        ValueError: A shape disagrees with ``boxes``, a label is out of range, or a value is NaN or infinite.
     """
     b = _boxes(boxes)
     k = len(b)

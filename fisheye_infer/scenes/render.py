@@ -6,8 +6,8 @@ that falls towards the ground shows a checker-and-noise texture fading into haze
 a sky gradient. Pixels outside the lens's field of view are black, as in real fisheye frames.
 Because the pictures are made with the same camera model and extrinsics the detectors' geometry
 uses, they exercise the whole data path (reader, rig, projection, metric) without the dataset.
-The scene and its look are drawn in ``scenes.scene`` (:func:`random_scene`, ``random_appearance``);
-this module turns them into pixels, and :func:`synthesize` writes whole frames with their labels.
+The scene and its look are drawn in ``scenes.scene`` (`random_scene`, ``random_appearance``);
+this module turns them into pixels, and `synthesize` writes whole frames with their labels.
 
     frames = synthesize(default_rig(), "data/synth", frames=4, seed=0)   # Fisheye3DOD layout
     Fisheye3DOD("data/synth", "val")                                   # reads the same rig and boxes
@@ -57,18 +57,40 @@ RAY_CACHE_MODELS = 16
 
 
 class Renderer:
-    """Ray-casts scenes through cameras; the per-pixel rays of the latest camera models are kept
-    (``RAY_CACHE_MODELS``), so a rig's are computed once and moved lenses do not pile up."""
+    """Ray-casts scenes through any camera model: a checkered, textured ground, a sky, and shaded boxes.
+
+    The per-pixel rays of the latest camera models are kept (``RAY_CACHE_MODELS``, 16), so a rig's are
+    computed once and moved lenses do not pile up.
+
+    Args:
+        texture_seed (int): Seed of the ground's noise texture.
+
+    Examples:
+        ```python
+        import numpy as np
+        from fisheye_infer import default_rig
+        from fisheye_infer.scenes.render import Renderer
+        from fisheye_infer.scenes.scene import random_scene
+
+        scene = random_scene(np.random.default_rng(0))
+        images = Renderer(texture_seed=0).render(default_rig(), scene)
+        dets = detector.detect(images)           # what a model sees of the scene
+        ```
+    """
 
     def __init__(self, texture_seed: int = 0) -> None:
         self.texture_seed = texture_seed
         self._rays: dict[object, tuple[np.ndarray, np.ndarray]] = {}
 
     def camera_rays(self, model: object) -> tuple[np.ndarray, np.ndarray]:
-        """Unit rays (3, H*W) float32 in the camera frame, and which pixels lie inside the field of view.
+        """Every pixel's unit ray in the camera frame, and which pixels lie inside the field of view.
 
-        Rays are stored component-major: rotating (3, N) by a 3x3 matrix is a fast matrix product,
-        (N, 3) @ (3, 3) is not.
+        Args:
+            model (object): A camera model (``unproject``, ``width``, ``height``; ``fov`` in degrees where it has one).
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: Rays `(3, H*W)` float32, component-major and row-major over the pixels,
+                and `(H*W,)` bool, True inside the field of view.
         """
         if model not in self._rays:
             rays, inside = pixel_rays(model)
@@ -78,10 +100,35 @@ class Renderer:
         return self._rays[model]
 
     def render(self, rig: Rig, scene: Scene, appearance: Appearance | None = None) -> dict[str, np.ndarray]:
-        """One (H, W, 3) uint8 BGR picture per camera."""
+        """One picture per camera of a rig.
+
+        Args:
+            rig (Rig): The cameras, their models and extrinsics.
+            scene (Scene): The objects and the ground, lidar frame.
+            appearance (Appearance | None): The look (default: ``Appearance()``).
+
+        Returns:
+            dict[str, np.ndarray]: Camera name -> `(H, W, 3)` uint8 BGR picture; black outside the lens's field.
+
+        Raises:
+            ValueError: ``appearance.object_colours`` does not have one colour per box.
+        """
         return {cam.name: self.render_camera(cam, scene, appearance) for cam in rig.cameras}
 
     def render_camera(self, camera: RigCamera, scene: Scene, appearance: Appearance | None = None) -> np.ndarray:
+        """One camera's picture.
+
+        Args:
+            camera (RigCamera): The camera: its model and cam2lidar matrix.
+            scene (Scene): The objects and the ground, lidar frame.
+            appearance (Appearance | None): The look (default: ``Appearance()``).
+
+        Returns:
+            np.ndarray: `(H, W, 3)` uint8 BGR picture.
+
+        Raises:
+            ValueError: ``appearance.object_colours`` does not have one colour per box.
+        """
         look = appearance or Appearance()
         if look.object_colours is not None and len(look.object_colours) != len(scene.boxes):
             raise ValueError(f"appearance: {len(look.object_colours)} object colours for {len(scene.boxes)} boxes")
@@ -99,9 +146,18 @@ class Renderer:
         return np.clip(colour, 0, 255).astype(np.uint8).T.reshape(model.height, model.width, 3)
 
     def ray_depth(self, origin: np.ndarray, directions: np.ndarray, scene: Scene) -> np.ndarray:
-        """Distance to the first surface (ground or box) along unit rays (3, N) from ``origin`` (3,),
-        lidar frame; inf where a ray meets nothing. The pictures' own intersection code, so a
-        depth target agrees with what the pixels show."""
+        """Distance to the first surface (ground or box) along rays, with the pictures' own intersection code.
+
+        A depth target computed here agrees with what the pixels show.
+
+        Args:
+            origin (np.ndarray): `(3,)` the rays' origin, lidar frame, metres.
+            directions (np.ndarray): `(3, N)` unit rays, lidar frame.
+            scene (Scene): The objects and the ground.
+
+        Returns:
+            np.ndarray: `(N,)` distances, metres; inf where a ray meets nothing.
+        """
         o = np.asarray(origin, np.float32)
         d = np.ascontiguousarray(directions, np.float32)
         colour, depth = self._background(o, d, scene.ground_z, Appearance())
@@ -186,7 +242,15 @@ class Renderer:
 
 @dataclass(frozen=True)
 class SynthFrame:
-    """What was written for one frame: its token, the rig as the reader rebuilds it, its boxes."""
+    """What [`synthesize`][fisheye_infer.scenes.render.synthesize] wrote for one frame.
+
+    Attributes:
+        token (str): The sample token, ``<scene>.<vehicle>.<frame_id>``.
+        frame_id (str): The frame's id, eight digits.
+        rig (Rig): The rig as the reader rebuilds it from the written poses.
+        boxes (np.ndarray): `(K, 7)` runtime boxes, lidar frame.
+        labels (np.ndarray): `(K,)` class indices.
+    """
 
     token: str
     frame_id: str
@@ -207,12 +271,42 @@ def synthesize(
     first_frame: int = 1000,
     convention: Convention = "compat",
 ) -> list[SynthFrame]:
-    """Write ``frames`` synthetic frames of one sequence under ``out`` in the Fisheye3DOD layout.
+    """Write synthetic frames of one sequence in the Fisheye3DOD layout, readable by ``Fisheye3DOD``.
 
-    The ego vehicle drives along a gentle curve (level, so the compat conversion is exact); each
-    frame gets its own seeded objects. The fisheye cameras' lenses are written as OCam's
-    ``calib_results.txt`` (one shared, or one in each camera's folder), or as ``camera_model.json`` for
-    other models; the pinhole cameras must be the layout's (``rig-pinhole6``'s), which the writer checks.
+    The ego vehicle drives along a gentle curve (level, so the compat conversion is exact); each frame gets
+    its own seeded objects. The fisheye cameras' lenses are written as OCam's ``calib_results.txt`` (one
+    shared, or one in each camera's folder), or as ``camera_model.json`` for other models; the pinhole
+    cameras must be the layout's (``rig-pinhole6``'s), which the writer checks.
+
+    Args:
+        rig (Rig): The cameras the frames are rendered through.
+        out (str | Path): The dataset folder (created if missing; other sequences in it are kept).
+        frames (int): Frames to write, at least 1.
+        seed (int): Seed of the objects and the texture; the same seed writes the same frames.
+        split (str): The split file the frames are recorded in.
+        scene_name (str | None): The scene folder (default: ``synth-Town00-ClearNoon-seed<seed>``).
+        num_objects (tuple[int, int]): Least and most objects per frame.
+        ground_height (float): Height of the lidar above the ground, metres.
+        first_frame (int): Id of the first frame; ids step by 5 (CARLA's 20 Hz ticks at 4 Hz).
+        convention (Convention): How poses convert (``"compat"`` or ``"exact"``).
+
+    Returns:
+        list[SynthFrame]: What was written per frame (token, rig as read back, boxes, labels).
+
+    Raises:
+        ValueError: ``frames`` is below 1.
+        DatasetError: A lens cannot be stored in the layout, or the folder holds a different one.
+
+    Examples:
+        ```python
+        from fisheye_infer import default_rig
+        from fisheye_infer.eval import Fisheye3DOD
+        from fisheye_infer.scenes.render import synthesize
+
+        written = synthesize(default_rig(), "synth/", frames=8, seed=0)
+        data = Fisheye3DOD("synth/", "val")
+        assert data.tokens == [f.token for f in written]
+        ```
     """
     from fisheye_infer.eval.writer import Fisheye3DODWriter
 

@@ -1,13 +1,13 @@
 """What a synthetic frame holds and how it looks, drawn at random: the boxes of the six classes
-(:class:`Scene`, :func:`random_scene`) and the lighting, ground, sky and object colours
-(:class:`Appearance`, :func:`random_appearance`).
+(`Scene`, `random_scene`) and the lighting, ground, sky and object colours
+(`Appearance`, `random_appearance`).
 
 Kept apart from ``render`` (which ray-casts a scene through a rig) because the depth targets, the
 training streams and the viewer need the scene and the class colours without the renderer; the
 scene is plain data a renderer or a label writer reads.
 
 Everything is drawn from the caller's seeded generator. Box parameters are multiples of 1/256 m
-(yaw of 1/1024 rad, see :func:`quantize`), so the gravity-centre labels written for a scene convert
+(yaw of 1/1024 rad, see `quantize`), so the gravity-centre labels written for a scene convert
 back to the same numbers.
 """
 
@@ -61,7 +61,13 @@ def quantize(x: np.ndarray | float, step: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Scene:
-    """Objects of one frame: runtime boxes (K, 7) ``x, y, z_bottom, l, w, h, yaw`` and class ids."""
+    """The objects of one frame, standing on a flat ground.
+
+    Attributes:
+        boxes (np.ndarray): `(K, 7)` ``x, y, z_bottom, l, w, h, yaw``, lidar frame, metres and radians.
+        labels (np.ndarray): `(K,)` int64 indices into the six Fisheye3DOD classes.
+        ground_z (float): Height of the ground plane in the lidar frame, metres (below the lidar: negative).
+    """
 
     boxes: np.ndarray
     labels: np.ndarray
@@ -70,10 +76,25 @@ class Scene:
 
 @dataclass(frozen=True)
 class Appearance:
-    """How a scene looks: lighting, ground texture, sky and object colours. The defaults are the
-    renderer's standard look; :func:`random_appearance` varies every field for training data.
+    """How a scene looks: lighting, ground texture, sky and object colours.
 
-    ``object_colours`` is one BGR colour per box of the scene (None: the class colours).
+    The defaults are the renderer's standard look;
+    [`random_appearance`][fisheye_infer.scenes.scene.random_appearance] varies every field for training data.
+    Colours are BGR, 0-255.
+
+    Attributes:
+        light (tuple[float, float, float]): Direction towards the sun in the lidar frame, any length.
+        ambient (float): Share of light every surface gets in shade, in [0, 1].
+        ground_grey (float): Mean brightness of the ground.
+        checker_contrast (float): Brightness step between the ground's checker squares.
+        noise_contrast (float): Amplitude of the ground's fine noise texture.
+        checker_size (float): Side of a checker square, metres.
+        ground_tint (tuple[float, float, float]): Offset added to the ground's grey per channel.
+        sky_horizon (tuple[float, float, float]): Sky colour at the horizon.
+        sky_zenith (tuple[float, float, float]): Sky colour straight up.
+        haze_distance (float): Distance over which the ground fades into the horizon colour, metres.
+        object_colours (tuple[tuple[float, float, float], ...] | None): One colour per box of the scene
+            (None: the class colours).
     """
 
     light: tuple[float, float, float] = _SUN  # towards the sun, any length
@@ -90,9 +111,19 @@ class Appearance:
 
 
 def random_appearance(rng: np.random.Generator, scene: Scene, colour_jitter: float = 45.0) -> Appearance:
-    """A random look for ``scene``: sun direction and strength, ground brightness, texture scale and
-    tint, sky colours, haze, and each object's class colour shifted by up to ``colour_jitter`` per
-    channel and scaled in brightness (classes stay told apart by colour family and size)."""
+    """A random look for a scene: sun, ground brightness, texture scale and tint, sky colours, haze, object colours.
+
+    Each object's class colour is shifted by up to ``colour_jitter`` per channel and scaled in brightness, so
+    classes stay told apart by colour family and size.
+
+    Args:
+        rng (np.random.Generator): The source of randomness (the same state gives the same look).
+        scene (Scene): The scene the look is for (its labels give the object colours).
+        colour_jitter (float): Largest shift of an object's colour per channel, 0-255 units.
+
+    Returns:
+        Appearance: The look, with one colour per box of ``scene``.
+    """
     elevation, azimuth = rng.uniform(0.25, 1.4), rng.uniform(-math.pi, math.pi)
     light = (math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation))
     colours: list[tuple[float, float, float]] = []
@@ -123,10 +154,25 @@ def random_scene(
     max_range: float = 35.0,
     size_jitter: float = 0.1,
 ) -> Scene:
-    """Objects standing on the ground, not overlapping each other or the ego vehicle's footprint.
+    """A random scene: objects standing on the ground, not overlapping each other or the ego vehicle's footprint.
 
-    Distances are uniform in [min_range, max_range], so near objects are as common as far ones;
-    each size is the class's typical one scaled by a factor in [1 - size_jitter, 1 + size_jitter].
+    Distances are uniform in [min_range, max_range], so near objects are as common as far ones. Positions and
+    sizes are rounded to 1/256 m, yaws to 1/1024 rad.
+
+    Args:
+        rng (np.random.Generator): The source of randomness (the same state gives the same scene).
+        num_objects (tuple[int, int]): Least and most objects; fewer are placed where no free spot is found.
+        ground_z (float): Height of the ground in the lidar frame, metres.
+        min_range (float): Nearest object centre, metres from the lidar.
+        max_range (float): Farthest object centre, metres.
+        size_jitter (float): Each size is the class's typical one times a factor in
+            [1 - size_jitter, 1 + size_jitter]; in [0, 1).
+
+    Returns:
+        Scene: The objects and the ground height.
+
+    Raises:
+        ValueError: The counts, ranges or ``size_jitter`` are out of order or out of range.
     """
     lo, hi = num_objects
     if not 0 <= lo <= hi or not 0 < min_range < max_range:

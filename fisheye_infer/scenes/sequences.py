@@ -48,7 +48,18 @@ _RENDER_RANGE = 70.0
 
 @dataclass(frozen=True)
 class SequenceFrame:
-    """One frame of a sequence; boxes and velocities in this frame's ego frame."""
+    """One frame of a synthetic sequence; boxes and velocities in this frame's ego frame.
+
+    Attributes:
+        index (int): The frame's position in the sequence.
+        stamp (float): Seconds from the sequence's start.
+        ego_pose (np.ndarray): `(4, 4)` ego-to-world matrix.
+        boxes (np.ndarray): `(K, 7)` runtime boxes of the objects within the labelled range.
+        labels (np.ndarray): `(K,)` class indices.
+        ids (np.ndarray): `(K,)` instance ids, from 1 (one per actor, stable over the sequence).
+        velocities (np.ndarray): `(K, 2)` velocities over ground, m/s, in this frame's axes.
+        scene (Scene): Every object near enough to be drawn (they hide what is behind them).
+    """
 
     index: int
     stamp: float  # seconds from the sequence's start
@@ -62,7 +73,15 @@ class SequenceFrame:
 
 @dataclass(frozen=True)
 class Sequence:
-    """A sequence's frames, and the look they are drawn with (one colour per actor)."""
+    """A synthetic sequence's frames, and the look they are drawn with (one colour per actor).
+
+    Attributes:
+        index (int): The sequence's index in its split.
+        frames (tuple[SequenceFrame, ...]): The frames, in time order.
+        look (Appearance): The look, one object colour per actor.
+        texture_seed (int): Seed of the ground texture.
+        drawn (tuple[np.ndarray, ...]): Per frame, the actor indices of ``frame.scene``'s boxes.
+    """
 
     index: int
     frames: tuple[SequenceFrame, ...]
@@ -72,7 +91,10 @@ class Sequence:
 
 
 class SyntheticSequences:
-    """Seeded synthetic sequences of one split for a rig.
+    """Seeded synthetic sequences of one split for a rig: one scene over time, objects moving by class.
+
+    Sequence ``i`` is fully determined by ``(split, seed, i)``; train and val sequences never share a draw.
+    Actors start up to 55 m away, so they enter and leave the labelled range and hide one another as they pass.
 
     Args:
         rig (Rig): The cameras the frames are drawn through.
@@ -83,6 +105,18 @@ class SyntheticSequences:
         num_actors (tuple[int, int]): Least and most actors per sequence.
         ego_speed (float): Fastest ego drive, m/s (0: the ego is always parked).
         bev_range (float): Half side of the labelled square around the ego, metres.
+
+    Raises:
+        ValueError: ``split`` or ``rate`` is not one of the allowed values, or the length, actor counts or
+            speed are out of range.
+
+    Examples:
+        ```python
+        seqs = SyntheticSequences(rig, "val", seed=0, length=40)     # 10 Hz
+        seq = seqs.sequence(3)                                       # poses and ground truth, no pictures
+        for t, frame in enumerate(seq.frames):
+            tracks = tracker.update(detector.detect(seqs.render(seq, t)), frame.stamp, ego_pose=frame.ego_pose)
+        ```
     """
 
     def __init__(
@@ -112,10 +146,28 @@ class SyntheticSequences:
         self.renderer = Renderer()
 
     def rng(self, index: int) -> np.random.Generator:
+        """The random generator sequence ``index`` is drawn from.
+
+        Args:
+            index (int): The sequence's index.
+
+        Returns:
+            np.random.Generator: A fresh generator seeded by the split, the seed and ``index``.
+        """
         return np.random.default_rng([SPLITS[self.split], _TAG, self.seed, int(index)])
 
     def sequence(self, index: int) -> Sequence:
-        """Sequence ``index``: its frames' poses and ground truth, and its look (no pictures)."""
+        """One sequence's frames (poses and ground truth) and its look, without pictures.
+
+        Args:
+            index (int): The sequence's index, >= 0.
+
+        Returns:
+            Sequence: The sequence.
+
+        Raises:
+            IndexError: ``index`` is negative.
+        """
         if index < 0:
             raise IndexError(f"sequence index must be non-negative, got {index}")
         rng = self.rng(index)
@@ -180,7 +232,17 @@ class SyntheticSequences:
         return frame, near
 
     def render(self, sequence: Sequence, t: int, rig: Rig | None = None) -> dict[str, np.ndarray]:
-        """Frame ``t`` of ``sequence`` through ``rig`` (default: the sequences' own): camera name -> BGR picture."""
+        """The pictures of one frame of a sequence.
+
+        Args:
+            sequence (Sequence): A sequence from
+                [`sequence`][fisheye_infer.scenes.sequences.SyntheticSequences.sequence].
+            t (int): The frame's index.
+            rig (Rig | None): The cameras to draw through (default: the sequences' own).
+
+        Returns:
+            dict[str, np.ndarray]: Camera name -> `(H, W, 3)` uint8 BGR picture.
+        """
         frame, near = sequence.frames[t], sequence.drawn[t]
         assert sequence.look.object_colours is not None
         colours = tuple(sequence.look.object_colours[i] for i in near.tolist())
@@ -190,16 +252,34 @@ class SyntheticSequences:
         )
 
     def scene_name(self, index: int) -> str:
-        """The layout's scene folder of sequence ``index``."""
+        """The Fisheye3DOD scene folder a sequence is written to.
+
+        Args:
+            index (int): The sequence's index.
+
+        Returns:
+            str: ``synth-Town00-Sequence<Split>-seed<seed>-n<index>``.
+        """
         return f"synth-Town00-Sequence{self.split.capitalize()}-seed{self.seed}-n{index:04d}"
 
 
 def write_sequences(
     seqs: SyntheticSequences, root: str | Path, indices: Iterable[int], split: str | None = None
 ) -> list[str]:
-    """Write sequences ``indices`` under ``root`` in the Fisheye3DOD layout; returns their scene names.
+    """Write sequences in the Fisheye3DOD layout, one ``<scene>/ego0`` folder each.
 
-    ``split`` names the split file (default: the sequences' own split).
+    Frame ids step by 20 / rate (the layout's timestamps are CARLA's 20 Hz ticks); each frame's ego pose is
+    written as the lidar's pose, and each label object carries its ``velocity`` and actor id, so
+    ``read_sequences`` and ``fisheye-infer eval --tracking`` read them back as sequences.
+
+    Args:
+        seqs (SyntheticSequences): The generator.
+        root (str | Path): The dataset folder.
+        indices (Iterable[int]): The sequences to write.
+        split (str | None): The split file to record them in (default: the sequences' own split).
+
+    Returns:
+        list[str]: The scene folders written, in the order of ``indices``.
     """
     from fisheye_infer.eval.writer import Fisheye3DODWriter, pose_from_matrix
 

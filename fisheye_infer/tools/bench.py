@@ -191,8 +191,40 @@ def bench_model(
 ) -> dict[str, Any]:
     """Everything ``fisheye-infer bench`` measures for one model, as a JSON-ready dict.
 
-    ``providers`` as ``Detector`` takes them (``None``: CPU; ``"auto"``); the result names the
-    providers the session really got; ``stages`` times the graph's stages too."""
+    For every thread count and batch size: ``warmup`` untimed calls, then ``repeat`` timed calls of
+    ``Detector.detect_batch`` on PNG-encoded synthetic renders of the model's own rig, split into decode,
+    preprocessing, inference and post-processing. Nothing is asserted: the numbers are for people.
+
+    Args:
+        path (str | Path): The exported ONNX file.
+        threads (Sequence[int]): ONNX Runtime intra-op thread counts to measure.
+        batches (Sequence[int]): Batch sizes to measure (frames per ``detect_batch`` call).
+        repeat (int): Timed calls per (threads, batch).
+        warmup (int): Untimed calls before them.
+        stages (StageTimer | None): Also time the graph's stages (backbone and neck, view transform, head) with
+            this function (``fisheye_infer.export.graph_stages.time_stages``, which needs ``onnx``).
+        rss (bool): Measure the peak resident memory of a fresh process per thread count.
+        progress (Any): Called with a line of text before each measurement (default: ``print``).
+        providers (str | Sequence[Provider] | None): ONNX Runtime execution providers, as
+            [`Detector`][fisheye_infer.runtime.detector.Detector] takes them (None: the CPU; ``"auto"``); thread
+            counts then only set the CPU side.
+
+    Returns:
+        dict[str, Any]: ``model``, ``machine`` (CPU, platform, versions, GPUs), ``providers`` (those the session
+            really got), ``model_id``, ``architecture``, ``quantization``, ``runs`` (per threads and batch: median,
+            p90 and count of each stage in ms, and ``fps``), ``stages`` and ``peak_rss_mb`` per thread count.
+
+    Raises:
+        ArtifactError: The file is missing or not an exported model.
+        RuntimeError: The peak memory measurement's process failed.
+
+    Examples:
+        ```python
+        result = bench_model("model.onnx", threads=(1, 2), batches=(1, 2, 4))
+        print(format_table(result))
+        json.dump(result, open("bench.json", "w"))
+        ```
+    """
     from fisheye_infer.runtime.detector import Detector
     from fisheye_infer.runtime.session import provider_name, resolve_providers
 
@@ -229,7 +261,15 @@ def bench_model(
 
 
 def format_table(result: dict[str, Any]) -> str:
-    """One line per (threads, batch): medians and p90 in ms, throughput; then the graph stages."""
+    """A plain-text table of a benchmark's result.
+
+    Args:
+        result (dict[str, Any]): What [`bench_model`][fisheye_infer.tools.bench.bench_model] returned.
+
+    Returns:
+        str: One line per (threads, batch) with the median and p90 total and each stage's median in ms and the
+            frames per second; then the graph stages and the peak memory, where measured.
+    """
     lines = [
         f"{result['model']} ({result.get('architecture')}, {result.get('quantization')}; "
         f"{', '.join(result.get('providers', ['CPUExecutionProvider']))})",

@@ -32,6 +32,12 @@ class CpuInfo:
     its line ("AMD EPYC"), and the generations behind one name differ about 2x in float throughput
     per core (Zen 4 runs AVX-512 at half width, Zen 5 at full width), which moves every speed-up
     measured against fp32. ``label`` puts them beside the name.
+
+    Attributes:
+        name (str): The model name (``model name`` in ``/proc/cpuinfo``).
+        flags (frozenset[str]): The instruction-set flags (``avx2``, ``avx512f``, ``avx512_vnni``...).
+        family (str): x86's ``cpu family`` number, empty where unknown.
+        model (str): x86's ``model`` number, empty where unknown.
     """
 
     name: str
@@ -46,20 +52,30 @@ class CpuInfo:
 
     @property
     def avx2(self) -> bool:
+        """Whether the CPU has AVX2."""
         return "avx2" in self.flags
 
     @property
     def avx512(self) -> bool:
+        """Whether the CPU has AVX-512 (``avx512f``)."""
         return "avx512f" in self.flags
 
     @property
     def vnni(self) -> bool:
+        """Whether the CPU has VNNI (AVX-512 or AVX): int8 dot products without saturation."""
         return any(flag in self.flags for flag in VNNI_FLAGS)
 
 
 def cpu_info(cpuinfo: Path = Path("/proc/cpuinfo")) -> CpuInfo:
-    """The first processor's entry of ``cpuinfo``; where it cannot be read (not Linux), the platform's name and
-    no flags."""
+    """What this machine's CPU is and offers, from the first processor's entry of ``cpuinfo``.
+
+    Args:
+        cpuinfo (Path): The file to read (Linux's ``/proc/cpuinfo``).
+
+    Returns:
+        CpuInfo: The name, flags, family and model; where the file cannot be read (not Linux), the platform's
+            name and no flags.
+    """
     fields: dict[str, str] = {}
     with contextlib.suppress(OSError):
         for line in cpuinfo.read_text(errors="replace").split("\n\n", 1)[0].splitlines():

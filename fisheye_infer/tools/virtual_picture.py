@@ -4,7 +4,7 @@
     picture = draw_virtual_cameras(front, images)           # robot image | training view, one row per camera
 
 The resampling is cv2.remap with OpenCV 4.x's 1/32-px fixed-point maps and the front end's fill: what an exported
-file's front end computes (:mod:`fisheye_infer.geometry.virtual`), outside the graph.
+file's front end computes ([`fisheye_infer.geometry.virtual`][fisheye_infer.geometry.virtual]), outside the graph.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ def resample_views(front: VirtualFront, images: Mapping[str, np.ndarray]) -> lis
     """Each slot's training picture from its robot camera's image.
 
     Args:
-        front: The virtual cameras (:func:`~fisheye_infer.geometry.virtual.virtual_front`).
+        front: The virtual cameras ([`virtual_front`][fisheye_infer.geometry.virtual.virtual_front]).
         images: Robot camera name -> (H, W, 3) uint8 image at that camera's size.
 
     Returns:

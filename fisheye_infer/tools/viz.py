@@ -47,8 +47,18 @@ def _text(
 
 
 def draw_rig(rig: Rig, size: int = 800, extent_m: float = 6.0) -> np.ndarray:
-    """Top view: lidar x points up the picture, y to the left; each camera's position, optical axis
-    and horizontal field of view as a wedge."""
+    """A rig seen from above: each camera's position, optical axis and horizontal field of view as a wedge.
+
+    Lidar x points up the picture, y to the left; rings every metre.
+
+    Args:
+        rig (Rig): The cameras.
+        size (int): Side of the square picture, pixels.
+        extent_m (float): Metres from the centre to the picture's edge.
+
+    Returns:
+        np.ndarray: `(size, size, 3)` uint8 BGR picture.
+    """
     img: np.ndarray = np.full((size, size, 3), 255, np.uint8)
     scale = size / (2 * extent_m)
 
@@ -114,6 +124,18 @@ def draw_sampling_grid(
 
 
 def save_png(path: str | Path, image: np.ndarray) -> Path:
+    """Write a picture as PNG, creating missing folders.
+
+    Args:
+        path (str | Path): The file to write.
+        image (np.ndarray): `(H, W, 3)` uint8 BGR picture (or `(H, W)` grey).
+
+    Returns:
+        Path: The file written.
+
+    Raises:
+        OSError: OpenCV cannot write the file.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), image):
@@ -128,7 +150,19 @@ def class_colour(name: str) -> tuple[int, int, int]:
 
 
 def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, rig: Rig | None = None) -> np.ndarray:
-    """Bird's-eye view: x up, y left, range rings every 10 m, the ego footprint, boxes with class and score."""
+    """A bird's-eye view of detections: boxes with class and score, range rings every 10 m.
+
+    Lidar x points up the picture, y to the left; a line marks each box's front.
+
+    Args:
+        detections (Detections): The boxes ([`Detections`][fisheye_infer.runtime.detections.Detections]).
+        size (int): Side of the square picture, pixels.
+        extent_m (float): Metres from the ego to the picture's edge.
+        rig (Rig | None): Draw the ego footprint spanned by the rig's cameras.
+
+    Returns:
+        np.ndarray: `(size, size, 3)` uint8 BGR picture.
+    """
     from fisheye_infer.runtime.box_geometry import bev_corners
 
     img = np.full((size, size, 3), 250, np.uint8)
@@ -160,10 +194,24 @@ def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, ri
 def draw_detections(
     detections: Detections, rig: Rig, images: Mapping[str, np.ndarray | None] | None = None, tile: int = 400
 ) -> np.ndarray:
-    """The fisheye images with the boxes projected through the rig's camera models, beside the BEV.
+    """The camera images with the boxes projected through the rig's camera models, beside the bird's-eye view.
 
-    Cameras without an image are drawn on black. Returns one BGR picture: a 2-column grid of
-    camera tiles on the left, the bird's-eye view on the right.
+    Args:
+        detections (Detections): The boxes ([`Detections`][fisheye_infer.runtime.detections.Detections]).
+        rig (Rig): The cameras to project through (a detector's ``info.rig``).
+        images (Mapping[str, np.ndarray | None] | None): Camera name -> `(H, W, 3)` uint8 BGR image; cameras
+            without one are drawn on black.
+        tile (int): Side of each camera's tile, pixels.
+
+    Returns:
+        np.ndarray: One BGR uint8 picture: a 2-column grid of camera tiles on the left, the bird's-eye view on
+            the right.
+
+    Examples:
+        ```python
+        dets = detector.detect(images)
+        save_png("detections.png", draw_detections(dets, detector.info.rig, images))
+        ```
     """
     from fisheye_infer.runtime.box_geometry import project_boxes
 

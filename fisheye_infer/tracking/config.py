@@ -26,11 +26,14 @@ __all__ = ["ClassConfig", "TrackerConfig", "DEFAULT_CLASSES", "TURNING_CLASSES"]
 
 @dataclass(frozen=True)
 class ClassConfig:
-    """How one class is tracked.
+    """How one class is tracked: its motion model and association gate.
 
     Args:
-        model (MotionModel): The motion model and its noise.
-        gate (float): Association gate, metres of centre distance (before the uncertainty term).
+        model (MotionModel): The motion model and its noise
+            ([`ConstantVelocity`][fisheye_infer.tracking.motion.ConstantVelocity] or
+            [`ConstantTurnRate`][fisheye_infer.tracking.motion.ConstantTurnRate]).
+        gate (float): Association gate, metres of bird's-eye-view centre distance; a pair is allowed within
+            the gate plus twice the predicted centre's standard deviation.
     """
 
     model: MotionModel
@@ -61,7 +64,7 @@ TURNING_CLASSES: dict[str, ClassConfig] = {
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Settings of a ``Tracker``.
+    """Settings of a [`Tracker`][fisheye_infer.tracking.tracker.Tracker]; every value is checked on construction.
 
     Args:
         score_threshold (float): Detections at or above it start tracks and are associated first.
@@ -78,6 +81,9 @@ class TrackerConfig:
             tracks seen once or twice (often false alarms) rank below established ones; 0 reports the score as is.
         classes (Mapping[str, ClassConfig]): Settings per class name.
         default (ClassConfig): Settings of a class the table does not name.
+
+    Raises:
+        OptionError: A value is out of range, or a class's gate is not a positive number of metres.
     """
 
     score_threshold: float = 0.3
@@ -110,4 +116,12 @@ class TrackerConfig:
                 raise OptionError(f"tracker class {name!r}: gate must be a positive number of metres, got {cc.gate!r}")
 
     def for_class(self, name: str) -> ClassConfig:
+        """The settings of one class.
+
+        Args:
+            name (str): A class name.
+
+        Returns:
+            ClassConfig: ``classes[name]``, or ``default`` for a class the table does not name.
+        """
         return self.classes.get(name, self.default)

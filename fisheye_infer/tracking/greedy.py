@@ -40,13 +40,21 @@ class _Track:
 
 
 class GreedyTracker:
-    """Greedy nearest-centre tracking with velocity projection (CenterPoint).
+    """Greedy nearest-centre tracking with velocity projection (CenterPoint's), the baseline for ``Tracker``.
+
+    Each track is its last matched box and a velocity, the difference of its last two centres over their
+    time apart. Each frame the tracks are moved by velocity x time, and the detections, highest score first,
+    each take the nearest free track of their class within the class's gate; an unpaired detection starts a
+    track at once. Every track matched at this frame is reported: no filter, no second stage, no confirmation.
 
     Args:
         score_threshold (float): Detections below it are ignored.
         max_age (int): Frames a track survives unmatched.
         gates (dict[str, float] | None): Gate per class name, metres (default: the ``Tracker``'s class gates + 1 m);
             a class not named gets 3 m.
+
+    Raises:
+        OptionError: ``score_threshold`` is outside [0, 1] or ``max_age`` is not an integer >= 0.
     """
 
     def __init__(self, score_threshold: float = 0.3, max_age: int = 3, gates: dict[str, float] | None = None) -> None:
@@ -74,6 +82,9 @@ class GreedyTracker:
 
         Returns:
             Tracks: The tracks matched or started at this frame.
+
+        Raises:
+            FrameError: The detections, stamp or pose are unusable, as for ``Tracker.update``.
         """
         t = check_update(detections, stamp, self._last_stamp)
         pose = None if ego_pose is None else check_pose(ego_pose)

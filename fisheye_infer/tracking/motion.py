@@ -45,9 +45,10 @@ def _kalman_update(
 
 @dataclass(frozen=True)
 class MotionModel:
-    """What every model shares: measurement noise of the centre, process noise, the initial speed spread.
+    """Base of the motion models: measurement noise of the centre, process noise, the initial speed spread.
 
-    Each method takes n tracks at once: states (n, d), covariances (n, d, d), boxes (n, 7).
+    Each method takes n tracks at once: states `(n, d)`, covariances `(n, d, d)`, boxes `(n, 7)` in the
+    runtime layout. A model is a frozen dataclass, so one instance serves many classes.
 
     Args:
         position_std (float): Standard deviation of a detected centre, metres.
@@ -60,25 +61,74 @@ class MotionModel:
     speed_std: float = 10.0
 
     def init(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The states of new tracks started from boxes.
+
+        Args:
+            boxes (np.ndarray): `(n, 7)` boxes ``x, y, z_bottom, l, w, h, yaw``.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: States `(n, d)` and covariances `(n, d, d)`, float64.
+        """
         raise NotImplementedError
 
     def predict(self, x: np.ndarray, p: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """The states ``dt`` seconds later.
+
+        Args:
+            x (np.ndarray): States `(n, d)`.
+            p (np.ndarray): Covariances `(n, d, d)`.
+            dt (float): Time step, seconds.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: Predicted states and covariances.
+        """
         raise NotImplementedError
 
     def update(self, x: np.ndarray, p: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The states corrected by one matched box each (Kalman update).
+
+        Args:
+            x (np.ndarray): States `(n, d)`.
+            p (np.ndarray): Covariances `(n, d, d)`.
+            boxes (np.ndarray): `(n, 7)` matched boxes, row i for track i.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: Corrected states and covariances.
+        """
         raise NotImplementedError
 
     @staticmethod
     def velocity(x: np.ndarray) -> np.ndarray:
-        """(n, 2) velocities over ground, m/s."""
+        """The velocities of states.
+
+        Args:
+            x (np.ndarray): States `(n, d)`.
+
+        Returns:
+            np.ndarray: `(n, 2)` velocities over ground, m/s.
+        """
         raise NotImplementedError
 
 
 @dataclass(frozen=True)
 class ConstantVelocity(MotionModel):
-    """State ``x, y, vx, vy``; a linear Kalman filter with white-noise acceleration."""
+    """State ``x, y, vx, vy``; a linear Kalman filter with white-noise acceleration.
+
+    Args:
+        position_std (float): Standard deviation of a detected centre, metres.
+        accel_std (float): Standard deviation of the (white-noise) acceleration, m/s^2.
+        speed_std (float): Standard deviation of the speed of a new track, m/s.
+    """
 
     def init(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """States ``x, y, vx, vy`` of new tracks at the boxes' centres, velocity 0.
+
+        Args:
+            boxes (np.ndarray): `(n, 7)` boxes ``x, y, z_bottom, l, w, h, yaw``.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: States `(n, 4)` and covariances `(n, 4, 4)`, float64.
+        """
         b = np.asarray(boxes, np.float64).reshape(-1, 7)
         x = np.zeros((len(b), 4))
         x[:, :2] = b[:, :2]
@@ -86,6 +136,16 @@ class ConstantVelocity(MotionModel):
         return x, np.repeat(p[None], len(b), 0)
 
     def predict(self, x: np.ndarray, p: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """The states ``dt`` seconds later, moving at constant velocity.
+
+        Args:
+            x (np.ndarray): States `(n, 4)`.
+            p (np.ndarray): Covariances `(n, 4, 4)`.
+            dt (float): Time step, seconds.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: Predicted states and covariances.
+        """
         f = np.eye(4)
         f[0, 2] = f[1, 3] = dt
         g = np.array([[dt * dt / 2, 0], [0, dt * dt / 2], [dt, 0], [0, dt]])
@@ -93,6 +153,16 @@ class ConstantVelocity(MotionModel):
         return x @ f.T, f @ p @ f.T + q
 
     def update(self, x: np.ndarray, p: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The states corrected by the matched boxes' centres.
+
+        Args:
+            x (np.ndarray): States `(n, 4)`.
+            p (np.ndarray): Covariances `(n, 4, 4)`.
+            boxes (np.ndarray): `(n, 7)` matched boxes, row i for track i.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: Corrected states and covariances.
+        """
         h = np.zeros((2, 4))
         h[0, 0] = h[1, 1] = 1.0
         r = np.eye(2) * self.position_std**2
@@ -100,6 +170,14 @@ class ConstantVelocity(MotionModel):
 
     @staticmethod
     def velocity(x: np.ndarray) -> np.ndarray:
+        """The velocities of states.
+
+        Args:
+            x (np.ndarray): States `(n, 4)`.
+
+        Returns:
+            np.ndarray: `(n, 2)` velocities over ground, m/s.
+        """
         return x[:, 2:4].copy()
 
 
@@ -108,6 +186,9 @@ class ConstantTurnRate(MotionModel):
     """State ``x, y, heading, speed, turn rate`` (CTRV); an extended Kalman filter.
 
     Args:
+        position_std (float): Standard deviation of a detected centre, metres.
+        accel_std (float): Standard deviation of the (white-noise) acceleration, m/s^2.
+        speed_std (float): Standard deviation of the speed of a new track, m/s.
         yaw_std (float): Standard deviation of a detected yaw, radians.
         turn_accel_std (float): Standard deviation of the turn rate's change, rad/s^2.
         turn_std (float): Standard deviation of the turn rate of a new track, rad/s.
@@ -118,6 +199,14 @@ class ConstantTurnRate(MotionModel):
     turn_std: float = 0.3
 
     def init(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """States ``x, y, heading, speed, turn rate`` of new tracks: heading from the yaw, speed and turn rate 0.
+
+        Args:
+            boxes (np.ndarray): `(n, 7)` boxes ``x, y, z_bottom, l, w, h, yaw``.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: States `(n, 5)` and covariances `(n, 5, 5)`, float64.
+        """
         b = np.asarray(boxes, np.float64).reshape(-1, 7)
         x = np.zeros((len(b), 5))
         x[:, :3] = b[:, [0, 1, 6]]
@@ -125,6 +214,16 @@ class ConstantTurnRate(MotionModel):
         return x, np.repeat(np.diag(np.square(stds))[None], len(b), 0)
 
     def predict(self, x: np.ndarray, p: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """The states ``dt`` seconds later, moving along a circle arc (first order in the turn rate near 0).
+
+        Args:
+            x (np.ndarray): States `(n, 5)`.
+            p (np.ndarray): Covariances `(n, 5, 5)`.
+            dt (float): Time step, seconds.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: Predicted states and covariances.
+        """
         px, py, th, v, w = x.T
         s0, c0 = np.sin(th), np.cos(th)
         straight = np.abs(w) < _STRAIGHT
@@ -156,6 +255,16 @@ class ConstantTurnRate(MotionModel):
         return new, f @ p @ f.transpose(0, 2, 1) + q
 
     def update(self, x: np.ndarray, p: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The states corrected by the matched boxes' centres and yaws (the yaw up to a half turn).
+
+        Args:
+            x (np.ndarray): States `(n, 5)`.
+            p (np.ndarray): Covariances `(n, 5, 5)`.
+            boxes (np.ndarray): `(n, 7)` matched boxes, row i for track i.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: Corrected states and covariances.
+        """
         b = np.asarray(boxes, np.float64)
         h = np.zeros((3, 5))
         h[0, 0] = h[1, 1] = h[2, 2] = 1.0
@@ -167,4 +276,12 @@ class ConstantTurnRate(MotionModel):
 
     @staticmethod
     def velocity(x: np.ndarray) -> np.ndarray:
+        """The velocities of states: speed along the heading.
+
+        Args:
+            x (np.ndarray): States `(n, 5)`.
+
+        Returns:
+            np.ndarray: `(n, 2)` velocities over ground, m/s.
+        """
         return x[:, 3:4] * np.column_stack([np.cos(x[:, 2]), np.sin(x[:, 2])])

@@ -81,11 +81,31 @@ class _Bank:
 
 
 class Tracker:
-    """Tracks of the boxes of a stream of frames; see the module docstring for the algorithm.
+    """3D multi-object tracking by detection: one [`update`][fisheye_infer.tracking.tracker.Tracker.update] per frame.
+
+    Each frame, every live track is predicted to the frame's stamp by its class's motion model (a Kalman
+    filter); detections at or above ``score_threshold`` are paired with the predictions by the minimum total
+    centre distance among same-class pairs within the gate; the tracks left over then try the detections
+    between ``low_score`` and ``score_threshold``, which keep a track alive but never start one. Unpaired
+    confident detections start tentative tracks, confirmed after ``min_hits`` matches; a tentative track dies
+    at its first miss, a confirmed one after ``max_coast`` seconds without a match. A frame whose detections
+    used fewer cameras than the tracker has seen counts no misses. With ego poses the tracks live in the
+    world frame, so the robot's own motion neither moves nor speeds them. The same inputs give the same tracks.
 
     Args:
         config (TrackerConfig | None): Thresholds, birth and death rules, per-class models (default:
-            ``TrackerConfig()``).
+            ``TrackerConfig()``; see [`TrackerConfig`][fisheye_infer.tracking.config.TrackerConfig]).
+
+    Examples:
+        ```python
+        from fisheye_infer import Detector, Tracker
+
+        detector, tracker = Detector("model.onnx"), Tracker()
+        for frame, stamp, pose in stream:
+            tracks = tracker.update(detector.detect(frame), stamp, ego_pose=pose)
+            print(stamp, tracks.ids, tracks.velocities)
+        tracker.reset()                  # before an unrelated stream
+        ```
     """
 
     def __init__(self, config: TrackerConfig | None = None) -> None:
@@ -119,6 +139,10 @@ class Tracker:
 
         Returns:
             Tracks: The confirmed tracks matched at this frame, boxes and velocities in this frame's ego frame.
+
+        Raises:
+            FrameError: ``detections`` is not a Detections or holds NaN, the stamp is not a finite number or does
+                not increase, the pose is not a rigid 4x4 transform, or the class list changed.
         """
         t = check_update(detections, stamp, self._last_stamp)
         pose = None if ego_pose is None else check_pose(ego_pose)

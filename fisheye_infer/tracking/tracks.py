@@ -26,7 +26,25 @@ __all__ = ["Tracks"]
 
 @dataclass(frozen=True)
 class Tracks:
-    """The tracks of one frame that a detection confirmed at ``stamp``, in order of track id."""
+    """The tracks of one frame that a detection confirmed at ``stamp``, in order of track id.
+
+    Boxes are in the frame of the detections they came from (the ego frame at ``stamp``); velocities are over
+    ground (the ego's own motion taken out when the tracker was given ego poses), in that frame's axes.
+
+    Attributes:
+        ids (np.ndarray): `(K,)` int64 track ids, unique while the tracker lives (never reused, even after a reset).
+        boxes (np.ndarray): `(K, 7)` float32 ``x, y, z_bottom, l, w, h, yaw``, metres and radians.
+        velocities (np.ndarray): `(K, 2)` float32 velocities over ground, m/s.
+        scores (np.ndarray): `(K,)` float32 score of each track: the detection's at this frame (a ``Tracker``
+            weights young tracks down by ``TrackerConfig.young_weight``).
+        labels (np.ndarray): `(K,)` int64 class indices into ``class_names``.
+        ages (np.ndarray): `(K,)` int64 frames since each track was born (0 on its first frame).
+        class_names (tuple[str, ...]): Class names, in label order.
+        stamp (float): The frame's time, seconds.
+
+    Raises:
+        ValueError: An array's shape disagrees with ``boxes``.
+    """
 
     ids: np.ndarray  # (K,) int64, unique while the tracker lives (and after a reset: never reused)
     boxes: np.ndarray  # (K, 7) float32
@@ -46,6 +64,15 @@ class Tracks:
 
     @classmethod
     def empty(cls, class_names: Sequence[str], stamp: float = 0.0) -> Tracks:
+        """No tracks.
+
+        Args:
+            class_names (Sequence[str]): Class names, in label order.
+            stamp (float): The frame's time, seconds.
+
+        Returns:
+            Tracks: An object with K = 0.
+        """
         z = np.zeros(0, np.int64)
         return cls(
             z, np.zeros((0, 7), np.float32), np.zeros((0, 2), np.float32), np.zeros(0, np.float32), z, z,
@@ -70,15 +97,25 @@ class Tracks:
         return [self.class_names[i] for i in self.labels]
 
     def detection_records(self) -> list[dict[str, Any]]:
-        """nuScenes-style detection records (as ``Detections.to_nuscenes``) with ``velocity`` from the track."""
+        """Detection records with the velocity filled in from the track.
+
+        Returns:
+            list[dict[str, Any]]: One record per track, as
+                [`Detections.to_nuscenes`][fisheye_infer.runtime.detections.Detections.to_nuscenes] writes them,
+                with ``velocity`` (vx, vy, m/s).
+        """
         records = boxes_to_records(self.boxes, self.scores, self.labels, self.class_names)
         for record, v in zip(records, self.velocities.tolist()):
             record["velocity"] = [float(v[0]), float(v[1])]
         return records
 
     def to_nuscenes(self) -> list[dict[str, Any]]:
-        """nuScenes tracking results records: ``translation``, ``size``, ``rotation``, ``velocity``,
-        ``tracking_id`` (a string), ``tracking_name``, ``tracking_score``."""
+        """nuScenes tracking results records, as the tracking evaluation reads them.
+
+        Returns:
+            list[dict[str, Any]]: One record per track: ``translation``, ``size``, ``rotation``, ``velocity``,
+                ``tracking_id`` (a string), ``tracking_name``, ``tracking_score``.
+        """
         out = []
         for record, track_id in zip(self.detection_records(), self.ids.tolist()):
             out.append(
@@ -95,7 +132,12 @@ class Tracks:
         return out
 
     def to_dicts(self) -> list[dict[str, Any]]:
-        """One plain dict per track, in this object's layout (bottom-centred, ego frame)."""
+        """One plain dict per track, in this object's layout (bottom-centred, ego frame).
+
+        Returns:
+            list[dict[str, Any]]: ``track_id, x, y, z_bottom, l, w, h, yaw, vx, vy, score, label, class_name,
+                age`` per track.
+        """
         keys = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
         return [
             {

@@ -262,7 +262,8 @@ def compact_cyl_petr_config() -> Any:
     )
 
 
-#: Architecture -> its compact configuration and the rig it trains on.
+#: The trainable architectures (``trainable.TRAINABLE``, ``fisheye-infer train --arch``) -> each one's compact
+#: configuration and the rig it trains on.
 COMPACT: dict[str, tuple[Callable[[], Any], Callable[[], Rig]]] = {
     "fisheye-bevdet": (compact_bevdet_config, compact_rig),
     "fisheye-petr": (compact_petr_config, compact_rig),

@@ -16,7 +16,7 @@ function of the step, so a run is a pure function of its options: resuming from 
 continues with exactly the frames and rates the uninterrupted run would have used (the options and the
 schedule are ``options.py``'s, the step batches ``batches.py``'s).
 
-A run folder holds::
+A run folder holds:
 
     config.py        the model configuration as an mmdet3d-style config (for ``fisheye-infer export --config``)
     rig.json         the rig the model was trained for (for ``--rig``)
@@ -42,7 +42,6 @@ from fisheye_infer.errors import CheckpointError, ConfigError
 from fisheye_infer.geometry.lss import LSSGeometry
 from fisheye_infer.geometry.petr import PETRGeometry
 from fisheye_infer.scenes.streams import SyntheticFrames
-from fisheye_infer.tools.files import pending_file
 
 from ..fisheye_bevdet import FisheyeBEVDet
 from ..fisheye_petr import FisheyePETR
@@ -52,83 +51,20 @@ from .config_file import write_config
 from .lens_jitter import LensGeometry, LensJitter
 from .objectives import objective_for
 from .options import TrainOptions, lr_factor, training_device
+from .progress import ProgressBar, loss_terms
 from .qat import FakeQuant
+from .run_checkpoints import (
+    BACKBONE_PREFIXES,
+    atomic_save,
+    backbone_state,
+    check_origin,
+    grown_queries,
+    recorded_options,
+    saved_options,
+)
+from .trainable import TRAINABLE, arch_of, read_config_file
 
 __all__ = ["Trainer", "TRAINABLE", "arch_of", "read_config_file", "saved_options"]
-
-#: What ``init_backbone`` loads: the image backbone and its neck, the same modules in every architecture.
-BACKBONE_PREFIXES = ("img_backbone.", "img_neck.")
-#: A query-based head's learned reference points, one row per query: what ``--init`` may grow.
-QUERY_TABLE = "pts_bbox_head.reference_points.weight"
-#: The architectures ``Trainer`` trains (each has an objective in ``objectives.py`` and a compact configuration
-#: in ``compact.py``): the paper's two detectors and the baselines of its Table 2.
-TRAINABLE = (
-    "fisheye-bevdet",
-    "fisheye-petr",
-    "pinhole-bevdet",
-    "fisheye-bevdet-persp",
-    "fisheye-bevdet-cyl",
-    "pinhole-petr",
-    "fisheye-petr-persp",
-    "fisheye-petr-cyl",
-)
-
-
-def arch_of(config: Any) -> str:
-    """The trainable architecture whose configuration class ``config`` is."""
-    from fisheye_infer.models import get_model_entry
-
-    for name in TRAINABLE:
-        if type(config) is get_model_entry(name).config_cls:
-            return name
-    raise ConfigError(f"no trainable architecture takes a {type(config).__name__} (trainable: {', '.join(TRAINABLE)})")
-
-
-def read_config_file(path: str | Path) -> Any:
-    """The configuration of an mmdet3d-style file of a trainable architecture: the one whose reader takes it."""
-    from fisheye_infer.models import get_model_entry
-
-    read, refusals = [], []
-    for name in TRAINABLE:
-        try:
-            read.append(get_model_entry(name).config_cls.from_mmdet3d_config(path))
-        except ConfigError as exc:
-            refusals.append(f"{name}: {exc}")
-    if len(read) == 1:
-        return read[0]
-    if not read:
-        raise ConfigError(f"{path} is no configuration of a trainable architecture:\n  " + "\n  ".join(refusals))
-    raise ConfigError(f"{path} reads as several architectures ({', '.join(arch_of(c) for c in read)})")
-
-
-def saved_options(folder: Path) -> dict[str, Any]:
-    """The options the run in ``folder`` was started with (its ``checkpoint.pth``), so that ``--resume``
-    need repeat none of them; ``{}`` when the folder has no checkpoint yet."""
-    path = folder / "checkpoint.pth"
-    if not path.is_file():
-        return {}
-    # memory-mapped: only the metadata is read here; ``Trainer.resume`` loads the weights
-    return _saved_options(torch.load(path, map_location="cpu", weights_only=True, mmap=True).get("meta", {}))
-
-
-def _saved_options(meta: dict[str, Any]) -> dict[str, Any]:
-    # runs made before fine-tuning, int8 simulation, backbone initialisation and lens jitter existed lack those fields
-    saved = {
-        "init": "",
-        "qat": 0.0,
-        "init_backbone": "",
-        "freeze_backbone": False,
-        "lens_jitter": 0.0,
-        **meta.get("train_options", {}),
-    }
-    return {field.name: saved[field.name] for field in dataclasses.fields(TrainOptions) if field.name in saved}
-
-
-def _atomic_save(obj: Any, path: Path) -> None:
-    """A checkpoint appears whole or not at all: a run killed mid-save leaves the previous one."""
-    with pending_file(path) as pending:
-        torch.save(obj, pending.path)
-        pending.commit()
 
 
 def lens_jitter(model: torch.nn.Module, arch: str, rig: Rig, options: TrainOptions) -> LensJitter:
@@ -223,11 +159,11 @@ class Trainer:
         state = {k: v.detach().cpu().contiguous() for k, v in self.model.official_state_dict().items()}
         meta = self._meta()
         fake_quant = self.fake_quant.state() if self.fake_quant is not None else {}
-        _atomic_save(
+        atomic_save(
             {"state_dict": state, "meta": meta, "optimizer": self.optimizer.state_dict(), "fake_quant": fake_quant},
             self.out / "checkpoint.pth",
         )
-        _atomic_save({"state_dict": state, "meta": meta}, self.out / "model.pth")
+        atomic_save({"state_dict": state, "meta": meta}, self.out / "model.pth")
         return self.out / "model.pth"
 
     def resume(self) -> int:
@@ -239,8 +175,8 @@ class Trainer:
             raise CheckpointError(f"--resume: {path} does not exist (start the run without --resume)")
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
         meta = ckpt.get("meta", {})
-        self._check_origin(meta, f"--resume: {path}", recorded=True)
-        saved = _saved_options(meta)
+        check_origin(meta, self.config, self.rig, f"--resume: {path}", recorded=True)
+        saved = recorded_options(meta)
         mine = dataclasses.asdict(self.options)
         starts = ("init", "init_backbone")  # where the run's weights started; checkpoint.pth holds them now
         differ = [
@@ -276,28 +212,9 @@ class Trainer:
         path = Path(self.options.init)
         if not path.is_file():
             raise CheckpointError(f"--init: {path} does not exist")
-        state_dict, meta = self._grown_queries(*load_checkpoint(path))
-        self._check_origin(meta, f"--init: {path}", recorded=False)
+        state_dict, meta = grown_queries(self.model, self.config, *load_checkpoint(path))
+        check_origin(meta, self.config, self.rig, f"--init: {path}", recorded=False)
         load_official_state_dict(self.model, state_dict, geometry="rig", context=f"--init {path}")
-
-    def _grown_queries(
-        self, state_dict: dict[str, torch.Tensor], meta: dict[str, Any]
-    ) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-        """A checkpoint of this configuration but for fewer queries (``num_query``) becomes one of this
-        configuration: its reference points are the first of this run's, the others keep their seeded
-        ones, so a trained decoder takes more queries without starting over. Any other checkpoint is
-        returned as it is, for ``_check_origin`` to judge."""
-        mine, theirs = self.config.to_dict(), meta.get("config")
-        wanted = mine.get("head", {}).get("num_query")
-        if wanted is None or not isinstance(theirs, dict) or not isinstance(theirs.get("head"), dict):
-            return state_dict, meta
-        have = theirs["head"].get("num_query")
-        grown = {**theirs, "head": {**theirs["head"], "num_query": wanted}}
-        if not isinstance(have, int) or have >= wanted or grown != mine:
-            return state_dict, meta
-        table = self.model.state_dict()[QUERY_TABLE].clone()
-        table[:have] = state_dict[QUERY_TABLE]
-        return {**state_dict, QUERY_TABLE: table}, {**meta, "config": mine}
 
     def load_backbone(self) -> None:
         """Start the image backbone and neck (``img_backbone.*``, ``img_neck.*``) from ``options.init_backbone``,
@@ -308,34 +225,7 @@ class Trainer:
         if not path.is_file():
             raise CheckpointError(f"--init-backbone: {path} does not exist")
         state_dict, _meta = load_checkpoint(path)
-        mine = {k: v for k, v in self.model.state_dict().items() if k.startswith(BACKBONE_PREFIXES)}
-        theirs = {k: v for k, v in state_dict.items() if k.startswith(BACKBONE_PREFIXES)}
-        missing = sorted(set(mine) - set(theirs))
-        if missing:
-            raise CheckpointError(f"--init-backbone: {path} has no {missing[0]} ({len(missing)} backbone keys missing)")
-        for k, v in mine.items():
-            if tuple(theirs[k].shape) != tuple(v.shape):
-                theirs_shape, mine_shape = tuple(theirs[k].shape), tuple(v.shape)
-                raise CheckpointError(
-                    f"--init-backbone: {path}: {k} is {theirs_shape}, this configuration's is {mine_shape}"
-                )
-        self.model.load_state_dict(theirs, strict=False)
-
-    def _check_origin(self, meta: dict[str, Any], what: str, recorded: bool) -> None:
-        """Refuse a checkpoint whose ``meta`` names another configuration or rig than this run's
-        (``recorded``: both must be there, as in this loop's own checkpoints)."""
-        mine = self.config.to_dict()
-        if (recorded or "config" in meta) and meta.get("config") != mine:
-            theirs = meta.get("config") or {}
-            sections = sorted(k for k in {*mine, *theirs} if mine.get(k) != theirs.get(k))
-            raise CheckpointError(
-                f"{what} was trained with another model configuration (differs in: {', '.join(sections)})"
-            )
-        if (recorded or "rig_hash" in meta) and meta.get("rig_hash") != self.rig.hash:
-            raise CheckpointError(
-                f"{what} was trained for rig {meta.get('rig')!r} ({meta.get('rig_hash')}), "
-                f"not {self.rig.name!r} ({self.rig.hash})"
-            )
+        self.model.load_state_dict(backbone_state(self.model, state_dict, path), strict=False)
 
     # -- training ---------------------------------------------------------------------------
 
@@ -419,7 +309,7 @@ class Trainer:
                     if self.options.val_frames:
                         terms = self.validate()
                         log.write(json.dumps({"step": self.step, "split": "val", **terms}) + "\n")
-                        bar.note(f"step {self.step}: validation {_terms(terms, self.objective.terms)}")
+                        bar.note(f"step {self.step}: validation {loss_terms(terms, self.objective.terms)}")
                     bar.note(f"step {self.step}: wrote {self.save()}")
         bar.close()
         self.objective.settle()
@@ -430,41 +320,3 @@ class Trainer:
     def _batches(self, stop: int) -> torch.utils.data.DataLoader[Batch]:
         """The frames of steps ``self.step`` .. ``stop - 1``, in order, rendered ahead by ``workers`` processes."""
         return step_loader(self.train_batches, self.step, stop, self.workers)
-
-
-class ProgressBar:
-    """One redrawn status line: step, bar, smoothed loss terms, seconds per step and time left."""
-
-    WIDTH = 24
-
-    def __init__(self, total: int, done: int, terms: tuple[str, ...], write: Callable[[str], None] | None) -> None:
-        import sys
-
-        self.total, self.done, self.terms = total, done, terms
-        self.mean: dict[str, float] = {}
-        self.write = write or (lambda text: (sys.stderr.write(text), sys.stderr.flush()))
-        self.seconds: float | None = None
-
-    def update(self, row: dict[str, float]) -> None:
-        self.done = int(row["step"])
-        for k in self.terms:
-            self.mean[k] = row[k] if k not in self.mean else 0.9 * self.mean[k] + 0.1 * row[k]
-        self.seconds = row["seconds"] if self.seconds is None else 0.9 * self.seconds + 0.1 * row["seconds"]
-        filled = int(self.WIDTH * self.done / self.total)
-        left = (self.total - self.done) * self.seconds
-        self.write(
-            f"\r{self.done}/{self.total} [{'#' * filled}{'.' * (self.WIDTH - filled)}] {_terms(self.mean, self.terms)} "
-            f"{self.seconds:.1f} s/step, {left / 60:.0f} min left "
-        )
-
-    def note(self, text: str) -> None:
-        self.write(f"\n{text}\n")
-
-    def close(self) -> None:
-        self.write("\n")
-
-
-def _terms(values: dict[str, float], names: tuple[str, ...]) -> str:
-    """``loss 1.234 (cls 0.5 bbox 0.7 ...)``: the loss and its terms, short names."""
-    parts = [f"{n.removeprefix('loss_')} {values[n]:.3f}" for n in names if n != "loss"]
-    return f"loss {values['loss']:.3f} ({' '.join(parts)})"

@@ -6,7 +6,7 @@
                   proposals aim at their box's class, the others at "no class"; weight 1, / positives
     loss_bbox     L1 of the 8-number box code of matched proposals, code_weights all 1; weight 0.25, / positives
 
-Proposals are matched by :func:`train.assign.hungarian_assign` on their decoded boxes; the
+Proposals are matched by `train.assign.hungarian_assign` on their decoded boxes; the
 returned ``matched_iou`` is the mean 3D IoU of the matches (a progress figure, not a loss).
 """
 

@@ -8,7 +8,7 @@ Per decoder layer (all six, the auxiliary ones included, each with the shared br
                queries (x, y, z in metres, r = -yaw - pi/2 as ``normalize_bbox``), code weights all 1;
                weight 0.25, / max(positives, 1)
 
-Each layer is matched on its own by :func:`detr_assign` (``HungarianAssigner3D``): the cost is
+Each layer is matched on its own by `detr_assign` (``HungarianAssigner3D``): the cost is
 ``FocalLossCost`` (weight 2) of the class logits plus ``BBox3DL1Cost`` (weight 0.25), the L1
 distance of the first eight numbers of the code; the IoU cost has weight 0.
 """

@@ -4,7 +4,7 @@
     ws://127.0.0.1:8000/stream?track=true&track_score=0.15
 
 Options are query parameters (the ``/detect`` form fields). ``track=true`` gives the connection a tracker of its
-own (:class:`~fisheye_infer.tracking.Tracker`, ``track_score`` starts tracks, a third of it keeps them alive; default
+own ([`Tracker`][fisheye_infer.tracking.Tracker], ``track_score`` starts tracks, a third of it keeps them alive; default
 the score threshold, else the tracker's): every answer then carries ``tracks`` (ids, boxes, velocities over ground,
 ages), the tracker fed every box of the frame at the time the server received it. A new connection starts new
 tracks; the tracker goes with its connection. Each connection runs two tasks:

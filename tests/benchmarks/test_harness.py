@@ -21,6 +21,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import harness
 import report
+import report_charts
+import report_index
+import report_pages
+import report_study
+import report_tables
 import run_all
 
 HOST = {
@@ -239,12 +244,169 @@ def test_report_tables_carry_the_figures_command_machine_and_date(tmp_path: Path
     page = pages[f"{HOST['slug']}.md"]
     assert report.NOTICE in page and report.NOTICE in pages["index.md"]
     assert f"({HOST['slug']}.md)" in pages["index.md"]
-    section = page[page.index("### Latency") :]
-    head = section.splitlines()[2]
-    assert f"`python {tmp_path / 'thing.py'} --quick --out-dir {tmp_path / 'results'}`" in head
-    assert "Test CPU 9000 (family 6, model 143), 2 cores" in head and "onnxruntime 1.20.0" in head
-    assert "2025-01-02 03:04 UTC" in head
+    assert page.startswith("# 2-core Test CPU 9000 (family 6, model 143)\n")
+    assert f"## {report_pages.OTHER}" in page and "### thing" in page  # a benchmark GROUPS does not name
+    section = page[page.index("#### Latency") :]
     assert "| fp32 | 413 |" in section and "| int8 | 0.0417 |" in section
+    provenance = next(line for line in section.splitlines() if line.startswith("Command: "))
+    assert section.index("| int8 |") < section.index(provenance)  # under the table
+    assert f"`python {tmp_path / 'thing.py'} --quick --out-dir {tmp_path / 'results'}`" in provenance
+    assert "2-core Test CPU 9000 (family 6, model 143)" in provenance and "onnxruntime 1.20.0" in provenance
+    assert "2025-01-02 03:04 UTC" in provenance
+
+
+def test_a_block_of_several_tables_states_its_provenance_once_and_tabs_them(tmp_path: Path) -> None:
+    saved(tmp_path, {"A": [{"v": 1.0}], "B": [{"w": 2.0}]}, name="compare")
+    page = report.render(harness.read_results(tmp_path / "results"))[f"{HOST['slug']}.md"]
+    assert page.count("Command: ") == 1
+    assert '=== "A"' in page and '=== "B"' in page and "    | 1.00 |" in page
+    question, title = report_pages.GROUPS["compare"]
+    assert page.index(f"## {question}") < page.index(f"### {title}") < page.index('=== "A"')
+
+
+@pytest.mark.parametrize(
+    "host, words",
+    [
+        ({**HOST, "cpu_name": "AMD EPYC", "cpu_family": "25", "cpu_model": "17"}, "2-core AMD EPYC (Zen 4)"),
+        ({**HOST, "cpu_name": "AMD EPYC", "cpu_family": "25", "cpu_model": "1"}, "2-core AMD EPYC (Zen 3)"),
+        (
+            {**HOST, "cpu_name": "Intel(R) Xeon(R) Platinum 8480C"},
+            "2-core Intel(R) Xeon(R) Platinum 8480C (Sapphire Rapids)",
+        ),
+        ({**HOST, "cpu_name": "Odd CPU", "cpu_family": "9", "cpu_model": "9"}, "2-core Odd CPU (family 9, model 9)"),
+        ({**HOST, "gpus": ["NVIDIA H200, 570.1"]}, "2-core Test CPU 9000 (family 6, model 143), NVIDIA H200"),
+    ],
+)
+def test_machine_in_words(host: dict[str, Any], words: str) -> None:
+    assert report_tables.machine_words(host) == words
+
+
+def test_fitted_table_notes_the_columns_of_one_value_and_the_long_texts() -> None:
+    long = "x" * (report_tables.LONG_CELL + 1)
+    rows = [{"file": "a", "threads": 2, "scope": long, "ms": 1.5}, {"file": "b", "threads": 2, "scope": "s", "ms": 2.5}]
+    text = report_tables.fitted_table(rows)
+    assert text.startswith("Every row: threads: 2.\n")
+    assert "| file | scope | ms |" in text and "| a | note 1 | 1.50 |" in text and f"1. {long}" in text
+    assert report_tables.fitted_table([{"file": "a", "threads": 2}]).count("threads") == 1  # one row: kept
+
+
+def test_a_wide_table_is_split_with_the_columns_that_name_its_rows() -> None:
+    rows = [
+        {"model": m, "tracker": t, **{f"metric {i}": float(i) for i in range(12)}, "paper metric 3": 9.0}
+        for m in ("one", "two")
+        for t in ("A", "B")
+    ]
+    parts = report_tables.split_columns(rows)
+    assert len(parts) > 1 and all(part[:2] == ["model", "tracker"] for part in parts)
+    assert sum(report_tables.column_px(c, rows) for c in parts[0]) <= report_tables.PAGE_PX
+    flat = [c for part in parts for c in part[2:]]
+    assert sorted(flat) == sorted(c for c in rows[0] if c not in ("model", "tracker"))
+    assert flat.index("paper metric 3") == flat.index("metric 3") + 1  # the paper's figure beside ours
+    unique = [{"model": m, "row": f"{m} long", **{f"metric {i}": 1.0 for i in range(12)}} for m in ("a", "b")]
+    assert [part[:1] for part in report_tables.split_columns(unique)[1:]] == [["model"]] * 2
+    assert report_tables.split_columns(unique)[0][:2] == ["model", "row"]
+
+
+def test_short_title_moves_a_long_parenthesis_out_of_the_heading() -> None:
+    scope = "network: 28 weighted layers, 20 in the image backbone+neck and 8 beyond it; float32: heads"
+    assert report_tables.short_title(f"int8 ({scope}) against the fp32 file") == ("int8 against the fp32 file", scope)
+    title = "Table 2 (RQ1/RQ2): every model with all its cameras, 0-48 m, 200 held-out scenes"
+    assert report_tables.short_title(title) == (title, "")
+
+
+def _int8_result(date: str = "2025-01-02T03:04:05Z", quick: bool = False) -> dict[str, Any]:
+    latency = [
+        {"threads": t, "file": f, "median ms": ms}
+        for t, f, ms in ((1, "fp32", 100.0), (1, "auto", 40.0), (2, "fp32", 60.0), (2, "auto", 30.0))
+    ]
+    return {
+        "benchmark": "int8",
+        "command": "python benchmarks/int8.py" + (" --quick" if quick else ""),
+        "machine": HOST,
+        "date": date,
+        "parameters": {"quick": quick, "ckpt": "/x/models/pretrained/fisheye_bevdet_compact/model.pth"},
+        "measurements": {"Latency, one frame, files in turns": latency},
+    }
+
+
+def test_the_index_answers_how_fast_on_what() -> None:
+    quick = {**_int8_result("2025-02-01T00:00:00Z", quick=True), "measurements": {}}
+    index = report_index.index_page([_int8_result(), quick])
+    assert "## 2-core Test CPU 9000 (family 6, model 143)" in index and "### fisheye-bevdet-compact" in index
+    assert "| precision | threads | frame ms | frames/s | speed-up |" in index
+    assert "| fp32 | 1 | 100 | 10.0 | 1.00 |" in index and "| int8 | 2 | 30.0 | 33.3 | 2.00 |" in index
+    assert "Command: `python benchmarks/int8.py` · 2-core Test CPU 9000" in index
+    assert f"../assets/charts/frame-time-{HOST['slug']}.svg" in index
+
+
+def test_the_headline_prefers_the_result_that_times_most_precisions_then_not_quick() -> None:
+    quick = _int8_result("2025-02-01T00:00:00Z", quick=True)
+    [(result, rows)] = report_index.headline([_int8_result(), quick]).values()
+    assert result["command"] == "python benchmarks/int8.py" and len(rows) == 4
+
+
+def test_the_stage_table_says_why_its_stages_add_up_to_more() -> None:
+    stages = "fisheye-infer bench: graph stages, batch 1"
+    result = {"benchmark": "compare", **_int8_result(), "measurements": {stages: [{"stage": "head", "ms": 1.0}]}}
+    block = "\n".join(report_pages.result_block({**result, "benchmark": "compare"}))
+    assert "nothing is fused across a cut" in block
+
+
+@pytest.mark.parametrize(
+    "comparison, finding",
+    [
+        ("BEVDet 6 x P vs BEVDet 4 x F, perspective-rectified", "RQ1"),
+        ("FisheyeBEVDet vs BEVDet 6 x P", "RQ1"),
+        ("FisheyeBEVDet vs BEVDet 4 x F, cylindrically rectified", "RQ2"),
+        ("FDS lost without front and rear: BEVDet 6 x P vs FisheyeBEVDet left + right, run time", "RF1"),
+        ("FisheyePETR: front + rear vs left + right, run time", "RF2"),
+        ("FisheyeBEVDet: 0-30 m vs 0-48 m", "RF3"),
+    ],
+)
+def test_each_comparison_of_the_study_has_its_finding(comparison: str, finding: str) -> None:
+    assert report_study.finding_of(comparison).startswith(finding)
+
+
+def test_the_study_page_opens_with_the_answer() -> None:
+    """docs/study.md: the answer (findings table and chart) before the method and the tables."""
+    page = (ROOT / "docs" / "study.md").read_text()
+    begin = report.answer_begin(report.ANSWER_COMMAND)
+    assert page.index(begin) < page.index("## Method") < page.index(report.card_begin(report.ANSWER_COMMAND))
+    answer = page[page.index(begin) : page.index(report.CARD_END, page.index(begin))]
+    assert "| finding |" in answer and "assets/charts/study-bevdet-family.svg" in answer
+    assert answer.count("Command: ") == 1
+    results = harness.read_results(harness.RESULTS)
+    assert report.study_answer(results, page) == page, "run `python benchmarks/report.py`"
+
+
+def test_committed_charts_are_there_and_are_svg() -> None:
+    """Every chart the committed results give is under docs/assets/charts/ and is an SVG document, and no other.
+
+    The bytes are not compared with a fresh drawing: matplotlib's SVG differs between its versions. Within one
+    version the drawing is deterministic (``test_charts_are_deterministic``).
+    """
+    import xml.etree.ElementTree as ET
+
+    names = report_charts.planned(report.latest(harness.read_results(harness.RESULTS)), report.STUDY_CHARTS)
+    assert {"int8-accuracy.svg", "study-bevdet-family.svg", "study-shipped.svg"} <= set(names)
+    assert sorted(p.name for p in report_charts.CHARTS.glob("*.svg")) == sorted(names)
+    for name in names:
+        root = ET.parse(report_charts.CHARTS / name).getroot()
+        assert root.tag == "{http://www.w3.org/2000/svg}svg", name
+    for page in [*report.DOCS.glob("*.md"), ROOT / "docs" / "study.md"]:
+        for target in re.findall(r"\]\(([^)]*assets/charts/[^)]+)\)", page.read_text()):
+            assert (page.parent / target).resolve().is_file(), f"{page.name}: chart {target}"
+
+
+def test_charts_are_deterministic(tmp_path: Path) -> None:
+    """Two drawings of the same results are the same bytes (fixed hash salt, no date)."""
+    pytest.importorskip("matplotlib")
+    results = [_int8_result()]
+    first = report_charts.write_charts(results, {}, tmp_path / "a")
+    second = report_charts.write_charts(results, {}, tmp_path / "b")
+    assert [p.name for p in first] == [f"frame-time-{HOST['slug']}.svg"]
+    assert first[0].read_bytes() == second[0].read_bytes()
+    assert b"<dc:date>" not in first[0].read_bytes()
 
 
 def test_report_keeps_the_latest_result_of_each_command(tmp_path: Path) -> None:
@@ -268,6 +430,7 @@ def test_report_writes_pages_and_removes_stale_generated_ones(tmp_path: Path) ->
     assert report.main(argv) == 0
     assert sorted(p.name for p in docs.glob("*.md")) == sorted(["index.md", f"{HOST['slug']}.md", "notes.md"])
     assert card.read_text() == empty  # no model_card result: unchanged
+    assert not list((tmp_path / "assets" / "charts").glob("*.svg"))  # no result that a chart shows
 
 
 def test_model_card_figures_come_from_the_latest_model_card_result(tmp_path: Path) -> None:
@@ -284,7 +447,7 @@ def test_model_card_figures_come_from_the_latest_model_card_result(tmp_path: Pat
     text = report.card_figures([older, result, quick], card)
     block = text[text.index(begin) : text.index(report.CARD_END)]
     assert "### Sensor failure" in block and "| front + rear | 0.335 |" in block and "old tables" not in block
-    assert f"`{report.CARD_COMMAND}`" in block and "| 0.100 |" not in block and "--quick" not in block
+    assert f"Command: `{report.CARD_COMMAND}`" in block and "| 0.100 |" not in block and "--quick" not in block
     assert text.startswith("# card\n\n## Figures") and text.endswith(f"{report.CARD_END}\n\n## Limitations\n")
     with pytest.raises(ValueError, match="no"):
         report.card_figures([result], "# a card without the markers\n")
@@ -326,9 +489,17 @@ def test_committed_model_card_figures_are_what_the_report_generates(command: str
     assert card == report.card_figures(results, card, command), "run `python benchmarks/report.py`"
 
 
-def test_committed_pages_link_only_to_pages_beside_them() -> None:
+def test_committed_pages_link_only_to_pages_beside_them_their_sections_and_charts() -> None:
     for path in report.DOCS.glob("*.md"):
-        for target in re.findall(r"\]\(([^)]+)\)", path.read_text()):
+        text = path.read_text()
+        anchors = {report_pages.anchor(line.lstrip("#")) for line in text.splitlines() if line.startswith("#")}
+        for target in re.findall(r"\]\(([^)]+)\)", text):
+            if target.startswith("#"):
+                assert target[1:] in anchors, f"{path.name}: link {target}"
+                continue
+            if target.startswith(f"{report_index.CHARTS}/"):
+                assert (report.DOCS / target).resolve().is_file(), f"{path.name}: chart {target}"
+                continue
             assert "/" not in target and (report.DOCS / target).is_file(), f"{path.name}: link {target}"
 
 
@@ -336,7 +507,7 @@ def test_committed_pages_link_only_to_pages_beside_them() -> None:
 
 
 def _scripts() -> set[str]:
-    return {p.stem for p in (ROOT / "benchmarks").glob("*.py")} - {
+    return {p.stem for p in (ROOT / "benchmarks").glob("*.py") if not p.stem.startswith("report_")} - {
         "harness",
         "report",
         "model_files",

@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fisheye_infer.cli import main
+from fisheye_infer.deploy.triton.python_backend import MODEL_PY, TritonPythonModel, check_request
 from fisheye_infer.deploy.triton.repository import (
     TritonOptions,
     model_config,
@@ -15,7 +17,7 @@ from fisheye_infer.deploy.triton.repository import (
     render_pbtxt,
     write_repository,
 )
-from fisheye_infer.errors import ArtifactError, ExportError
+from fisheye_infer.errors import ArtifactError, ExportError, FrameError
 from fisheye_infer.runtime.artifact import METADATA_KEY, read_meta
 
 pytest.importorskip("tritonclient.grpc", reason="the [triton] extra ships Triton's ModelConfig protobuf")
@@ -93,6 +95,8 @@ def test_without_batching_the_batch_axis_is_in_the_dims(small_export) -> None:
         ({"instances": 0}, "instances"),
         ({"name": "../escape"}, "name: '../escape'"),  # a name that would leave the repository
         ({"gpus": (0,)}, "gpus: only for kind='gpu'"),
+        ({"backend": "python", "kind": "gpu"}, "the python form runs ONNX Runtime on the CPU"),
+        ({"backend": "tensorflow"}, "backend: expected onnxruntime or python"),
     ],
 )
 def test_bad_options_are_named(options: dict, message: str) -> None:
@@ -141,3 +145,37 @@ def test_command(small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "tritonserver --model-repository=/models" in capsys.readouterr().out
     assert main(["triton", str(small_export.onnx), "--out", str(tmp_path), "--tensorrt"]) == 1
     assert "tensorrt: TensorRT runs on GPU instances" in capsys.readouterr().err
+
+
+def test_python_form_has_the_same_interface_and_runs_the_files_session(small_export, tmp_path: Path) -> None:
+    """The Python-backend form: the ONNX Runtime form's inputs, outputs and batching; model.py beside the file."""
+    ort_form = _parse(write_repository(small_export.onnx, tmp_path / "ort", TritonOptions(name="m")) / "config.pbtxt")
+    target = write_repository(small_export.onnx, tmp_path / "py", TritonOptions(name="m", backend="python", threads=2))
+    config = _parse(target / "config.pbtxt")
+    assert config.backend == "python" and not config.default_model_filename
+    assert (config.input, config.output, config.dynamic_batching) == (
+        ort_form.input,
+        ort_form.output,
+        ort_form.dynamic_batching,
+    )
+    assert config.instance_group[0].kind == model_config_pb2.ModelInstanceGroup.KIND_CPU
+    assert set(config.parameters) == {METADATA_KEY, "intra_op_thread_count"}  # no ORT-backend parameters
+    assert (target / "1" / "model.py").read_text() == MODEL_PY
+    namespace: dict = {}
+    exec(compile(MODEL_PY, "model.py", "exec"), namespace)  # what Triton's stub does with the file
+    assert namespace["TritonPythonModel"] is TritonPythonModel
+
+
+def test_python_form_checks_each_requests_tensors() -> None:
+    shapes = {"images": [-1, 4, 8, 8, 3], "camera_valid": [-1, 4]}
+    good = {"images": np.zeros((2, 4, 8, 8, 3), np.uint8), "camera_valid": np.ones((2, 4), bool)}
+    assert check_request(good, shapes) == 2
+    cases = [
+        ({"camera_valid": None}, "input 'camera_valid': missing"),
+        ({"images": np.zeros((2, 4, 8, 8, 3), np.float32)}, "input 'images': expected uint8, got float32"),
+        ({"images": np.zeros((2, 4, 8, 9, 3), np.uint8)}, r"input 'images': expected shape \[-1, 4, 8, 8, 3\]"),
+        ({"camera_valid": np.ones((3, 4), bool)}, "inputs' batches differ"),
+    ]
+    for change, message in cases:
+        with pytest.raises(FrameError, match=message):
+            check_request({**good, **change}, shapes)

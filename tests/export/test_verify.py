@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 from small_configs import small_configs  # noqa: E402
 
 from fisheye_infer.export.frames import verification_frames  # noqa: E402
-from fisheye_infer.export.verify import _Head  # noqa: E402
+from fisheye_infer.export.ranking_replay import RankingHead  # noqa: E402
 from fisheye_infer.models import load_model, make_checkpoint  # noqa: E402
 from fisheye_infer.models.ranking import replay_ranking  # noqa: E402
 
@@ -25,7 +25,7 @@ def test_a_replay_that_reuses_the_pre_ranking_outputs_is_a_full_replay(arch: str
     model, _ = load_model(arch, make_checkpoint(arch, seed=3, config=config, rig=rig), config=config, rig=rig)
     model = model.double()
     frames = verification_frames(rig, 1, seed=5)
-    head = _Head(model, frames, np.ones(frames.shape[:2], dtype=bool))
+    head = RankingHead(model, frames, np.ones(frames.shape[:2], dtype=bool))
     reused = head.before_ranking[0].outputs
     assert REUSED[arch] in reused and not any(name.startswith(f"{REUSED[arch]}.") for name in reused)
 

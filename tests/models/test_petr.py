@@ -18,8 +18,9 @@ from fisheye_infer.cameras.rig import default_rig
 from fisheye_infer.errors import CheckpointError, ConfigError, FrameError
 from fisheye_infer.geometry.petr import PETRGeometry, lid_depths, position_coords, sine_position_encoding
 from fisheye_infer.models import load_model
-from fisheye_infer.models.checkpoint import GeometryReport, load_official_state_dict
+from fisheye_infer.models.checkpoint import GeometryReport
 from fisheye_infer.models.fisheye_petr import GEOMETRY_KEYS, FisheyePETR, checkpoint_filter_fn, rename_official_keys
+from fisheye_infer.models.official_loading import load_official_state_dict
 from fisheye_infer.models.petr_config import PETRConfig
 from fisheye_infer.models.petr_embedding import inverse_sigmoid, pos2posemb3d
 from fisheye_infer.models.petr_head import decode_predictions

@@ -20,7 +20,7 @@ SHIP_LIMIT_BYTES = 25_000_000
 
 
 def test_every_trainable_architecture_has_a_compact_configuration_and_a_name_on_the_command_line() -> None:
-    assert tuple(COMPACT) == TRAINABLE == ARCHITECTURES
+    assert tuple(COMPACT) == TRAINABLE == tuple(ARCHITECTURES)
 
 
 @pytest.mark.parametrize("arch", TRAINABLE)

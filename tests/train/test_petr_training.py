@@ -16,8 +16,9 @@ torch = pytest.importorskip("torch")
 from fisheye_infer.cameras.rig import Rig  # noqa: E402
 from fisheye_infer.cli import main  # noqa: E402
 from fisheye_infer.models import PETRConfig, create_model, load_checkpoint  # noqa: E402
-from fisheye_infer.models.training.loop import QUERY_TABLE, Trainer  # noqa: E402
+from fisheye_infer.models.training.loop import Trainer  # noqa: E402
 from fisheye_infer.models.training.options import TrainOptions  # noqa: E402
+from fisheye_infer.models.training.run_checkpoints import QUERY_TABLE  # noqa: E402
 from fisheye_infer.runtime.artifact import read_meta  # noqa: E402
 
 Run = Any

@@ -37,13 +37,10 @@ def shipped(request: pytest.FixtureRequest) -> Pretrained:
 
 
 @pytest.fixture(scope="session")
-def shipped_export(shipped: Pretrained, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from fisheye_infer.export.exporter import export
-
-    out = tmp_path_factory.mktemp("shipped") / f"{shipped.name}.onnx"
-    result = export(shipped.checkpoint, out, config=shipped.config, rig=shipped.rig, progress=lambda _: None)
-    assert result.parity.passed
-    return out
+def shipped_export(shipped: Pretrained, shipped_exports) -> Path:
+    exported = shipped_exports(shipped.name)
+    assert exported.result.parity.passed  # type: ignore[attr-defined]
+    return exported.onnx
 
 
 @pytest.fixture(scope="session")

@@ -1,12 +1,20 @@
-"""An exported ONNX file -> a Triton model repository for the ONNX Runtime backend.
+"""An exported ONNX file -> a Triton model repository, for Triton's ONNX Runtime backend or its Python backend.
 
     write_repository("model.onnx", "model_repository", TritonOptions(max_batch_size=4, instances=2))
+    write_repository("model.onnx", "model_repository", TritonOptions(backend="python"))
 
     model_repository/
       <name>/
         config.pbtxt      inputs and outputs read from the file, dynamic batching, instance groups,
                           optional TensorRT, the fisheye-infer metadata as a parameter
         1/model.onnx      the file, copied byte for byte
+        1/model.py        backend="python" only: the model of ``python_backend`` (ONNX Runtime on the CPU,
+                          the runtime's session and checks)
+
+The two forms take the same inputs and give the same outputs. The ONNX Runtime form is for Triton's own
+images (GPU instances, TensorRT); the Python form is for a server without that backend (the ``tritonserver``
+that the ``nvidia-pytriton`` wheel bundles: ``fisheye_infer.deploy.triton.server``) and for CPU deployments that
+want the runtime's checks of each request.
 
 The configuration is first built as a plain dict in the JSON form of Triton's ``ModelConfig``
 (what Triton answers at ``GET /v2/models/<name>/config``), then rendered to protobuf text
@@ -25,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from fisheye_infer.deploy.triton.python_backend import MODEL_PY
 from fisheye_infer.errors import ArtifactError, ExportError
 from fisheye_infer.runtime.artifact import METADATA_KEY, inspection_session, parse_meta
 from fisheye_infer.runtime.detector import check_interface
@@ -59,25 +68,34 @@ _MAP_FIELDS = {"parameters"}  # written as repeated {key, value} entries
 
 @dataclass(frozen=True)
 class TritonOptions:
-    """How Triton should run the model.
+    """How Triton should run the model: the repository form, batching, instances and TensorRT.
 
-    | option | default | meaning |
-    |---|---|---|
-    | ``name`` | the file's stem | the model's name in the repository and in URLs |
-    | ``max_batch_size`` | 4 | frames per batched run; 0 turns batching off (the batch axis is then part of the dims) |
-    | ``max_queue_delay_us`` | 5000 | dynamic batching: how long a request waits for others |
-    | ``preferred_batch_sizes`` | none | dynamic batching: batch sizes to form when possible |
-    | ``instances`` | 1 | model instances per device |
-    | ``kind`` | ``auto`` | ``cpu``, ``gpu`` or ``auto`` (GPU when present) |
-    | ``gpus`` | all | GPU ids for ``kind="gpu"`` |
-    | ``threads`` | backend default | ONNX Runtime intra-op threads per instance |
-    | ``tensorrt`` | off | TensorRT as the GPU execution accelerator (needs ``kind="gpu"``) |
-    | ``tensorrt_precision`` | ``FP16`` | ``FP32`` or ``FP16`` |
-    | ``tensorrt_workspace_bytes`` | 1 GiB | TensorRT's scratch memory |
-    | ``tensorrt_cache`` | none | folder where TensorRT engines are cached across restarts |
+    Attributes:
+        name (str | None): The model's name in the repository and in URLs (letters, digits, ``_``, ``.``, ``-``);
+            None for the file's stem ([`model_config`][fisheye_infer.deploy.triton.repository.model_config]).
+        backend (str): ``onnxruntime`` (Triton's ONNX Runtime backend) or ``python`` (the runtime in Triton's Python
+            backend, [`TritonPythonModel`][fisheye_infer.deploy.triton.python_backend.TritonPythonModel]; CPU only).
+        max_batch_size (int): Frames per batched run; 0 turns batching off (the batch axis is then part of the
+            dims).
+        max_queue_delay_us (int): Dynamic batching: how long a request waits for others, in microseconds.
+        preferred_batch_sizes (tuple[int, ...]): Dynamic batching: batch sizes to form when possible, each in
+            ``1..max_batch_size``; empty for Triton's choice.
+        instances (int): Model instances per device; at least 1.
+        kind (str): Where instances run: ``cpu``, ``gpu`` or ``auto`` (GPU when present).
+        gpus (tuple[int, ...]): GPU ids for ``kind="gpu"``; empty for all.
+        threads (int | None): ONNX Runtime intra-op threads per instance; None for the backend's default.
+        tensorrt (bool): TensorRT as the GPU execution accelerator (needs ``kind="gpu"``).
+        tensorrt_precision (str): TensorRT's precision, ``FP32`` or ``FP16``.
+        tensorrt_workspace_bytes (int): TensorRT's scratch memory, in bytes (default 1 GiB).
+        tensorrt_cache (str | None): Folder where TensorRT engines are cached across restarts; None for no cache.
+
+    Raises:
+        ValueError: A value is out of its range, or the options contradict each other (``tensorrt`` or ``gpus``
+            without ``kind="gpu"``, the ``python`` backend with GPU instances).
     """
 
     name: str | None = None
+    backend: Literal["onnxruntime", "python"] = "onnxruntime"
     max_batch_size: int = 4
     max_queue_delay_us: int = 5000
     preferred_batch_sizes: tuple[int, ...] = ()
@@ -96,6 +114,10 @@ class TritonOptions:
                 f"name: {self.name!r} is not a usable model name "
                 "(letters, digits, '_', '.', '-'; not starting with '.' or '-')"
             )
+        if self.backend not in ("onnxruntime", "python"):
+            raise ValueError(f"backend: expected onnxruntime or python, got {self.backend!r}")
+        if self.backend == "python" and (self.kind == "gpu" or self.tensorrt):
+            raise ValueError("backend: the python form runs ONNX Runtime on the CPU; use kind='cpu' or 'auto'")
         if self.max_batch_size < 0:
             raise ValueError(f"max_batch_size: expected 0 (no batching) or more, got {self.max_batch_size}")
         if self.max_queue_delay_us < 0:
@@ -144,7 +166,23 @@ def _io(items: list[Any], batched: bool, source: str) -> list[dict[str, Any]]:
 
 
 def model_config(model_path: str | Path, options: TritonOptions | None = None) -> dict[str, Any]:
-    """The ``ModelConfig`` of ``model_path`` for the ONNX Runtime backend, as a JSON-form dict."""
+    """The Triton ``ModelConfig`` of an exported file, as a dict in its JSON form.
+
+    This is what Triton answers at ``GET /v2/models/<name>/config`` and what ``config.pbtxt`` holds in protobuf text
+    format; the model's name defaults to the file's stem with characters Triton cannot use replaced by ``_``.
+
+    Args:
+        model_path (str | Path): An ONNX file written by ``fisheye-infer export``.
+        options (TritonOptions | None): The repository form and how Triton runs the model; None for
+            ``TritonOptions()``.
+
+    Returns:
+        dict: The configuration in the JSON form of Triton's ``ModelConfig``.
+
+    Raises:
+        ArtifactError: The file is not a fisheye-infer model, or a tensor's type has no Triton data type.
+        ExportError: A tensor's batch axis is fixed while ``max_batch_size`` asks for batching.
+    """
     options = options or TritonOptions()
     path = Path(model_path)
     session = inspection_session(path)
@@ -156,8 +194,8 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
     batched = options.max_batch_size > 0
     config: dict[str, Any] = {
         "name": options.name or model_name(path),
-        "backend": "onnxruntime",
-        "default_model_filename": "model.onnx",
+        "backend": options.backend,
+        **({"default_model_filename": "model.onnx"} if options.backend == "onnxruntime" else {}),
         "max_batch_size": options.max_batch_size,
         "input": _io(session.get_inputs(), batched, f"model {path}"),
         "output": _io(session.get_outputs(), batched, f"model {path}"),
@@ -167,9 +205,10 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
         if options.preferred_batch_sizes:
             batching["preferred_batch_size"] = list(options.preferred_batch_sizes)
         config["dynamic_batching"] = batching
+    kind = "cpu" if options.backend == "python" else options.kind
     group: dict[str, Any] = {
         "count": options.instances,
-        "kind": {"auto": "KIND_AUTO", "cpu": "KIND_CPU", "gpu": "KIND_GPU"}[options.kind],
+        "kind": {"auto": "KIND_AUTO", "cpu": "KIND_CPU", "gpu": "KIND_GPU"}[kind],
     }
     if options.gpus:
         group["gpus"] = list(options.gpus)
@@ -184,8 +223,10 @@ def model_config(model_path: str | Path, options: TritonOptions | None = None) -
         config["optimization"] = {
             "execution_accelerators": {"gpu_execution_accelerator": [{"name": "tensorrt", "parameters": trt}]}
         }
-    # The runtime's own choice (session.py): no memory-pattern planning, which keeps peak RSS low.
-    parameters = {"enable_mem_pattern": {"string_value": "0"}, METADATA_KEY: {"string_value": document}}
+    parameters = {METADATA_KEY: {"string_value": document}}
+    if options.backend == "onnxruntime":
+        # The runtime's own choice (session.py): no memory-pattern planning, which keeps peak RSS low.
+        parameters["enable_mem_pattern"] = {"string_value": "0"}
     if options.threads:
         parameters["intra_op_thread_count"] = {"string_value": str(options.threads)}
     config["parameters"] = parameters
@@ -245,10 +286,34 @@ def render_pbtxt(config: dict[str, Any]) -> str:
 def write_repository(
     model_path: str | Path, out: str | Path, options: TritonOptions | None = None, *, force: bool = False
 ) -> Path:
-    """Write ``out/<name>/config.pbtxt`` and ``out/<name>/1/model.onnx``; returns ``out/<name>``.
+    """Write the model folder ``out/<name>`` of an exported file into a Triton model repository.
 
-    The model folder appears complete or not at all (it is built beside its place and renamed),
-    and an existing one is replaced only with ``force``.
+    The folder holds ``config.pbtxt`` (inputs and outputs read from the file, batching, instance groups, optional
+    TensorRT, the fisheye-infer metadata as a parameter), ``1/model.onnx`` (the file, copied byte for byte) and, for
+    ``backend="python"``, ``1/model.py``. The model folder appears complete or not at all (it is built beside its
+    place and renamed), and an existing one is replaced only with ``force``.
+
+    Args:
+        model_path (str | Path): An ONNX file written by ``fisheye-infer export``.
+        out (str | Path): The model repository (created; other models in it are left alone).
+        options (TritonOptions | None): The repository form and how Triton runs the model; None for
+            ``TritonOptions()``.
+        force (bool): Replace an existing model folder of the same name.
+
+    Returns:
+        Path: The model folder.
+
+    Raises:
+        ExportError: The folder exists and ``force`` is not given, or the file's batch axis is fixed while batching.
+        ArtifactError: The file is not a fisheye-infer model.
+
+    Examples:
+        ```python
+        from fisheye_infer.deploy.triton.repository import TritonOptions, write_repository
+
+        write_repository("model.onnx", "model_repository", TritonOptions(max_batch_size=4, instances=2))
+        # tritonserver --model-repository=model_repository
+        ```
     """
     config = model_config(model_path, options)
     root = Path(out)
@@ -260,6 +325,8 @@ def write_repository(
     try:
         (staging / "1").mkdir()
         shutil.copyfile(model_path, staging / "1" / "model.onnx")
+        if config["backend"] == "python":
+            (staging / "1" / "model.py").write_text(MODEL_PY)
         (staging / "config.pbtxt").write_text(render_pbtxt(config))
         if target.exists():
             shutil.rmtree(target)
