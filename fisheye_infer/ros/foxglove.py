@@ -86,8 +86,19 @@ def scene_update(detections: Detections, stamp: int, frame_id: str) -> bytes:
 def track_scene(
     tracks: Tracks, paths: Mapping[int, Sequence[tuple[float, float, float]]], stamp: int, frame_id: str
 ) -> SceneUpdate:
-    """One ``SceneEntity`` per track, keyed by its id (so the viewer follows an object): its box, an arrow of its
-    velocity (one second ahead) and its recent path (``paths``: track id -> centres, oldest first)."""
+    """One ``SceneEntity`` per track, keyed by its id (so the viewer follows an object).
+
+    Each entity holds the track's box, an arrow of its velocity (one second ahead) and its recent path.
+
+    Args:
+        tracks: The tracks of one frame.
+        paths: Track id -> its recent centres (x, y, z in ``frame_id``), oldest first.
+        stamp: The frame's stamp, ns.
+        frame_id: The frame the boxes are in.
+
+    Returns:
+        SceneUpdate: Foxglove's scene update.
+    """
     q = yaw_to_quaternion(tracks.boxes[:, 6].astype(np.float64))
     entities = []
     for track_id, c, r, b, v, label in zip(

@@ -71,8 +71,12 @@ def stamp_ns(header: Any) -> int:
 
 
 class ImageRefused(FrameError):
-    """A camera message that does not give the model an image; ``reason`` is a short name to count it by
-    (``encoding 16UC1``, ``wrong size``, ``JPEG does not decode``), the message says the rest."""
+    """A camera message that does not give the model an image.
+
+    Args:
+        reason: A short name to count it by (``encoding 16UC1``, ``wrong size``, ``JPEG does not decode``).
+        message: What is wrong, in full.
+    """
 
     def __init__(self, reason: str, message: str) -> None:
         super().__init__(message)

@@ -65,10 +65,20 @@ __all__ = ["DETECTIONS_TOPIC", "ReplayReport", "replay"]
 
 @dataclass
 class ReplayReport:
-    """What a replay read, ran and wrote. ``dropped`` counts camera messages by reason (the synchroniser's,
-    ``does not deserialize``, ``stamp before 1970``); ``unread`` frames whose images did not give the model an
-    image, by reason (``encoding 16UC1``, ``wrong size``, ``JPEG does not decode``, ...); ``examples`` says
-    where each reason first occurred (bag, topic, stamp, type) and why."""
+    """What a replay read, ran and wrote.
+
+    Attributes:
+        frames: Frames the model ran.
+        messages: Camera messages read.
+        dropped: Camera messages left out, by reason (the synchroniser's, ``does not deserialize``,
+            ``stamp before 1970``).
+        unread: Frames whose images did not give the model an image, by reason (``encoding 16UC1``,
+            ``wrong size``, ``JPEG does not decode``, ...).
+        examples: Where each reason first occurred (bag, topic, stamp, type) and why.
+        seconds: Wall time of the replay.
+        out: The MCAP file written.
+        records: The nuScenes-style records written.
+    """
 
     frames: int = 0
     messages: int = 0
@@ -90,7 +100,13 @@ class ReplayReport:
         return not self.dropped and not self.unread
 
     def note(self, counter: Counter[str], reason: str, where: str) -> None:
-        """Count one drop for ``reason``, keeping the first example."""
+        """Count one drop for ``reason``, keeping the first example.
+
+        Args:
+            counter: ``dropped`` or ``unread``.
+            reason: Why the message or frame was left out.
+            where: Where it happened (bag, topic, stamp), kept for the first drop of ``reason``.
+        """
         counter[reason] += 1
         self.examples.setdefault(reason, where)
 
@@ -127,14 +143,38 @@ def replay(
     track: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> ReplayReport:
-    """Replay ``bags`` through ``model`` into ``out`` (an ``.mcap`` file) and ``out`` with ``.json``; see the
-    module docstring. ``topics`` maps each camera the model names to its image topic; ``foxglove``: also the
-    Foxglove channels (protobuf; without them the file holds ROS 2 messages only); ``score_threshold``
-    keeps the messages' boxes at or above it (the records keep every box, as evaluation needs); ``track``: the
-    messages carry tracks instead of boxes (a [`Tracker`][fisheye_infer.tracking.Tracker] fed every box, its score
-    threshold ``score_threshold`` or the tracker's; each ``Detection3D`` id the track id, one Foxglove entity per
-    track with its velocity and recent path); ``progress``
-    is told the frames done and the most there can be (the fewest messages of one camera)."""
+    """Replay recorded bags through a model into an MCAP file, and the detections as nuScenes-style records.
+
+    See the module docstring for what the file holds; the records go to ``out`` with the suffix ``.json``.
+
+    Args:
+        model: An ONNX file written by ``fisheye-infer export``.
+        bags: rosbag2 folders or files (MCAP or SQLite), read in order as one recording.
+        topics: Each camera the model names -> its image topic (``sensor_msgs/Image`` or ``CompressedImage``).
+        out: The MCAP file to write.
+        images: Also write each camera's images (the overlays' background) to the file.
+        foxglove: Also write the Foxglove channels (protobuf: the 3D scene and per-camera overlays); without them
+            the file holds ROS 2 messages only.
+        score_threshold: Keep the messages' boxes scoring at least this, in [0, 1] (the records keep every box,
+            as evaluation needs); with ``track``, the tracker's birth threshold (default: the tracker's).
+        frame_id: The frame the boxes are written in.
+        tolerance_ms: How far apart (ms) the cameras' stamps of one frame may be.
+        queue_size: Messages kept per camera while waiting for the others.
+        batch: Frames run by the model at once.
+        threads: ONNX Runtime intra-op threads (default: the CPUs this process may use).
+        track: Write tracks instead of boxes: a [`Tracker`][fisheye_infer.tracking.tracker.Tracker] fed every box;
+            each ``Detection3D`` id is the track id, one Foxglove entity per track with its velocity and recent
+            path, and Autoware's ``TrackedObjects`` on ``/tracks``.
+        progress: Called with the frames done and the most there can be (the fewest messages of one camera).
+
+    Returns:
+        ReplayReport: What was read, run, dropped and written.
+
+    Raises:
+        OptionError: An option is out of range, the topics do not name the model's cameras one to one, or a
+            bag is missing.
+        BagError: A bag cannot be read, or holds no message on the topics.
+    """
     started = time.perf_counter()
     check_score_threshold(score_threshold)
     if not (isinstance(tolerance_ms, int | float) and math.isfinite(tolerance_ms) and tolerance_ms >= 0):

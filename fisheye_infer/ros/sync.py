@@ -30,7 +30,12 @@ DROP_REASONS = ("unsynchronised", "out of order", "queue full", "incomplete at t
 
 @dataclass(frozen=True)
 class SyncedSet:
-    """One message per camera, in the synchroniser's camera order, with their stamps (ns)."""
+    """One message per camera, in the synchroniser's camera order, with their stamps.
+
+    Attributes:
+        stamps: Each camera's stamp, ns.
+        items: Each camera's message, as pushed.
+    """
 
     stamps: tuple[int, ...]
     items: tuple[Any, ...]
@@ -43,7 +48,24 @@ class SyncedSet:
 
 @dataclass
 class Synchroniser:
-    """See the module docstring."""
+    """Approximate-time synchronisation of N camera streams (the module docstring says how sets form and drop).
+
+    Attributes:
+        cameras: The cameras' names, in the order each set lists them.
+        tolerance_ns: How far apart (ns) the stamps of one set may be.
+        queue_size: Messages kept per camera while waiting for the others.
+        dropped: Messages that left without a set, by reason (``DROP_REASONS``).
+
+    Raises:
+        ValueError: The camera names repeat or are empty, or the tolerance or queue size is out of range.
+
+    Examples:
+        ```python
+        sync = Synchroniser(["front", "rear"], tolerance_ns=20_000_000)
+        sets = [*sync.push("front", 100, "f0"), *sync.push("rear", 105, "r0")]
+        print(sets[0].items)  # ('f0', 'r0')
+        ```
+    """
 
     cameras: Sequence[str]
     tolerance_ns: int
@@ -63,7 +85,19 @@ class Synchroniser:
         self._last = {}
 
     def push(self, camera: str, stamp: int, item: Any) -> Iterator[SyncedSet]:
-        """Queue one message; yields the sets it completes."""
+        """Queue one message; yields the sets it completes, oldest first.
+
+        Args:
+            camera: The message's camera, one of ``cameras``.
+            stamp: The message's stamp, ns.
+            item: The message (any object; returned in the set's ``items``).
+
+        Yields:
+            SyncedSet: Each set this message completes.
+
+        Raises:
+            KeyError: ``camera`` is not one of ``cameras``.
+        """
         if camera not in self._queues:
             raise KeyError(f"camera {camera!r}: not one of {', '.join(self.cameras)}")
         if camera in self._last and stamp < self._last[camera]:
