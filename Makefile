@@ -60,7 +60,6 @@ bench: $(STAMP)
 
 # docs/performance/, the figures and the charts generated again from the results under benchmarks/results/
 bench-report: $(STAMP)
-	$(BIN)/python -c "import matplotlib" 2>/dev/null || $(BIN)/pip install -e '.[bench]'
 	$(BIN)/python benchmarks/report.py
 
 clean:

@@ -9,7 +9,7 @@ command run on it, grouped by the question it answers, each block of tables clos
 it, the machine and the date. Each shipped model's card and ``docs/study.md`` hold the tables of the latest result
 of their commands between two markers; the study page opens with the answer of its findings
 (``report_study``). The SVG charts go to ``docs/assets/charts/`` (``report_charts``, needs matplotlib: the
-``bench`` extra). None of it is edited by hand: ``tests/benchmarks/test_harness.py`` checks that the committed
+``dev`` extra). None of it is edited by hand: ``tests/benchmarks/test_harness.py`` checks that the committed
 pages and figures equal what this script writes from the committed results, and that the charts are there.
 """
 
@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     if harness.missing(["matplotlib"]):
-        parser.error("the charts need matplotlib: pip install -e '.[bench]'")
+        parser.error("the charts need matplotlib: pip install -e '.[dev]'")
     import report_charts
 
     cards = dict((c.split("=", 1)[0], Path(c.split("=", 1)[1])) for c in args.card) if args.card else CARDS

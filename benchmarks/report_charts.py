@@ -1,6 +1,6 @@
 """The report's charts, as SVG under ``docs/assets/charts/``: frame time, the accuracy fp16 and int8 keep, the study.
 
-Needs ``matplotlib`` (the ``bench`` extra). The files are deterministic for one matplotlib version: a fixed
+Needs ``matplotlib`` (the ``dev`` extra). The files are deterministic for one matplotlib version: a fixed
 ``svg.hashsalt``, no date in the metadata, glyphs drawn as paths.
 """
 
