@@ -28,7 +28,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from fisheye_infer.eval.eval_boxes import EvalBoxes
-from fisheye_infer.eval.metrics import TP_METRICS, MetricData
+from fisheye_infer.eval.metric_report import TP_METRICS, MetricData
 
 __all__ = [
     "center_distance",

@@ -17,7 +17,7 @@ import numpy as np
 
 from fisheye_infer.eval.eval_boxes import EvalBoxes
 from fisheye_infer.eval.evaluate import summarise
-from fisheye_infer.eval.metrics import EvalConfig
+from fisheye_infer.eval.metric_config import EvalConfig
 
 __all__ = ["frame_draws", "resampled_fds", "interval", "resolved"]
 

@@ -26,7 +26,8 @@ from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import FrameError
 from fisheye_infer.eval.algo import accumulate_thresholds, calc_ap, calc_tp
 from fisheye_infer.eval.eval_boxes import EvalBoxes
-from fisheye_infer.eval.metrics import TP_METRICS, ClassMetrics, EvalConfig, MetricsReport, Summary
+from fisheye_infer.eval.metric_config import EvalConfig
+from fisheye_infer.eval.metric_report import TP_METRICS, ClassMetrics, MetricsReport, Summary
 from fisheye_infer.tools.progress import Progress
 
 if TYPE_CHECKING:

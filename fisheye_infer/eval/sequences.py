@@ -23,7 +23,7 @@ import numpy as np
 
 from fisheye_infer.cameras.carla_poses import Convention, parse_sensor_metadata, pose_matrix
 from fisheye_infer.errors import DatasetError
-from fisheye_infer.eval.dataset import read_labels, read_split
+from fisheye_infer.eval.dataset_files import read_labels, read_split
 from fisheye_infer.runtime.records import CLASSES, gravity_to_bottom
 
 __all__ = ["TrackingFrame", "TrackingSequence", "read_sequences"]

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from fisheye_infer.eval.metrics import EvalConfig
+from fisheye_infer.eval.metric_config import EvalConfig
 from fisheye_infer.eval.mot import MotAccumulator, MotSummary, summarize
 
 __all__ = ["SequenceResults", "TrackingReport", "evaluate_tracking", "TRACKING_METRICS"]
