@@ -14,33 +14,25 @@ were computed for.
 
 from __future__ import annotations
 
-import hashlib
-import json
-import math
 from collections.abc import Sequence
-from functools import lru_cache
-from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from fisheye_infer.cameras.camera_models import AnyCameraModel
+from fisheye_infer.cameras import rig_construction, rig_inspection
 from fisheye_infer.cameras.carla_poses import Convention
-from fisheye_infer.cameras.field_of_view import reported_fov
-from fisheye_infer.cameras.kalibr_camchain import TrustChain
-from fisheye_infer.cameras.rig_files import (
-    RIG_SCHEMA_VERSION,
-    describe_validation_error,
-    is_pinhole_list,
-    pinhole_list_cameras,
-    read_lidar2cam_json,
-    read_ocam,
-    read_rig_document,
-    read_sensor_metadata_poses,
-    write_rig_document,
+from fisheye_infer.cameras.default_rigs import (
+    FISHEYE3DOD_CAMERAS,
+    PINHOLE_CAMERAS,
+    default_rig,
+    pinhole_rig,
+    resolve_rig,
 )
+from fisheye_infer.cameras.kalibr_camchain import TrustChain
+from fisheye_infer.cameras.rig_camera import RigCamera
+from fisheye_infer.cameras.rig_files import RIG_SCHEMA_VERSION, write_rig_document
 from fisheye_infer.errors import RigError
 
 __all__ = [
@@ -53,80 +45,6 @@ __all__ = [
     "pinhole_rig",
     "resolve_rig",
 ]
-
-#: The detectors' input order for Fisheye3DOD.
-FISHEYE3DOD_CAMERAS = ("fisheye_camera_front", "fisheye_camera_left", "fisheye_camera_right", "fisheye_camera_rear")
-#: The six nuScenes-like pinhole cameras in the pinhole baselines' input order (rear_right before rear_left).
-PINHOLE_CAMERAS = (
-    "nu_rgb_camera_front",
-    "nu_rgb_camera_front_left",
-    "nu_rgb_camera_front_right",
-    "nu_rgb_camera_rear",
-    "nu_rgb_camera_rear_right",
-    "nu_rgb_camera_rear_left",
-)
-_RIGID_TOLERANCE = 1e-4
-
-
-class RigCamera(BaseModel):
-    """One camera of a rig: its name, lens and pose.
-
-    Attributes:
-        name (str): The camera's name (non-empty, unique in its rig).
-        model (AnyCameraModel): Its camera model, one of the models above, told apart by ``type``.
-        cam2lidar (tuple[tuple[float, float, float, float], ...]): 4x4 rigid transform from the camera
-            (OpenCV) frame to the lidar frame, metres; the last row is (0, 0, 0, 1).
-
-    Raises:
-        pydantic.ValidationError: ``cam2lidar`` not 4x4, not finite or not rigid (within 1e-4), or an invalid
-            model.
-
-    Examples:
-        ```python
-        from fisheye_infer.cameras.rig import default_rig
-
-        front = default_rig().camera("fisheye_camera_front")
-        front.model.type, front.position, front.heading   # "ocam", (3,) metres, radians (0 = forward)
-        ```
-    """
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    name: str = Field(min_length=1)
-    model: AnyCameraModel
-    cam2lidar: tuple[tuple[float, float, float, float], ...] = Field(description="4x4, camera (OpenCV) to lidar frame")
-
-    @field_validator("cam2lidar")
-    @classmethod
-    def _rigid(cls, value: tuple[tuple[float, ...], ...]) -> tuple[tuple[float, ...], ...]:
-        m = np.asarray(value, dtype=np.float64)
-        if m.shape != (4, 4):
-            raise ValueError(f"must be 4x4, got {len(value)} rows")
-        if not np.all(np.isfinite(m)):
-            raise ValueError("contains NaN or infinity")
-        if not np.allclose(m[3], (0, 0, 0, 1), atol=1e-9):
-            raise ValueError(f"last row must be [0, 0, 0, 1], got {m[3].tolist()}")
-        rot = m[:3, :3]
-        err = np.abs(rot.T @ rot - np.eye(3)).max()
-        if err > _RIGID_TOLERANCE or np.linalg.det(rot) < 0:
-            raise ValueError(f"rotation is not rigid (|R^T R - I| = {err:.2e}, det = {np.linalg.det(rot):.4f})")
-        return value
-
-    @property
-    def matrix(self) -> np.ndarray:
-        """cam2lidar as a (4, 4) float64 array."""
-        return np.asarray(self.cam2lidar, dtype=np.float64)
-
-    @property
-    def position(self) -> np.ndarray:
-        """Camera centre in the lidar frame (m)."""
-        return self.matrix[:3, 3]
-
-    @property
-    def heading(self) -> float:
-        """Azimuth of the optical axis in the lidar x-y plane, radians (0 = forward, +pi/2 = left)."""
-        axis = self.matrix[:3, 2]
-        return math.atan2(axis[1], axis[0])
 
 
 class Rig(BaseModel):
@@ -187,10 +105,7 @@ class Rig(BaseModel):
         Raises:
             RigError: The document is not a valid rig.
         """
-        try:
-            return cls.model_validate(data)
-        except ValidationError as exc:
-            raise RigError(f"{source}: " + describe_validation_error(exc, data)) from None
+        return rig_construction.from_dict(cls, data, source)
 
     @classmethod
     def from_cameras(
@@ -215,21 +130,7 @@ class Rig(BaseModel):
         Raises:
             RigError: A camera of ``order`` without a model or extrinsics, or an invalid model or transform.
         """
-        order = list(order or models)
-        for cam in order:
-            if cam not in models:
-                raise RigError(f"camera '{cam}': no camera model given (have: {', '.join(models)})")
-            if cam not in cam2lidar:
-                raise RigError(f"camera '{cam}': no extrinsics given (have: {', '.join(cam2lidar)})")
-        cameras = [
-            {
-                "name": cam,
-                "model": _as_dict(models[cam]),
-                "cam2lidar": np.asarray(cam2lidar[cam], dtype=np.float64).tolist(),
-            }
-            for cam in order
-        ]
-        return cls.from_dict({"name": name, "cameras": cameras})
+        return rig_construction.from_cameras(cls, models, cam2lidar, order, name)
 
     @classmethod
     def from_ocam_extrinsics(
@@ -259,12 +160,7 @@ class Rig(BaseModel):
             RigError: An unreadable or invalid file, a matrix that is not a finite invertible 4x4, or a camera
                 of ``order`` missing from the extrinsics.
         """
-        model = read_ocam(calib, fov)
-        cam2lidar = read_lidar2cam_json(lidar2cam_json)
-        if order is None:
-            order = FISHEYE3DOD_CAMERAS if set(cam2lidar) == set(FISHEYE3DOD_CAMERAS) else list(cam2lidar)
-        name = name or Path(lidar2cam_json).parent.name
-        return cls.from_cameras({c: model for c in cam2lidar}, cam2lidar, order, name=name)
+        return rig_construction.from_ocam_extrinsics(cls, calib, lidar2cam_json, order, fov, name)
 
     @classmethod
     def from_sensor_metadata(
@@ -294,12 +190,7 @@ class Rig(BaseModel):
         Raises:
             RigError: A missing or unreadable file, or a frame that the lidar or a camera did not record.
         """
-        root = Path(vehicle_dir)
-        model = read_ocam(calib, fov)
-        frame_id, cam2lidar = read_sensor_metadata_poses(root, cameras, frame_id, convention)
-        return cls.from_cameras(
-            {c: model for c in cameras}, cam2lidar, cameras, name=f"{root.parent.name}/{root.name}@{frame_id}"
-        )
+        return rig_construction.from_sensor_metadata(cls, vehicle_dir, calib, cameras, frame_id, convention, fov)
 
     @classmethod
     def from_calibration(
@@ -340,12 +231,7 @@ class Rig(BaseModel):
             rig = Rig.from_calibration(["camchain.yaml"], "lidar2cam.json", names=["front", "left", "right", "rear"])
             ```
         """
-        from fisheye_infer.cameras.calibration_files import place_cameras, read_calibrations
-
-        groups = read_calibrations(files, format, names, trust_chain)
-        cam2lidar = place_cameras(groups, read_lidar2cam_json(extrinsics), str(extrinsics))
-        models = {c.name: c.model for _, cams in groups for c in cams}
-        return cls.from_cameras(models, cam2lidar, name=name or Path(files[0]).stem)
+        return rig_construction.from_calibration(cls, files, extrinsics, format, names, name, trust_chain)
 
     @classmethod
     def load(cls, path: str | Path) -> Rig:
@@ -360,11 +246,7 @@ class Rig(BaseModel):
         Raises:
             RigError: A missing or unreadable file, or one that is not a valid rig (named by camera and field).
         """
-        path = Path(path)
-        data = read_rig_document(path)
-        if is_pinhole_list(data):
-            return cls.from_pinhole_list(data, source=f"rig file {path}", name=path.parent.name or path.stem)
-        return cls.from_dict(data, source=f"rig file {path}")
+        return rig_construction.load(cls, path)
 
     @classmethod
     def from_pinhole_list(cls, data: dict[str, Any], source: str = "cameras", name: str = "rig") -> Rig:
@@ -385,8 +267,7 @@ class Rig(BaseModel):
         Raises:
             RigError: A missing field, a matrix of the wrong shape, distortion or skew.
         """
-        models, cam2lidar = pinhole_list_cameras(data, source)
-        return cls.from_cameras(models, cam2lidar, name=name)
+        return rig_construction.from_pinhole_list(cls, data, source, name)
 
     def save(self, path: str | Path) -> Path:
         """Write the rig file; YAML for ``.yaml``/``.yml``, JSON otherwise.
@@ -439,13 +320,7 @@ class Rig(BaseModel):
         Raises:
             RigError: No names, a name repeated or not in the rig.
         """
-        if not names:
-            raise RigError(f"cameras: expected at least one of {', '.join(self.names)}")
-        repeated = sorted({n for n in names if list(names).count(n) > 1})
-        if repeated:
-            raise RigError(f"cameras: {', '.join(repeated)} named more than once")
-        cameras = tuple(self.camera(name) for name in names)
-        return self.model_copy(update={"cameras": cameras, "name": f"{self.name}[{'+'.join(names)}]"})
+        return rig_inspection.subset(self, names)
 
     def cam2lidar(self) -> np.ndarray:
         """The cameras' poses.
@@ -473,14 +348,7 @@ class Rig(BaseModel):
         Raises:
             RigError: A camera whose model differs from the first camera's.
         """
-        first = self.cameras[0].model
-        for cam in self.cameras[1:]:
-            if cam.model != first:
-                raise RigError(
-                    f"camera '{cam.name}': its camera model differs from '{self.cameras[0].name}'; "
-                    "expected one model shared by all cameras"
-                )
-        return first
+        return rig_inspection.shared_model(self)
 
     def require(self, names: Sequence[str], image_size: tuple[int, int] | None = None) -> None:
         """Check that the rig has exactly ``names`` in that order and, if given, images of ``image_size`` (W, H).
@@ -492,19 +360,7 @@ class Rig(BaseModel):
         Raises:
             RigError: A camera missing, another order, or another image size (named by camera).
         """
-        for name in names:
-            if name not in self.names:
-                raise RigError(f"camera '{name}': missing from the rig (rig has: {', '.join(self.names)})")
-        if list(names) != self.names:
-            raise RigError(f"camera order: expected {', '.join(names)}; the rig has {', '.join(self.names)}")
-        if image_size is not None:
-            for cam in self.cameras:
-                size = (cam.model.width, cam.model.height)
-                if size != tuple(image_size):
-                    raise RigError(
-                        f"camera '{cam.name}': image is {size[0]}x{size[1]}, "
-                        f"model expects {image_size[0]}x{image_size[1]}"
-                    )
+        rig_inspection.require(self, names, image_size)
 
     @property
     def hash(self) -> str:
@@ -515,10 +371,7 @@ class Rig(BaseModel):
         LAPACK, whose rounding may differ between machines; entries that are zero up to 1e-17 noise
         would otherwise change it).
         """
-        doc = json.dumps(
-            _canonical([c.model_dump(mode="json") for c in self.cameras]), sort_keys=True, separators=(",", ":")
-        )
-        return hashlib.sha256(doc.encode()).hexdigest()[:16]
+        return rig_inspection.content_hash(self)
 
     def describe(self) -> str:
         """A human-readable table: camera, model, which calibration (cameras with the same number share one),
@@ -527,88 +380,4 @@ class Rig(BaseModel):
         Returns:
             str: The table, one line per camera after a header.
         """
-        width = max(24, *(len(n) for n in self.names))
-        calibrations = list(dict.fromkeys(cam.model for cam in self.cameras))
-        lines = [f"rig {self.name!r}  hash {self.hash}  frame: lidar (x forward, y left, z up)"]
-        lines.append(
-            f"  {'camera':<{width}} {'model':<17} {'lens':>4} {'image':>9} {'fov':>7}   {'position x, y, z (m)':<26} "
-            f"{'heading':>8}"
-        )
-        for cam in self.cameras:
-            x, y, z = np.round(cam.position, 3) + 0.0  # no "-0.000"
-            fov = reported_fov(cam.model)
-            lines.append(
-                f"  {cam.name:<{width}} {cam.model.type:<17} {calibrations.index(cam.model) + 1:>4} "
-                f"{cam.model.width:>4}x{cam.model.height:<4} {fov if fov is not None else '-':>7}"
-                f"   {x:>7.3f}, {y:>7.3f}, {z:>7.3f}     {round(math.degrees(cam.heading), 1) + 0.0:>7.1f}°"
-            )
-        return "\n".join(lines)
-
-
-def _canonical(value: Any) -> Any:
-    """JSON data with every float rounded to 10 decimals and signed zeros made positive."""
-    if isinstance(value, float):
-        return round(value, 10) + 0.0
-    if isinstance(value, dict):
-        return {k: _canonical(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_canonical(v) for v in value]
-    return value
-
-
-def _as_dict(model: Any) -> Any:
-    return model.model_dump() if isinstance(model, BaseModel) else model
-
-
-@lru_cache(maxsize=1)
-def default_rig() -> Rig:
-    """The Fisheye3DOD rig shipped with the package: one 800x800 220-degree OCam model, four cameras.
-
-    Returns:
-        Rig: The rig ``fisheye3dod`` (front, left, right, rear), cached: every call returns the same object.
-
-    Examples:
-        ```python
-        from fisheye_infer.cameras.rig import default_rig
-
-        rig = default_rig()
-        rig.names     # ["fisheye_camera_front", "fisheye_camera_left", "fisheye_camera_right", "fisheye_camera_rear"]
-        ```
-    """
-    base = resources.files("fisheye_infer") / "data" / "rig-fisheye3dod"
-    with resources.as_file(base) as folder:
-        return Rig.from_ocam_extrinsics(folder / "calib_results.txt", folder / "lidar2cam.json", name="fisheye3dod")
-
-
-def pinhole_rig() -> Rig:
-    """The six-camera pinhole rig shipped with the package (``rig-pinhole6``): the pinhole baselines' 1280x720
-    ideal 90-degree cameras in their input order, with constructed nuScenes-like extrinsics."""
-    path = resources.files("fisheye_infer") / "data" / "rig-pinhole6" / "cameras.json"
-    with resources.as_file(path) as file:
-        return Rig.load(file)
-
-
-def resolve_rig(spec: str | Path | None) -> Rig:
-    """A rig from what a user types: nothing or ``default`` (the shipped rig), a rig file, or a
-    folder holding ``calib_results.txt`` and ``lidar2cam.json``.
-
-    Args:
-        spec (str | Path | None): None or ``"default"``, a rig file (``.json``, ``.yaml``, ``.yml``) or a folder.
-
-    Returns:
-        Rig: The rig.
-
-    Raises:
-        RigError: No such file or folder, a folder without both files, or an invalid rig.
-    """
-    if spec is None or str(spec) == "default":
-        return default_rig()
-    path = Path(spec)
-    if path.is_dir():
-        calib, extrinsics = path / "calib_results.txt", path / "lidar2cam.json"
-        if not (calib.is_file() and extrinsics.is_file()):
-            raise RigError(f"rig folder {path}: expected calib_results.txt and lidar2cam.json in it")
-        return Rig.from_ocam_extrinsics(calib, extrinsics)
-    if not path.exists():
-        raise RigError(f"rig {path}: no such file or folder (give a rig .json/.yaml, a folder, or 'default')")
-    return Rig.load(path)
+        return rig_inspection.describe(self)
