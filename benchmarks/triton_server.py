@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -37,19 +36,13 @@ import numpy as np
 from model_files import MODEL_HELP, model_path
 
 from fisheye_infer.deploy.triton.repository import TritonOptions, write_repository
-from fisheye_infer.deploy.triton.server import TritonServer
+from fisheye_infer.deploy.triton.server import TritonServer, free_port
 from fisheye_infer.runtime.artifact import read_meta
 from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.scenes.render import Renderer, random_scene
 
 HOST = "127.0.0.1"
 WARMUP_S = 3.0
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind((HOST, 0))
-        return int(sock.getsockname()[1])
 
 
 def closed_loop(make_call: Callable[[], Callable[[], None]], clients: int, duration: float) -> list[float]:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -18,7 +17,7 @@ import numpy as np
 import pytest
 
 from fisheye_infer.deploy.triton.repository import TritonOptions, write_repository
-from fisheye_infer.deploy.triton.server import TritonServer, server_unavailable
+from fisheye_infer.deploy.triton.server import TritonServer, free_port, server_unavailable
 from fisheye_infer.errors import ArtifactError, InferenceError
 from fisheye_infer.runtime.artifact import read_meta
 from fisheye_infer.runtime.detector import Detector
@@ -140,14 +139,8 @@ def test_the_onnxruntime_form_parses_and_only_its_backend_is_missing(small_expor
         os.kill(pid, 0)
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def test_cli_serve_runs_until_interrupted(small_export, tmp_path: Path) -> None:
-    http_port, grpc_port = _free_port(), _free_port()
+    http_port, grpc_port = free_port(), free_port()
     command = [sys.executable, "-m", "fisheye_infer", "triton", str(small_export.onnx), "--out", str(tmp_path)]
     command += [
         "--backend",

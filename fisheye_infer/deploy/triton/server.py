@@ -33,10 +33,16 @@ from types import TracebackType
 
 from fisheye_infer.errors import ConfigError, InferenceError
 
-__all__ = ["INSTALL", "TritonServer", "bundled_server", "server_unavailable"]
+__all__ = ["INSTALL", "TritonServer", "bundled_server", "free_port", "server_unavailable"]
 
 #: How to install the bundled server.
 INSTALL = "pip install --no-deps nvidia-pytriton==0.7.0 (Linux x86-64, glibc 2.35 or newer)"
+
+
+def _stub(root: Path) -> Path:
+    """The wheel's Python backend stub built for this Python version."""
+    version = f"{sys.version_info.major}.{sys.version_info.minor}"
+    return root / "python_backend_stubs" / version / "triton_python_backend_stub"
 
 
 def bundled_server() -> Path:
@@ -52,8 +58,7 @@ def bundled_server() -> Path:
     if spec is None or not spec.submodule_search_locations:
         raise ConfigError(f"no Triton server here: {INSTALL}")
     root = Path(next(iter(spec.submodule_search_locations))) / "tritonserver"
-    stub = root / "python_backend_stubs" / f"{sys.version_info.major}.{sys.version_info.minor}"
-    for needed in (root / "bin" / "tritonserver", root / "backends" / "python", stub / "triton_python_backend_stub"):
+    for needed in (root / "bin" / "tritonserver", root / "backends" / "python", _stub(root)):
         if not needed.exists():
             raise ConfigError(f"the nvidia-pytriton wheel lacks {needed} (Python {sys.version.split()[0]})")
     return root
@@ -90,7 +95,12 @@ def server_unavailable() -> str | None:
     return None
 
 
-def _free_port() -> int:
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 now (the OS's choice).
+
+    Returns:
+        int: The port.
+    """
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
@@ -142,8 +152,8 @@ class TritonServer:
         self.repository = Path(repository).resolve()
         if not self.repository.is_dir():
             raise ConfigError(f"model repository {self.repository}: not a folder")
-        self.http_port = http_port or _free_port()
-        self.grpc_port = grpc_port or _free_port()
+        self.http_port = http_port or free_port()
+        self.grpc_port = grpc_port or free_port()
         self.exit_on_error = exit_on_error
         self.startup_timeout_s = startup_timeout_s
         self.exit_timeout_s = exit_timeout_s
@@ -204,8 +214,7 @@ class TritonServer:
         self._workspace = Path(tempfile.mkdtemp(prefix="fisheye-infer-triton-"))
         backends = self._workspace / "backends"
         shutil.copytree(root / "backends", backends)
-        stub = root / "python_backend_stubs" / f"{sys.version_info.major}.{sys.version_info.minor}"
-        shutil.copy2(stub / "triton_python_backend_stub", backends / "python" / "triton_python_backend_stub")
+        shutil.copy2(_stub(root), backends / "python" / "triton_python_backend_stub")
         command = [
             str(root / "bin" / "tritonserver"),
             f"--model-repository={self.repository}",
