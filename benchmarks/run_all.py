@@ -76,6 +76,7 @@ STEPS = (
     Step("replay", args=lambda m: [m], quick=lambda m: [m, "--quick"], modules=("rosbags", "mcap")),
     Step("tracking", modules=("torch", "onnx")),
     Step("virtual_cameras", modules=("torch", "onnx")),
+    Step("front_ends", modules=("torch", "onnx")),
     Step(
         "official_configs",
         quick=lambda m: ["--only", "fisheye_bevdet", "nusc_petr"],

@@ -25,20 +25,19 @@ from fisheye_infer.geometry.tables import RECTIFY, RESIZE_X, RESIZE_Y
 
 from .cylindrical import rectify
 from .resample import taps_for
-from .resize import pil_resize
+from .resize import Tables, pil_resize
 
 __all__ = ["resized_views", "perspective_views"]
 
-Taps = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 
-
-def _tables(tables: Mapping[str, torch.Tensor], prefix: str) -> Taps:
+def _tables(tables: Mapping[str, torch.Tensor], prefix: str) -> Tables:
     return tables[f"{prefix}index"], tables[f"{prefix}high"], tables[f"{prefix}low"]
 
 
-def _computed(in_size: int, out_size: int, device: torch.device) -> Taps:
-    taps = pil_bicubic_taps(in_size, out_size)
-    index, high, low = (torch.from_numpy(np.ascontiguousarray(a)).to(device) for a in (taps.index, taps.high, taps.low))
+def _computed(in_size: int, out_size: int, device: torch.device) -> Tables:
+    blocks = pil_bicubic_taps(in_size, out_size).blocks()
+    arrays = (blocks.index, blocks.high, blocks.low)
+    index, high, low = (torch.from_numpy(np.ascontiguousarray(a)).to(device) for a in arrays)
     return index, high, low
 
 
@@ -52,7 +51,7 @@ def resized_views(
         horizontal, vertical = _tables(tables, RESIZE_X), _tables(tables, RESIZE_Y)
     else:
         horizontal, vertical = _computed(w, view_hw[1], images.device), _computed(h, view_hw[0], images.device)
-    return pil_resize(images.to(torch.float32), horizontal, vertical)
+    return pil_resize(images, horizontal, vertical, view_hw)
 
 
 def perspective_views(

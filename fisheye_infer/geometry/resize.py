@@ -12,11 +12,15 @@ versions always start with the horizontal pass. Both orders agree on 1280x720 ->
 
 This module gives the per-axis coefficient tables (`pil_bicubic_taps`), the exact int64
 evaluation of Pillow's two passes (`resize_reference`) and a float32 evaluation that is
-exact by construction (`apply_taps_float32`): every integer coefficient is split into a
-high and a low part of 11 bits so that every product and partial sum stays an integer below
-2**24, where float32 arithmetic has no rounding. That float32 form is the specification of the
-graph's resize (``fisheye_infer.models.resize``), which must stay float32 (no float64, no integer
-MatMul) to run on TensorRT.
+exact by construction (`apply_blocks_float32`) on the graph's form of the tables
+(`ResizeTaps.blocks`): the outputs of an axis in blocks of `RESIZE_BLOCK`, each block reading
+one window of consecutive input positions, its coefficients a dense (block, window) matrix, so
+that a pass is one gather of whole rows and one batched MatMul per coefficient part. Every
+integer coefficient is split into a high and a low part of 11 bits (each divided by 2048) so
+that every product and partial sum is an integer multiple of 2**-11 below 2**13, where float32
+arithmetic has no rounding, in any summation order. That float32 form is the specification of
+the graph's resize (``fisheye_infer.models.resize``), which must stay float32 (no float64, no
+integer MatMul) to run on TensorRT.
 """
 
 from __future__ import annotations
@@ -30,19 +34,23 @@ __all__ = [
     "PIL_PRECISION_BITS",
     "SPLIT_BITS",
     "FLOAT32_EXACT_LIMIT",
+    "RESIZE_BLOCK",
     "ResizeTaps",
+    "ResizeBlocks",
     "bicubic_kernel",
     "pil_bicubic_taps",
     "pil_horizontal_first",
     "resize_reference",
-    "apply_taps_float32",
+    "apply_blocks_float32",
 ]
 
 PIL_PRECISION_BITS = 22  # Pillow's 32 - 8 - 2: 8 bits of result, 2 bits for the kernel's over- and undershoot
 # k = high * 2**11 + low: T products of a pixel (< 2**8) and a part (<= 2**11) sum below 2**24 for T <= 32, and
-# with Pillow's rounding offset 2**21 added, for T <= 28; apply_taps_float32 checks the actual tables.
+# with Pillow's rounding offset 2**21 added, for T <= 28; apply_blocks_float32 checks the actual tables.
 SPLIT_BITS = 11
 FLOAT32_EXACT_LIMIT = 2**24  # every integer of smaller magnitude is a float32, so sums of them are exact
+#: Output positions per block of the graph's tables (`ResizeTaps.blocks`).
+RESIZE_BLOCK = 10
 
 _SPLIT = 1 << SPLIT_BITS
 _HALF = 1 << (PIL_PRECISION_BITS - 1)  # Pillow's rounding offset, added before the shift
@@ -51,19 +59,32 @@ _BICUBIC_SUPPORT = 2.0
 
 
 @dataclass(frozen=True)
-class ResizeTaps:
-    """Pillow's 8-bit coefficients for one axis, laid out for a gather per tap.
+class ResizeBlocks:
+    """One axis of Pillow's resize in the graph's form: outputs in blocks, each block reading one window.
 
-    All arrays are (T, out), T = Pillow's ``ksize``. Taps beyond an output's support have
-    coefficient 0 and an index clamped into ``[0, in_size)``, so every tap can be gathered without
-    a mask. ``high`` and ``low`` are the integer coefficient split by floor division,
-    ``coefficients == high * 2048 + low`` with ``0 <= low < 2048``, stored as float32 because the
-    graph multiplies float32 pixels by them; ``coefficients`` is kept for the int64 reference.
+    ``index`` (G, L) holds the window of each block of ``RESIZE_BLOCK`` = S consecutive outputs: L
+    consecutive input positions, clamped into the image (a clamped repeat weighs 0). ``high`` and
+    ``low`` (G, S, L) are the block's coefficient matrices: Pillow's integer coefficient
+    ``k = 2048 * h + l`` (``0 <= l < 2048``) of output ``g * S + s`` and input ``index[g, j]`` as
+    ``h / 2048`` and ``l / 2048``, float32 and exact; 0 where the output does not read that input.
+    The last block is padded with outputs of no coefficient: ``size`` is the real number of outputs.
+    """
+
+    index: np.ndarray  # (G, L) int64
+    high: np.ndarray  # (G, S, L) float32, multiples of 1/2048 in [-1, 1]
+    low: np.ndarray  # (G, S, L) float32, multiples of 1/2048 in [0, 1)
+    size: int
+
+
+@dataclass(frozen=True)
+class ResizeTaps:
+    """Pillow's 8-bit coefficients for one axis, tap by tap.
+
+    Both arrays are (T, out), T = Pillow's ``ksize``. Taps beyond an output's support have
+    coefficient 0 and an index clamped into ``[0, in_size)``.
     """
 
     index: np.ndarray  # (T, out) int64 input position of each tap
-    high: np.ndarray  # (T, out) float32, integer-valued, may be negative
-    low: np.ndarray  # (T, out) float32, integer-valued, in [0, 2048)
     coefficients: np.ndarray  # (T, out) int64, Pillow's fixed-point coefficient
 
     @property
@@ -76,17 +97,37 @@ class ResizeTaps:
         """The number of output positions the tables cover."""
         return int(self.index.shape[1])
 
-    def trimmed(self) -> ResizeTaps:
-        """The same resampling without the taps whose coefficient is 0 at every output position.
+    def blocks(self, block: int = RESIZE_BLOCK) -> ResizeBlocks:
+        """The same coefficients in the graph's form ([`ResizeBlocks`][fisheye_infer.geometry.resize.ResizeBlocks]).
 
-        Pillow sizes its tables for the widest support (``ksize``), so some taps never contribute
-        (two of the nine of 1280 -> 800); a graph that skips them does less work for the same
-        integers, hence the same output.
+        Args:
+            block: Outputs per block.
+
+        Returns:
+            ResizeBlocks: Each block's window of inputs and its coefficient matrices; taps of coefficient 0
+            are left out, so the windows span only the inputs that contribute.
         """
-        keep = np.flatnonzero((self.coefficients != 0).any(axis=1))
-        keep = keep if keep.size else np.arange(1)
-        return ResizeTaps(
-            index=self.index[keep], high=self.high[keep], low=self.low[keep], coefficients=self.coefficients[keep]
+        groups = -(-self.size // block)
+        pad = groups * block - self.size
+        coefficients = np.pad(self.coefficients, ((0, 0), (0, pad)))
+        index = np.pad(self.index, ((0, 0), (0, pad)), mode="edge")
+        live = coefficients != 0
+        by_block = (self.taps, groups, block)
+        first = np.where(live, index, np.iinfo(np.int64).max).reshape(by_block).min(axis=(0, 2))
+        last = np.where(live, index, -1).reshape(by_block).max(axis=(0, 2))
+        empty = last < 0
+        first[empty], last[empty] = 0, 0
+        length = int((last - first).max()) + 1
+        window = np.minimum(first[:, None] + np.arange(length), int(self.index.max()))
+        output = np.broadcast_to(np.arange(groups * block), index.shape)[live]
+        matrix = np.zeros((groups, block, length), np.int64)
+        np.add.at(matrix, (output // block, output % block, index[live] - first[output // block]), coefficients[live])
+        high, low = np.divmod(matrix, _SPLIT)
+        return ResizeBlocks(
+            index=window.astype(np.int64),
+            high=(high / _SPLIT).astype(np.float32),
+            low=(low / _SPLIT).astype(np.float32),
+            size=self.size,
         )
 
 
@@ -150,8 +191,7 @@ def pil_bicubic_taps(in_size: int, out_size: int, first: int = 0, count: int | N
     xmin, weights, ksize = _float_weights(in_size, out_size)
     coefficients = _fixed_point(weights)[:, first : first + count]
     index = np.minimum(xmin[None, first : first + count] + np.arange(ksize, dtype=np.int64)[:, None], in_size - 1)
-    high, low = np.divmod(coefficients, _SPLIT)
-    return ResizeTaps(index=index, high=high.astype(np.float32), low=low.astype(np.float32), coefficients=coefficients)
+    return ResizeTaps(index=index, coefficients=coefficients)
 
 
 def _pass_reference(x: np.ndarray, taps: ResizeTaps, axis: int) -> np.ndarray:
@@ -199,38 +239,46 @@ def resize_reference(
     return _pass_reference(_pass_reference(image, vertical, 0), horizontal, 1)
 
 
-def _exact_bound(taps: ResizeTaps) -> int:
-    """The largest magnitude any product, partial sum or rounding term of `apply_taps_float32` reaches."""
-    high = 255 * int(np.abs(taps.high.astype(np.int64)).sum(axis=0).max())
-    low = 255 * int(taps.low.astype(np.int64).sum(axis=0).max()) + _HALF
-    return max(high + low // _SPLIT + 1, low)
+def _exact_bound(blocks: ResizeBlocks) -> int:
+    """The largest magnitude, in units of 2**-11, of any product, partial sum or rounding term of
+    `apply_blocks_float32`."""
+    high = 255 * int(np.abs(blocks.high * _SPLIT).astype(np.int64).sum(axis=2).max())
+    low = 255 * int((blocks.low * _SPLIT).astype(np.int64).sum(axis=2).max())
+    return max(high + (low + _HALF) // _SPLIT + 1, low)
 
 
-def apply_taps_float32(x: np.ndarray, taps: ResizeTaps, axis: int) -> np.ndarray:
+def apply_blocks_float32(x: np.ndarray, blocks: ResizeBlocks, axis: int) -> np.ndarray:
     """One of Pillow's 8-bit passes along ``axis`` of a float32 array of uint8 values, in float32 only.
 
-    With ``Sh = sum_t x[index_t] * high_t``, ``Sl = sum_t x[index_t] * low_t``, ``b = Sl + 2**21``,
-    ``bq = floor(b / 2048)`` and ``q = floor((Sh + bq) / 2048)``, the result is ``clip(q, 0, 255)``.
-    ``x`` must hold integers in [0, 255]. Every term is then an integer of magnitude below 2**24
-    (about ``255 * 2048 * T + 2**21`` at most; the bound of the actual tables is checked), so
-    float32 sums are exact in any order, and the divisions by 2048 are exact.
+    Each block's window of ``x`` is multiplied by the block's ``high`` and ``low`` matrices:
+    ``H = Sh / 2048`` and ``L = Sl / 2048`` with ``Sh = sum x * h`` and ``Sl = sum x * l`` over the
+    coefficients ``k = 2048 * h + l``. The result is ``clip(floor(H + (floor(L) + 1024) / 2048), 0, 255)``.
+    ``x`` must hold integers in [0, 255]. Every term is then a multiple of 2**-11 of magnitude below
+    2**13 (the bound of the actual tables is checked), so float32 sums are exact in any order, and
+    the scalings by 2048 are exact.
 
-    Why ``q`` is Pillow's ``ss >> 22``, ``ss = 2**21 + sum x * k = 2048 * Sh + b``:
-    ``ss = 2048 * (Sh + bq) + (b mod 2048)`` with ``0 <= b mod 2048 < 2048``, so ``floor(ss / 2048) = Sh + bq``;
-    and ``floor(floor(ss / 2048) / 2048) = floor(ss / 2**22)``, the arithmetic shift.
+    Why that is Pillow's ``ss >> 22``, ``ss = 2**21 + sum x * k = 2048 * Sh + Sl + 2**21``: with
+    ``bq = floor((Sl + 2**21) / 2048) = floor(L) + 1024``, ``ss = 2048 * (Sh + bq) + r`` with
+    ``0 <= r < 2048``, so ``floor(ss / 2048) = Sh + bq``, and ``floor((Sh + bq) / 2048) = floor(ss / 2**22)``,
+    the arithmetic shift.
+
+    Args:
+        x: Integer values in [0, 255], float32.
+        blocks: The axis's tables (`ResizeTaps.blocks`).
+        axis: The axis of ``x`` to resize.
+
+    Returns:
+        np.ndarray: float32, ``x`` with ``axis`` resized to ``blocks.size``.
+
+    Raises:
+        ValueError: The tables' sums would leave float32's exact range.
     """
-    bound = _exact_bound(taps)
+    bound = _exact_bound(blocks)
     if bound >= FLOAT32_EXACT_LIMIT:
-        raise ValueError(f"{taps.taps} taps reach {bound} >= 2**24: the float32 evaluation would not be exact")
-    shape = [1] * x.ndim
-    shape[axis] = taps.size
-    sh = np.zeros((), dtype=np.float32)
-    sl = np.zeros((), dtype=np.float32)
-    for index, high, low in zip(taps.index, taps.high, taps.low):
-        gathered = np.take(x, index, axis=axis).astype(np.float32, copy=False)
-        sh = sh + gathered * high.reshape(shape)
-        sl = sl + gathered * low.reshape(shape)
-    split = np.float32(_SPLIT)
-    bq = np.floor((sl + np.float32(_HALF)) / split)
-    q = np.floor((sh + bq) / split)
-    return np.clip(q, np.float32(0), np.float32(255)).astype(np.float32, copy=False)
+        raise ValueError(f"the resize's sums reach {bound} >= 2**24 units: the float32 evaluation would not be exact")
+    moved = np.moveaxis(np.asarray(x, np.float32), axis, 0)
+    windows = moved.reshape(moved.shape[0], -1)[blocks.index]  # (G, L, R)
+    high, low = blocks.high @ windows, blocks.low @ windows  # (G, S, R)
+    q = np.floor(high + (np.floor(low) + np.float32(_HALF // _SPLIT)) * np.float32(1.0 / _SPLIT))
+    q = np.clip(q, np.float32(0), np.float32(255)).reshape(-1, *moved.shape[1:])[: blocks.size]
+    return np.moveaxis(q, 0, axis).astype(np.float32, copy=False)

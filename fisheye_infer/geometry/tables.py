@@ -57,9 +57,9 @@ views the backbone sees (`views`), for `T` views of `Hv x Wv`:
 
 | table | shape | type | holds |
 |---|---|---|---|
-| `geom.resize.x.index` | `(T, Wv)` | int64 | PIL bicubic resize and crop: the columns each output column reads |
-| `geom.resize.x.high`, `.low` | `(T, Wv)` | float32 | the integer weights split in two exact halves (`resize`) |
-| `geom.resize.y.*` | `(T, Hv)` | | the same for rows |
+| `geom.resize.x.index` | `(G, L)` | int64 | PIL bicubic resize and crop: the columns a block of outputs reads |
+| `geom.resize.x.high`, `.low` | `(G, S, L)` | float32 | a block's integer weights in two exact halves (`resize`) |
+| `geom.resize.y.*` | `(G, S, L)` | | the same for rows |
 
 or `geom.rectify.*` of the perspective views (fisheye input, each camera's views stacked by yaw); then `geom.pool.*`
 (pinhole LSS, pinhole-bevdet / fisheye-bevdet-persp) or `geom.petr.key_pos` and `geom.petr.key_mask` (all
@@ -84,7 +84,7 @@ from pydantic import BaseModel, ConfigDict
 from fisheye_infer.errors import ConfigError
 from fisheye_infer.geometry.grids import BilinearTaps, bilinear_taps, remap_taps
 from fisheye_infer.geometry.pooling import PoolingPlan
-from fisheye_infer.geometry.resize import ResizeTaps
+from fisheye_infer.geometry.resize import ResizeBlocks
 
 __all__ = [
     "PREFIX",
@@ -176,12 +176,13 @@ def sampling_tables(prefix: str, grids: np.ndarray, source_size: tuple[int, int]
     return {taps_index(prefix): taps.index, taps_weight(prefix): taps.weight}
 
 
-def resize_tables(prefix: str, taps: ResizeTaps) -> dict[str, np.ndarray]:
-    """One axis of PIL's resize ([`ResizeTaps`][fisheye_infer.geometry.resize.ResizeTaps]) as the tables ``prefix``."""
+def resize_tables(prefix: str, blocks: ResizeBlocks) -> dict[str, np.ndarray]:
+    """One axis of PIL's resize ([`ResizeBlocks`][fisheye_infer.geometry.resize.ResizeBlocks]) as the tables
+    ``prefix``."""
     return {
-        f"{prefix}index": taps.index.astype(np.int64),
-        f"{prefix}high": taps.high.astype(np.float32),
-        f"{prefix}low": taps.low.astype(np.float32),
+        f"{prefix}index": blocks.index.astype(np.int64),
+        f"{prefix}high": blocks.high.astype(np.float32),
+        f"{prefix}low": blocks.low.astype(np.float32),
     }
 
 

@@ -215,6 +215,6 @@ def front_end_tables(
     rw, rh = source.resized_size(sw, sh)
     left, top = source.crop
     return {
-        **resize_tables(RESIZE_X, pil_bicubic_taps(sw, rw, left, iw).trimmed()),
-        **resize_tables(RESIZE_Y, pil_bicubic_taps(sh, rh, top, ih).trimmed()),
+        **resize_tables(RESIZE_X, pil_bicubic_taps(sw, rw, left, iw).blocks()),
+        **resize_tables(RESIZE_Y, pil_bicubic_taps(sh, rh, top, ih).blocks()),
     }

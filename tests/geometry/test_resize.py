@@ -3,6 +3,7 @@ evaluation against the reference, and the torch pass and its ONNX graph against 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -11,8 +12,9 @@ import pytest
 
 from fisheye_infer.geometry.resize import (
     FLOAT32_EXACT_LIMIT,
+    RESIZE_BLOCK,
     ResizeTaps,
-    apply_taps_float32,
+    apply_blocks_float32,
     pil_bicubic_taps,
     pil_horizontal_first,
     resize_reference,
@@ -70,14 +72,12 @@ def reference(image: np.ndarray, width: int, height: int, rows: tuple[int, int] 
 
 
 def float32_resize(
-    image: np.ndarray, width: int, height: int, rows: tuple[int, int] | None = None, trim: bool = False
+    image: np.ndarray, width: int, height: int, rows: tuple[int, int] | None = None, block: int = RESIZE_BLOCK
 ) -> np.ndarray:
     first, count = rows if rows is not None else (0, height)
-    horizontal = pil_bicubic_taps(image.shape[1], width)
-    vertical = pil_bicubic_taps(image.shape[0], height, first, count)
-    if trim:
-        horizontal, vertical = horizontal.trimmed(), vertical.trimmed()
-    return apply_taps_float32(apply_taps_float32(image.astype(np.float32), horizontal, 1), vertical, 0)
+    horizontal = pil_bicubic_taps(image.shape[1], width).blocks(block)
+    vertical = pil_bicubic_taps(image.shape[0], height, first, count).blocks(block)
+    return apply_blocks_float32(apply_blocks_float32(image.astype(np.float32), horizontal, 1), vertical, 0)
 
 
 # ---------------------------------------------------------------------------------------------- tables
@@ -97,10 +97,7 @@ def test_camera_downscale_taps_fit_float32() -> None:
 def test_taps_split_and_indices(in_size: int, out_size: int, first: int, count: int | None) -> None:
     taps = pil_bicubic_taps(in_size, out_size, first, count)
     assert taps.index.dtype == np.int64 and taps.coefficients.dtype == np.int64
-    assert taps.high.dtype == np.float32 and taps.low.dtype == np.float32
     assert taps.size == (count or out_size)
-    np.testing.assert_array_equal(taps.high.astype(np.int64) * 2048 + taps.low.astype(np.int64), taps.coefficients)
-    assert taps.low.min() >= 0 and taps.low.max() < 2048
     assert taps.index.min() >= 0 and taps.index.max() < in_size
     # Pillow's weights are normalised: each output's coefficients add up to 2**22, up to rounding
     assert np.abs(taps.coefficients.sum(axis=0) - 2**22).max() <= taps.taps
@@ -112,12 +109,47 @@ def test_crop_taps_are_the_full_tables_columns() -> None:
     np.testing.assert_array_equal(crop.index, full.index[:, 50:450])
 
 
-def test_trimmed_drops_only_empty_taps() -> None:
+def _dense(taps: ResizeTaps) -> np.ndarray:
+    """The (out, in) integer matrix of the tap-by-tap tables."""
+    matrix = np.zeros((taps.size, int(taps.index.max()) + 1), np.int64)
+    np.add.at(matrix, (np.broadcast_to(np.arange(taps.size), taps.index.shape), taps.index), taps.coefficients)
+    return matrix
+
+
+@pytest.mark.parametrize("block", [1, 3, RESIZE_BLOCK, 64])
+@pytest.mark.parametrize(
+    "in_size, out_size, first, count", [(1280, 800, 0, None), (720, 450, 50, 400), (7, 23, 0, None), (5, 1, 0, None)]
+)
+def test_blocks_hold_the_same_coefficients(
+    in_size: int, out_size: int, first: int, count: int | None, block: int
+) -> None:
+    taps = pil_bicubic_taps(in_size, out_size, first, count)
+    blocks = taps.blocks(block)
+    groups = -(-taps.size // block)
+    assert blocks.size == taps.size and blocks.index.shape[0] == groups
+    assert blocks.high.shape == blocks.low.shape == (groups, block, blocks.index.shape[1])
+    assert blocks.index.dtype == np.int64 and blocks.high.dtype == blocks.low.dtype == np.float32
+    assert blocks.index.min() >= 0 and blocks.index.max() < in_size
+    high, low = blocks.high.astype(np.float64) * 2048, blocks.low.astype(np.float64) * 2048
+    np.testing.assert_array_equal(high, np.round(high))  # exact multiples of 1/2048
+    np.testing.assert_array_equal(low, np.round(low))
+    assert low.min() >= 0 and low.max() < 2048
+    matrix = np.zeros((groups * block, int(taps.index.max()) + 1), np.int64)
+    rows = np.arange(groups * block).reshape(groups, block, 1)
+    columns = np.broadcast_to(blocks.index[:, None, :], blocks.high.shape)
+    np.add.at(matrix, (np.broadcast_to(rows, blocks.high.shape), columns), (high * 2048 + low).astype(np.int64))
+    np.testing.assert_array_equal(matrix[: taps.size], _dense(taps))
+    assert not matrix[taps.size :].any()  # the last block's padding outputs read nothing
+
+
+def test_block_windows_span_only_contributing_inputs() -> None:
     taps = pil_bicubic_taps(WIDTH, OUT_WIDTH)
-    trimmed = taps.trimmed()
-    assert isinstance(trimmed, ResizeTaps) and trimmed.taps == 7
-    assert (trimmed.coefficients != 0).any(axis=1).all()
-    np.testing.assert_array_equal(trimmed.coefficients.sum(axis=0), taps.coefficients.sum(axis=0))
+    blocks = taps.blocks()
+    weights = (blocks.high != 0) | (blocks.low != 0)
+    reads = weights.any(axis=1)  # (G, L): the window positions some output of the block reads
+    assert reads[:, 0].all() and reads[:, -1].any()
+    # ten outputs 1.6 input pixels apart, each reading 2 * 3.2 pixels around its centre
+    assert blocks.index.shape[1] <= math.ceil(9 * 1.6 + 2 * 3.2) + 1
 
 
 @pytest.mark.parametrize(
@@ -201,24 +233,22 @@ def test_float32_equals_reference(camera_image: np.ndarray) -> None:
     result = float32_resize(camera_image, OUT_WIDTH, OUT_HEIGHT)
     assert result.dtype == np.float32
     np.testing.assert_array_equal(result, expected)
-    np.testing.assert_array_equal(
-        float32_resize(camera_image, OUT_WIDTH, OUT_HEIGHT, CROP, trim=True), expected[50:450]
-    )
+    np.testing.assert_array_equal(float32_resize(camera_image, OUT_WIDTH, OUT_HEIGHT, CROP, block=7), expected[50:450])
 
 
 @pytest.mark.parametrize("in_w, in_h, out_w, out_h", SIZES)
 def test_float32_equals_reference_other_sizes(in_w: int, in_h: int, out_w: int, out_h: int) -> None:
     for kind, make in IMAGES.items():
         image = make(in_h, in_w)
-        np.testing.assert_array_equal(
-            float32_resize(image, out_w, out_h), resize_reference(image, out_w, out_h), err_msg=kind
-        )
+        expected = resize_reference(image, out_w, out_h)
+        for block in (1, RESIZE_BLOCK):
+            np.testing.assert_array_equal(float32_resize(image, out_w, out_h, block=block), expected, err_msg=kind)
 
 
 def test_float32_refuses_inexact_tables() -> None:
     """A 1280 -> 1 reduction has 5121 taps: its sums leave float32's exact integers."""
     with pytest.raises(ValueError, match="2\\*\\*24"):
-        apply_taps_float32(np.zeros((1, WIDTH, 3), np.float32), pil_bicubic_taps(WIDTH, 1), 1)
+        apply_blocks_float32(np.zeros((1, WIDTH, 3), np.float32), pil_bicubic_taps(WIDTH, 1).blocks(), 1)
 
 
 # -------------------------------------------------------------------------------------- torch, ONNX
@@ -235,7 +265,7 @@ def _expected(batch: np.ndarray) -> np.ndarray:
     )
 
 
-def _module(trim: bool) -> Any:
+def _module(block: int = RESIZE_BLOCK) -> Any:
     torch = pytest.importorskip("torch")
     from fisheye_infer.models.resize import pil_resize
 
@@ -245,14 +275,15 @@ def _module(trim: bool) -> Any:
         def __init__(self) -> None:
             super().__init__()
             for axis, taps in tables.items():
-                taps = taps.trimmed() if trim else taps
+                blocks = taps.blocks(block)
                 for name in ("index", "high", "low"):
-                    self.register_buffer(f"{axis}_{name}", torch.from_numpy(getattr(taps, name)))
+                    self.register_buffer(f"{axis}_{name}", torch.from_numpy(getattr(blocks, name)))
 
         def forward(self, images: torch.Tensor) -> torch.Tensor:
-            return pil_resize(images, (self.h_index, self.h_high, self.h_low), (self.v_index, self.v_high, self.v_low))
+            horizontal, vertical = (self.h_index, self.h_high, self.h_low), (self.v_index, self.v_high, self.v_low)
+            return pil_resize(images, horizontal, vertical, (CROP[1], OUT_WIDTH))
 
-    return Resize()
+    return Resize().eval()
 
 
 @pytest.fixture(scope="module")
@@ -265,59 +296,43 @@ def test_torch_pil_resize_equals_reference(camera_batch: tuple[np.ndarray, np.nd
     torch = pytest.importorskip("torch")
     batch, expected = camera_batch
     with torch.no_grad():
-        result = _module(trim=False)(torch.from_numpy(batch.astype(np.float32))).numpy()
+        result = _module(block=7)(torch.from_numpy(batch)).numpy()
     assert result.shape == (1, 2, 400, OUT_WIDTH, 3) and result.dtype == np.float32
     np.testing.assert_array_equal(result, expected)
 
 
-def test_torch_resize_axis_any_dim() -> None:
+def test_torch_resize_pass_second_to_last_axis() -> None:
     torch = pytest.importorskip("torch")
-    from fisheye_infer.models.resize import resize_axis
+    from fisheye_infer.models.resize import resize_pass
 
     image = _checkerboard(45, 61)
-    taps = pil_bicubic_taps(61, 23)
-    channels_first = torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1)).astype(np.float32))
-    result = resize_axis(channels_first, *(torch.from_numpy(a) for a in (taps.index, taps.high, taps.low)), dim=-1)
+    blocks = pil_bicubic_taps(45, 23).blocks(4)  # 6 blocks, the last one padded
+    channels_first = torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1)).astype(np.float32))  # (3, H, W)
+    tables = (torch.from_numpy(a) for a in (blocks.index, blocks.high, blocks.low))
+    result = resize_pass(channels_first, *tables, size=23)
+    assert result.shape == (3, 23, 61)
     np.testing.assert_array_equal(
-        result.numpy().transpose(1, 2, 0), apply_taps_float32(image.astype(np.float32), taps, 1)
+        result.numpy().transpose(1, 2, 0), apply_blocks_float32(image.astype(np.float32), blocks, 0)
     )
 
 
-ALLOWED_OPS = {
-    "Gather",
-    "Mul",
-    "Add",
-    "Div",
-    "Floor",
-    "Clip",
-    "Constant",
-    "Transpose",
-    "Reshape",
-}  # Transpose: the columns-first pass
+ALLOWED_OPS = {"Cast", "Gather", "MatMul", "Mul", "Add", "Floor", "Clip", "Constant", "Transpose", "Reshape"}
 
 
-@pytest.mark.filterwarnings("ignore:You are using the legacy TorchScript-based ONNX export:DeprecationWarning")
-@pytest.mark.filterwarnings("ignore::DeprecationWarning:torch.*")  # the TorchScript exporter announces its retirement
 def test_onnx_graph_equals_reference(camera_batch: tuple[np.ndarray, np.ndarray], tmp_path: Path) -> None:
     torch = pytest.importorskip("torch")
     onnx = pytest.importorskip("onnx")
     ort = pytest.importorskip("onnxruntime")
     batch, expected = camera_batch
     path = tmp_path / "resize.onnx"
-    images = torch.from_numpy(batch.astype(np.float32))
+    images = torch.from_numpy(batch)
     torch.onnx.export(
-        _module(trim=True),
-        (images,),
-        str(path),
-        opset_version=17,
-        dynamo=False,
-        input_names=["images"],
-        output_names=["resized"],
+        _module(), (images,), str(path), opset_version=18, dynamo=True, input_names=["images"], output_names=["resized"]
     )
 
     graph = onnx.load(str(path)).graph
     assert {node.op_type for node in graph.node} <= ALLOWED_OPS
-    assert {"Gather", "Floor", "Clip"} <= {node.op_type for node in graph.node}
+    assert {"Gather", "MatMul", "Floor", "Clip"} <= {node.op_type for node in graph.node}
     float_types = {init.data_type for init in graph.initializer} - {onnx.TensorProto.INT64}
     assert float_types == {onnx.TensorProto.FLOAT}  # no float64 anywhere, integers only as gather indices
 
@@ -325,5 +340,5 @@ def test_onnx_graph_equals_reference(camera_batch: tuple[np.ndarray, np.ndarray]
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads
         session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        (result,) = session.run(None, {"images": batch.astype(np.float32)})
+        (result,) = session.run(None, {"images": batch})
         np.testing.assert_array_equal(result, expected, err_msg=f"{threads} threads")
