@@ -1,13 +1,12 @@
-"""The image front end's share of a frame: what the graph does to the raw images before the backbone.
+"""The pinhole baselines' front end, Pillow's resize and the crop, as a share of a frame.
 
     python benchmarks/front_ends.py [--models pinhole-bevdet pinhole-petr] [--threads 1 2] [--quick]
 
-For each architecture (full size, seeded weights: ``make_checkpoint(name, seed=0)``; the six-camera pinhole rig for
-``pinhole-*``, the shipped fisheye rig otherwise):
+For each pinhole architecture (full size, seeded weights: ``make_checkpoint(name, seed=0)``, the six-camera
+pinhole rig):
 1. the whole file, written by ``export`` once (kept under ``benchmarks/artifacts/front_ends/``);
-2. the front end alone: the model's own ``normalise`` (the pinhole baselines: Pillow's bicubic resize, the crop
-   and the normalisation; the rectified baselines: cv2.remap's views), on the same ``geom.*`` tables, traced the
-   same way into a file of its own;
+2. the front end alone: the model's own ``views`` (Pillow's bicubic resize and the crop, before the
+   normalisation) on the same ``geom.resize.*`` tables, traced the same way into a file of its own;
 3. both on the export's verification frame, in ONNX Runtime with the runtime's session options, each session
    timed alone in blocks after warm-up (``harness.alternate``: two sessions timed call by call slow each other
    through their spinning worker threads), at each ``--threads``.
@@ -36,7 +35,7 @@ MODELS = ("pinhole-bevdet", "pinhole-petr")
 
 
 class FrontEnd(torch.nn.Module):
-    """A model's ``normalise`` on its own geometry tables, as a module of its own."""
+    """A pinhole model's ``views`` on its own geometry tables, as a module of its own."""
 
     def __init__(self, model: Any) -> None:
         super().__init__()
@@ -44,7 +43,7 @@ class FrontEnd(torch.nn.Module):
         self.tables = model.geometry_tables()
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
-        return self.model.normalise(images, self.tables)
+        return self.model.views(images, self.tables)
 
 
 def files(name: str) -> tuple[Path, Path]:
@@ -52,7 +51,7 @@ def files(name: str) -> tuple[Path, Path]:
     folder = ARTIFACTS / "front_ends" / name
     folder.mkdir(parents=True, exist_ok=True)
     checkpoint, whole, front = folder / "model.pth", folder / "model.onnx", folder / "front_end.onnx"
-    rig = pinhole_rig() if name.startswith("pinhole") else None
+    rig = pinhole_rig()
     if not checkpoint.exists():
         make_checkpoint(name, seed=0, path=checkpoint, rig=rig)
     if not whole.exists():
@@ -67,7 +66,7 @@ def files(name: str) -> tuple[Path, Path]:
 
 def main() -> int:
     bench = harness.Benchmark(__file__, __doc__, quick="2 rounds of 1")
-    bench.parser.add_argument("--models", nargs="+", default=list(MODELS), help="architectures with a front end")
+    bench.parser.add_argument("--models", nargs="+", default=list(MODELS), help="pinhole architectures")
     bench.parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     args = bench.parse()
     rounds, repeat = (2, 1) if args.quick else (5, 3)

@@ -55,17 +55,17 @@ class PinholeBEVDet(FrustumBEVDet):
     def _build_view_transform(self, cfg: PinholeViewTransformConfig, geometry: Any) -> RectifiedLSS:  # type: ignore[override]
         return RectifiedLSS(cfg, geometry)
 
-    def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """uint8 B x N x H x W x 3 raw pinhole images (BGR) -> float32 (B*N) x 3 x h x w normalised views.
-
-        PIL's resize and the crop run on the raw pixel values (the channel order does not matter to
-        them), normalisation after it ([`front_end.resized_views`][fisheye_infer.models.front_end.resized_views]).
-        """
+    def views(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """uint8 B x N x H x W x 3 raw pinhole images -> float B x N x h x w x 3 views of uint8 values: PIL's resize
+        and the crop ([`front_end.resized_views`][fisheye_infer.models.front_end.resized_views]), on the raw pixel
+        values (the channel order does not matter to them)."""
         cfg = self.config
-        views = resized_views(
-            images, tables or self.geometry_tables(), (cfg.image.height, cfg.image.width), cfg.view_transform.image_size
-        )
-        return normalise_frames(views, self.mean, self.std)
+        source_hw = (cfg.image.height, cfg.image.width)
+        return resized_views(images, tables or self.geometry_tables(), source_hw, cfg.view_transform.image_size)
+
+    def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """uint8 B x N x H x W x 3 raw pinhole images (BGR) -> float32 (B*N) x 3 x h x w normalised views."""
+        return normalise_frames(self.views(images, tables), self.mean, self.std)
 
     def forward_dynamic(
         self, images: torch.Tensor, cam2lidar: torch.Tensor | np.ndarray, camera_valid: torch.Tensor | None = None

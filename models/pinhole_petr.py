@@ -51,10 +51,14 @@ class PinholePETR(ResampledPETR):
     def _build_head(self, cfg: PETRConfig, geometry: Any) -> RectifiedPETRHead:
         return RectifiedPETRHead(cfg, geometry)
 
+    def views(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """uint8 B x N x H x W x 3 raw pinhole images -> float B x N x h x w x 3 views of uint8 values: PIL's resize
+        and the crop ([`front_end.resized_views`][fisheye_infer.models.front_end.resized_views])."""
+        cfg = self.config
+        source_hw = (cfg.image.height, cfg.image.width)
+        return resized_views(images, tables or self.geometry_tables(), source_hw, cfg.head.image_size)
+
     def normalise(self, images: torch.Tensor, tables: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """uint8 B x N x H x W x 3 raw pinhole images (BGR) -> float (B*N) x 3 x h x w normalised views."""
-        cfg = self.config
-        views = resized_views(
-            images, tables or self.geometry_tables(), (cfg.image.height, cfg.image.width), cfg.head.image_size
-        )
-        return normalise_frames(views, self.pixel_mean, self.pixel_std, cfg.image.bgr_to_rgb)
+        views = self.views(images, tables)
+        return normalise_frames(views, self.pixel_mean, self.pixel_std, self.config.image.bgr_to_rgb)
