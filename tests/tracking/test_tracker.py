@@ -73,6 +73,15 @@ def test_duplicates_of_one_object_start_one_track() -> None:
     assert len(out) == 2 and tracker.live == 3  # near a live track: no birth either
 
 
+def test_a_stray_detection_within_the_gate_keeps_the_track() -> None:
+    # a parked car; one frame's detection lands 3.5 m off (a camera detector's far-centre error): the 3 m car gate
+    # plus twice the prediction's spread (about 0.5 m) still takes it, so the car keeps its id
+    tracker = Tracker()
+    ids = [int(tracker.update(dets([(10, 0, CAR, 0.9)]), 0.1 * k).ids[0]) for k in range(10)]
+    stray = tracker.update(dets([(13.5, 0, CAR, 0.9)]), 1.0)
+    assert list(stray.ids) == [ids[0]] and tracker.live == 1
+
+
 def test_young_tracks_report_lower_scores() -> None:
     tracker = Tracker(TrackerConfig(young_weight=0.5))
     scores = [float(tracker.update(dets([(5, 5, CAR, 0.8)]), 0.1 * k).scores[0]) for k in range(4)]
