@@ -14,8 +14,10 @@ CenterPoint's greedy baseline, the tracker on noisy ground truth, velocity error
    ground truth with noise (centre 0.15 m + 1 % of range, size 5 %, yaw 0.1 rad), 10 % of boxes dropped, scores
    drawn in [0.3, 1], and one false alarm per frame at score < 0.3, into both trackers: the tracker's ceiling;
 3. AMOTA, AMOTP, MOTA, MOTP, IDS (and per 1,000 frames), FRAG and recall at 0-30 and 0-48 m (``eval.tracking``,
-   equal to nuScenes-devkit), and the velocity error (m/s) of reported tracks within 2 m of a labelled object of
-   their class, vehicles (Car, Van, Truck, Bus) and the rest apart, and vehicles' tracks reported 5 times or more;
+   equal to nuScenes-devkit), HOTA, DetA, AssA and LocA at 0-48 m where TrackEval is installed (``eval.hota``;
+   ``pip install --no-deps --target DIR trackeval``, ``PYTHONPATH=DIR``), and the velocity error (m/s) of reported
+   tracks within 2 m of a labelled object of their class, vehicles (Car, Van, Truck, Bus) and the rest apart, and
+   vehicles' tracks reported 5 times or more;
 4. the time of one ``update`` with 100 detections (100 objects, 10 Hz, in this process's thread), median of 300
    frames;
 5. ``docs/assets/tracking-overlay.png`` (not with ``--quick``): frame 30 of validation sequence 7 (the ego driving
@@ -37,7 +39,9 @@ import numpy as np
 
 from fisheye_infer import Detections, Detector, GreedyTracker, Tracker, TrackerConfig
 from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.errors import OptionError
 from fisheye_infer.eval.dataset import Fisheye3DOD
+from fisheye_infer.eval.hota import HOTA_METRICS, evaluate_hota
 from fisheye_infer.eval.sequences import TrackingSequence, read_sequences
 from fisheye_infer.eval.track_run import StreamTracker, run_on, track_sequences
 from fisheye_infer.eval.tracking import SequenceResults, evaluate_tracking
@@ -124,6 +128,11 @@ def score(
         row.update({f"AMOTA {ref:g}m": m["amota"], f"AMOTP {ref:g}m": m["amotp"], f"MOTA {ref:g}m": m["mota"]})
         row.update({f"IDS {ref:g}m": m["ids"], f"IDS/1k frames {ref:g}m": m["ids"] * 1000 / frames})
         row.update({f"FRAG {ref:g}m": m["frag"], f"recall {ref:g}m": m["recall"]})
+    try:
+        hota = evaluate_hota(results)["overall"]
+        row.update({f"{name} 48m": hota[m] for m, name in zip(HOTA_METRICS, ("HOTA", "DetA", "AssA", "LocA"))})
+    except OptionError:
+        pass  # TrackEval is not installed
     row.update(velocity_errors(results))
     row["per class 0-48m"] = {c: report.classes[48.0][c]["amota"] for c in CLASSES}
     return row
