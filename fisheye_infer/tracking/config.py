@@ -11,12 +11,11 @@ is reliable (see the Tracking guide for the figures of both). A class the table 
 bird's-eye-view centre distance) plus twice the predicted centre's standard deviation, so a
 young or coasting track, whose position is less certain, reaches further. The gates (3 m for cars
 and vans, 4 m for trucks and buses, 2 m for pedestrians, 2.5 m for cyclists) cover camera detectors'
-centre errors, which grow with range: on the synthetic train sequences the shipped compact models'
-matched centres are off by 1-1.5 m (median) within 30 m and 1.5-2.5 m beyond, a tenth of them by over
-2-3.5 m; a gate tighter than that splits an object's track wherever its detection strays. Vehicles
-park, so a vehicle track whose velocity cannot be told from zero at 95 % confidence is reported
-standing still (``parked_level``); pedestrians and cyclists move at speeds close to their velocity's
-uncertainty, so the test would stop moving ones, and their velocity is reported as the filter has it.
+centre errors, which grow with range to metres beyond 30 m; a gate tighter than that splits an
+object's track wherever its detection strays. Vehicles park, so a vehicle track whose velocity cannot
+be told from zero at 95 % confidence is reported standing still (``parked_level``); pedestrians and
+cyclists move at speeds close to their velocity's uncertainty, so the test would stop moving ones,
+and their velocity is reported as the filter has it.
 """
 
 from __future__ import annotations
