@@ -14,7 +14,8 @@ start tentative tracks, confirmed after ``min_hits`` matches; a tentative track 
 miss, a confirmed one after ``max_coast`` seconds without a match. A frame whose detections used
 fewer cameras than the tracker has seen (``Detections.cameras_used``), or one flagged
 ``degraded``, counts no misses. With ego poses the tracks live in the world frame, so the robot's
-own motion neither moves nor speeds them; without, in the ego frame.
+own motion neither moves nor speeds them; without, in the ego frame. A track of a class with a
+``parked_level`` whose velocity cannot be told from zero is reported standing still.
 
 The time step is the difference of stamps (dropped frames just make a longer step); the same
 inputs give the same tracks; at most ``max_tracks`` tracks live at once. The tracks of a class are
