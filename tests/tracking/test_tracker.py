@@ -261,6 +261,8 @@ def test_bad_settings_are_named() -> None:
         TrackerConfig(max_tracks=0)
     with pytest.raises(OptionError, match="score_threshold"):
         GreedyTracker(score_threshold=1.5)
+    with pytest.raises(OptionError, match="'Car': parked_level"):
+        TrackerConfig(classes={"Car": ClassConfig(ConstantVelocity(), parked_level=1.0)})
 
 
 def test_update_at_100_detections_is_fast() -> None:
