@@ -14,10 +14,15 @@ CenterPoint's greedy baseline, the tracker on noisy ground truth, velocity error
    ground truth with noise (centre 0.15 m + 1 % of range, size 5 %, yaw 0.1 rad), 10 % of boxes dropped, scores
    drawn in [0.3, 1], and one false alarm per frame at score < 0.3, into both trackers: the tracker's ceiling;
 3. AMOTA, AMOTP, MOTA, MOTP, IDS (and per 1,000 frames), FRAG and recall at 0-30 and 0-48 m (``eval.tracking``,
-   equal to nuScenes-devkit), and the velocity error (m/s) of reported tracks within 2 m of a labelled object of
-   their class, vehicles (Car, Van, Truck, Bus) and the rest apart, and vehicles' tracks reported 5 times or more;
+   equal to nuScenes-devkit), HOTA, DetA, AssA and LocA at 0-48 m where TrackEval is installed (``eval.hota``;
+   ``pip install --no-deps --target DIR trackeval``, ``PYTHONPATH=DIR``), and the velocity error (m/s) of reported
+   tracks within 2 m of a labelled object of their class, vehicles (Car, Van, Truck, Bus) and the rest apart, and
+   vehicles' tracks reported 5 times or more;
 4. the time of one ``update`` with 100 detections (100 objects, 10 Hz, in this process's thread), median of 300
-   frames.
+   frames;
+5. ``docs/assets/tracking-overlay.png`` (not with ``--quick``): frame 30 of validation sequence 7 (the ego driving
+   at 8 m/s) with fisheye-bevdet-compact's ``Tracker`` tracks, each with its id and speed, over the four camera
+   images, and a bird's-eye view with each track's velocity (1 s of motion) and its last 2 s of path.
 """
 
 from __future__ import annotations
@@ -28,21 +33,29 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import harness
 import numpy as np
 
 from fisheye_infer import Detections, Detector, GreedyTracker, Tracker, TrackerConfig
 from fisheye_infer.cameras.rig import Rig
+from fisheye_infer.errors import OptionError
 from fisheye_infer.eval.dataset import Fisheye3DOD
+from fisheye_infer.eval.hota import HOTA_METRICS, evaluate_hota
 from fisheye_infer.eval.sequences import TrackingSequence, read_sequences
 from fisheye_infer.eval.track_run import StreamTracker, run_on, track_sequences
 from fisheye_infer.eval.tracking import SequenceResults, evaluate_tracking
 from fisheye_infer.runtime.records import CLASSES
 from fisheye_infer.scenes.sequences import SyntheticSequences, write_sequences
+from fisheye_infer.tools.track_viz import TrackPaths, draw_tracks
+from fisheye_infer.tools.viz import save_png
 from fisheye_infer.tracking import TURNING_CLASSES
 
 VEHICLES = ("Car", "Van", "Truck", "Bus")
 MODELS = ("fisheye-bevdet-compact", "fisheye-petr-compact")
+PICTURE = harness.ROOT / "docs" / "assets" / "tracking-overlay.png"
+#: Validation sequence and frame of the picture.
+PICTURE_AT = (7, 30)
 
 
 def noisy_truth(sequences: list[TrackingSequence], seed: int = 0) -> dict[int, Detections]:
@@ -115,9 +128,33 @@ def score(
         row.update({f"AMOTA {ref:g}m": m["amota"], f"AMOTP {ref:g}m": m["amotp"], f"MOTA {ref:g}m": m["mota"]})
         row.update({f"IDS {ref:g}m": m["ids"], f"IDS/1k frames {ref:g}m": m["ids"] * 1000 / frames})
         row.update({f"FRAG {ref:g}m": m["frag"], f"recall {ref:g}m": m["recall"]})
+    try:
+        hota = evaluate_hota(results)["overall"]
+        row.update({f"{name} 48m": hota[m] for m, name in zip(HOTA_METRICS, ("HOTA", "DetA", "AssA", "LocA"))})
+    except OptionError:
+        pass  # TrackEval is not installed
     row.update(velocity_errors(results))
     row["per class 0-48m"] = {c: report.classes[48.0][c]["amota"] for c in CLASSES}
     return row
+
+
+def track_picture(
+    detect: Callable[[int], Detections],
+    sequence: TrackingSequence,
+    frame: int,
+    dataset: Fisheye3DOD,
+    rig: Rig,
+    tracker: Tracker,
+) -> np.ndarray:
+    """The tracks of ``frame`` of ``sequence`` (tracked from its start) drawn over its images, with their paths."""
+    paths = TrackPaths()
+    tracker.reset()
+    for f in sequence.frames[: frame + 1]:
+        tracks = tracker.update(detect(f.split_index), f.stamp, ego_pose=f.ego_pose)
+        paths.add(tracks, f.ego_pose)
+    f = sequence.frames[frame]
+    images = {camera: cv2.imread(str(path)) for camera, path in dataset.image_paths(f.split_index).items()}
+    return draw_tracks(tracks, rig, images, paths.in_ego(f.ego_pose), tile=360)
 
 
 def update_time(make: Callable[[], StreamTracker], frames: int) -> harness.Stats:
@@ -165,7 +202,8 @@ def main() -> int:
                 write_sequences(SyntheticSequences(rig, "val", 0, length=length), data, range(count))
             sequences = read_sequences(data, "val")
             detector = Detector(onnx, threads=args.threads)
-            run = run_on(detector, Fisheye3DOD(data, "val", cameras=list(detector.info.cameras)))
+            dataset = Fisheye3DOD(data, "val", cameras=list(detector.info.cameras))
+            run = run_on(detector, dataset)
             detections = {f.split_index: run(f.split_index) for s in sequences for f in s.frames}
             th = shipped.score_threshold
             config = TrackerConfig(score_threshold=th, low_score=th / 3)
@@ -174,6 +212,12 @@ def main() -> int:
             turning = Tracker(TrackerConfig(score_threshold=th, low_score=th / 3, classes=TURNING_CLASSES))
             rows.append(score(f"{name} + Tracker (turning vehicles)", detections.__getitem__, sequences, turning))
             print(*rows[-3:], sep="\n", flush=True)
+            if name == MODELS[0] and not args.quick:
+                seq, frame = PICTURE_AT
+                picture = track_picture(
+                    detections.__getitem__, sequences[seq], frame, dataset, detector.info.rig, Tracker(config)
+                )
+                print(f"wrote {save_png(PICTURE, picture)}")
         truth = noisy_truth(sequences)
         rows.append(score("noisy ground truth + Tracker", truth.__getitem__, sequences, Tracker()))
         turning = Tracker(TrackerConfig(classes=TURNING_CLASSES))

@@ -8,7 +8,7 @@ so the pictures work on a robot with the core install.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from fisheye_infer.runtime.detections import Detections
 
 __all__ = [
+    "bev_pixels",
     "class_colour",
     "camera_colours",
     "draw_bev",
@@ -149,7 +150,29 @@ def class_colour(name: str) -> tuple[int, int, int]:
     return CLASS_COLOURS.get(name, (160, 160, 160))
 
 
-def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, rig: Rig | None = None) -> np.ndarray:
+def bev_pixels(x: np.ndarray, y: np.ndarray, size: int = 800, extent_m: float = 50.0) -> np.ndarray:
+    """Where ego-frame points fall in ``draw_bev``'s picture.
+
+    Args:
+        x (np.ndarray): Lidar x of the points, metres (up the picture).
+        y (np.ndarray): Lidar y of the points, metres (to the left).
+        size (int): Side of the square picture, pixels.
+        extent_m (float): Metres from the ego to the picture's edge.
+
+    Returns:
+        np.ndarray: `(..., 2)` float pixel column and row per point.
+    """
+    scale = size / (2 * extent_m)
+    return np.stack([size / 2 - np.asarray(y) * scale, size / 2 - np.asarray(x) * scale], axis=-1)
+
+
+def draw_bev(
+    detections: Detections,
+    size: int = 800,
+    extent_m: float = 50.0,
+    rig: Rig | None = None,
+    labels: Sequence[str] | None = None,
+) -> np.ndarray:
     """A bird's-eye view of detections: boxes with class and score, range rings every 10 m.
 
     Lidar x points up the picture, y to the left; a line marks each box's front.
@@ -159,6 +182,7 @@ def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, ri
         size (int): Side of the square picture, pixels.
         extent_m (float): Metres from the ego to the picture's edge.
         rig (Rig | None): Draw the ego footprint spanned by the rig's cameras.
+        labels (Sequence[str] | None): The text beside each box (default: class and score).
 
     Returns:
         np.ndarray: `(size, size, 3)` uint8 BGR picture.
@@ -169,7 +193,7 @@ def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, ri
     scale = size / (2 * extent_m)
 
     def px(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return np.stack([size / 2 - y * scale, size / 2 - x * scale], axis=-1)
+        return bev_pixels(x, y, size, extent_m)
 
     for r in range(10, int(extent_m) + 1, 10):
         cv2.circle(img, (size // 2, size // 2), int(r * scale), (215, 215, 215), 1, cv2.LINE_AA)
@@ -180,19 +204,32 @@ def draw_bev(detections: Detections, size: int = 800, extent_m: float = 50.0, ri
         corners = px(np.array([x1, x1, x0, x0]), np.array([y1, y0, y0, y1]))
         cv2.fillPoly(img, [np.round(corners).astype(np.int32)], (90, 90, 90))
     cv2.arrowedLine(img, (size // 2, size // 2), (size // 2, size // 2 - int(4 * scale)), (0, 0, 0), 2, tipLength=0.3)
-    for box, name, score in zip(bev_corners(detections.boxes), detections.names, detections.scores):
+    for box, name, label in zip(bev_corners(detections.boxes), detections.names, _labels(detections, labels)):
         colour = class_colour(name)
         poly = np.round(px(box[:, 0], box[:, 1])).astype(np.int32)
         cv2.polylines(img, [poly], True, colour, 2, cv2.LINE_AA)
         front = np.round(poly[:2].mean(axis=0)).astype(int)
         cv2.line(img, tuple(np.round(poly.mean(axis=0)).astype(int)), tuple(front), colour, 1, cv2.LINE_AA)
-        _text(img, f"{name} {score:.2f}", tuple(poly.max(axis=0) + np.array([2, 0])), colour, 0.35)
+        _text(img, label, tuple(poly.max(axis=0) + np.array([2, 0])), colour, 0.35)
     _text(img, f"bird's-eye view, {len(detections)} boxes (x up, y left)", (10, 20))
     return img
 
 
+def _labels(detections: Detections, labels: Sequence[str] | None) -> Sequence[str]:
+    """The text beside each box: ``labels``, or class and score."""
+    if labels is None:
+        return [f"{name} {score:.2f}" for name, score in zip(detections.names, detections.scores)]
+    if len(labels) != len(detections):
+        raise ValueError(f"labels: expected {len(detections)} (one per box), got {len(labels)}")
+    return labels
+
+
 def draw_detections(
-    detections: Detections, rig: Rig, images: Mapping[str, np.ndarray | None] | None = None, tile: int = 400
+    detections: Detections,
+    rig: Rig,
+    images: Mapping[str, np.ndarray | None] | None = None,
+    tile: int = 400,
+    labels: Sequence[str] | None = None,
 ) -> np.ndarray:
     """The camera images with the boxes projected through the rig's camera models, beside the bird's-eye view.
 
@@ -202,6 +239,7 @@ def draw_detections(
         images (Mapping[str, np.ndarray | None] | None): Camera name -> `(H, W, 3)` uint8 BGR image; cameras
             without one are drawn on black.
         tile (int): Side of each camera's tile, pixels.
+        labels (Sequence[str] | None): The text beside each box (default: class and score).
 
     Returns:
         np.ndarray: One BGR uint8 picture: a 2-column grid of camera tiles on the left, the bird's-eye view on
@@ -216,6 +254,7 @@ def draw_detections(
     from fisheye_infer.runtime.box_geometry import project_boxes
 
     lines = project_boxes(detections.boxes, rig)
+    texts = _labels(detections, labels)
     tiles = []
     for cam in rig.cameras:
         model = cam.model
@@ -224,18 +263,18 @@ def draw_detections(
             np.zeros((model.height, model.width, 3), np.uint8) if image is None else np.ascontiguousarray(image.copy())
         )
         thickness = max(1, model.width // 400)
-        for polylines, name, score in zip(lines[cam.name], detections.names, detections.scores):
+        for polylines, name, text in zip(lines[cam.name], detections.names, texts):
             colour = class_colour(name)
             for line in polylines:
                 cv2.polylines(canvas, [np.round(line).astype(np.int32)], False, colour, thickness, cv2.LINE_AA)
             if polylines:
                 top = np.concatenate(polylines).min(axis=0)
-                _text(canvas, f"{name} {score:.2f}", (int(top[0]), max(12, int(top[1]) - 4)), colour, 0.4 * thickness)
+                _text(canvas, text, (int(top[0]), max(12, int(top[1]) - 4)), colour, 0.4 * thickness)
         canvas = cv2.resize(canvas, (tile, tile), interpolation=cv2.INTER_AREA)
         _text(canvas, cam.name, (8, tile - 10), (255, 255, 255))
         tiles.append(canvas)
     while len(tiles) % 2:
         tiles.append(np.zeros_like(tiles[0]))
     grid = np.vstack([np.hstack(tiles[i : i + 2]) for i in range(0, len(tiles), 2)])
-    bev = draw_bev(detections, size=grid.shape[0], rig=rig)
+    bev = draw_bev(detections, size=grid.shape[0], rig=rig, labels=texts)
     return np.hstack([grid, bev])

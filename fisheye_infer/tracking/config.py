@@ -9,7 +9,13 @@ constant-turn-rate model (CTRV), as Poly-MOT assigns its models, which pays wher
 is reliable (see the Tracking guide for the figures of both). A class the table does not name gets
 ``default``. A detection and a predicted track pair only within the class's ``gate`` (metres,
 bird's-eye-view centre distance) plus twice the predicted centre's standard deviation, so a
-young or coasting track, whose position is less certain, reaches further.
+young or coasting track, whose position is less certain, reaches further. The gates (3 m for cars
+and vans, 4 m for trucks and buses, 2 m for pedestrians, 2.5 m for cyclists) cover camera detectors'
+centre errors, which grow with range to metres beyond 30 m; a gate tighter than that splits an
+object's track wherever its detection strays. Vehicles park, so a vehicle track whose velocity cannot
+be told from zero at 95 % confidence is reported standing still (``parked_level``); pedestrians and
+cyclists move at speeds close to their velocity's uncertainty, so the test would stop moving ones,
+and their velocity is reported as the filter has it.
 """
 
 from __future__ import annotations
@@ -34,21 +40,26 @@ class ClassConfig:
             [`ConstantTurnRate`][fisheye_infer.tracking.motion.ConstantTurnRate]).
         gate (float): Association gate, metres of bird's-eye-view centre distance; a pair is allowed within
             the gate plus twice the predicted centre's standard deviation.
+        parked_level (float): A track whose velocity cannot be told from zero at this confidence level (its
+            estimate's confidence region holds zero) is reported standing still, velocity 0; 0 reports the
+            filter's velocity as is.
     """
 
     model: MotionModel
     gate: float = 2.0
+    parked_level: float = 0.0
 
 
 _MOVER = ConstantVelocity(position_std=0.7, accel_std=3.0, speed_std=8.0)
+_PARKED = 0.95
 #: The settings per class name.
 DEFAULT_CLASSES: dict[str, ClassConfig] = {
-    "Car": ClassConfig(_MOVER, 2.0),
-    "Van": ClassConfig(_MOVER, 2.0),
-    "Truck": ClassConfig(_MOVER, 3.0),
-    "Bus": ClassConfig(_MOVER, 3.0),
-    "Pedestrian": ClassConfig(ConstantVelocity(position_std=0.5, accel_std=1.5, speed_std=2.0), 1.0),
-    "Cyclist": ClassConfig(_MOVER, 1.5),
+    "Car": ClassConfig(_MOVER, 3.0, _PARKED),
+    "Van": ClassConfig(_MOVER, 3.0, _PARKED),
+    "Truck": ClassConfig(_MOVER, 4.0, _PARKED),
+    "Bus": ClassConfig(_MOVER, 4.0, _PARKED),
+    "Pedestrian": ClassConfig(ConstantVelocity(position_std=0.5, accel_std=1.5, speed_std=2.0), 2.0),
+    "Cyclist": ClassConfig(_MOVER, 2.5),
 }
 #: Vehicles on the constant-turn-rate model, for detectors whose yaw is good to about 0.2 rad (``TrackerConfig(
 #: classes=TURNING_CLASSES)``); with a yaw that is often wrong the heading misleads the filter and the
@@ -56,8 +67,8 @@ DEFAULT_CLASSES: dict[str, ClassConfig] = {
 TURNING_CLASSES: dict[str, ClassConfig] = {
     **DEFAULT_CLASSES,
     **{
-        name: ClassConfig(ConstantTurnRate(position_std=0.4, accel_std=2.5, speed_std=8.0, yaw_std=0.2), gate)
-        for name, gate in (("Car", 2.0), ("Van", 2.0), ("Truck", 3.0), ("Bus", 3.0))
+        name: ClassConfig(ConstantTurnRate(position_std=0.4, accel_std=2.5, speed_std=8.0, yaw_std=0.2), gate, _PARKED)
+        for name, gate in (("Car", 3.0), ("Van", 3.0), ("Truck", 4.0), ("Bus", 4.0))
     },
 }
 
@@ -83,7 +94,8 @@ class TrackerConfig:
         default (ClassConfig): Settings of a class the table does not name.
 
     Raises:
-        OptionError: A value is out of range, or a class's gate is not a positive number of metres.
+        OptionError: A value is out of range, or a class's gate is not a positive number of metres or its
+            ``parked_level`` not in [0, 1).
     """
 
     score_threshold: float = 0.3
@@ -95,7 +107,7 @@ class TrackerConfig:
     birth_clearance: float = 2.0
     young_weight: float = 0.5
     classes: Mapping[str, ClassConfig] = field(default_factory=lambda: dict(DEFAULT_CLASSES))
-    default: ClassConfig = ClassConfig(ConstantVelocity(position_std=0.5, accel_std=2.0, speed_std=5.0), 2.0)
+    default: ClassConfig = ClassConfig(ConstantVelocity(position_std=0.5, accel_std=2.0, speed_std=5.0), 3.0)
 
     def __post_init__(self) -> None:
         checks = (
@@ -114,6 +126,8 @@ class TrackerConfig:
         for name, cc in {**self.classes, "default": self.default}.items():
             if not (math.isfinite(cc.gate) and cc.gate > 0):
                 raise OptionError(f"tracker class {name!r}: gate must be a positive number of metres, got {cc.gate!r}")
+            if not 0 <= cc.parked_level < 1:
+                raise OptionError(f"tracker class {name!r}: parked_level must be in [0, 1), got {cc.parked_level!r}")
 
     def for_class(self, name: str) -> ClassConfig:
         """The settings of one class.

@@ -50,7 +50,7 @@ class GreedyTracker:
     Args:
         score_threshold (float): Detections below it are ignored.
         max_age (int): Frames a track survives unmatched.
-        gates (dict[str, float] | None): Gate per class name, metres (default: the ``Tracker``'s class gates + 1 m);
+        gates (dict[str, float] | None): Gate per class name, metres (default: the ``Tracker``'s class gates);
             a class not named gets 3 m.
 
     Raises:
@@ -63,7 +63,7 @@ class GreedyTracker:
         if not isinstance(max_age, int) or max_age < 0:
             raise OptionError(f"max_age: expected an integer >= 0, got {max_age!r}")
         self.score_threshold, self.max_age = float(score_threshold), max_age
-        self.gates = gates if gates is not None else {name: cc.gate + 1.0 for name, cc in DEFAULT_CLASSES.items()}
+        self.gates = gates if gates is not None else {name: cc.gate for name, cc in DEFAULT_CLASSES.items()}
         self._next_id = 1
         self.reset()
 

@@ -4,6 +4,7 @@
     x, p = cv.init(boxes)                  # states (n, 4) and covariances (n, 4, 4) from boxes (n, 7)
     x, p = cv.predict(x, p, dt=0.1)        # all n tracks at once
     x, p = cv.update(x, p, boxes)          # the matched boxes' centres (and yaws, for the turning model)
+    cv.still(x, p, level=0.95)             # (n,) bool: velocity within the 95 % confidence region of zero
 
 ``ConstantVelocity`` (pedestrians): state ``x, y, vx, vy``, linear, white-noise acceleration.
 ``ConstantTurnRate`` (vehicles, cyclists; CTRV): state ``x, y, heading, speed, turn rate``, an
@@ -11,6 +12,8 @@ extended Kalman filter; the box's yaw measures the heading up to a half turn (a 
 which end is its front, so the speed may come out negative). Both keep float64 numpy arrays; the
 rest of a box (height, size, yaw) is smoothed by the track, not the filter. Every method works on
 n tracks at once (the tracker's per-frame cost is a few array operations, not one filter per track).
+``still`` tells which tracks' velocity cannot be told from zero (the tracker reports those of classes
+that park as standing still).
 """
 
 from __future__ import annotations
@@ -109,6 +112,27 @@ class MotionModel:
         """
         raise NotImplementedError
 
+    def still(self, x: np.ndarray, p: np.ndarray, level: float) -> np.ndarray:
+        """Which states' velocity cannot be told from zero: inside the ``level`` confidence region of their
+        estimate (chi-square test on the velocity's Mahalanobis length).
+
+        Args:
+            x (np.ndarray): States `(n, d)`.
+            p (np.ndarray): Covariances `(n, d, d)`.
+            level (float): Confidence level in (0, 1), e.g. 0.95.
+
+        Returns:
+            np.ndarray: `(n,)` bool, True where zero lies within the velocity's confidence region.
+        """
+        from scipy.special import chdtri
+
+        length, dof = self._velocity_test(x, p)
+        return np.asarray(length < chdtri(dof, 1.0 - level), bool)
+
+    def _velocity_test(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, int]:
+        """`(n,)` squared Mahalanobis length of each state's velocity, and its degrees of freedom."""
+        raise NotImplementedError
+
 
 @dataclass(frozen=True)
 class ConstantVelocity(MotionModel):
@@ -179,6 +203,10 @@ class ConstantVelocity(MotionModel):
             np.ndarray: `(n, 2)` velocities over ground, m/s.
         """
         return x[:, 2:4].copy()
+
+    def _velocity_test(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, int]:
+        v = x[:, 2:4]
+        return np.einsum("ni,ni->n", v, np.linalg.solve(p[:, 2:4, 2:4], v[..., None])[..., 0]), 2
 
 
 @dataclass(frozen=True)
@@ -285,3 +313,6 @@ class ConstantTurnRate(MotionModel):
             np.ndarray: `(n, 2)` velocities over ground, m/s.
         """
         return x[:, 3:4] * np.column_stack([np.cos(x[:, 2]), np.sin(x[:, 2])])
+
+    def _velocity_test(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, int]:
+        return x[:, 3] ** 2 / p[:, 3, 3], 1

@@ -14,7 +14,8 @@ start tentative tracks, confirmed after ``min_hits`` matches; a tentative track 
 miss, a confirmed one after ``max_coast`` seconds without a match. A frame whose detections used
 fewer cameras than the tracker has seen (``Detections.cameras_used``), or one flagged
 ``degraded``, counts no misses. With ego poses the tracks live in the world frame, so the robot's
-own motion neither moves nor speeds them; without, in the ego frame.
+own motion neither moves nor speeds them; without, in the ego frame. A track of a class with a
+``parked_level`` whose velocity cannot be told from zero is reported standing still.
 
 The time step is the difference of stamps (dropped frames just make a longer step); the same
 inputs give the same tracks; at most ``max_tracks`` tracks live at once. The tracks of a class are
@@ -47,6 +48,7 @@ class _Bank:
     model: MotionModel
     gate: float
     dim: int
+    parked_level: float
     ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     x: np.ndarray = field(init=False)
     p: np.ndarray = field(init=False)
@@ -238,7 +240,7 @@ class Tracker:
             if label not in self._banks:
                 cc = self.config.for_class(self._class_names[label])
                 dim = cc.model.init(np.zeros((1, 7)))[0].shape[1]
-                self._banks[label] = _Bank(cc.model, cc.gate, dim)
+                self._banks[label] = _Bank(cc.model, cc.gate, dim, cc.parked_level)
             mine = labels[born_arr] == label
             self._banks[label].add(ids[mine], boxes[born_arr[mine]], scores[born_arr[mine]])
 
@@ -282,6 +284,8 @@ class Tracker:
                 box = bank.box[shown].copy()
                 box[:, :2] = bank.x[shown, :2]
                 v = bank.model.velocity(bank.x[shown])
+                if bank.parked_level:
+                    v[bank.model.still(bank.x[shown], bank.p[shown], bank.parked_level)] = 0.0
                 score = bank.score[shown] * (1 - self.config.young_weight ** bank.hits[shown])
                 parts.append((bank.ids[shown], box, v, score, np.full(int(shown.sum()), label), bank.age[shown]))
         if not parts:

@@ -34,7 +34,8 @@ class Tracks:
     Attributes:
         ids (np.ndarray): `(K,)` int64 track ids, unique while the tracker lives (never reused, even after a reset).
         boxes (np.ndarray): `(K, 7)` float32 ``x, y, z_bottom, l, w, h, yaw``, metres and radians.
-        velocities (np.ndarray): `(K, 2)` float32 velocities over ground, m/s.
+        velocities (np.ndarray): `(K, 2)` float32 velocities over ground, m/s (a ``Tracker`` reports exactly 0 for
+            a vehicle it cannot tell from standing still: ``ClassConfig.parked_level``).
         scores (np.ndarray): `(K,)` float32 score of each track: the detection's at this frame (a ``Tracker``
             weights young tracks down by ``TrackerConfig.young_weight``).
         labels (np.ndarray): `(K,)` int64 class indices into ``class_names``.

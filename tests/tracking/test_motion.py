@@ -65,6 +65,19 @@ def test_turn_rate_takes_the_box_yaw_up_to_a_half_turn() -> None:
     assert abs(x1[0, 2] - 0.1) < 0.05
 
 
+def test_still_is_the_chi_square_test_of_the_velocity() -> None:
+    # constant velocity: 2 degrees of freedom, 95 % at 5.99; velocity covariance diag(1, 4)
+    p = np.diag([0.1, 0.1, 1.0, 4.0])[None].repeat(3, 0)
+    x = np.array([[0, 0, 2.0, 0.0], [0, 0, 0.0, 4.8], [0, 0, 2.0, 2.0]])  # lengths 4, 5.76, 5
+    np.testing.assert_array_equal(ConstantVelocity().still(x, p, 0.95), [True, True, True])
+    x[:, 2] = [2.5, 1.0, 2.1]  # lengths 6.25, 6.01, 5.41
+    np.testing.assert_array_equal(ConstantVelocity().still(x, p, 0.95), [False, False, True])
+    # turn rate: the speed alone, 1 degree of freedom, 95 % at 3.84; speed variance 4
+    xs = np.array([[0, 0, 0.3, 3.9, 0.0], [0, 0, 0.3, -4.0, 0.0]])  # lengths 3.80, 4.0
+    ps = np.diag([0.1, 0.1, 0.1, 4.0, 0.1])[None].repeat(2, 0)
+    np.testing.assert_array_equal(ConstantTurnRate().still(xs, ps, 0.95), [True, False])
+
+
 def test_track_velocity_converges_on_a_straight_drive() -> None:
     ctrv = ConstantTurnRate()
     x, p = ctrv.init(np.array([[0, 0, 0, 4.5, 1.9, 1.6, 0.0]]))

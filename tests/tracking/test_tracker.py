@@ -10,7 +10,7 @@ import pytest
 
 from fisheye_infer import Detections, FrameError, GreedyTracker, OptionError, Tracker, TrackerConfig, Tracks
 from fisheye_infer.runtime.records import CLASSES
-from fisheye_infer.tracking import TURNING_CLASSES
+from fisheye_infer.tracking import TURNING_CLASSES, ClassConfig, ConstantVelocity
 
 CAR, PED = CLASSES.index("Car"), CLASSES.index("Pedestrian")
 
@@ -71,6 +71,31 @@ def test_duplicates_of_one_object_start_one_track() -> None:
     assert sorted(out.names) == ["Car", "Car", "Pedestrian"]  # the second car box is within 2 m of a better one
     out = tracker.update(dets([(10, 0, CAR, 0.9), (10.6, 0.3, CAR, 0.7), (16, 0, CAR, 0.5)]), 0.1)
     assert len(out) == 2 and tracker.live == 3  # near a live track: no birth either
+
+
+def test_a_stray_detection_within_the_gate_keeps_the_track() -> None:
+    # a parked car; one frame's detection lands 3.5 m off (a camera detector's far-centre error): the 3 m car gate
+    # plus twice the prediction's spread (about 0.5 m) still takes it, so the car keeps its id
+    tracker = Tracker()
+    ids = [int(tracker.update(dets([(10, 0, CAR, 0.9)]), 0.1 * k).ids[0]) for k in range(10)]
+    stray = tracker.update(dets([(13.5, 0, CAR, 0.9)]), 1.0)
+    assert list(stray.ids) == [ids[0]] and tracker.live == 1
+
+
+def test_a_parked_car_reports_no_velocity_and_a_driving_one_its_own() -> None:
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0, 0.3, (30, 2, 2))
+    frames = [dets([(10 + noise[k, 0, 0], noise[k, 0, 1], CAR, 0.9), (-20 + k + noise[k, 1, 0], 8, CAR, 0.9)])
+              for k in range(30)]  # fmt: skip
+    last = run(Tracker(), frames)[-1]
+    parked, driving = id_at(last, 10, 0), id_at(last, 9, 8)
+    v = dict(zip(last.ids.tolist(), last.velocities.tolist()))
+    assert v[parked] == [0.0, 0.0]
+    assert math.hypot(v[driving][0] - 10.0, v[driving][1]) < 1.5
+    # without the test the parked car's filter velocity is reported as is, the detections' noise in it
+    open_config = TrackerConfig(classes={"Car": ClassConfig(ConstantVelocity(0.7, 3.0, 8.0), 3.0)})
+    last = run(Tracker(open_config), frames)[-1]
+    assert 0 < np.hypot(*last.velocities[np.argmin(np.hypot(last.boxes[:, 0] - 10, last.boxes[:, 1]))]) < 1.5
 
 
 def test_young_tracks_report_lower_scores() -> None:
@@ -236,6 +261,8 @@ def test_bad_settings_are_named() -> None:
         TrackerConfig(max_tracks=0)
     with pytest.raises(OptionError, match="score_threshold"):
         GreedyTracker(score_threshold=1.5)
+    with pytest.raises(OptionError, match="'Car': parked_level"):
+        TrackerConfig(classes={"Car": ClassConfig(ConstantVelocity(), parked_level=1.0)})
 
 
 def test_update_at_100_detections_is_fast() -> None:
