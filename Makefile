@@ -16,6 +16,9 @@ $(STAMP): pyproject.toml
 	# backend only; --no-deps because its Python package pins numpy below 2 and is not used
 	if [ "$$(uname -sm)" = "Linux x86_64" ] && [ "$$(getconf GNU_LIBC_VERSION | awk '{split($$2, v, "."); print (v[1] > 2 || v[2] >= 35)}')" = 1 ]; \
 	then $(BIN)/pip install --no-deps nvidia-pytriton==0.7.0; else echo "no Triton server on this platform: its tests skip"; fi
+	# TrackEval's HOTA for the tracking evaluation; --no-deps: its declared dependencies add the GUI build of OpenCV
+	# beside the headless one
+	$(BIN)/pip install --no-deps trackeval==1.3.0
 	touch $(STAMP)
 
 install: $(STAMP)

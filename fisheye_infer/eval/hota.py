@@ -15,6 +15,8 @@ over sequences as TrackEval combines them; ``overall`` averages the classes that
 
 from __future__ import annotations
 
+import contextlib
+import io
 from collections.abc import Sequence
 from typing import Any
 
@@ -70,7 +72,8 @@ def evaluate_hota(
         OptionError: TrackEval is not installed.
     """
     try:
-        from trackeval.metrics import HOTA
+        with contextlib.redirect_stdout(io.StringIO()):  # its package prints which optional datasets it lacks
+            from trackeval.metrics import HOTA
     except ImportError as err:
         raise OptionError("HOTA needs TrackEval: pip install --no-deps trackeval") from err
     config = config or EvalConfig()
