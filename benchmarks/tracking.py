@@ -15,7 +15,7 @@ CenterPoint's greedy baseline, the tracker on noisy ground truth, velocity error
    drawn in [0.3, 1], and one false alarm per frame at score < 0.3, into both trackers: the tracker's ceiling;
 3. AMOTA, AMOTP, MOTA, MOTP, IDS (and per 1,000 frames), FRAG and recall at 0-30 and 0-48 m (``eval.tracking``,
    equal to nuScenes-devkit), HOTA, DetA, AssA and LocA at 0-48 m where TrackEval is installed (``eval.hota``;
-   ``pip install --no-deps --target DIR trackeval``, ``PYTHONPATH=DIR``), and the velocity error (m/s) of reported
+   ``make install`` installs it), and the velocity error (m/s) of reported
    tracks within 2 m of a labelled object of their class, vehicles (Car, Van, Truck, Bus) and the rest apart, and
    vehicles' tracks reported 5 times or more;
 4. the time of one ``update`` with 100 detections (100 objects, 10 Hz, in this process's thread), median of 300

@@ -9,9 +9,9 @@ A pass is one Gather, two batched MatMuls and five elementwise ops over its outp
 throughout, no float64 and no integer MatMul, so TensorRT runs it as written. The tables come from
 [`ResizeTaps.blocks`][fisheye_infer.geometry.resize.ResizeTaps.blocks].
 
-The horizontal pass reads the columns as rows: the images (B N H, W 3) are transposed to
-(W, 3 B N H) by one two-dimensional Transpose, and its result back to (B N H, W' 3), so both passes
-gather contiguous rows and run their MatMuls over long ones.
+The horizontal pass reads the columns as rows: each camera's image (H, W 3) is transposed to
+(W 3, H), read as (W, 3 H), and its result back to (H, W' 3), so both passes gather contiguous rows
+and run their MatMuls over long ones; camera by camera, each transpose stays within one image.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def pil_resize(images: torch.Tensor, horizontal: Tables, vertical: Tables, size:
     n, height, width, channels = images.shape[1:]
     h, w = size
     dtype = horizontal[1].dtype  # float32 in the graph, float64 when the model runs in double
-    columns = images.to(dtype).reshape(-1, width * channels).t().reshape(width, -1)  # W x (3 B N H)
-    resized = resize_pass(columns, *horizontal, size=w)  # w x (3 B N H)
-    rows = resized.reshape(w * channels, -1).t().reshape(-1, n, height, w * channels)  # B x N x H x w 3
+    columns = images.to(dtype).reshape(-1, height, width * channels).transpose(1, 2)  # B N x W 3 x H
+    resized = resize_pass(columns.reshape(-1, width, channels * height), *horizontal, size=w)  # B N x w x 3 H
+    rows = resized.reshape(-1, w * channels, height).transpose(1, 2)  # B N x H x w 3
     return resize_pass(rows, *vertical, size=h).reshape(-1, n, h, w, channels)

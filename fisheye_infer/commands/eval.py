@@ -2,13 +2,14 @@
 
     fisheye-infer eval --results pred.json --ground-truth gt.json --out report.json
     fisheye-infer eval model.onnx --data ROOT --split val [--limit N] [--cameras front,rear] --out report.json
-    fisheye-infer eval model.onnx --data seqs/ --tracking [--track-score 0.3] --out report.json
+    fisheye-infer eval model.onnx --data seqs/ --tracking [--track-score 0.3] [--hota] --out report.json
 
 Writes the report JSON, a Markdown report beside it (same name, ``.md``) and prints the tables.
 The model form runs the ONNX runtime ``Detector`` on every frame of the split and evaluates its
 unthresholded output, as the official numbers are computed. With ``--tracking`` it runs the detector and
 a ``Tracker`` over each sequence of the split (``fisheye-infer synth --sequences``) and reports
-nuScenes' tracking metrics (AMOTA, AMOTP, MOTA, MOTP, IDS, FRAG, recall) at 0-30 and 0-48 m.
+nuScenes' tracking metrics (AMOTA, AMOTP, MOTA, MOTP, IDS, FRAG, recall) at 0-30 and 0-48 m, and with
+``--hota`` TrackEval's HOTA, DetA, AssA and LocA.
 """
 
 from __future__ import annotations
@@ -65,6 +66,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--track-low",
         type=float,
         help="score from which detections keep tracks alive (default: a third of --track-score)",
+    )
+    track.add_argument(
+        "--hota",
+        action="store_true",
+        help="also HOTA, DetA, AssA and LocA, by TrackEval's own HOTA (pip install --no-deps trackeval)",
     )
     parser.add_argument("--config", help="metric settings as JSON (default: the official Fisheye3DOD settings)")
     parser.add_argument(
@@ -149,6 +155,7 @@ def _run_tracking(args: argparse.Namespace, config: EvalConfig) -> int:
     """``--tracking``: detector + tracker over every sequence of the split, scored with the tracking metrics."""
     from fisheye_infer.eval.dataset import Fisheye3DOD, camera_name
     from fisheye_infer.eval.evaluate import save_results
+    from fisheye_infer.eval.hota import hota_metric
     from fisheye_infer.eval.sequences import read_sequences
     from fisheye_infer.eval.track_run import run_on, track_sequences
     from fisheye_infer.eval.tracking import evaluate_tracking
@@ -158,6 +165,8 @@ def _run_tracking(args: argparse.Namespace, config: EvalConfig) -> int:
 
     if args.limit is not None:
         return _fail("--limit cuts sequences short; choose whole sequences with --scenes")
+    if args.hota:
+        hota_metric()  # before the detector runs: refuses where TrackEval is not installed
     low = args.track_low if args.track_low is not None else args.track_score / 3
     tracker = Tracker(TrackerConfig(score_threshold=args.track_score, low_score=low))
     detector = Detector(args.model, threads=args.threads)
@@ -183,7 +192,7 @@ def _run_tracking(args: argparse.Namespace, config: EvalConfig) -> int:
             for rs in s.pred
         ]
         save_results(path.with_suffix(".detections.json"), dict(zip(tokens, detections)), meta)
-    report = evaluate_tracking(results, config)
+    report = evaluate_tracking(results, config, hota=args.hota)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(report.to_json(indent=1) + "\n")

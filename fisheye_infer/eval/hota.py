@@ -26,7 +26,7 @@ from fisheye_infer.errors import OptionError
 from fisheye_infer.eval.metric_config import EvalConfig
 from fisheye_infer.eval.tracking import SequenceResults, _Frame, _frames
 
-__all__ = ["HOTA_METRICS", "evaluate_hota"]
+__all__ = ["HOTA_METRICS", "evaluate_hota", "hota_metric"]
 
 #: Values per class and overall: TrackEval's HOTA, DetA, AssA and LocA, each averaged over its thresholds.
 HOTA_METRICS = ("hota", "deta", "assa", "loca")
@@ -52,6 +52,23 @@ def _sequence_data(gt: list[_Frame], pred: list[_Frame], label: int, dist_th: fl
     return data
 
 
+def hota_metric() -> Any:
+    """TrackEval's ``HOTA`` metric class.
+
+    Returns:
+        Any: ``trackeval.metrics.HOTA``.
+
+    Raises:
+        OptionError: TrackEval is not installed.
+    """
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):  # its package prints which optional datasets it lacks
+            from trackeval.metrics import HOTA
+    except ImportError as err:
+        raise OptionError("HOTA needs TrackEval: pip install --no-deps trackeval") from err
+    return HOTA
+
+
 def evaluate_hota(
     sequences: Sequence[SequenceResults], config: EvalConfig | None = None, ref_range: float = 48.0
 ) -> dict[str, dict[str, float]]:
@@ -71,17 +88,12 @@ def evaluate_hota(
     Raises:
         OptionError: TrackEval is not installed.
     """
-    try:
-        with contextlib.redirect_stdout(io.StringIO()):  # its package prints which optional datasets it lacks
-            from trackeval.metrics import HOTA
-    except ImportError as err:
-        raise OptionError("HOTA needs TrackEval: pip install --no-deps trackeval") from err
+    metric = hota_metric()()
     config = config or EvalConfig()
     classes = {name: k for k, name in enumerate(config.class_names)}
     ranges = config.class_ranges(ref_range)
     gt = [_frames(s, "gt", classes, ranges) for s in sequences]
     pred = [_frames(s, "pred", classes, ranges) for s in sequences]
-    metric = HOTA()
     out: dict[str, dict[str, float]] = {}
     for name, label in classes.items():
         per_sequence = {

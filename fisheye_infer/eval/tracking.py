@@ -2,6 +2,7 @@
 
     report = evaluate_tracking(sequences, EvalConfig())        # at 0-30 and 0-48 m (config.distance_breakdown)
     report.overall[48.0]["amota"], report.classes[48.0]["Car"]["ids"]
+    evaluate_tracking(sequences, hota=True).hota[48.0]["overall"]["hota"]   # and TrackEval's HOTA (eval.hota)
 
 Each ``SequenceResults`` holds, per frame in time order, its stamp, its ego pose and two lists of
 records in the frame's lidar frame: ground truth (``tracking_id``, ``tracking_name``, ``translation``)
@@ -24,7 +25,7 @@ import json
 import math
 from bisect import bisect
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -230,10 +231,14 @@ class TrackingReport:
     Attributes:
         classes (dict[float, dict[str, dict[str, float]]]): Reference range (m) -> class name -> metric -> value.
         overall (dict[float, dict[str, float]]): Reference range (m) -> metric -> value.
+        hota (dict[float, dict[str, dict[str, float]]]): Reference range (m) -> class name or ``overall`` ->
+            ``hota``, ``deta``, ``assa``, ``loca`` ([`evaluate_hota`][fisheye_infer.eval.hota.evaluate_hota]);
+            empty unless asked for.
     """
 
     classes: dict[float, dict[str, dict[str, float]]]
     overall: dict[float, dict[str, float]]
+    hota: dict[float, dict[str, dict[str, float]]] = field(default_factory=dict)
 
     def to_json(self, **kwargs: Any) -> str:
         """The report as a JSON document keyed ``"0-30m"``, ``"0-48m"``..., NaN written as null.
@@ -248,13 +253,15 @@ class TrackingReport:
         def clean(v: float) -> float | None:
             return None if math.isnan(v) else v
 
-        doc = {
+        doc: dict[str, dict[str, Any]] = {
             f"0-{r:g}m": {
                 "overall": {k: clean(v) for k, v in self.overall[r].items()},
                 "classes": {c: {k: clean(v) for k, v in m.items()} for c, m in self.classes[r].items()},
             }
             for r in self.overall
         }
+        for r, scores in self.hota.items():
+            doc[f"0-{r:g}m"]["hota"] = {c: {k: clean(v) for k, v in m.items()} for c, m in scores.items()}
         return json.dumps(doc, **kwargs)
 
     def to_markdown(self) -> str:
@@ -272,11 +279,18 @@ class TrackingReport:
                 cells = [("-" if math.isnan(m[c]) else f"{m[c]:.0f}" if c in _COUNTS else f"{m[c]:.3f}") for c in cols]
                 lines.append(f"| {name} | " + " | ".join(cells) + " |")
             lines.append("")
+            if r in self.hota:
+                h = self.hota[r]["overall"]
+                parts = ", ".join(f"{k} {h[k.lower()]:.3f}" for k in ("DetA", "AssA", "LocA"))
+                lines += [f"HOTA {h['hota']:.3f} ({parts})", ""]
         return "\n".join(lines)
 
 
 def evaluate_tracking(
-    sequences: Sequence[SequenceResults], config: EvalConfig | None = None, ref_ranges: Sequence[float] | None = None
+    sequences: Sequence[SequenceResults],
+    config: EvalConfig | None = None,
+    ref_ranges: Sequence[float] | None = None,
+    hota: bool = False,
 ) -> TrackingReport:
     """nuScenes tracking metrics of ``sequences`` at each reference range.
 
@@ -289,9 +303,14 @@ def evaluate_tracking(
         sequences (Sequence[SequenceResults]): Ground truth and tracks per frame.
         config (EvalConfig | None): Classes, class ranges and the match distance (``dist_th_tp``, 2 m).
         ref_ranges (Sequence[float] | None): Reference ranges (default: ``config.distance_breakdown``, 30 and 48 m).
+        hota (bool): Also HOTA, DetA, AssA and LocA at each range, by TrackEval
+            ([`evaluate_hota`][fisheye_infer.eval.hota.evaluate_hota]).
 
     Returns:
         TrackingReport: Per range, per class and overall.
+
+    Raises:
+        OptionError: ``hota`` without TrackEval installed.
     """
     config = config or EvalConfig()
     classes = {name: k for k, name in enumerate(config.class_names)}
@@ -310,4 +329,9 @@ def evaluate_tracking(
                 if np.all(np.isnan(values))
                 else float(np.nansum(values) if m in _COUNTS else np.nanmean(values))
             )
-    return TrackingReport(per_class, overall)
+    scores: dict[float, dict[str, dict[str, float]]] = {}
+    if hota:
+        from fisheye_infer.eval.hota import evaluate_hota
+
+        scores = {ref: evaluate_hota(sequences, config, ref) for ref in per_class}
+    return TrackingReport(per_class, overall, scores)

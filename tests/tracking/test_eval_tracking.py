@@ -38,3 +38,15 @@ def test_eval_tracking_reports_and_saves_tracks(small_export, tmp_path: Path) ->
 def test_eval_tracking_needs_a_model(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["eval", "--tracking", "--out", str(tmp_path / "r.json")]) == 2
     assert "--tracking runs a MODEL on --data" in capsys.readouterr().err
+
+
+def test_eval_tracking_adds_hota_when_asked(small_export, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    pytest.importorskip("trackeval.metrics")
+    data = tmp_path / "seqs"
+    write_sequences(SyntheticSequences(resized_rig(default_rig(), 0.2), "val", 0, length=4), data, range(1))
+    out = tmp_path / "report.json"
+    args = ["eval", str(small_export.onnx), "--data", str(data), "--tracking", "--track-score", "0.05", "--hota"]
+    assert main([*args, "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert set(report["0-48m"]["hota"]["overall"]) == {"hota", "deta", "assa", "loca"}
+    assert "HOTA " in out.with_suffix(".md").read_text()
