@@ -6,9 +6,10 @@ through that camera's own model.
     overlays = image_annotations(detections, rig, stamp)      # {camera: encoded foxglove.ImageAnnotations}
 
 Visualisers project 3D boxes onto images with a pinhole model, which is wrong for a fisheye lens. Here
-each box edge is sampled densely and projected through the camera's model
-(``fisheye_infer.runtime.box_geometry.project_edges``, the one projection ``viz`` draws with), cut where it
-leaves the field of view or the image: straight edges curve as the lens bends them.
+each box edge is sampled and projected through the camera's model
+(``fisheye_infer.runtime.box_geometry.project_edges``, the one projection ``viz`` draws with; one point per
+``OVERLAY_PIXELS_PER_SAMPLE`` pixels of the edge, up to 16), cut where it leaves the field of view or the
+image: straight edges curve as the lens bends them.
 """
 
 from __future__ import annotations
@@ -39,7 +40,10 @@ from fisheye_infer.tracking.tracks import Tracks
 
 from .wire import COLOR, POINT2, QUATERNION, VECTOR3, entries, key, length_delimited, varint
 
-__all__ = ["image_annotations", "scene_update", "track_scene"]
+__all__ = ["OVERLAY_PIXELS_PER_SAMPLE", "image_annotations", "scene_update", "track_scene"]
+
+#: Pixels between an overlay edge's samples (``project_edges``): a far box's edges take a few points.
+OVERLAY_PIXELS_PER_SAMPLE = 8.0
 
 #: Field numbers: ``ImageAnnotations.points`` and ``.texts``, ``PointsAnnotation.points``,
 #: ``TextAnnotation.position`` and ``.text``.
@@ -191,7 +195,7 @@ def image_annotations(detections: Detections, rig: Rig, stamp: int) -> dict[str,
         for kind, label in zip(kind_of.tolist(), labels, strict=True)
     ]
     out = {}
-    for camera, lines in project_edges(detections.boxes, rig).items():
+    for camera, lines in project_edges(detections.boxes, rig, pixels_per_sample=OVERLAY_PIXELS_PER_SAMPLE).items():
         points = entries(_POINTS_POINTS, POINT2, lines.points)
         drawn = length_delimited(_ANNOTATIONS_POINTS, line_heads, kind_of[lines.boxes], points, lines.starts)
         out[camera] = drawn + _texts(lines, label_heads)

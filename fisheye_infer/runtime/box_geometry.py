@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fisheye_infer.cameras.camera_models import AnyCameraModel
 from fisheye_infer.cameras.rig import Rig
 
 __all__ = [
@@ -94,59 +95,86 @@ class Polylines:
         return np.split(self.points, self.starts[1:-1]) if len(self.boxes) else []
 
 
-def project_edges(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> dict[str, Polylines]:
+def project_edges(
+    boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16, pixels_per_sample: float | None = None
+) -> dict[str, Polylines]:
     """Every box's edges as pixel polylines in every camera, following the lens's curvature, packed.
 
-    Each edge is sampled at ``samples_per_edge`` points in 3D and all samples go through each camera's model in
-    one call; a polyline is cut where its points leave the camera's valid area (outside the fov or the image),
-    and a piece of a single point is dropped (unless it is the whole edge).
+    Each edge is sampled at up to ``samples_per_edge`` points in 3D and all samples go through each camera's model
+    in one call; a polyline is cut where its points leave the camera's valid area (outside the fov or the image),
+    and a piece of a single point is dropped (unless it is the whole edge). With ``pixels_per_sample``, an edge
+    whose two corners both project takes one point per that many pixels between them (at least 2), so a small or
+    distant box costs a few points; an edge with a corner outside the valid area keeps every sample, which is where
+    its cut falls.
 
     Args:
         boxes (np.ndarray): (K, 7) boxes ``x, y, z_bottom, l, w, h, yaw`` in the lidar frame.
         rig (Rig): the cameras, their models and extrinsics.
-        samples_per_edge (int): points sampled along each edge, its two corners included.
+        samples_per_edge (int): points sampled along each edge, its two corners included (the most, with
+            ``pixels_per_sample``).
+        pixels_per_sample (float | None): pixels between an edge's samples, in each camera; None: every edge gets
+            ``samples_per_edge``.
 
     Returns:
         dict[str, Polylines]: per camera name, the visible pieces of the edges.
     """
     pts3d = corners(boxes)
     edges = len(BOX_EDGES)
-    t = np.linspace(0.0, 1.0, samples_per_edge)
-    a = pts3d[:, [e[0] for e in BOX_EDGES]]  # K x 12 x 3
-    b = pts3d[:, [e[1] for e in BOX_EDGES]]
-    samples = a[:, :, None] + (b - a)[:, :, None] * t[None, None, :, None]  # K x 12 x S x 3
-    flat = samples.reshape(-1, 3)
+    a = pts3d[:, [e[0] for e in BOX_EDGES]].reshape(-1, 3)  # K 12 x 3
+    b = pts3d[:, [e[1] for e in BOX_EDGES]].reshape(-1, 3)
     result: dict[str, Polylines] = {}
     for cam, lidar2cam in zip(rig.cameras, rig.lidar2cam()):
-        uv, valid = cam.model.project(flat @ lidar2cam[:3, :3].T + lidar2cam[:3, 3])
-        padded = np.zeros((len(pts3d) * edges, samples_per_edge + 2), np.int8)  # each edge's flags, False either side
-        padded[:, 1:-1] = valid.reshape(-1, samples_per_edge)
+        ca, cb = a @ lidar2cam[:3, :3].T + lidar2cam[:3, 3], b @ lidar2cam[:3, :3].T + lidar2cam[:3, 3]
+        count = _samples(cam.model, ca, cb, samples_per_edge, pixels_per_sample)
+        offset = np.cumsum(count) - count  # each edge's first sample
+        along = np.arange(int(count.sum())) - np.repeat(offset, count)
+        t = (along / np.repeat(np.maximum(count - 1, 1), count))[:, None]
+        uv, valid = cam.model.project(np.repeat(ca, count, axis=0) + np.repeat(cb - ca, count, axis=0) * t)
+        padded = np.zeros((len(count), int(count.max(initial=0)) + 2), np.int8)  # each edge's flags, False around
+        padded[np.repeat(np.arange(len(count)), count), along + 1] = valid
         step = np.diff(padded, axis=1)
         edge, first = np.nonzero(step == 1)  # where each run of valid points starts, edge by edge
         last = np.nonzero(step == -1)[1]  # and ends (exclusive); runs do not interleave, so they pair up in order
         length = last - first
-        keep = (length > 1) | (length == samples_per_edge)
+        keep = (length > 1) | (length == count[edge])
         edge, first, length = edge[keep], first[keep], length[keep]
         starts = np.zeros(len(length) + 1, np.int64)
         np.cumsum(length, out=starts[1:])
-        index = np.arange(starts[-1]) + np.repeat(edge * samples_per_edge + first - starts[:-1], length)
+        index = np.arange(starts[-1]) + np.repeat(offset[edge] + first - starts[:-1], length)
         result[cam.name] = Polylines(uv[index], starts, (edge // edges).astype(np.int64))
     return result
 
 
-def project_boxes(boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16) -> dict[str, list[list[np.ndarray]]]:
+def _samples(
+    model: AnyCameraModel, ca: np.ndarray, cb: np.ndarray, most: int, pixels_per_sample: float | None
+) -> np.ndarray:
+    """(E,) samples of each edge from camera-frame corners ``ca`` to ``cb`` (``project_edges``)."""
+    if pixels_per_sample is None:
+        return np.full(len(ca), most, np.int64)
+    uv, valid = model.project(np.concatenate([ca, cb]))
+    n = len(ca)
+    with np.errstate(invalid="ignore"):
+        span = np.nan_to_num(np.hypot(*(uv[:n] - uv[n:]).T), nan=np.inf, posinf=np.inf)
+        count = np.minimum(np.ceil(np.minimum(span / pixels_per_sample, most)).astype(np.int64) + 1, most)
+    return np.where(valid[:n] & valid[n:], np.maximum(count, min(2, most)), most).astype(np.int64)
+
+
+def project_boxes(
+    boxes: np.ndarray, rig: Rig, samples_per_edge: int = 16, pixels_per_sample: float | None = None
+) -> dict[str, list[list[np.ndarray]]]:
     """Each box's edges as pixel polylines in every camera, following the lens's curvature (``project_edges``).
 
     Args:
         boxes (np.ndarray): (K, 7) boxes ``x, y, z_bottom, l, w, h, yaw`` in the lidar frame.
         rig (Rig): the cameras, their models and extrinsics.
         samples_per_edge (int): points sampled along each edge, its two corners included.
+        pixels_per_sample (float | None): pixels between an edge's samples (``project_edges``).
 
     Returns:
         dict[str, list[list[np.ndarray]]]: per camera name, one list per box of (M, 2) float arrays.
     """
     result: dict[str, list[list[np.ndarray]]] = {}
-    for name, packed in project_edges(boxes, rig, samples_per_edge).items():
+    for name, packed in project_edges(boxes, rig, samples_per_edge, pixels_per_sample).items():
         per_box: list[list[np.ndarray]] = [[] for _ in range(len(boxes))]
         for k, line in zip(packed.boxes.tolist(), packed.lines(), strict=True):
             per_box[k].append(line)

@@ -4,6 +4,8 @@ point by point, and the ROS 2 arrays against ``rosbags``' own serialisation of m
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -25,7 +27,7 @@ from google.protobuf.timestamp_pb2 import Timestamp
 
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.ros.cdr import detection_array_cdr, marker_array_cdr
-from fisheye_infer.ros.foxglove import image_annotations, scene_update
+from fisheye_infer.ros.foxglove import OVERLAY_PIXELS_PER_SAMPLE, image_annotations, scene_update
 from fisheye_infer.ros.messages import typestore
 from fisheye_infer.ros.wire import _varints, varint
 from fisheye_infer.runtime.box_geometry import BOX_EDGES, centres, corners, project_boxes, project_edges
@@ -49,23 +51,31 @@ def _detections(count: int, seed: int = 0) -> Detections:
     )
 
 
-def _edge_pieces(boxes: np.ndarray, rig: Rig, samples: int) -> dict[str, list[list[np.ndarray]]]:
-    """Each box's edges, one edge at a time: its samples through the camera model, cut into runs of valid points."""
+def _edge_pieces(
+    boxes: np.ndarray, rig: Rig, samples: int, pixels_per_sample: float | None = None
+) -> dict[str, list[list[np.ndarray]]]:
+    """Each box's edges, one edge at a time: its samples through the camera model, cut into runs of valid points;
+    with ``pixels_per_sample``, an edge whose corners both project takes one sample per that many pixels between
+    them (at least 2, at most ``samples``)."""
     out: dict[str, list[list[np.ndarray]]] = {}
-    t = np.linspace(0.0, 1.0, samples)
     for cam, lidar2cam in zip(rig.cameras, rig.lidar2cam()):
         per_box = []
         for box_corners in corners(boxes):
             pieces = []
             for i, j in BOX_EDGES:
-                points = box_corners[i] + (box_corners[j] - box_corners[i]) * t[:, None]
+                n = samples
+                if pixels_per_sample is not None:
+                    ends, seen = cam.model.project(box_corners[[i, j]] @ lidar2cam[:3, :3].T + lidar2cam[:3, 3])
+                    if seen.all():
+                        n = min(max(math.ceil(float(np.hypot(*(ends[0] - ends[1]))) / pixels_per_sample) + 1, 2), n)
+                points = box_corners[i] + (box_corners[j] - box_corners[i]) * np.linspace(0.0, 1.0, n)[:, None]
                 uv, valid = cam.model.project(points @ lidar2cam[:3, :3].T + lidar2cam[:3, 3])
                 run: list[int] = []
-                for s in [*range(samples), None]:
+                for s in [*range(n), None]:
                     if s is not None and valid[s]:
                         run.append(s)
                         continue
-                    if len(run) > 1 or len(run) == samples:
+                    if len(run) > 1 or len(run) == n:
                         pieces.append(uv[run])
                     run = []
             per_box.append(pieces)
@@ -82,7 +92,7 @@ def _annotations(detections: Detections, rig: Rig) -> dict[str, ImageAnnotations
     """The overlays as protobuf objects, a ``Point2`` per point."""
     when = Timestamp(seconds=STAMP // 10**9, nanos=STAMP % 10**9)
     out = {}
-    for camera, per_box in _edge_pieces(detections.boxes, rig, 16).items():
+    for camera, per_box in _edge_pieces(detections.boxes, rig, 16, OVERLAY_PIXELS_PER_SAMPLE).items():
         points, texts = [], []
         for pieces, name, score in zip(per_box, detections.names, detections.scores.tolist(), strict=True):
             points += [
@@ -141,12 +151,12 @@ def _assert_same(got: ImageAnnotations, want: ImageAnnotations) -> None:
     assert got == want
 
 
-@pytest.mark.parametrize("samples", [1, 2, 16])
-def test_packed_edges_are_each_edge_projected_on_its_own(rig: Rig, samples: int) -> None:
+@pytest.mark.parametrize("samples, pixels", [(1, None), (2, None), (16, None), (16, 8.0), (3, 2.0), (16, 50.0)])
+def test_packed_edges_are_each_edge_projected_on_its_own(rig: Rig, samples: int, pixels: float | None) -> None:
     boxes = _detections(25, seed=1).boxes
-    expected = _edge_pieces(boxes, rig, samples)
-    packed = project_edges(boxes, rig, samples)
-    split = project_boxes(boxes, rig, samples)
+    expected = _edge_pieces(boxes, rig, samples, pixels)
+    packed = project_edges(boxes, rig, samples, pixels)
+    split = project_boxes(boxes, rig, samples, pixels)
     for camera, per_box in expected.items():
         lines = [piece for pieces in per_box for piece in pieces]
         assert len(packed[camera].lines()) == len(lines) and packed[camera].starts[-1] == len(packed[camera].points)
@@ -156,6 +166,28 @@ def test_packed_edges_are_each_edge_projected_on_its_own(rig: Rig, samples: int)
         )
         assert packed[camera].boxes.tolist() == [k for k, pieces in enumerate(per_box) for _ in pieces]
         assert [len(p) for p in split[camera]] == [len(p) for p in per_box]
+
+
+def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Each point's distance (px) to the nearest segment of ``line``."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    t = np.clip(((points[:, None] - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(points[:, None] - (a + t[..., None] * ab), axis=-1).min(axis=1)
+
+
+def test_sparse_overlay_edges_follow_the_dense_curve(rig: Rig) -> None:
+    """A car 6 m ahead, whole in the front camera: every edge is one polyline of a few points, and the dense
+    projection of the same edge (256 samples) lies within half a pixel of it."""
+    box = np.array([[6.0, 0.5, -1.6, 4.5, 1.9, 1.6, 0.4]])
+    front = rig.cameras[0].name
+    sparse = project_edges(box, rig, 16, OVERLAY_PIXELS_PER_SAMPLE)[front].lines()
+    dense = project_edges(box, rig, 256)[front].lines()
+    assert len(sparse) == len(dense) == len(BOX_EDGES)
+    assert 2 * len(BOX_EDGES) <= sum(map(len, sparse)) < 16 * len(BOX_EDGES)
+    for thin, full in zip(sparse, dense, strict=True):
+        np.testing.assert_allclose(thin[[0, -1]], full[[0, -1]], atol=1e-6)  # the corners, exactly
+        assert _distance_to_polyline(full, thin).max() < 0.5
 
 
 @pytest.mark.parametrize("count", [0, 1, 30])

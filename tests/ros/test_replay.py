@@ -27,6 +27,7 @@ from rosbags.typesys import Stores, get_typestore
 from fisheye_infer.cli import main
 from fisheye_infer.errors import BagError, FrameError, OptionError
 from fisheye_infer.eval.evaluate import load_results
+from fisheye_infer.ros.foxglove import OVERLAY_PIXELS_PER_SAMPLE
 from fisheye_infer.ros.messages import image_from_message, typestore
 from fisheye_infer.ros.replay import replay
 from fisheye_infer.ros.sync import Synchroniser
@@ -190,7 +191,7 @@ def test_replay_matches_the_detector_frame_by_frame(small_export, recording: Rec
 
     # the overlays are the project's own projection of the same boxes
     first = detector.detect(recording.images[0])
-    lines = project_boxes(first.boxes, rig)
+    lines = project_boxes(first.boxes, rig, pixels_per_sample=OVERLAY_PIXELS_PER_SAMPLE)
     for camera in rig.names:
         overlay = ImageAnnotations.FromString(written[f"/{camera}/detections"][0][1])
         drawn = [np.array([[p.x, p.y] for p in a.points]) for a in overlay.points]
