@@ -22,6 +22,7 @@ NOTICE = (
 #: Each benchmark's question and its title under it; the questions in the order the pages show them.
 GROUPS: dict[str, tuple[str, str]] = {
     "compare": ("How fast is each model?", "Runtimes, stages and memory of one file"),
+    "speed_table": ("How fast is each model?", "The shipped models: int8, OpenVINO and threads"),
     "official_configs": ("How fast is each model?", "The paper's official configurations: export and inference"),
     "gpu": ("How fast is each model?", "On a GPU: CUDA, float16 and TF32"),
     "int8": ("What do int8 and fp16 cost and gain?", "int8 files: accuracy, agreement and latency"),

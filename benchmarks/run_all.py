@@ -77,6 +77,7 @@ STEPS = (
     Step("tracking", modules=("torch", "onnx")),
     Step("virtual_cameras", modules=("torch", "onnx")),
     Step("front_ends", modules=("torch", "onnx")),
+    Step("speed_table", modules=("torch", "onnx", "openvino")),
     Step(
         "official_configs",
         quick=lambda m: ["--only", "fisheye_bevdet", "nusc_petr"],

@@ -24,7 +24,12 @@ from fisheye_infer.models.official_loading import load_official_state_dict
 from fisheye_infer.models.petr_config import PETRConfig
 from fisheye_infer.models.petr_embedding import inverse_sigmoid, pos2posemb3d
 from fisheye_infer.models.petr_head import decode_predictions
-from fisheye_infer.models.petr_transformer import MultiheadAttention, PETRTransformerDecoder, key_padding_bias
+from fisheye_infer.models.petr_transformer import (
+    QUERY_CHUNK,
+    MultiheadAttention,
+    PETRTransformerDecoder,
+    key_padding_bias,
+)
 from fisheye_infer.models.ranking import TopK
 from fisheye_infer.models.registry import create_model, list_models, read_manifest
 from fisheye_infer.models.seeded_checkpoint import make_checkpoint, synthetic_images
@@ -335,6 +340,18 @@ def test_attention_matches_torch_multihead_attention() -> None:
     v_proj = torch.nn.functional.linear(v, mine.in_proj_weight[128:], mine.in_proj_bias[128:])
     uniform = mine.out_proj(v_proj.mean(dim=1, keepdim=True)).expand(2, 7, 64)
     torch.testing.assert_close(mine(q, k, v, key_padding_bias(everything)), uniform, rtol=1e-5, atol=1e-6)
+
+
+def test_attention_in_query_chunks_matches_torch_multihead_attention() -> None:
+    """More queries than ``QUERY_CHUNK``, the last chunk partial: torch's attention over all of them at once."""
+    torch.manual_seed(1)
+    mine = MultiheadAttention(32, 4).eval()
+    ref = torch.nn.MultiheadAttention(32, 4).eval()
+    ref.load_state_dict(mine.state_dict())
+    q, k, v = torch.randn(2, 2 * QUERY_CHUNK + 7, 32), torch.randn(2, 50, 32), torch.randn(2, 50, 32)
+    mask = torch.rand(2, 50) < 0.3
+    expected = ref(q.transpose(0, 1), k.transpose(0, 1), v.transpose(0, 1), key_padding_mask=mask)[0]
+    torch.testing.assert_close(mine(q, k, v, key_padding_bias(mask)), expected.transpose(0, 1), rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.parametrize("ignored", ["some keys", "every key", "none"])

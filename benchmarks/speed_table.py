@@ -1,0 +1,100 @@
+"""The shipped models' speed in one table: int8 against fp32, ONNX Runtime against OpenVINO, 1 and 2 threads.
+
+    python benchmarks/speed_table.py [--models fisheye-bevdet-compact fisheye-petr-compact] [--quick]
+
+For each shipped model:
+1. its fp32 file (``export``, verified) and the int8 file ``--int8`` writes from it (``export_int8``, the int8
+   search's choice, the export's own gate), kept under ``benchmarks/artifacts/speed_table/``;
+2. one frame (the export's verification frame) through ONNX Runtime fp32 and int8 (the runtime's session
+   options) and OpenVINO f32 on the fp32 file, at 1 and at 2 threads: each session timed alone in blocks after
+   warm-up, the sessions in turns (``harness.alternate``: two ONNX Runtime sessions timed call by call slow each
+   other through their spinning worker threads);
+3. per model and thread count: int8/fp32 and ONNX Runtime/OpenVINO speed (a ratio above 1: the first is faster);
+   per model: how each file scales from 1 to 2 threads, and int8's scaling over fp32's.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import harness
+import numpy as np
+from model_files import ARTIFACTS
+
+from fisheye_infer.export.exporter import export, verification_frames
+from fisheye_infer.export.reduced import export_int8
+from fisheye_infer.models.pretrained import pretrained
+from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, read_meta
+from fisheye_infer.runtime.session import create_session
+
+MODELS = ("fisheye-bevdet-compact", "fisheye-petr-compact")
+
+
+def files(name: str) -> tuple[Path, Path]:
+    """The fp32 and int8 files of shipped model ``name``, written where missing."""
+    shipped = pretrained(name)
+    folder = ARTIFACTS / "speed_table" / name
+    folder.mkdir(parents=True, exist_ok=True)
+    fp32, int8 = folder / "model.onnx", folder / "model.int8.onnx"
+    if not fp32.exists():
+        export(shipped.checkpoint, fp32, config=shipped.config, rig=shipped.rig, frames=1)
+    if not int8.exists():
+        export_int8(fp32, int8)
+    return fp32, int8
+
+
+def openvino_call(path: Path, threads: int, feeds: dict[str, np.ndarray]) -> Any:
+    """One OpenVINO f32 inference of ``path`` on ``feeds``, as a callable."""
+    import openvino as ov
+
+    config = {"INFERENCE_NUM_THREADS": threads, "INFERENCE_PRECISION_HINT": "f32"}
+    request = ov.Core().compile_model(str(path), "CPU", config).create_infer_request()
+    return partial(request.infer, feeds)
+
+
+def main() -> int:
+    bench = harness.Benchmark(__file__, __doc__, quick="2 rounds of 2")
+    bench.parser.add_argument("--models", nargs="+", default=list(MODELS), help="shipped models")
+    args = bench.parse()
+    rounds, repeat = (2, 2) if args.quick else (5, 3)
+    rows, scaling = [], []
+    for name in args.models:
+        fp32, int8 = files(name)
+        images = verification_frames(read_meta(fp32).rig, 1)
+        feeds = {INPUT_IMAGES: images, INPUT_CAMERA_VALID: np.ones(images.shape[:2], bool)}
+        ms: dict[int, dict[str, float]] = {}
+        for threads in (1, 2):
+            calls = {
+                "ORT fp32": partial(create_session(fp32, threads=threads).run, None, feeds),
+                "ORT int8": partial(create_session(int8, threads=threads).run, None, feeds),
+                "OpenVINO fp32": openvino_call(fp32, threads, feeds),
+            }
+            ms[threads] = {k: t.median for k, t in harness.alternate(calls, rounds=rounds, repeat=repeat).items()}
+            m = ms[threads]
+            rows.append(
+                {
+                    "model": name,
+                    "threads": threads,
+                    **{f"{k} ms": v for k, v in m.items()},
+                    "int8/fp32 speed": m["ORT fp32"] / m["ORT int8"],
+                    "ORT/OpenVINO speed (fp32)": m["OpenVINO fp32"] / m["ORT fp32"],
+                }
+            )
+            print(rows[-1], flush=True)
+        fp32_scaling, int8_scaling = (ms[1][k] / ms[2][k] for k in ("ORT fp32", "ORT int8"))
+        scaling.append(
+            {
+                "model": name,
+                "fp32 1 -> 2 threads": fp32_scaling,
+                "int8 1 -> 2 threads": int8_scaling,
+                "int8 scaling / fp32 scaling": int8_scaling / fp32_scaling,
+            }
+        )
+    bench.save(args, {"Speed of the shipped models": rows, "Scaling with threads": scaling})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
