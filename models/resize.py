@@ -4,8 +4,8 @@ The arithmetic is [`apply_blocks_float32`][fisheye_infer.geometry.resize.apply_b
 block of ``S`` outputs of an axis reads one window of ``L`` inputs, gathered as whole rows, and
 multiplies it by the block's two coefficient matrices (Pillow's 22-bit integer coefficients split
 into an 11-bit high and low part, divided by 2048), so that every product and partial sum is exact
-in float32; the rounding offset and Pillow's arithmetic shift follow as an exact Floor, Add and Mul.
-A pass is one Gather, two batched MatMuls and five elementwise ops over its output: float32
+in float32; the rounding offset and Pillow's arithmetic shift follow as exact Floor, Add, Mul, Add and
+Floor, then Clip. A pass is one Gather, two batched MatMuls and six elementwise ops over its output: float32
 throughout, no float64 and no integer MatMul, so TensorRT runs it as written. The tables come from
 [`ResizeTaps.blocks`][fisheye_infer.geometry.resize.ResizeTaps.blocks].
 
