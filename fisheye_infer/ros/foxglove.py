@@ -38,7 +38,7 @@ from fisheye_infer.runtime.records import yaw_to_quaternion
 from fisheye_infer.tools.viz import class_colour
 from fisheye_infer.tracking.tracks import Tracks
 
-from .wire import COLOR, POINT2, QUATERNION, VECTOR3, entries, key, length_delimited, varint
+from .wire import COLOR, POINT2, QUATERNION, VECTOR3, entries, key, length_delimited, length_delimited_parts, varint
 
 __all__ = ["OVERLAY_PIXELS_PER_SAMPLE", "image_annotations", "scene_update", "track_scene"]
 
@@ -194,20 +194,33 @@ def image_annotations(detections: Detections, rig: Rig, stamp: int) -> dict[str,
         text_heads[kind] + key(_TEXT_TEXT) + varint(len(label)) + label
         for kind, label in zip(kind_of.tolist(), labels, strict=True)
     ]
-    out = {}
-    for camera, lines in project_edges(detections.boxes, rig, pixels_per_sample=OVERLAY_PIXELS_PER_SAMPLE).items():
-        points = entries(_POINTS_POINTS, POINT2, lines.points)
-        drawn = length_delimited(_ANNOTATIONS_POINTS, line_heads, kind_of[lines.boxes], points, lines.starts)
-        out[camera] = drawn + _texts(lines, label_heads)
-    return out
-
-
-def _texts(lines: Polylines, label_heads: Sequence[bytes]) -> bytes:
-    """The ``texts`` of an ``ImageAnnotations``: each box with lines, its label (``label_heads``: each box's
-    ``TextAnnotation`` but its position) at its lines' smallest u and v."""
-    if not len(lines.boxes):
-        return b""
-    first = np.flatnonzero(np.r_[True, lines.boxes[1:] != lines.boxes[:-1]])  # each box's first line
-    corner = np.minimum.reduceat(lines.points, lines.starts[first], axis=0)
+    per_camera = project_edges(detections.boxes, rig, pixels_per_sample=OVERLAY_PIXELS_PER_SAMPLE)
+    lines, camera_of = _joined(list(per_camera.values()))
+    points = entries(_POINTS_POINTS, POINT2, lines.points)
+    line_parts = np.searchsorted(camera_of, np.arange(len(per_camera) + 1))  # each camera's first line
+    drawn = length_delimited_parts(
+        _ANNOTATIONS_POINTS, line_heads, kind_of[lines.boxes], points, lines.starts, line_parts
+    )
+    # each box's label at its lines' smallest u and v in each camera that draws it
+    changes = (np.diff(lines.boxes) != 0) | (np.diff(camera_of) != 0)
+    first = np.flatnonzero(np.r_[True, changes])[: len(lines.boxes)]  # each box's first line in each camera
+    corner = np.minimum.reduceat(lines.points, lines.starts[first], axis=0) if len(first) else np.zeros((0, 2))
     positions = entries(_TEXT_POSITION, POINT2, corner)
-    return length_delimited(_ANNOTATIONS_TEXTS, label_heads, lines.boxes[first], positions, np.arange(len(first) + 1))
+    text_parts = np.searchsorted(camera_of[first], np.arange(len(per_camera) + 1))
+    labelled = length_delimited_parts(
+        _ANNOTATIONS_TEXTS, label_heads, lines.boxes[first], positions, np.arange(len(first) + 1), text_parts
+    )
+    return {camera: d + t for camera, d, t in zip(per_camera, drawn, labelled, strict=True)}
+
+
+def _joined(per_camera: Sequence[Polylines]) -> tuple[Polylines, np.ndarray]:
+    """The cameras' polylines as one, and the camera (its index) of each line."""
+    sizes = [len(p.boxes) for p in per_camera]
+    offsets = np.cumsum([0] + [len(p.points) for p in per_camera])
+    starts = np.concatenate([p.starts[:-1] + o for p, o in zip(per_camera, offsets)] + [offsets[-1:]])
+    joined = Polylines(
+        np.concatenate([p.points for p in per_camera]).reshape(-1, 2),
+        starts.astype(np.int64),
+        np.concatenate([p.boxes for p in per_camera]).astype(np.int64),
+    )
+    return joined, np.repeat(np.arange(len(per_camera)), sizes)

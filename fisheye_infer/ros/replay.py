@@ -5,7 +5,8 @@
 
 Reads rosbag2 (MCAP or sqlite3) and ROS 1 bags (``rosbags.highlevel.AnyReader``), synchronises the
 cameras' messages by header stamp (``sync.Synchroniser``), decodes them (``messages.image_from_message``,
-on the ``Detector``'s decode threads), runs the ``Detector`` on batches of frames, and writes one MCAP file
+on the ``Detector``'s decode threads), runs the ``Detector`` on batches of frames (its threads sleeping between
+calls rather than spinning, so that the writing thread has the cores), and writes one MCAP file
 (the ``mcap`` library; each batch on a thread of its own while the next one runs, in order) with, per
 synchronised frame and stamped with its first camera's header stamp:
 
@@ -186,7 +187,8 @@ def replay(
     if track:
         score = TrackerConfig().score_threshold if score_threshold is None else score_threshold
         tracker = Tracker(TrackerConfig(score_threshold=score, low_score=score / 3))
-    detector = Detector(model, threads=threads, warmup=False)  # the first batch warms it up
+    # the first batch warms it up; its threads sleep between calls, as the write and decode threads need the cores
+    detector = Detector(model, threads=threads, warmup=False, spin=False)
     cameras = list(detector.info.cameras)
     missing = [c for c in cameras if c not in topics]
     extra = [c for c in topics if c not in cameras]

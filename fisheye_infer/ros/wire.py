@@ -2,6 +2,7 @@
 
     points = entries(3, POINT2, uv)                     # (P, 20) uint8: each pixel as a Point2 in field 3
     data = length_delimited(2, heads, head_of, points, starts)   # repeated field 2 of messages, encoded
+    cameras = length_delimited_parts(2, heads, head_of, points, starts, parts)   # the same, cut between messages
 
 A ``foxglove.ImageAnnotations`` of a hundred boxes holds some 40,000 ``Point2`` entries; building each as a
 protobuf object costs a Python call per point. Here each entry of doubles (a ``Point2``, a ``CubePrimitive``)
@@ -19,7 +20,18 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["COLOR", "POINT2", "Layout", "QUATERNION", "VECTOR3", "entries", "key", "length_delimited", "varint"]
+__all__ = [
+    "COLOR",
+    "POINT2",
+    "Layout",
+    "QUATERNION",
+    "VECTOR3",
+    "entries",
+    "key",
+    "length_delimited",
+    "length_delimited_parts",
+    "varint",
+]
 
 #: A message of doubles: its fields in order, each ``(number, None)`` for a double or ``(number, layout)``.
 Layout = tuple[tuple[int, "Layout | None"], ...]
@@ -148,8 +160,33 @@ def length_delimited(
     Returns:
         bytes: the L messages, each its field key, length and body.
     """
+    return length_delimited_parts(field, heads, head_of, entries, starts, np.array([0, len(head_of)]))[0]
+
+
+def length_delimited_parts(
+    field: int,
+    heads: Sequence[bytes],
+    head_of: np.ndarray,
+    entries: np.ndarray,
+    starts: np.ndarray,
+    parts: np.ndarray,
+) -> list[bytes]:
+    """``length_delimited`` of all the messages at once, cut into parts: part ``j`` holds messages
+    ``parts[j]:parts[j + 1]`` (e.g. one part per camera's message).
+
+    Args:
+        field (int): the repeated field's number.
+        heads (Sequence[bytes]): encoded fields the messages share.
+        head_of (np.ndarray): (L,) int, the head of each message.
+        entries (np.ndarray): (E, R) uint8, encoded rows of R bytes each.
+        starts (np.ndarray): (L + 1,) int, each message's first row in ``entries``, ending with E.
+        parts (np.ndarray): (G + 1,) int, non-decreasing message indices from 0 to L.
+
+    Returns:
+        list[bytes]: the G parts, each its messages encoded one after another.
+    """
     if len(head_of) == 0:
-        return b""
+        return [b""] * (len(parts) - 1)
     tag = np.frombuffer(key(field), np.uint8)
     counts = np.diff(starts)
     head_sizes = np.array([len(h) for h in heads], np.int64)
@@ -163,17 +200,18 @@ def length_delimited(
     padded_heads = np.frombuffer(b"".join(h.ljust(widest, b"\x00") for h in heads), np.uint8).reshape(
         len(heads), widest
     )
-    for width in np.unique(widths).tolist():
+    for width in range(1, lengths.shape[1] + 1):
         rows = np.flatnonzero(widths == width)
         table[rows, len(tag) + width : len(tag) + width + padded_heads.shape[1]] = padded_heads[head_of[rows]]
     prefixes = table[np.arange(table.shape[1]) < prefix_sizes[:, None]]
     # the prefixes go in before each message's entries, which follow one another as they do in ``entries``
-    before = np.zeros(len(head_of), np.int64)
-    np.cumsum(prefix_sizes[:-1], out=before[1:])
-    at = starts[:-1] * entries.shape[1] + before  # where each prefix begins in the output
+    before = np.zeros(len(head_of) + 1, np.int64)
+    np.cumsum(prefix_sizes, out=before[1:])
+    at = starts * entries.shape[1] + before  # where each message begins in the output, then its end
     is_prefix = np.zeros(len(prefixes) + entries.size, bool)
-    is_prefix[np.arange(len(prefixes)) + np.repeat(at - before, prefix_sizes)] = True
+    is_prefix[np.arange(len(prefixes)) + np.repeat(at[:-1] - before[:-1], prefix_sizes)] = True
     out = np.empty(len(is_prefix), np.uint8)
     out[is_prefix] = prefixes
     out[~is_prefix] = entries.reshape(-1)
-    return out.tobytes()
+    bounds = at[np.asarray(parts)].tolist()
+    return [out[a:b].tobytes() for a, b in zip(bounds[:-1], bounds[1:])]

@@ -6,6 +6,7 @@ y left, z up; yaw about +z from +x, counter-clockwise), the detectors' output la
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,9 @@ __all__ = [
 #: Corner index pairs of the 12 box edges; corners 0-3 are the bottom face, 4-7 the top,
 #: 0 = front-left, 1 = front-right, 2 = rear-right, 3 = rear-left (in the box's own frame).
 BOX_EDGES = ((0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7))
+#: Radians beyond the field of view a box's corners must all be for its edges to be skipped (rounding of the
+#: models' own fov tests).
+_CULL_MARGIN = 1e-9
 _SIGNS = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], dtype=np.float64)
 
 
@@ -120,11 +124,12 @@ def project_edges(
     """
     pts3d = corners(boxes)
     edges = len(BOX_EDGES)
-    a = pts3d[:, [e[0] for e in BOX_EDGES]].reshape(-1, 3)  # K 12 x 3
-    b = pts3d[:, [e[1] for e in BOX_EDGES]].reshape(-1, 3)
     result: dict[str, Polylines] = {}
     for cam, lidar2cam in zip(rig.cameras, rig.lidar2cam()):
-        ca, cb = a @ lidar2cam[:3, :3].T + lidar2cam[:3, 3], b @ lidar2cam[:3, :3].T + lidar2cam[:3, 3]
+        in_cam = pts3d @ lidar2cam[:3, :3].T + lidar2cam[:3, 3]  # K 8 x 3
+        seen = np.flatnonzero(_may_be_seen(cam.model, in_cam))
+        ca = in_cam[seen][:, [e[0] for e in BOX_EDGES]].reshape(-1, 3)  # K' 12 x 3
+        cb = in_cam[seen][:, [e[1] for e in BOX_EDGES]].reshape(-1, 3)
         count = _samples(cam.model, ca, cb, samples_per_edge, pixels_per_sample)
         offset = np.cumsum(count) - count  # each edge's first sample
         along = np.arange(int(count.sum())) - np.repeat(offset, count)
@@ -141,8 +146,18 @@ def project_edges(
         starts = np.zeros(len(length) + 1, np.int64)
         np.cumsum(length, out=starts[1:])
         index = np.arange(starts[-1]) + np.repeat(offset[edge] + first - starts[:-1], length)
-        result[cam.name] = Polylines(uv[index], starts, (edge // edges).astype(np.int64))
+        result[cam.name] = Polylines(uv[index], starts, seen[edge // edges].astype(np.int64))
     return result
+
+
+def _may_be_seen(model: AnyCameraModel, in_cam: np.ndarray) -> np.ndarray:
+    """(K,) bool: False for a box whose eight camera-frame corners ``in_cam`` (K, 8, 3) all lie beyond the model's
+    field of view (and behind the camera, for a field under 180 degrees). That region is a convex cone, so such a
+    box is wholly in it and none of its edges' samples can be valid."""
+    fov = getattr(model, "fov", None)
+    limit = math.radians(max(fov / 2, 90.0) if fov is not None else 90.0) + _CULL_MARGIN
+    angle = np.arctan2(np.hypot(in_cam[..., 0], in_cam[..., 1]), in_cam[..., 2])
+    return ~(angle > limit).all(axis=1)
 
 
 def _samples(

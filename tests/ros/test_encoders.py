@@ -25,11 +25,12 @@ from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 
+from fisheye_infer.cameras.camera_models import DoubleSphere, KannalaBrandt, Pinhole
 from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.ros.cdr import detection_array_cdr, marker_array_cdr
 from fisheye_infer.ros.foxglove import OVERLAY_PIXELS_PER_SAMPLE, image_annotations, scene_update
 from fisheye_infer.ros.messages import typestore
-from fisheye_infer.ros.wire import _varints, varint
+from fisheye_infer.ros.wire import _varints, length_delimited, length_delimited_parts, varint
 from fisheye_infer.runtime.box_geometry import BOX_EDGES, centres, corners, project_boxes, project_edges
 from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.records import yaw_to_quaternion
@@ -168,6 +169,37 @@ def test_packed_edges_are_each_edge_projected_on_its_own(rig: Rig, samples: int,
         assert [len(p) for p in split[camera]] == [len(p) for p in per_box]
 
 
+def _other_lenses(rig: Rig) -> Rig:
+    """``rig`` with a lens of another model on each camera: a pinhole (no field of view but the image's), a
+    150-degree and a 195-degree Kannala-Brandt, and a 180-degree double sphere."""
+    lenses = [
+        Pinhole(width=640, height=480, fx=300.0, fy=300.0, cx=320.0, cy=240.0),
+        KannalaBrandt(width=512, height=512, fx=160.0, fy=160.0, cx=256.0, cy=256.0, k=(0.0, 0.0, 0.0, 0.0), fov=150.0),
+        KannalaBrandt(width=512, height=512, fx=150.0, fy=150.0, cx=256.0, cy=256.0, k=(0.0, 0.0, 0.0, 0.0), fov=195.0),
+        DoubleSphere(width=512, height=512, fx=160.0, fy=160.0, cx=256.0, cy=256.0, xi=-0.2, alpha=0.6, fov=180.0),
+    ]
+    cameras = tuple(c.model_copy(update={"model": lens}) for c, lens in zip(rig.cameras, lenses, strict=True))
+    return rig.model_copy(update={"cameras": cameras})
+
+
+@pytest.mark.parametrize("pixels", [None, 8.0])
+def test_edges_through_other_lenses_are_each_edge_projected_on_its_own(rig: Rig, pixels: float | None) -> None:
+    """Boxes all around the car through lenses with fields of view under, at and over 180 degrees: the boxes a
+    camera cannot see are skipped, and what is drawn is what every edge projected alone gives."""
+    other = _other_lenses(rig)
+    boxes = _detections(60, seed=2).boxes
+    expected = _edge_pieces(boxes, other, 16, pixels)
+    packed = project_edges(boxes, other, 16, pixels)
+    for camera, per_box in expected.items():
+        lines = [piece for pieces in per_box for piece in pieces]
+        assert packed[camera].boxes.tolist() == [k for k, pieces in enumerate(per_box) for _ in pieces]
+        assert all(
+            a.shape == b.shape and np.allclose(a, b, rtol=0, atol=1e-9)
+            for a, b in zip(packed[camera].lines(), lines, strict=True)
+        )
+        assert 0 < len({k for k, pieces in enumerate(per_box) if pieces}) < len(boxes)  # some boxes unseen
+
+
 def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
     """Each point's distance (px) to the nearest segment of ``line``."""
     a, b = line[:-1], line[1:]
@@ -207,6 +239,25 @@ def test_the_scene_is_the_message_built_cube_by_cube(count: int) -> None:
     when = Timestamp(seconds=STAMP // 10**9, nanos=STAMP % 10**9)
     expected = SceneUpdate(entities=[SceneEntity(timestamp=when, frame_id="lidar", id="detections", cubes=cubes)])
     assert SceneUpdate.FromString(scene_update(detections, STAMP, "lidar")) == expected
+
+
+def test_messages_cut_into_parts_are_each_part_encoded_alone() -> None:
+    """``length_delimited_parts``: each part (empty ones too) is ``length_delimited`` of its messages alone, and the
+    parts in order are all the messages, whose bodies reach two-byte lengths."""
+    rng = np.random.default_rng(5)
+    heads = [b"", b"\x0a\x03abc", bytes(range(40))]
+    counts = rng.integers(0, 30, 50)
+    starts = np.r_[0, np.cumsum(counts)]
+    rows = rng.integers(0, 256, (int(starts[-1]), 5)).astype(np.uint8)
+    head_of = rng.integers(0, len(heads), 50)
+    parts = np.array([0, 0, 7, 7, 31, 50, 50])
+    cut = length_delimited_parts(3, heads, head_of, rows, starts, parts)
+    assert b"".join(cut) == length_delimited(3, heads, head_of, rows, starts)
+    for (a, b), data in zip(zip(parts[:-1], parts[1:]), cut, strict=True):
+        assert data == length_delimited(
+            3, heads, head_of[a:b], rows[starts[a] : starts[b]], starts[a : b + 1] - starts[a]
+        )
+    assert cut[0] == cut[2] == cut[5] == b"" and max(counts) * 5 > 127
 
 
 def test_varints_are_protobufs() -> None:
