@@ -1,6 +1,7 @@
 """The models the benchmarks measure, exported once under ``benchmarks/artifacts/`` (gitignored) and reused.
 
     files = model_files("compact")           # the shipped compact FisheyeBEVDet: checkpoint, fp32 and int8 files
+    files = model_files("compact-petr")      # the shipped compact FisheyePETR
     files = model_files("fisheye-bevdet")    # a full-size architecture with seeded weights (seed 0)
     path = model_path("compact", "int8")     # a script's MODEL argument: one of NAMES, or a file's path
 
@@ -16,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
-#: ``compact``: the shipped trained model; the others: full-size architectures with seeded weights.
-NAMES = ("compact", "fisheye-bevdet", "fisheye-petr")
+#: ``compact`` and ``compact-petr``: the shipped trained models; the others: full-size architectures with seeded
+#: weights.
+NAMES = ("compact", "compact-petr", "fisheye-bevdet", "fisheye-petr")
 #: The help of a benchmark's MODEL argument (``model_path``).
 MODEL_HELP = f"an exported ONNX file, or one of {', '.join(NAMES)} (exported under benchmarks/artifacts/)"
 
@@ -42,20 +44,16 @@ def model_files(name: str, progress: Callable[[str], None] = _stderr) -> ModelFi
     """The files of ``name`` (one of ``NAMES``), exported first where missing."""
     from fisheye_infer.export.exporter import export, export_int8
     from fisheye_infer.models import make_checkpoint
-    from fisheye_infer.models.pretrained import COMPACT_BEVDET
+    from fisheye_infer.models.pretrained import COMPACT_BEVDET, COMPACT_PETR
 
     if name not in NAMES:
         raise ValueError(f"model {name!r}: expected one of {', '.join(NAMES)}")
     folder = ARTIFACTS / name
     folder.mkdir(parents=True, exist_ok=True)
-    if name == "compact":
+    shipped = {"compact": COMPACT_BEVDET, "compact-petr": COMPACT_PETR}.get(name)
+    if shipped is not None:
         files = ModelFiles(
-            name,
-            COMPACT_BEVDET.checkpoint,
-            COMPACT_BEVDET.config,
-            COMPACT_BEVDET.rig,
-            folder / "model.onnx",
-            folder / "model.int8.onnx",
+            name, shipped.checkpoint, shipped.config, shipped.rig, folder / "model.onnx", folder / "model.int8.onnx"
         )
     else:
         files = ModelFiles(name, folder / "model.pth", None, None, folder / "model.onnx", folder / "model.int8.onnx")

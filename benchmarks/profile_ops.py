@@ -1,13 +1,15 @@
 """Where the time goes inside one exported file: ONNX Runtime's and OpenVINO's profilers side by side.
 
-    python benchmarks/profile_ops.py compact [--threads 2] [--runs 4] [--top 10]
+    python benchmarks/profile_ops.py compact [--int8] [--threads 2] [--runs 4] [--top 10]
 
-Runs the file on one seeded frame, ``--runs`` times in each runtime; the last run's time per
-operator type (ONNX Runtime's kernel times with the project's session options; OpenVINO's
-per-layer counters, f32), the slowest ONNX Runtime nodes with their input shapes, and how far
-OpenVINO's outputs are from ONNX Runtime's. The earlier runs are warm-up: the first one allocates.
-Profiling adds overhead: compare shares, not totals, with ``fisheye-infer bench``. OpenVINO is
-optional (the ``bench`` extra).
+Runs the file (``--int8``: the int8 file of a named model) on one seeded frame, ``--runs`` times in each
+runtime; the last run's time per operator type (ONNX Runtime's kernel times with the project's session options;
+OpenVINO's per-layer counters, f32), ONNX Runtime's time per operator and input shapes (the nodes of repeated
+layers summed: a decoder's six layers' attention products are one row; weights ONNX Runtime packs at load time
+are not among a kernel's inputs), the slowest ONNX Runtime nodes with their input shapes, and how far
+OpenVINO's outputs are from ONNX Runtime's. The earlier runs are warm-up: the first one allocates. Profiling
+adds overhead: compare shares, not totals, with ``fisheye-infer bench``. OpenVINO is optional (the ``bench``
+extra).
 """
 
 from __future__ import annotations
@@ -36,10 +38,29 @@ def _by_type(runtime: str, times: dict[str, float]) -> list[Row]:
     return [{"runtime": runtime, "operator": op, "ms": ms, "share": ms / total} for op, ms in ranked]
 
 
+def _shapes(event: dict[str, Any]) -> list[str]:
+    """A kernel event's input shapes (the first three), each as ``type[dims]``."""
+    return [f"{t}{list(d)}" for s in event["args"].get("input_type_shape", [])[:3] for t, d in s.items()]
+
+
+def _by_shapes(kernels: list[dict[str, Any]], top: int) -> list[Row]:
+    """The ``top`` (operator, input shapes) groups by their summed time."""
+    groups: dict[tuple[str, str], list[float]] = {}
+    for e in kernels:
+        groups.setdefault((e["args"]["op_name"], " x ".join(_shapes(e))), []).append(e["dur"] / 1e3)
+    total = sum(e["dur"] for e in kernels) / 1e3
+    ranked = sorted(groups.items(), key=lambda kv: -sum(kv[1]))[:top]
+    return [
+        {"operator": op, "input shapes": shapes, "nodes": len(ms), "ms": sum(ms), "share": sum(ms) / total}
+        for (op, shapes), ms in ranked
+    ]
+
+
 def profile_ort(
     path: Path, feeds: dict[str, np.ndarray], threads: int, runs: int, top: int
-) -> tuple[list[np.ndarray], list[Row], list[Row]]:
-    """The outputs, ms per operator type and the ``top`` slowest nodes of the last of ``runs`` runs."""
+) -> tuple[list[np.ndarray], list[Row], list[Row], list[Row]]:
+    """The outputs, ms per operator type, per operator and input shapes, and the ``top`` slowest nodes of the last
+    of ``runs`` runs."""
     options = session_options(threads)
     options.enable_profiling = True
     with tempfile.TemporaryDirectory() as tmp:
@@ -58,11 +79,11 @@ def profile_ort(
             "node": e["name"].removesuffix("_kernel_time"),
             "operator": e["args"]["op_name"],
             "ms": e["dur"] / 1e3,
-            "input shapes": [str(next(iter(s.values()))) for s in e["args"].get("input_type_shape", [])][:3],
+            "input shapes": " x ".join(_shapes(e)),
         }
         for e in sorted(last, key=lambda e: -e["dur"])[:top]
     ]
-    return outputs, _by_type(f"ONNX Runtime {ort.__version__}", per_type), slowest
+    return outputs, _by_type(f"ONNX Runtime {ort.__version__}", per_type), _by_shapes(last, top), slowest
 
 
 def profile_openvino(
@@ -91,14 +112,19 @@ def main(argv: list[str] | None = None) -> int:
     bench.parser.add_argument("model", help=MODEL_HELP)
     bench.parser.add_argument("--threads", type=int, default=2)
     bench.parser.add_argument("--runs", type=int, default=4, help="runs per runtime; the last is reported (default 4)")
-    bench.parser.add_argument("--top", type=int, default=10, help="slowest ONNX Runtime nodes to list (default 10)")
+    bench.parser.add_argument("--top", type=int, default=10, help="rows of the shape and node tables (default 10)")
+    bench.parser.add_argument("--int8", action="store_true", help="the int8 file of a named model")
     args = bench.parse(argv)
-    model = model_path(args.model)
+    model = model_path(args.model, "int8" if args.int8 else "fp32")
     images = verification_frames(read_meta(model).rig, 1)
     feeds = {INPUT_IMAGES: images, INPUT_CAMERA_VALID: np.ones(images.shape[:2], bool)}
     runs = max(2, args.runs)
-    reference, by_type, slowest = profile_ort(model, feeds, args.threads, runs, args.top)
-    tables = {"Time by operator type, last run": by_type, "Slowest ONNX Runtime nodes": slowest}
+    reference, by_type, by_shapes, slowest = profile_ort(model, feeds, args.threads, runs, args.top)
+    tables = {
+        "Time by operator type, last run": by_type,
+        "ONNX Runtime: time by operator and input shapes": by_shapes,
+        "Slowest ONNX Runtime nodes": slowest,
+    }
     if harness.missing(["openvino"]):
         reason = "openvino is not installed (pip install -e '.[bench]')"
         tables["Not measured"] = [{"runtime": "OpenVINO", "reason": reason}]
