@@ -258,10 +258,21 @@ def test_a_graph_that_disagrees_with_pytorch_is_refused(
     _broken_trace(monkeypatch)
     out = tmp_path / "small.onnx"
     with pytest.raises(ParityError, match="no file written") as info:
-        export(small_ckpt, out, config=small_bevdet_config, rig=SMALL_RIG, progress=lambda _: None)
+        export(
+            small_ckpt, out, config=small_bevdet_config, rig=SMALL_RIG, progress=lambda _: None, frames=1, threads=(1,)
+        )
     assert "FAILED" in str(info.value)
     assert list(tmp_path.iterdir()) == []
-    result = export(small_ckpt, out, config=small_bevdet_config, rig=SMALL_RIG, force=True, progress=lambda _: None)
+    result = export(
+        small_ckpt,
+        out,
+        config=small_bevdet_config,
+        rig=SMALL_RIG,
+        force=True,
+        progress=lambda _: None,
+        frames=1,
+        threads=(1,),
+    )
     parity = read_meta(out).parity
     assert out.is_file() and result.path == out and not parity.passed
     assert parity.max_box_abs_diff_m > parity.tolerance_box_m or parity.unmatched > 0
