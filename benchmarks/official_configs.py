@@ -7,7 +7,9 @@ BatchNorm calibrated by the official model, ``fisheye-infer export`` (the Python
 ONNX file from it with the released config file, the six-camera pinhole rig for ``nusc_*`` and the
 shipped fisheye rig otherwise, and checks it against PyTorch float64 at 1 and 2 threads; then one
 frame runs through the file (``Detector.run_arrays``, 2 threads, median of ``--repeat`` calls after
-a warm-up).
+a warm-up). Where OpenVINO is installed (the ``bench`` extra), the same frame through ONNX Runtime and
+OpenVINO (f32) on the same file at 1 and 2 threads, each session timed alone, the two in turns
+(``harness.alternate``; ``--rounds`` rounds of one call after one untimed call).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import harness
@@ -22,7 +25,9 @@ import numpy as np
 
 from fisheye_infer.cameras.rig import resolve_rig
 from fisheye_infer.export.exporter import export, verification_frames
+from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES
 from fisheye_infer.runtime.detector import Detector
+from fisheye_infer.runtime.session import create_session
 
 ROOT = Path(__file__).resolve().parents[1]
 #: config stem -> the rig it was calibrated on (None: the shipped Fisheye3DOD rig)
@@ -38,6 +43,29 @@ STEMS = {
 }
 
 
+def against_openvino(stem: str, path: Path, feeds: dict[str, np.ndarray], rounds: int) -> list[dict[str, object]]:
+    """ONNX Runtime's and OpenVINO's time for one frame of ``path`` at 1 and 2 threads, timed in turns."""
+    from speed_table import openvino_call
+
+    rows: list[dict[str, object]] = []
+    for threads in (1, 2):
+        calls = {
+            "ONNX Runtime": partial(create_session(path, threads=threads).run, None, feeds),
+            "OpenVINO": openvino_call(path, threads, feeds),
+        }
+        ms = {k: t.median for k, t in harness.alternate(calls, rounds=rounds).items()}
+        rows.append(
+            {
+                "config": stem,
+                "threads": threads,
+                "ONNX Runtime ms": ms["ONNX Runtime"],
+                "OpenVINO ms": ms["OpenVINO"],
+                "ORT/OpenVINO speed": ms["OpenVINO"] / ms["ONNX Runtime"],
+            }
+        )
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     bench = harness.Benchmark(__file__, __doc__)
     p = bench.parser
@@ -50,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data", help="folder holding rig-pinhole6/")
     p.add_argument("--only", nargs="+", choices=sorted(STEMS), help="these config stems only")
     p.add_argument("--repeat", type=int, default=3, help="timed inference calls per file")
+    p.add_argument("--rounds", type=int, default=3, help="rounds of ONNX Runtime against OpenVINO per thread count")
     p.add_argument(
         "--work-dir",
         type=Path,
@@ -58,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = bench.parse(argv)
     args.work_dir.mkdir(parents=True, exist_ok=True)
-    rows = []
+    with_openvino = not harness.missing(["openvino"])
+    rows, runtimes = [], []
     for stem in args.only or STEMS:
         ckpt = args.work_dir / f"{stem}.pth"
         subprocess.run(
@@ -96,8 +126,15 @@ def main(argv: list[str] | None = None) -> int:
             }
         )
         print(harness.markdown_table(rows[-1:]), file=sys.stderr, flush=True)
+        if with_openvino:
+            feeds = {INPUT_IMAGES: frame, INPUT_CAMERA_VALID: valid}
+            runtimes += against_openvino(stem, result.path, feeds, args.rounds)
+            print(harness.markdown_table(runtimes[-2:]), file=sys.stderr, flush=True)
         ckpt.unlink()
-    bench.save(args, {"Official configs: export self-check and inference, 2 threads": rows})
+    tables = {"Official configs: export self-check and inference, 2 threads": rows}
+    if with_openvino:
+        tables["Official configs: ONNX Runtime against OpenVINO (f32), 1 and 2 threads"] = runtimes
+    bench.save(args, tables)
     return 0
 
 
