@@ -21,7 +21,10 @@ ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
 #: weights.
 NAMES = ("compact", "compact-petr", "fisheye-bevdet", "fisheye-petr")
 #: The help of a benchmark's MODEL argument (``model_path``).
-MODEL_HELP = f"an exported ONNX file, or one of {', '.join(NAMES)} (exported under benchmarks/artifacts/)"
+MODEL_HELP = (
+    f"an exported ONNX file, one of {', '.join(NAMES)} (exported under benchmarks/artifacts/), or an official "
+    "config's stem (written by benchmarks/official_configs.py)"
+)
 
 
 @dataclass(frozen=True)
@@ -69,13 +72,21 @@ def model_files(name: str, progress: Callable[[str], None] = _stderr) -> ModelFi
 
 
 def model_path(model: str | Path, kind: str = "fp32") -> Path:
-    """A benchmark's MODEL argument: one of ``NAMES`` (its ``kind`` file, exported first where missing), or a file.
+    """A benchmark's MODEL argument: one of ``NAMES`` (its ``kind`` file, exported first where missing), an official
+    config's stem (the full-size fp32 file ``benchmarks/official_configs.py`` writes), or a file.
 
     Commands that name the model reproduce anywhere; commands that give a path need that file.
     """
+    from official_configs import STEMS, WORK_DIR
+
     if str(model) in NAMES:
         files = model_files(str(model))
         return files.int8 if kind == "int8" else files.fp32
+    if str(model) in STEMS:
+        path = WORK_DIR / f"{model}.onnx"
+        if kind != "fp32" or not path.exists():
+            raise SystemExit(f"{model}: run `python benchmarks/official_configs.py --only {model}` first (fp32 only)")
+        return path
     return Path(model)
 
 

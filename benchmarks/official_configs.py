@@ -30,6 +30,8 @@ from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.runtime.session import create_session
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Where the checkpoints and ONNX files go by default (``benchmarks/profile_ops.py STEM`` reads the files there).
+WORK_DIR = ROOT / "benchmarks" / "artifacts" / "official_configs"
 #: config stem -> the rig it was calibrated on (None: the shipped Fisheye3DOD rig)
 STEMS = {
     "fisheye_bevdet": None,
@@ -82,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--work-dir",
         type=Path,
-        default=ROOT / "benchmarks" / "artifacts" / "official_configs",
+        default=WORK_DIR,
         help="folder for the checkpoints and the ONNX files",
     )
     args = bench.parse(argv)
