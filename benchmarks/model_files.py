@@ -17,9 +17,10 @@ from pathlib import Path
 from typing import Any
 
 ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
-#: ``compact`` and ``compact-petr``: the shipped trained models; the others: full-size architectures with seeded
-#: weights.
-NAMES = ("compact", "compact-petr", "fisheye-bevdet", "fisheye-petr")
+#: The shipped trained models by their names here.
+SHIPPED = {"compact": "fisheye-bevdet-compact", "compact-petr": "fisheye-petr-compact"}
+#: The shipped models, then full-size architectures with seeded weights.
+NAMES = (*SHIPPED, "fisheye-bevdet", "fisheye-petr")
 #: The help of a benchmark's MODEL argument (``model_path``).
 MODEL_HELP = (
     f"an exported ONNX file, one of {', '.join(NAMES)} (exported under benchmarks/artifacts/), or an official "
@@ -47,14 +48,14 @@ def model_files(name: str, progress: Callable[[str], None] = _stderr) -> ModelFi
     """The files of ``name`` (one of ``NAMES``), exported first where missing."""
     from fisheye_infer.export.exporter import export, export_int8
     from fisheye_infer.models import make_checkpoint
-    from fisheye_infer.models.pretrained import COMPACT_BEVDET, COMPACT_PETR
+    from fisheye_infer.models.pretrained import pretrained
 
     if name not in NAMES:
         raise ValueError(f"model {name!r}: expected one of {', '.join(NAMES)}")
     folder = ARTIFACTS / name
     folder.mkdir(parents=True, exist_ok=True)
-    shipped = {"compact": COMPACT_BEVDET, "compact-petr": COMPACT_PETR}.get(name)
-    if shipped is not None:
+    if name in SHIPPED:
+        shipped = pretrained(SHIPPED[name])
         files = ModelFiles(
             name, shipped.checkpoint, shipped.config, shipped.rig, folder / "model.onnx", folder / "model.int8.onnx"
         )
@@ -77,11 +78,11 @@ def model_path(model: str | Path, kind: str = "fp32") -> Path:
 
     Commands that name the model reproduce anywhere; commands that give a path need that file.
     """
-    from official_configs import STEMS, WORK_DIR
-
     if str(model) in NAMES:
         files = model_files(str(model))
         return files.int8 if kind == "int8" else files.fp32
+    from official_configs import STEMS, WORK_DIR
+
     if str(model) in STEMS:
         path = WORK_DIR / f"{model}.onnx"
         if kind != "fp32" or not path.exists():

@@ -1,10 +1,10 @@
 """The shipped models' speed in one table: int8 against fp32, ONNX Runtime against OpenVINO, 1 and 2 threads.
 
-    python benchmarks/speed_table.py [--models fisheye-bevdet-compact fisheye-petr-compact] [--quick]
+    python benchmarks/speed_table.py [--models compact compact-petr] [--quick]
 
 For each shipped model:
 1. its fp32 file (``export``, verified) and the int8 file ``--int8`` writes from it (``export_int8``, the int8
-   search's choice, the export's own gate), kept under ``benchmarks/artifacts/speed_table/``;
+   search's choice), the files of ``model_files`` (kept under ``benchmarks/artifacts/``);
 2. one frame (the export's verification frame) through ONNX Runtime fp32 and int8 (the runtime's session
    options) and OpenVINO f32 on the fp32 file, at 1 and at 2 threads: each session timed alone in blocks after
    warm-up, the sessions in turns (``harness.alternate``: two ONNX Runtime sessions timed call by call slow each
@@ -21,28 +21,11 @@ from typing import Any
 
 import harness
 import numpy as np
-from model_files import ARTIFACTS
+from model_files import SHIPPED, model_files
 
-from fisheye_infer.export.exporter import export, verification_frames
-from fisheye_infer.export.reduced import export_int8
-from fisheye_infer.models.pretrained import pretrained
+from fisheye_infer.export.exporter import verification_frames
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, read_meta
 from fisheye_infer.runtime.session import create_session
-
-MODELS = ("fisheye-bevdet-compact", "fisheye-petr-compact")
-
-
-def files(name: str) -> tuple[Path, Path]:
-    """The fp32 and int8 files of shipped model ``name``, written where missing."""
-    shipped = pretrained(name)
-    folder = ARTIFACTS / "speed_table" / name
-    folder.mkdir(parents=True, exist_ok=True)
-    fp32, int8 = folder / "model.onnx", folder / "model.int8.onnx"
-    if not fp32.exists():
-        export(shipped.checkpoint, fp32, config=shipped.config, rig=shipped.rig, frames=1)
-    if not int8.exists():
-        export_int8(fp32, int8)
-    return fp32, int8
 
 
 def openvino_call(path: Path, threads: int, feeds: dict[str, np.ndarray]) -> Any:
@@ -56,12 +39,15 @@ def openvino_call(path: Path, threads: int, feeds: dict[str, np.ndarray]) -> Any
 
 def main() -> int:
     bench = harness.Benchmark(__file__, __doc__, quick="2 rounds of 2")
-    bench.parser.add_argument("--models", nargs="+", default=list(MODELS), help="shipped models")
+    bench.parser.add_argument(
+        "--models", nargs="+", choices=list(SHIPPED), default=list(SHIPPED), help="shipped models"
+    )
     args = bench.parse()
     rounds, repeat = (2, 2) if args.quick else (5, 3)
     rows, scaling = [], []
-    for name in args.models:
-        fp32, int8 = files(name)
+    for short in args.models:
+        name, files = SHIPPED[short], model_files(short)
+        fp32, int8 = files.fp32, files.int8
         images = verification_frames(read_meta(fp32).rig, 1)
         feeds = {INPUT_IMAGES: images, INPUT_CAMERA_VALID: np.ones(images.shape[:2], bool)}
         ms: dict[int, dict[str, float]] = {}
