@@ -5,12 +5,15 @@
 
 The graph's ``images`` input (B, N, Ht, Wt, 3) uint8 becomes an internal value computed from a new ``images``
 input (B, N, Hp, Wp, 3) uint8, the robot's images padded to the largest camera
-(``fisheye_infer.geometry.virtual``): the images made planar (B, 3, N*Hp*Wp), every tap of every output pixel
-read by a GatherElements per channel (the index table expanded over the batch), the four taps weighed and summed,
-the fill added, and the sum rounded to uint8 as cv2.remap rounds (``floor(x + 0.5)``; every product and sum is
-exact in float32), then back to (B, N, Ht, Wt, 3). Every elementwise step runs over long rows of one channel and
-tap (ONNX Runtime's broadcasting and Gather are slow on short inner rows). Standard ops only; the nodes are named
-under ``NODE_PREFIX`` so that a file can be re-targeted.
+(``fisheye_infer.geometry.virtual``): the images cast to float32 and made planar (B, 3, N*Hp*Wp); per channel, every
+tap of every output pixel read by a GatherElements (the index table expanded over the batch), the four taps weighed
+(Mul) and summed (a MatMul by a row of ones, several times faster in ONNX Runtime than a ReduceSum over the taps);
+then the fill added with cv2.remap's rounding offset and the sum rounded down (``floor(x + 0.5)``, as cv2.remap
+rounds; every product and sum is exact in float32), and the result laid out as (B, N, Ht, Wt, 3). The training
+images stay float32 (whole numbers 0-255): every exported network casts its ``images`` to float first, and TensorRT
+takes UINT8 only at a network's edge. Every elementwise step runs over long rows of one channel and tap (ONNX
+Runtime's broadcasting and Gather are slow on short inner rows). Standard ops only; the nodes are named under
+``NODE_PREFIX`` so that a file can be re-targeted.
 """
 
 from __future__ import annotations
@@ -52,6 +55,23 @@ def _set_shape(value: onnx.ValueInfoProto, batch: onnx.TensorShapeProto.Dimensio
         shape.dim.add().dim_value = d
 
 
+_FLOAT_TYPES = (TensorProto.FLOAT, TensorProto.FLOAT16, TensorProto.BFLOAT16)
+
+
+def _check_consumers(graph: onnx.GraphProto, name: str) -> None:
+    """Refuse a graph that reads ``name`` (its camera images) other than by a cast to a float type or its shape:
+    the front end hands the network float32 images."""
+    for node in graph.node:
+        if name not in node.input:
+            continue
+        to = next((a.i for a in node.attribute if a.name == "to"), None)
+        if not (node.op_type == "Shape" or (node.op_type == "Cast" and to in _FLOAT_TYPES)):
+            raise ArtifactError(
+                f"virtual cameras: node {node.name!r} ({node.op_type}) reads the camera images as they are; "
+                "the front end needs a network that casts them to float first"
+            )
+
+
 def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
     """Put ``front`` before the network of ``proto`` (in place); an existing front end is replaced.
 
@@ -76,24 +96,31 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
     _set_shape(new_input, batch, (n, ph, pw, 3))
     del graph.input[:]
     graph.input.extend([new_input, *kept])
+    _check_consumers(graph, TRAINING_IMAGES)
     p = NODE_PREFIX
     consts = {
         f"{p}flat_shape": np.array([0, -1, 3], np.int64),
-        f"{p}taps_shape": np.array([0, 3, 4, pixels], np.int64),
+        f"{p}taps_shape": np.array([0, 1, 4, pixels], np.int64),
         f"{p}planar_shape": np.array([0, 3, n, ht, wt], np.int64),
         f"{p}channel_taps": np.array([1, 4 * pixels], np.int64),
         f"{p}first": np.array([0], np.int64),
         f"{p}ones": np.array([1, 1, 1], np.int64),
         f"{p}second": np.array([1], np.int64),
-        f"{p}tap_axis": np.array([2], np.int64),
-        f"{p}half": np.array(0.5, np.float32),
+        f"{p}sum_taps": np.ones((1, 4), np.float32),
+        f"{p}rounding": front.tables[VIRTUAL_FILL] + np.float32(0.5),
     }
     graph.initializer.extend(numpy_helper.from_array(np.ascontiguousarray(a), name) for name, a in consts.items())
-    graph.initializer.extend(numpy_helper.from_array(np.ascontiguousarray(a), name) for name, a in front.tables.items())
+    graph.initializer.extend(
+        numpy_helper.from_array(np.ascontiguousarray(a), name)
+        for name, a in front.tables.items()
+        if name != VIRTUAL_FILL  # added with the rounding offset, as ``rounding``
+    )
+    channel = [f"{p}channel{c}" for c in range(3)]
     nodes = [
-        helper.make_node("Reshape", [INPUT_IMAGES, f"{p}flat_shape"], [f"{p}flat"], name=f"{p}flatten"),
+        helper.make_node("Cast", [INPUT_IMAGES], [f"{p}float"], name=f"{p}to_float", to=TensorProto.FLOAT),
+        helper.make_node("Reshape", [f"{p}float", f"{p}flat_shape"], [f"{p}flat"], name=f"{p}flatten"),
         helper.make_node("Transpose", [f"{p}flat"], [f"{p}planar"], name=f"{p}to_planar", perm=[0, 2, 1]),
-        helper.make_node("Shape", [INPUT_IMAGES], [f"{p}input_shape"], name=f"{p}input_shape"),
+        helper.make_node("Shape", [f"{p}float"], [f"{p}input_shape"], name=f"{p}input_shape"),
         helper.make_node(
             "Slice", [f"{p}input_shape", f"{p}first", f"{p}second", f"{p}first"], [f"{p}batch"], name=f"{p}batch"
         ),
@@ -101,25 +128,22 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
             "Concat", [f"{p}batch", f"{p}channel_taps"], [f"{p}index_shape"], name=f"{p}index_shape", axis=0
         ),
         helper.make_node("Expand", [VIRTUAL_INDEX, f"{p}index_shape"], [f"{p}index"], name=f"{p}expand_index"),
-        helper.make_node(
-            "Split", [f"{p}planar", f"{p}ones"], [f"{p}channel{c}" for c in range(3)], name=f"{p}split", axis=1
-        ),
-        *(
+        helper.make_node("Split", [f"{p}planar", f"{p}ones"], channel, name=f"{p}split", axis=1),
+    ]
+    for c in range(3):
+        nodes += [
             helper.make_node(
-                "GatherElements", [f"{p}channel{c}", f"{p}index"], [f"{p}taps{c}"], name=f"{p}gather{c}", axis=2
-            )
-            for c in range(3)
-        ),
-        helper.make_node("Concat", [f"{p}taps{c}" for c in range(3)], [f"{p}taps"], name=f"{p}channels", axis=1),
-        helper.make_node("Cast", [f"{p}taps"], [f"{p}tapsf"], name=f"{p}to_float", to=TensorProto.FLOAT),
-        helper.make_node("Reshape", [f"{p}tapsf", f"{p}taps_shape"], [f"{p}taps4"], name=f"{p}group_taps"),
-        helper.make_node("Mul", [f"{p}taps4", VIRTUAL_WEIGHT], [f"{p}weighed"], name=f"{p}weigh"),
-        helper.make_node("ReduceSum", [f"{p}weighed", f"{p}tap_axis"], [f"{p}sum"], name=f"{p}sum_taps", keepdims=0),
-        helper.make_node("Add", [f"{p}sum", VIRTUAL_FILL], [f"{p}filled"], name=f"{p}fill"),
-        helper.make_node("Add", [f"{p}filled", f"{p}half"], [f"{p}shifted"], name=f"{p}round_half_up"),
+                "GatherElements", [channel[c], f"{p}index"], [f"{p}taps{c}"], name=f"{p}gather{c}", axis=2
+            ),
+            helper.make_node("Reshape", [f"{p}taps{c}", f"{p}taps_shape"], [f"{p}taps4_{c}"], name=f"{p}group{c}"),
+            helper.make_node("Mul", [f"{p}taps4_{c}", VIRTUAL_WEIGHT], [f"{p}weighed{c}"], name=f"{p}weigh{c}"),
+            helper.make_node("MatMul", [f"{p}sum_taps", f"{p}weighed{c}"], [f"{p}sum{c}"], name=f"{p}sum{c}"),
+        ]
+    nodes += [
+        helper.make_node("Concat", [f"{p}sum{c}" for c in range(3)], [f"{p}sum"], name=f"{p}channels", axis=1),
+        helper.make_node("Add", [f"{p}sum", f"{p}rounding"], [f"{p}shifted"], name=f"{p}fill_and_round"),
         helper.make_node("Floor", [f"{p}shifted"], [f"{p}rounded"], name=f"{p}floor"),
-        helper.make_node("Cast", [f"{p}rounded"], [f"{p}pixels"], name=f"{p}to_uint8", to=TensorProto.UINT8),
-        helper.make_node("Reshape", [f"{p}pixels", f"{p}planar_shape"], [f"{p}views"], name=f"{p}views"),
+        helper.make_node("Reshape", [f"{p}rounded", f"{p}planar_shape"], [f"{p}views"], name=f"{p}views"),
         helper.make_node("Transpose", [f"{p}views"], [TRAINING_IMAGES], name=f"{p}images", perm=[0, 2, 3, 4, 1]),
     ]
     body = list(graph.node)

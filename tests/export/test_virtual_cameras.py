@@ -32,7 +32,7 @@ from fisheye_infer.cameras.camera_models import (
 )
 from fisheye_infer.cameras.rig import Rig, RigCamera, default_rig
 from fisheye_infer.cli import main
-from fisheye_infer.errors import FrameError, RigError
+from fisheye_infer.errors import ArtifactError, FrameError, RigError
 from fisheye_infer.export.rebake import rebake
 from fisheye_infer.export.virtual_front import attach_front, detach_front, has_front
 from fisheye_infer.geometry.virtual import virtual_front
@@ -112,9 +112,11 @@ def _reference(training: RigCamera, robot: RigCamera, image: np.ndarray) -> np.n
 
 
 def _identity_graph(n: int, height: int, width: int) -> onnx.ModelProto:
+    """A network that returns its camera images cast to float, as every exported network's first step casts them."""
     images = helper.make_tensor_value_info("images", TensorProto.UINT8, ["batch", n, height, width, 3])
-    out = helper.make_tensor_value_info("seen", TensorProto.UINT8, None)
-    graph = helper.make_graph([helper.make_node("Identity", ["images"], ["seen"])], "identity", [images], [out])
+    out = helper.make_tensor_value_info("seen", TensorProto.FLOAT, None)
+    cast = helper.make_node("Cast", ["images"], ["seen"], to=TensorProto.FLOAT)
+    graph = helper.make_graph([cast], "identity", [images], [out])
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
 
 
@@ -158,6 +160,25 @@ def test_front_end_detaches_to_the_original_graph() -> None:
     assert has_front(proto)
     detach_front(proto)
     assert not has_front(proto) and proto.SerializeToString() == before
+
+
+def test_the_front_end_passes_the_tensorrt_check() -> None:
+    """UINT8 only at the graph's edge: the front end casts the robot's images first and hands float32 on."""
+    from fisheye_infer.export.tensorrt_check import check_tensorrt
+
+    proto = _identity_graph(4, 80, 80)
+    attach_front(proto, virtual_front(TRAINING, _robot("eucm"), map_cameras(TRAINING, _robot("eucm"))))
+    report = check_tensorrt(proto)
+    assert report.compatible, [f.message for f in report.findings if f.severity == "error"]
+
+
+def test_a_network_that_reads_its_images_as_uint8_is_refused() -> None:
+    images = helper.make_tensor_value_info("images", TensorProto.UINT8, ["batch", 4, 80, 80, 3])
+    out = helper.make_tensor_value_info("seen", TensorProto.UINT8, None)
+    graph = helper.make_graph([helper.make_node("Identity", ["images"], ["seen"], name="raw")], "g", [images], [out])
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    with pytest.raises(ArtifactError, match="node 'raw' \\(Identity\\) reads the camera images as they are"):
+        attach_front(proto, virtual_front(TRAINING, _robot("ocam"), map_cameras(TRAINING, _robot("ocam"))))
 
 
 def test_a_narrower_lens_leaves_unseen_pixels_grey_and_says_how_much_it_covers() -> None:
@@ -370,8 +391,6 @@ def test_baselines_take_virtual_cameras_too(arch: str, small_exports, tmp_path: 
 
 
 def test_rebake_refuses_what_is_not_a_regular_file(tmp_path: Path) -> None:
-    from fisheye_infer.errors import ArtifactError
-
     with pytest.raises(ArtifactError, match="/dev/zero: no such file"):
         rebake("/dev/zero", TRAINING, tmp_path / "x.onnx")
 
