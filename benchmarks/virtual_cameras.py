@@ -1,7 +1,7 @@
 """A trained detector on other rigs without retraining: virtual cameras against re-baked tables, FDS per test rig.
 
     python benchmarks/virtual_cameras.py [--model fisheye-bevdet-compact] [--frames 40] [--threads 2] [--quick]
-    python benchmarks/virtual_cameras.py --cost-only
+    python benchmarks/virtual_cameras.py --cost-only [--rounds 5]
 
 1. The shipped model exported once for its training rig (``fisheye-infer export``), then, for each test rig, two
    files written by ``fisheye_infer.export.rebake``: ``virtual`` (the robot's raw images resampled in the graph into
@@ -15,8 +15,8 @@
    5, 10 degrees about each axis (yaw, pitch, roll); every camera moved 5, 10, 20 cm forward, and 10 cm up; wide-angle
    lenses of other models (double sphere, EUCM, Mei, Kannala-Brandt) at their own resolutions, one camchain with a
    model per camera; the share of the training lens's field each covers is reported;
-4. the front end's cost: the virtual file's frame time against the training file's (median of blocks after warm-up,
-   each session timed alone).
+4. the front end's cost: the virtual file's frame time against the training file's (each session timed alone, the
+   median of blocks after warm-up; the two files in turn for ``--rounds`` rounds, the medians of the rounds).
 """
 
 from __future__ import annotations
@@ -195,12 +195,14 @@ def main() -> int:
     bench.parser.add_argument("--frames", type=int, default=40)
     bench.parser.add_argument("--threads", type=int, default=2)
     bench.parser.add_argument("--cost-only", action="store_true", help="only the front end's cost (step 4)")
+    bench.parser.add_argument("--rounds", type=int, default=5, help="rounds of the cost timing, the two files in turn")
     args = bench.parse()
     from fisheye_infer.export.exporter import export
     from fisheye_infer.export.rebake import rebake
     from fisheye_infer.models.pretrained import pretrained
 
     frames = 10 if args.quick else args.frames
+    rounds = 1 if args.quick else args.rounds
     shipped = pretrained(args.model)
     rig = Rig.load(shipped.rig)
     stream = SyntheticFrames(rig, "val", 0)
@@ -238,10 +240,13 @@ def main() -> int:
         virtual = Path(tmp) / "0-virtual.onnx"
         rebake(trained, rig, virtual, mode="virtual")
         for threads in (1, 2):
-            plain, front = frame_ms(trained, threads, pictures), frame_ms(virtual, threads, pictures)
+            files = (trained, virtual)
+            timed = [tuple(frame_ms(f, threads, pictures) for f in files) for _ in range(rounds)]
+            plain, front = (float(np.median(t)) for t in zip(*timed))
             costs.append(
                 {
                     "threads": threads,
+                    "rounds": rounds,
                     "training file ms": plain,
                     "virtual file ms": front,
                     "front end share": front / plain - 1,

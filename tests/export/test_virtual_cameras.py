@@ -239,6 +239,8 @@ def test_virtual_cameras_on_the_training_rig_answer_as_the_unchanged_file(small_
     out = rebake(small_export.onnx, meta.rig, tmp_path / "virtual.onnx", mode="virtual")
     assert out.virtual_cameras is not None and out.parity == meta.parity
     assert all(r.coverage == 1.0 and r.rotation_deg == 0.0 for r in out.virtual_cameras.cameras)
+    assert meta.tensorrt is not None and meta.tensorrt.compatible
+    assert out.tensorrt is not None and out.tensorrt.compatible, out.tensorrt
     frame = _frame(meta.rig)
     plain, virtual = Detector(small_export.onnx, threads=1), Detector(tmp_path / "virtual.onnx", threads=1)
     a, b = plain.detect(frame), virtual.detect(frame)
