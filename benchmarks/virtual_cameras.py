@@ -1,7 +1,7 @@
 """A trained detector on other rigs without retraining: virtual cameras against re-baked tables, FDS per test rig.
 
     python benchmarks/virtual_cameras.py [--model fisheye-bevdet-compact] [--frames 40] [--threads 2] [--quick]
-    python benchmarks/virtual_cameras.py --cost-only [--rounds 5]
+    python benchmarks/virtual_cameras.py --cost-only [--rounds 5] [--model fisheye_bevdet]
 
 1. The shipped model exported once for its training rig (``fisheye-infer export``), then, for each test rig, two
    files written by ``fisheye_infer.export.rebake``: ``virtual`` (the robot's raw images resampled in the graph into
@@ -16,7 +16,9 @@
    lenses of other models (double sphere, EUCM, Mei, Kannala-Brandt) at their own resolutions, one camchain with a
    model per camera; the share of the training lens's field each covers is reported;
 4. the front end's cost: the virtual file's frame time against the training file's (each session timed alone, the
-   median of blocks after warm-up; the two files in turn for ``--rounds`` rounds, the medians of the rounds).
+   median of blocks after warm-up; the two files in turn for ``--rounds`` rounds, the medians of the rounds); with
+   ``--cost-only``, ``--model`` may also name another file (``model_files.model_path``: an official config's stem,
+   the full-size file ``benchmarks/official_configs.py`` wrote, or a path).
 """
 
 from __future__ import annotations
@@ -30,12 +32,14 @@ from pathlib import Path
 
 import harness
 import numpy as np
+from model_files import MODEL_HELP, model_path
 
 from fisheye_infer import Detector
 from fisheye_infer.cameras.camera_models import DoubleSphere, ExtendedUnified, KannalaBrandt, OCamModel, Omnidirectional
 from fisheye_infer.cameras.rig import Rig, RigCamera
 from fisheye_infer.eval.evaluate import evaluate_results
 from fisheye_infer.eval.metrics import EvalConfig
+from fisheye_infer.runtime.artifact import read_meta
 from fisheye_infer.scenes.streams import SyntheticFrames
 
 FOUND_RADIUS_M = 2.0
@@ -191,7 +195,11 @@ def frame_ms(path: Path, threads: int, images: dict[str, np.ndarray], blocks: in
 
 def main() -> int:
     bench = harness.Benchmark(__file__, __doc__, quick="10 frames, fewer rigs")
-    bench.parser.add_argument("--model", default="fisheye-bevdet-compact", help="a shipped model's name")
+    bench.parser.add_argument(
+        "--model",
+        default="fisheye-bevdet-compact",
+        help="a shipped model's name; with --cost-only also " + MODEL_HELP,
+    )
     bench.parser.add_argument("--frames", type=int, default=40)
     bench.parser.add_argument("--threads", type=int, default=2)
     bench.parser.add_argument("--cost-only", action="store_true", help="only the front end's cost (step 4)")
@@ -199,17 +207,22 @@ def main() -> int:
     args = bench.parse()
     from fisheye_infer.export.exporter import export
     from fisheye_infer.export.rebake import rebake
-    from fisheye_infer.models.pretrained import pretrained
+    from fisheye_infer.models.pretrained import PRETRAINED, pretrained
 
     frames = 10 if args.quick else args.frames
     rounds = 1 if args.quick else args.rounds
-    shipped = pretrained(args.model)
-    rig = Rig.load(shipped.rig)
-    stream = SyntheticFrames(rig, "val", 0)
+    shipped = pretrained(args.model) if args.model in {m.name for m in PRETRAINED} else None
+    if shipped is None and not args.cost_only:
+        raise SystemExit(f"--model {args.model}: not a shipped model (other files: --cost-only)")
     rows, costs = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        trained = Path(tmp) / "model.onnx"
-        export(shipped.checkpoint, trained, config=shipped.config, rig=shipped.rig, frames=1)
+        if shipped is not None:
+            trained = Path(tmp) / "model.onnx"
+            export(shipped.checkpoint, trained, config=shipped.config, rig=shipped.rig, frames=1)
+        else:
+            trained = model_path(args.model)
+        rig = read_meta(trained).rig
+        stream = SyntheticFrames(rig, "val", 0)
         for n, (name, test_rig) in enumerate(test_rigs(rig, args.quick).items() if not args.cost_only else ()):
             same_kind = all(
                 isinstance(c.model, OCamModel) and (c.model.width, c.model.height) == (t.model.width, t.model.height)
@@ -232,6 +245,7 @@ def main() -> int:
                     assert meta.virtual_cameras is not None
                     row["coverage"] = min(c.coverage for c in meta.virtual_cameras.cameras)
                 detector = Detector(path, threads=args.threads)
+                assert shipped is not None
                 s = score(detector, stream, test_rig, frames, shipped.score_threshold)
                 row.update({f"{way} FDS": s["FDS"], f"{way} mAP": s["mAP"], f"{way} found": s["found"]})
             print(row, file=sys.stderr, flush=True)

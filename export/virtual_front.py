@@ -78,6 +78,10 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
     Args:
         proto: An exported graph (its ``images`` input: the training cameras' images).
         front: The tables and padded size of [`virtual_front`][fisheye_infer.geometry.virtual.virtual_front].
+
+    Raises:
+        ArtifactError: The graph has no ``images`` input, its images are not the size the tables resample to, or a
+            node reads them other than by a cast to float or their shape (``proto`` is left as it was).
     """
     if has_front(proto):
         detach_front(proto)
@@ -90,13 +94,13 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
     pixels = front.tables[VIRTUAL_WEIGHT].shape[1]
     if pixels != n * ht * wt:
         raise ArtifactError(f"virtual cameras: the tables resample {pixels} pixels, the graph takes {n}x{ht}x{wt}")
+    _check_consumers(graph, INPUT_IMAGES)
     rename_values(proto, {INPUT_IMAGES: TRAINING_IMAGES})
     kept = [v for v in graph.input if v.name != TRAINING_IMAGES]
     new_input = helper.make_tensor_value_info(INPUT_IMAGES, TensorProto.UINT8, None)
     _set_shape(new_input, batch, (n, ph, pw, 3))
     del graph.input[:]
     graph.input.extend([new_input, *kept])
-    _check_consumers(graph, TRAINING_IMAGES)
     p = NODE_PREFIX
     consts = {
         f"{p}flat_shape": np.array([0, -1, 3], np.int64),

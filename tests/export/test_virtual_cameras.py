@@ -177,8 +177,10 @@ def test_a_network_that_reads_its_images_as_uint8_is_refused() -> None:
     out = helper.make_tensor_value_info("seen", TensorProto.UINT8, None)
     graph = helper.make_graph([helper.make_node("Identity", ["images"], ["seen"], name="raw")], "g", [images], [out])
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    before = proto.SerializeToString()
     with pytest.raises(ArtifactError, match="node 'raw' \\(Identity\\) reads the camera images as they are"):
         attach_front(proto, virtual_front(TRAINING, _robot("ocam"), map_cameras(TRAINING, _robot("ocam"))))
+    assert proto.SerializeToString() == before
 
 
 def test_a_narrower_lens_leaves_unseen_pixels_grey_and_says_how_much_it_covers() -> None:
