@@ -145,15 +145,15 @@ def centre_errors(
                     radial, across = float(e @ sight), float(e[1] * sight[0] - e[0] * sight[1])
                     per_object.setdefault((s, int(f.gt_ids[i])), []).append((k, radial, across))
     errors = np.array([e for v in per_object.values() for e in v])
-    pairs = np.array([(a[1], b[1]) for v in per_object.values() for a, b in zip(v, v[1:]) if b[0] == a[0] + 1])
+    consecutive = np.array([(a[1], b[1]) for v in per_object.values() for a, b in zip(v, v[1:]) if b[0] == a[0] + 1])
     return {
         "detections": name,
         "pairs": len(errors),
         "radial mean m": float(errors[:, 1].mean()),
         "radial std m": float(errors[:, 1].std()),
         "tangential std m": float(errors[:, 2].std()),
-        "radial lag-1 autocorrelation": float(np.corrcoef(pairs.T)[0, 1]),
-        "radial change frame to frame, std m": float(np.std(pairs[:, 1] - pairs[:, 0])),
+        "radial lag-1 autocorrelation": float(np.corrcoef(consecutive.T)[0, 1]),
+        "radial change frame to frame, std m": float(np.std(consecutive[:, 1] - consecutive[:, 0])),
     }
 
 
