@@ -21,10 +21,12 @@ from fisheye_infer.runtime.artifact import METADATA_KEY, ArtifactMeta
 
 __all__ = [
     "REBAKE_WEIGHTS_KEY",
+    "TRAINED_KEY_MASK_KEY",
     "STANDARD_DOMAINS",
     "rename_values",
     "inputs_to_initializers",
     "replace_initializers",
+    "initializer_arrays",
     "strip_shape_info",
     "without_outputs",
     "with_outputs",
@@ -42,6 +44,8 @@ __all__ = [
 
 #: A second metadata key, present when re-baking needs weights (FisheyePETR's key embedding).
 REBAKE_WEIGHTS_KEY = "fisheye_infer.rebake_weights"
+#: FisheyePETR's key mask as trained (before virtual cameras masked unseen pixels), recorded by ``rebake``.
+TRAINED_KEY_MASK_KEY = "fisheye_infer.trained_key_mask"
 STANDARD_DOMAINS = ("", "ai.onnx")
 
 
@@ -71,6 +75,15 @@ def inputs_to_initializers(model: onnx.ModelProto, tables: Mapping[str, np.ndarr
     graph.input.extend(kept)
     for name, array in tables.items():
         graph.initializer.append(numpy_helper.from_array(np.ascontiguousarray(array), name))
+
+
+def initializer_arrays(model: onnx.ModelProto, names: Sequence[str]) -> dict[str, np.ndarray]:
+    """The named initializers of ``model`` as arrays; a missing one is an ``ArtifactError`` naming it."""
+    by_name = {init.name: init for init in model.graph.initializer if init.name in names}
+    missing = sorted(set(names) - set(by_name))
+    if missing:
+        raise ArtifactError(f"the model has no initializers {missing}")
+    return {name: numpy_helper.to_array(by_name[name]) for name in names}
 
 
 def replace_initializers(model: onnx.ModelProto, tables: Mapping[str, np.ndarray]) -> None:

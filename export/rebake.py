@@ -15,7 +15,8 @@ parameters of its geometry tables (and, for FisheyePETR, the position-encoder we
 the tables can be recomputed without torch. The graph itself is unchanged: it was traced with the pooling tables'
 sizes symbolic; every other table keeps its shape (a file whose tables this version computes in another shape is
 refused, naming the table). A rig whose camera names, order or image size do not fit the graph is refused. The
-network then sees pictures through the new lenses and mounts, which it was not trained on.
+network then sees pictures through the new lenses and mounts, which it was not trained on. A file whose tables came
+from its checkpoint (``geometry_source``), re-baked onto its training rig, keeps them.
 
 The TensorRT check is run again on the new file. The input file is never modified.
 """
@@ -34,12 +35,22 @@ from fisheye_infer.cameras.rig import Rig, resolve_rig
 from fisheye_infer.cameras.virtual_view import UNSEEN_FILL
 from fisheye_infer.errors import ArtifactError, ConfigError, RigError
 from fisheye_infer.geometry.kinds import geometry_from_rig, tables_for
-from fisheye_infer.geometry.petr import PETRGeometry
-from fisheye_infer.geometry.tables import PETR_KEY_MASK, PETR_KEY_POS, POOL_PIXELS, POOL_POINTS
+from fisheye_infer.geometry.petr import PETRGeometry, remasked_key_embedding
+from fisheye_infer.geometry.tables import PETR_KEY_MASK, PETR_KEY_POS, POOL_PIXELS, POOL_POINTS, key_tables
 from fisheye_infer.geometry.virtual import virtual_front
 from fisheye_infer.runtime.artifact import METADATA_KEY, ArtifactMeta, VirtualCameras, parse_meta
 
-from .graph import REBAKE_WEIGHTS_KEY, decode_arrays, get_metadata, replace_initializers, save_model, set_metadata
+from .graph import (
+    REBAKE_WEIGHTS_KEY,
+    TRAINED_KEY_MASK_KEY,
+    decode_arrays,
+    encode_arrays,
+    get_metadata,
+    initializer_arrays,
+    replace_initializers,
+    save_model,
+    set_metadata,
+)
 from .tensorrt_check import check_tensorrt
 from .virtual_front import attach_front, detach_front, has_front
 
@@ -62,8 +73,9 @@ def rebake(
     ``virtual`` mode: the new file takes the rig's raw images, each camera at its own size, and a front end in the
     graph resamples each into the image its training camera would have taken; the network and its geometry tables
     stay as trained (FisheyePETR's key mask also hides the pixels the new cameras do not see). ``tables`` mode:
-    every ``geom.*`` initializer is recomputed for the rig from the parameters the metadata records; the network
-    then sees pictures through lenses and mounts it was not trained on. The TensorRT check is run again on the new
+    every ``geom.*`` initializer is recomputed for the rig from the parameters the metadata records (a checkpoint's
+    own tables are kept on the training rig); the network then sees pictures through lenses and mounts it was not
+    trained on. The TensorRT check is run again on the new
     file; the input file is never modified.
 
     Args:
@@ -114,12 +126,13 @@ def rebake(
     if mode == "auto":
         mode = "tables" if new_rig.hash == training.hash and camera_map is None else "virtual"
     if mode == "virtual":
-        weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
-        new_meta = _virtual(proto, meta, new_rig, camera_map, depth, weights)
+        new_meta, extra = _virtual(proto, props, meta, new_rig, camera_map, depth)
     else:
-        new_meta = _tables(proto, props, meta, new_rig, model_path)
+        new_meta, extra = _tables(proto, props, meta, new_rig, model_path)
     final = new_meta.model_copy(update={"tensorrt": check_tensorrt(proto)}).check()
-    set_metadata(proto, final)
+    for stale in [p for p in proto.metadata_props if p.key == TRAINED_KEY_MASK_KEY and p.key not in extra]:
+        proto.metadata_props.remove(stale)  # tables recomputed for a rig: their own mask is the one to raise
+    set_metadata(proto, final, extra)
     save_model(proto, out)
     return final
 
@@ -130,24 +143,21 @@ def _model_id(meta: ArtifactMeta, rig: Rig) -> str:
 
 def _virtual(
     proto: onnx.ModelProto,
+    props: dict[str, str],
     meta: ArtifactMeta,
     robot: Rig,
     camera_map: Mapping[str, str] | None,
     depth: float | None,
-    weights: dict[str, np.ndarray] | None,
-) -> ArtifactMeta:
+) -> tuple[ArtifactMeta, dict[str, str]]:
     """The front end for ``robot`` attached to ``proto``, FisheyePETR's keys on unseen pixels masked; the new
-    metadata."""
+    metadata and its extra entries."""
     training = meta.training_rig
     order = map_cameras(training, robot, camera_map)
     ordered = robot.model_copy(update={"cameras": tuple(robot.camera(name) for name in order)})
     front = virtual_front(training, ordered, order, depth)
     attach_front(proto, front)
-    geometry = geometry_from_rig(training, meta.geometry)
-    if isinstance(geometry, PETRGeometry) and weights is not None:
-        keys = geometry.with_unseen(np.stack([view.unseen for view in front.views])).tables(weights)
-        replace_initializers(proto, {name: keys[name] for name in (PETR_KEY_POS, PETR_KEY_MASK)})
-    return meta.model_copy(
+    extra = _mask_petr_keys(proto, props, meta, np.stack([view.unseen for view in front.views]))
+    new_meta = meta.model_copy(
         update={
             "rig": ordered,
             "rig_hash": ordered.hash,
@@ -159,14 +169,45 @@ def _virtual(
             ),
         }
     )
+    return new_meta, extra
+
+
+def _mask_petr_keys(
+    proto: onnx.ModelProto, props: dict[str, str], meta: ArtifactMeta, unseen: np.ndarray | None
+) -> dict[str, str]:
+    """FisheyePETR's key mask set to the trained one raised for the keys that sample ``unseen`` image pixels
+    (N, H, W) bool, None for none; the metadata entry that records the trained mask (none for other models).
+
+    The trained mask is the file's own (a checkpoint's stored one where it was exported from a checkpoint) or, for a
+    file re-baked before, the one that re-bake recorded. The key embedding keeps the file's position share and
+    takes the new mask's share (`remasked_key_embedding`). The keys that sample unseen pixels are found through
+    the rig's feature grid.
+    """
+    geometry = geometry_from_rig(meta.training_rig, meta.geometry)
+    if not isinstance(geometry, PETRGeometry) or REBAKE_WEIGHTS_KEY not in props:
+        return {}
+    weights = decode_arrays(props[REBAKE_WEIGHTS_KEY])
+    held = initializer_arrays(proto, (PETR_KEY_POS, PETR_KEY_MASK))
+    current = held[PETR_KEY_MASK].reshape(geometry.unvalid_area.shape)
+    trained = decode_arrays(props[TRAINED_KEY_MASK_KEY])["key_mask"] if TRAINED_KEY_MASK_KEY in props else current
+    target = geometry.with_key_mask(trained)
+    if unseen is not None:
+        target = target.with_unseen(unseen)
+    mask = target.key_mask()
+    key_pos = remasked_key_embedding(held[PETR_KEY_POS], current, mask, weights, geometry.params)
+    replace_initializers(proto, key_tables(key_pos, mask))
+    return {TRAINED_KEY_MASK_KEY: encode_arrays({"key_mask": trained})}
 
 
 def _tables(
     proto: onnx.ModelProto, props: dict[str, str], meta: ArtifactMeta, new_rig: Rig, model_path: Path
-) -> ArtifactMeta:
-    """``proto``'s geometry tables recomputed for ``new_rig`` (any front end removed); the new metadata."""
+) -> tuple[ArtifactMeta, dict[str, str]]:
+    """``proto``'s geometry tables recomputed for ``new_rig`` (any front end removed), but for a file whose tables
+    came from a checkpoint re-baked onto its training rig, which keeps them; the new metadata and its extra
+    entries."""
     training = meta.training_rig
-    if has_front(proto):
+    had_front = has_front(proto)
+    if had_front:
         detach_front(proto)
     if len(new_rig) != len(training):
         raise RigError(
@@ -174,6 +215,12 @@ def _tables(
         )
     size = (training.cameras[0].model.width, training.cameras[0].model.height)
     new_rig.require(training.names, size)
+    if meta.geometry_source == "checkpoint" and new_rig.hash == training.hash:
+        extra = _mask_petr_keys(proto, props, meta, None)
+        kept = {"rig": training, "rig_hash": training.hash, "cameras": tuple(training.names), "image_size": size}
+        kept["model_id"] = _model_id(meta, training)
+        changed = {"parity": None} if had_front else {}
+        return meta.model_copy(update={**kept, **changed, "virtual_cameras": None}), extra
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
     try:
         tables = tables_for(new_rig, meta.geometry, weights)
@@ -193,7 +240,7 @@ def _tables(
                 "checkpoint again"
             )
     replace_initializers(proto, tables)
-    return meta.model_copy(
+    new_meta = meta.model_copy(
         update={
             "rig": new_rig,
             "rig_hash": new_rig.hash,
@@ -201,7 +248,8 @@ def _tables(
             "image_size": size,
             "model_id": _model_id(meta, new_rig),
             "geometry_source": "rig",
-            "parity": None,
+            "parity": None,  # its notes quote table values, which the rig changes
             "virtual_cameras": None,
         }
-    )  # its notes quote table values, which the rig changes
+    )
+    return new_meta, {}

@@ -44,6 +44,7 @@ __all__ = [
     "EmbeddingParams",
     "key_coords",
     "key_position_embedding",
+    "remasked_key_embedding",
     "check_tables",
 ]
 
@@ -203,6 +204,24 @@ class EmbeddingParams(Protocol):
     def temperature(self) -> float: ...
 
 
+def _mlp(x: np.ndarray, weights: dict[str, np.ndarray], name: str) -> np.ndarray:
+    """``name``'s two 1x1 convolutions (``name.{0,2}.{weight,bias}``) on (N, C, H, W), in float64."""
+    w = [np.asarray(weights[f"{name}.{i}.{k}"], np.float64) for i in (0, 2) for k in ("weight", "bias")]
+    return _conv_mlp(np.asarray(x, np.float64), *w)
+
+
+def _as_keys(embedding: np.ndarray) -> np.ndarray:
+    """(N, C, H, W) -> (1, N*H*W, C)."""
+    return embedding.transpose(0, 2, 3, 1).reshape(1, -1, embedding.shape[1])
+
+
+def _mask_embedding(mask: np.ndarray, n: int, weights: dict[str, np.ndarray], params: EmbeddingParams) -> np.ndarray:
+    """(1, N*H*W, C) float64: adapt_pos3d(sine(mask)), the key embedding's share that depends on the mask."""
+    key_mask = np.broadcast_to(np.asarray(mask) != 0, (n, *mask.shape[-2:]))
+    sine = sine_position_encoding(key_mask, params.num_feats, params.temperature)
+    return _as_keys(_mlp(sine, weights, "adapt_pos3d"))
+
+
 def key_position_embedding(
     coords: np.ndarray, mask: np.ndarray, weights: dict[str, np.ndarray], params: EmbeddingParams
 ) -> np.ndarray:
@@ -210,16 +229,31 @@ def key_position_embedding(
 
     ``weights`` holds ``position_encoder.{0,2}.{weight,bias}`` and ``adapt_pos3d.{0,2}.{weight,bias}``.
     """
-    n = coords.shape[0]
-    key_mask = np.broadcast_to(np.asarray(mask) != 0, (n, *mask.shape[-2:]))
-    sine = sine_position_encoding(key_mask, params.num_feats, params.temperature)
-    w = {k: np.asarray(v, np.float64) for k, v in weights.items()}
-    mlp = lambda x, name: _conv_mlp(
-        x.astype(np.float64), *(w[f"{name}.{i}.{k}"] for i in (0, 2) for k in ("weight", "bias"))
-    )
-    pe = mlp(coords, "position_encoder")
-    pe = pe + mlp(sine, "adapt_pos3d")
-    return pe.transpose(0, 2, 3, 1).reshape(1, -1, pe.shape[1]).astype(np.float32)
+    pe = _as_keys(_mlp(coords, weights, "position_encoder"))
+    return (pe + _mask_embedding(mask, coords.shape[0], weights, params)).astype(np.float32)
+
+
+def remasked_key_embedding(
+    key_pos: np.ndarray, mask: np.ndarray, new_mask: np.ndarray, weights: dict[str, np.ndarray], params: EmbeddingParams
+) -> np.ndarray:
+    """A key embedding (1, N*H*W, C) computed with ``mask`` (N, H, W), moved to ``new_mask``: its mask share
+    replaced, its position share kept as it is (a checkpoint's own, where the file was exported from one).
+
+    Args:
+        key_pos: The embedding a file holds.
+        mask: The key mask it was computed with.
+        new_mask: The key mask to move it to.
+        weights: The ``adapt_pos3d`` weights (see `key_position_embedding`).
+        params: The sine encoding's parameters.
+
+    Returns:
+        np.ndarray: (1, N*H*W, C) float32; ``key_pos`` itself where the masks are equal.
+    """
+    if np.array_equal(np.asarray(mask) != 0, np.asarray(new_mask) != 0):
+        return np.asarray(key_pos, np.float32)
+    n = mask.shape[0]
+    moved = np.asarray(key_pos, np.float64) - _mask_embedding(mask, n, weights, params)
+    return (moved + _mask_embedding(new_mask, n, weights, params)).astype(np.float32)
 
 
 def check_tables(tables: dict[str, tuple[int, ...]], arrays: dict[str, np.ndarray]) -> None:
@@ -270,6 +304,24 @@ class PETRGeometry:
         new_grid = self.grid if grid is None else stored_for_first_lens(self.grid, grid)
         new_mask = self.unvalid_area if unvalid_area is None else stored_for_first_lens(self.unvalid_area, unvalid_area)
         return replace(self, grid=new_grid, unvalid_area=new_mask, source=source)
+
+    def with_key_mask(self, key_mask: np.ndarray) -> PETRGeometry:
+        """The same geometry with the keys ``key_mask`` marks masked, whatever the lenses say: a file's own key mask
+        (a checkpoint's stored table where the file was exported from it).
+
+        Args:
+            key_mask: (N, H, W) bool, True where attention ignores the key.
+
+        Returns:
+            PETRGeometry: The unvalid area 1.0 on the masked keys, 0.0 elsewhere.
+
+        Raises:
+            ConfigError: ``key_mask`` is not one (H, W) mask per camera.
+        """
+        mask = np.asarray(key_mask, bool)
+        if mask.shape != self.unvalid_area.shape:
+            raise ConfigError(f"key mask: expected shape {self.unvalid_area.shape}, got {mask.shape}")
+        return replace(self, unvalid_area=mask.astype(np.float32))
 
     def with_unseen(self, unseen: np.ndarray) -> PETRGeometry:
         """The same geometry with the keys that sample ``unseen`` image pixels masked too: a virtual camera's

@@ -101,7 +101,7 @@ def test_rebake_refuses_a_table_of_another_shape(small_exports: Callable[[str], 
     onnx.save(proto, str(older))
     _, rig = small_configs()["fisheye-bevdet"]
     with pytest.raises(ArtifactError, match=r"geom.warp.\w+ is \(\d+.*export the checkpoint again"):
-        rebake(older, rig, tmp_path / "x.onnx", mode="tables")
+        rebake(older, own_lenses(rig), tmp_path / "x.onnx", mode="tables")
     assert not (tmp_path / "x.onnx").exists()
 
 
