@@ -7,7 +7,8 @@ Reads rosbag2 (MCAP or sqlite3) and ROS 1 bags (``rosbags.highlevel.AnyReader``)
 cameras' messages by header stamp (``sync.Synchroniser``), decodes them (``messages.image_from_message``,
 on the ``Detector``'s decode threads), runs the ``Detector`` on batches of frames (its threads sleeping between
 calls rather than spinning, so that the writing thread has the cores), and writes one MCAP file
-(the ``mcap`` library; each batch on a thread of its own while the next one runs, in order) with, per
+(the ``mcap`` library; each batch on a thread of its own while the next one runs, in order, at the lowest
+scheduling priority so that it takes only the cores the model leaves idle) with, per
 synchronised frame and stamped with its first camera's header stamp:
 
 - ``/detections`` (``vision_msgs/msg/Detection3DArray``) and ``/detections/markers``
@@ -32,6 +33,9 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
+import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -127,6 +131,15 @@ class ReplayReport:
         return "\n".join(lines)
 
 
+def _yield_to_the_model() -> None:
+    """Lower the calling thread's scheduling priority to the least (Linux; elsewhere nothing): the write thread then
+    runs on the cores the model's threads leave idle, and never delays one of them, which would hold up the
+    others at the end of each parallel step."""
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
+
+
 def replay(
     model: str | Path,
     bags: Sequence[str | Path],
@@ -220,7 +233,8 @@ def replay(
         with (
             pending_file(out) as pending,
             open(pending.path, "wb") as stream,
-            ThreadPoolExecutor(1, thread_name_prefix="replay-write") as write_thread,  # done before the file closes
+            # done before the file closes
+            ThreadPoolExecutor(1, thread_name_prefix="replay-write", initializer=_yield_to_the_model) as write_thread,
         ):
             writer = McapOutput(stream, connections if images else [], detector, foxglove, track)
             writing: Future[None] | None = None  # the batch being written while the next one runs

@@ -5,6 +5,9 @@ ROS 2 messages deserialised with ``rosbags`` and the Foxglove ones with their pr
 from __future__ import annotations
 
 import json
+import os
+import sys
+import threading
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -201,6 +204,20 @@ def test_replay_matches_the_detector_frame_by_frame(small_export, recording: Rec
     records = load_results(report.records)
     assert sorted(records) == sorted(str(s) for s in recording.stamps)
     assert json.loads(report.records.read_text())["meta"]["model_id"] == detector.info.meta.model_id
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread priorities are Linux's")
+def test_the_writing_thread_takes_only_the_cores_the_model_leaves(
+    small_export, recording: Recording, tmp_path: Path
+) -> None:
+    """Frames are written (and progress reported) on a thread at the lowest scheduling priority, 19."""
+    rig = read_meta(small_export.onnx).rig
+    niceness: list[int] = []
+    progress = lambda done, most: niceness.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+    before = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    replay(small_export.onnx, [recording.mcap], _topics(rig.names), tmp_path / "o.mcap", threads=1, progress=progress)
+    assert niceness and set(niceness) == {19}
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == before  # the caller's is its own
 
 
 def test_sqlite3_and_ros1_bags_replay_to_the_same_detections(
