@@ -16,7 +16,8 @@
    lenses of other models (double sphere, EUCM, Mei, Kannala-Brandt) at their own resolutions, one camchain with a
    model per camera; the share of the training lens's field each covers is reported;
 4. the front end's cost: the virtual file's frame time against the training file's (each session timed alone, the
-   median of blocks after warm-up; the two files in turn for ``--rounds`` rounds, the medians of the rounds); with
+   median of blocks after warm-up; the two files in turn for ``--rounds`` rounds: the medians of the rounds' times,
+   and the median of the rounds' ratios as the share, which a load that drifts between rounds moves less); with
    ``--cost-only``, ``--model`` may also name another file (``model_files.model_path``: an official config's stem,
    the full-size file ``benchmarks/official_configs.py`` wrote, or a path).
 """
@@ -257,13 +258,14 @@ def main() -> int:
             files = (trained, virtual)
             timed = [tuple(frame_ms(f, threads, pictures) for f in files) for _ in range(rounds)]
             plain, front = (float(np.median(t)) for t in zip(*timed))
+            share = float(np.median([v / p for p, v in timed])) - 1  # each round's pair, timed one after the other
             costs.append(
                 {
                     "threads": threads,
                     "rounds": rounds,
                     "training file ms": plain,
                     "virtual file ms": front,
-                    "front end share": front / plain - 1,
+                    "front end share": share,
                 }
             )
     tables = {"Front end cost": costs}

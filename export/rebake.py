@@ -75,8 +75,7 @@ def rebake(
     stay as trained (FisheyePETR's key mask also hides the pixels the new cameras do not see). ``tables`` mode:
     every ``geom.*`` initializer is recomputed for the rig from the parameters the metadata records (a checkpoint's
     own tables are kept on the training rig); the network then sees pictures through lenses and mounts it was not
-    trained on. The TensorRT check is run again on the new
-    file; the input file is never modified.
+    trained on. The TensorRT check is run again on the new file; the input file is never modified.
 
     Args:
         model_path (str | Path): A file written by ``fisheye-infer export`` (or by ``rebake``).

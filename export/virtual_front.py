@@ -5,9 +5,10 @@
 
 The graph's ``images`` input (B, N, Ht, Wt, 3) uint8 becomes an internal value computed from a new ``images``
 input (B, N, Hp, Wp, 3) uint8, the robot's images padded to the largest camera
-(``fisheye_infer.geometry.virtual``): the images cast to float32 and made planar (B, 3, N*Hp*Wp); per channel, every
-tap of every output pixel read by a GatherElements (the index table expanded over the batch), the four taps weighed
-(Mul) and summed (a MatMul by a row of ones, several times faster in ONNX Runtime than a ReduceSum over the taps);
+(``fisheye_infer.geometry.virtual``): the images cast to float32 and made planar, one plane per channel and camera
+(B, 3*N, Hp*Wp); per channel, every tap of every output pixel read by a GatherElements over the N camera planes (the
+index table expanded over the batch; ONNX Runtime gathers the planes on its threads), the four taps weighed (Mul)
+and summed (a MatMul by a row of ones, several times faster in ONNX Runtime than a ReduceSum over the taps);
 then the fill added with cv2.remap's rounding offset and the sum rounded down (``floor(x + 0.5)``, as cv2.remap
 rounds; every product and sum is exact in float32), and the result laid out as (B, N, Ht, Wt, 3). The training
 images stay float32 (whole numbers 0-255): every exported network casts its ``images`` to float first, and TensorRT
@@ -91,9 +92,13 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
     batch.CopyFrom(images.type.tensor_type.shape.dim[0])
     n, ht, wt = (d.dim_value for d in images.type.tensor_type.shape.dim[1:4])
     pw, ph = front.padded_size
-    pixels = front.tables[VIRTUAL_WEIGHT].shape[1]
-    if pixels != n * ht * wt:
-        raise ArtifactError(f"virtual cameras: the tables resample {pixels} pixels, the graph takes {n}x{ht}x{wt}")
+    hw = ht * wt
+    shape = front.tables[VIRTUAL_WEIGHT].shape
+    if shape != (n, 4, hw):
+        raise ArtifactError(
+            f"virtual cameras: the weight table is {shape} (cameras, taps, pixels); the graph takes {n} images of "
+            f"{ht}x{wt}, so ({n}, 4, {hw})"
+        )
     _check_consumers(graph, INPUT_IMAGES)
     rename_values(proto, {INPUT_IMAGES: TRAINING_IMAGES})
     kept = [v for v in graph.input if v.name != TRAINING_IMAGES]
@@ -104,12 +109,14 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
     p = NODE_PREFIX
     consts = {
         f"{p}flat_shape": np.array([0, -1, 3], np.int64),
-        f"{p}taps_shape": np.array([0, 1, 4, pixels], np.int64),
-        f"{p}planar_shape": np.array([0, 3, n, ht, wt], np.int64),
-        f"{p}channel_taps": np.array([1, 4 * pixels], np.int64),
+        f"{p}camera_planes": np.array([0, 3 * n, ph * pw], np.int64),
+        f"{p}split": np.array([n, n, n], np.int64),
+        f"{p}index_tail": np.array([n, 4 * hw], np.int64),
         f"{p}first": np.array([0], np.int64),
-        f"{p}ones": np.array([1, 1, 1], np.int64),
         f"{p}second": np.array([1], np.int64),
+        f"{p}taps_shape": np.array([0, n, 4, hw], np.int64),
+        f"{p}channel_shape": np.array([0, 1, n, hw], np.int64),
+        f"{p}planar_shape": np.array([0, 3, n, ht, wt], np.int64),
         f"{p}sum_taps": np.ones((1, 4), np.float32),
         f"{p}rounding": front.tables[VIRTUAL_FILL] + np.float32(0.5),
     }
@@ -124,15 +131,16 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
         helper.make_node("Cast", [INPUT_IMAGES], [f"{p}float"], name=f"{p}to_float", to=TensorProto.FLOAT),
         helper.make_node("Reshape", [f"{p}float", f"{p}flat_shape"], [f"{p}flat"], name=f"{p}flatten"),
         helper.make_node("Transpose", [f"{p}flat"], [f"{p}planar"], name=f"{p}to_planar", perm=[0, 2, 1]),
+        helper.make_node("Reshape", [f"{p}planar", f"{p}camera_planes"], [f"{p}planes"], name=f"{p}planes"),
+        helper.make_node("Split", [f"{p}planes", f"{p}split"], channel, name=f"{p}split", axis=1),
         helper.make_node("Shape", [f"{p}float"], [f"{p}input_shape"], name=f"{p}input_shape"),
         helper.make_node(
             "Slice", [f"{p}input_shape", f"{p}first", f"{p}second", f"{p}first"], [f"{p}batch"], name=f"{p}batch"
         ),
         helper.make_node(
-            "Concat", [f"{p}batch", f"{p}channel_taps"], [f"{p}index_shape"], name=f"{p}index_shape", axis=0
+            "Concat", [f"{p}batch", f"{p}index_tail"], [f"{p}index_shape"], name=f"{p}index_shape", axis=0
         ),
         helper.make_node("Expand", [VIRTUAL_INDEX, f"{p}index_shape"], [f"{p}index"], name=f"{p}expand_index"),
-        helper.make_node("Split", [f"{p}planar", f"{p}ones"], channel, name=f"{p}split", axis=1),
     ]
     for c in range(3):
         nodes += [
@@ -141,7 +149,10 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
             ),
             helper.make_node("Reshape", [f"{p}taps{c}", f"{p}taps_shape"], [f"{p}taps4_{c}"], name=f"{p}group{c}"),
             helper.make_node("Mul", [f"{p}taps4_{c}", VIRTUAL_WEIGHT], [f"{p}weighed{c}"], name=f"{p}weigh{c}"),
-            helper.make_node("MatMul", [f"{p}sum_taps", f"{p}weighed{c}"], [f"{p}sum{c}"], name=f"{p}sum{c}"),
+            helper.make_node("MatMul", [f"{p}sum_taps", f"{p}weighed{c}"], [f"{p}summed{c}"], name=f"{p}sum{c}"),
+            helper.make_node(
+                "Reshape", [f"{p}summed{c}", f"{p}channel_shape"], [f"{p}sum{c}"], name=f"{p}as_channel{c}"
+            ),
         ]
     nodes += [
         helper.make_node("Concat", [f"{p}sum{c}" for c in range(3)], [f"{p}sum"], name=f"{p}channels", axis=1),

@@ -8,12 +8,16 @@ Each slot's training image is resampled from its robot camera's raw image with c
 (`remap_taps`) of the `VirtualView`
 maps, then ``fill`` is added (mid-grey where the robot camera does not see the training ray) and the sum is rounded
 to uint8 as cv2.remap rounds it. Robot cameras may differ in size: the graph takes them padded to the largest width
-and height, each image in the top-left corner of its slot, and the taps read that layout. The taps are stored tap by
-tap (all pixels' first tap, then their second, ...), so that the graph gathers and weighs long runs:
+and height, each image in the top-left corner of its slot, and the taps read that layout. Each slot's taps index its
+own robot camera's padded image and are stored camera by camera, tap by tap (the camera's pixels' first tap, then
+their second, ...), so that the graph gathers each camera's taps as one run (the cameras in parallel) and weighs
+long runs:
 
-    geom.virtual.index    (1, 1, 4*P)  int32    flat padded robot pixel of each tap (n*Hp*Wp + y*Wp + x), P = N*Ht*Wt
-    geom.virtual.weight   (4, P)       float32  the taps' weights (products of two k/32 fractions, 0 outside)
-    geom.virtual.fill     (P,)         float32  added to each resampled pixel: ``UNSEEN_FILL`` or 0
+    geom.virtual.index    (1, N, 4*H*W)  int32    padded robot pixel of each tap in its camera's image (y*Wp + x)
+    geom.virtual.weight   (N, 4, H*W)    float32  the taps' weights (products of two k/32 fractions, 0 outside)
+    geom.virtual.fill     (N, H*W)       float32  added to each resampled pixel: ``UNSEEN_FILL`` or 0
+
+(N slots of the training cameras' H x W images.)
 """
 
 from __future__ import annotations
@@ -133,14 +137,15 @@ def virtual_front(training: Rig, robot: Rig, order: Sequence[str], depth: float 
     fill: list[np.ndarray] = []
     reports: list[VirtualCameraReport] = []
     views: list[VirtualView] = []
-    for n, (slot, cam) in enumerate(zip(training.cameras, cameras)):
+    for slot, cam in zip(training.cameras, cameras):
         view = virtual_view(slot, cam, depth)
         w, h = cam.model.width, cam.model.height
         taps = remap_taps(remap_grid(view.map_x, view.map_y, w, h), h, w)
         flat = taps.index
-        index.append(np.where(taps.weight.reshape(-1) > 0, n * ph * pw + (flat // w) * pw + flat % w, 0))
-        weight.append(taps.weight)
-        fill.append(view.fill().reshape(-1, 1, 1))
+        local = np.where(taps.weight.reshape(-1) > 0, (flat // w) * pw + flat % w, 0)
+        index.append(local.reshape(-1, 4).T)  # (4, H*W): tap by tap
+        weight.append(taps.weight.reshape(-1, 4).T)
+        fill.append(view.fill().reshape(-1))
         views.append(view)
         reports.append(
             VirtualCameraReport(
@@ -154,8 +159,8 @@ def virtual_front(training: Rig, robot: Rig, order: Sequence[str], depth: float 
             )
         )
     tables: dict[str, np.ndarray] = {
-        VIRTUAL_INDEX: np.concatenate(index).reshape(-1, 4).T.reshape(1, 1, -1).astype(np.int32),
-        VIRTUAL_WEIGHT: np.concatenate(weight).reshape(-1, 4).T.astype(np.float32),
-        VIRTUAL_FILL: np.concatenate(fill).reshape(-1).astype(np.float32),
+        VIRTUAL_INDEX: np.stack(index).reshape(1, len(index), -1).astype(np.int32),
+        VIRTUAL_WEIGHT: np.stack(weight).astype(np.float32),
+        VIRTUAL_FILL: np.stack(fill).astype(np.float32),
     }
     return VirtualFront(tables=tables, padded_size=(pw, ph), reports=tuple(reports), views=tuple(views))

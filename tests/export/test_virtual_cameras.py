@@ -192,7 +192,7 @@ def test_a_narrower_lens_leaves_unseen_pixels_grey_and_says_how_much_it_covers()
     view, report = front.views[0], front.reports[0]
     assert 0.3 < report.coverage < 0.9
     assert report.coverage == pytest.approx(view.seen.sum() / view.inside_lens.sum(), abs=1e-6)
-    fill = front.tables["geom.virtual.fill"][: 80 * 80].reshape(80, 80)
+    fill = front.tables["geom.virtual.fill"][0].reshape(80, 80)
     assert set(np.unique(fill[view.unseen])) == {128.0} and not fill[~view.unseen].any()
     assert "covers" in report.summary()
 
