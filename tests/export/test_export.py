@@ -189,17 +189,22 @@ def test_self_check_fails_on_the_interleaved_sine_layout(
 ) -> None:
     """A FisheyePETR file whose key position embedding was built with interleaved sin/cos (the layout
     the official code does not use) is refused, though everything else in it is right."""
-    from fisheye_infer.export.rebake import rebake
+    from fisheye_infer.export.graph import REBAKE_WEIGHTS_KEY, decode_arrays, replace_initializers, save_model
     from fisheye_infer.geometry import petr as petr_geometry
+    from fisheye_infer.geometry.kinds import tables_for
+    from fisheye_infer.geometry.tables import PETR_KEY_POS
 
     def interleaved(a: np.ndarray, dim_t: np.ndarray) -> np.ndarray:
         p = a[..., None] / dim_t
         return np.stack((np.sin(p[..., 0::2]), np.cos(p[..., 1::2])), axis=-1).reshape(*a.shape, -1)
 
+    proto = onnx.load(str(petr_export.onnx))
+    weights = decode_arrays(get_metadata(proto)[REBAKE_WEIGHTS_KEY])
     monkeypatch.setattr(petr_geometry, "_blocked_sin_cos", interleaved)
-    bad = tmp_path / "interleaved.onnx"
-    rebake(petr_export.onnx, rig, bad, mode="tables")
+    tables = tables_for(rig, read_meta(petr_export.onnx).geometry, weights)
     monkeypatch.undo()
+    replace_initializers(proto, {PETR_KEY_POS: tables[PETR_KEY_POS]})
+    bad = save_model(proto, tmp_path / "interleaved.onnx")
     report = verify(bad, reference_of(petr_export, references, rig), threads=(2,))
     assert not report.passed and report.max_box_abs_diff_m > report.tolerance_box_m
 
