@@ -182,8 +182,10 @@ def _mask_petr_keys(
     takes the new mask's share (`remasked_key_embedding`). The keys that sample unseen pixels are found through
     the rig's feature grid.
     """
+    if REBAKE_WEIGHTS_KEY not in props:  # only the PETR kinds' files carry weights
+        return {}
     geometry = geometry_from_rig(meta.training_rig, meta.geometry)
-    if not isinstance(geometry, PETRGeometry) or REBAKE_WEIGHTS_KEY not in props:
+    if not isinstance(geometry, PETRGeometry):
         return {}
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY])
     held = initializer_arrays(proto, (PETR_KEY_POS, PETR_KEY_MASK))
@@ -216,10 +218,18 @@ def _tables(
     new_rig.require(training.names, size)
     if meta.geometry_source == "checkpoint" and new_rig.hash == training.hash:
         extra = _mask_petr_keys(proto, props, meta, None)
-        kept = {"rig": training, "rig_hash": training.hash, "cameras": tuple(training.names), "image_size": size}
-        kept["model_id"] = _model_id(meta, training)
-        changed = {"parity": None} if had_front else {}
-        return meta.model_copy(update={**kept, **changed, "virtual_cameras": None}), extra
+        kept = meta.model_copy(
+            update={
+                "rig": training,
+                "rig_hash": training.hash,
+                "cameras": tuple(training.names),
+                "image_size": size,
+                "model_id": _model_id(meta, training),
+                "parity": None if had_front else meta.parity,  # a virtual file's keys were moved back
+                "virtual_cameras": None,
+            }
+        )
+        return kept, extra
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
     try:
         tables = tables_for(new_rig, meta.geometry, weights)
