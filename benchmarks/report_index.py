@@ -24,7 +24,7 @@ SOURCES = {
         "`fisheye-infer export --int8` writes (its int8 search's choice); int8 (network) and int8 (trunk) are the "
         "two scopes chosen by hand."
     ),
-    "virtual_cameras": "The model's fp32 file for its training rig, one frame (the front end's cost there).",
+    "virtual_cameras": "The model's file for its training rig, one frame (the front end's cost there).",
     "compare": "`Detector.detect` end to end on one frame, the files timed in turns.",
 }
 #: The precisions in the order the headline shows them.
@@ -58,7 +58,7 @@ def frame_times(result: Result) -> list[dict[str, Any]]:
             rows.append(
                 {
                     "model": params["model"],
-                    "precision": "fp32",
+                    "precision": "int8" if params.get("int8") else "fp32",
                     "threads": row["threads"],
                     "ms": row["training file ms"],
                 }

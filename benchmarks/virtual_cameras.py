@@ -1,7 +1,7 @@
 """A trained detector on other rigs without retraining: virtual cameras against re-baked tables, FDS per test rig.
 
     python benchmarks/virtual_cameras.py [--model fisheye-bevdet-compact] [--frames 40] [--threads 2] [--quick]
-    python benchmarks/virtual_cameras.py --cost-only [--rounds 5] [--model fisheye_bevdet]
+    python benchmarks/virtual_cameras.py --cost-only [--rounds 5] [--model fisheye_bevdet] [--model compact --int8]
 
 1. The shipped model exported once for its training rig (``fisheye-infer export``), then, for each test rig, two
    files written by ``fisheye_infer.export.rebake``: ``virtual`` (the robot's raw images resampled in the graph into
@@ -19,7 +19,8 @@
    median of blocks after warm-up; the two files in turn for ``--rounds`` rounds: the medians of the rounds' times,
    and the median of the rounds' ratios as the share, which a load that drifts between rounds moves less); with
    ``--cost-only``, ``--model`` may also name another file (``model_files.model_path``: an official config's stem,
-   the full-size file ``benchmarks/official_configs.py`` wrote, or a path).
+   the full-size file ``benchmarks/official_configs.py`` wrote, or a path), and ``--int8`` measures the int8 file
+   the export writes (``model_files``) in its place.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from pathlib import Path
 
 import harness
 import numpy as np
-from model_files import MODEL_HELP, model_path
+from model_files import MODEL_HELP, SHIPPED, model_path
 
 from fisheye_infer import Detector
 from fisheye_infer.cameras.camera_models import DoubleSphere, ExtendedUnified, KannalaBrandt, OCamModel, Omnidirectional
@@ -205,6 +206,7 @@ def main() -> int:
     bench.parser.add_argument("--threads", type=int, default=2)
     bench.parser.add_argument("--cost-only", action="store_true", help="only the front end's cost (step 4)")
     bench.parser.add_argument("--rounds", type=int, default=5, help="rounds of the cost timing, the two files in turn")
+    bench.parser.add_argument("--int8", action="store_true", help="with --cost-only: the model's int8 file")
     args = bench.parse()
     from fisheye_infer.export.exporter import export
     from fisheye_infer.export.rebake import rebake
@@ -215,9 +217,13 @@ def main() -> int:
     shipped = pretrained(args.model) if args.model in {m.name for m in PRETRAINED} else None
     if shipped is None and not args.cost_only:
         raise SystemExit(f"--model {args.model}: not a shipped model (other files: --cost-only)")
+    if args.int8 and not args.cost_only:
+        raise SystemExit("--int8 measures the front end's cost only: add --cost-only")
     rows, costs = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        if shipped is not None:
+        if args.int8:
+            trained = model_path(next((k for k, v in SHIPPED.items() if v == args.model), args.model), "int8")
+        elif shipped is not None:
             trained = Path(tmp) / "model.onnx"
             export(shipped.checkpoint, trained, config=shipped.config, rig=shipped.rig, frames=1)
         else:

@@ -1,20 +1,23 @@
 """A virtual-camera front end in an exported graph: the robot's raw images in, the training cameras' images out.
 
-    attach_front(proto, front, training_hw)     # the graph's images input becomes the robot's padded images
+    attach_front(proto, front)                  # the graph's images input becomes the robot's padded images
     detach_front(proto)                         # back to the graph that takes the training cameras' images
 
-The graph's ``images`` input (B, N, Ht, Wt, 3) uint8 becomes an internal value computed from a new ``images``
-input (B, N, Hp, Wp, 3) uint8, the robot's images padded to the largest camera
-(``fisheye_infer.geometry.virtual``): the images cast to float32 and made planar, one plane per channel and camera
-(B, 3*N, Hp*Wp); per channel, every tap of every output pixel read by a GatherElements over the N camera planes (the
-index table expanded over the batch; ONNX Runtime gathers the planes on its threads), the four taps weighed (Mul)
-and summed (a MatMul by a row of ones, several times faster in ONNX Runtime than a ReduceSum over the taps);
-then the fill added with cv2.remap's rounding offset and the sum rounded down (``floor(x + 0.5)``, as cv2.remap
-rounds; every product and sum is exact in float32), and the result laid out as (B, N, Ht, Wt, 3). The training
-images stay float32 (whole numbers 0-255): every exported network casts its ``images`` to float first, and TensorRT
-takes UINT8 only at a network's edge. Every elementwise step runs over long rows of one channel and tap (ONNX
-Runtime's broadcasting and Gather are slow on short inner rows). Standard ops only; the nodes are named under
-``NODE_PREFIX`` so that a file can be re-targeted.
+The graph's ``images`` input (B, N, Ht, Wt, 3) uint8 is replaced by a new ``images`` input (B, N, Hp, Wp, 3)
+uint8, the robot's images padded to the largest camera (``fisheye_infer.geometry.virtual``): the images cast to
+float32 and made planar, one plane per channel and camera (B, 3*N, Hp*Wp); per channel, every tap of every output
+pixel read by a GatherElements over the N camera planes (the index table expanded over the batch; ONNX Runtime
+gathers the planes on its threads), the four taps weighed (Mul) and summed (a MatMul by a row of ones, several times
+faster in ONNX Runtime than a ReduceSum over the taps); then the fill added with cv2.remap's rounding offset and the
+sum rounded down (``floor(x + 0.5)``, as cv2.remap rounds; every product and sum is exact in float32).
+
+Where the network starts with the image entry that ``models.normalise.normalise_frames`` exports (cast, mean
+subtracted, channels-first; ``image_entry``), the front end takes it over: it subtracts the mean on its planes and
+writes the entry's (B*N, 3, Ht, Wt) output, and the entry's nodes are kept in the metadata for ``detach_front``.
+Elsewhere the result is laid out as the training images (B, N, Ht, Wt, 3) float32 (whole numbers 0-255) for the
+network's own cast to float. TensorRT takes UINT8 only at a network's edge, so the front end casts first. Every
+elementwise step runs over long rows of one channel and tap (ONNX Runtime's broadcasting and Gather are slow on
+short inner rows). Standard ops only; the nodes are named under ``NODE_PREFIX`` so that a file can be re-targeted.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from fisheye_infer.geometry.virtual import VIRTUAL, VIRTUAL_FILL, VIRTUAL_INDEX,
 from fisheye_infer.runtime.artifact import INPUT_IMAGES
 
 from .graph import rename_values
+from .image_entry import find_image_entry, restore_image_entry, take_image_entry
 
 __all__ = ["NODE_PREFIX", "TRAINING_IMAGES", "attach_front", "detach_front", "has_front"]
 
@@ -38,7 +42,7 @@ TRAINING_IMAGES = "virtual_front/training_images"
 
 def has_front(proto: onnx.ModelProto) -> bool:
     """Whether ``proto`` already starts with a virtual-camera front end."""
-    return any(node.output and node.output[0] == TRAINING_IMAGES for node in proto.graph.node)
+    return any(node.name.startswith(NODE_PREFIX) for node in proto.graph.node)
 
 
 def _images_input(proto: onnx.ModelProto) -> onnx.ValueInfoProto:
@@ -100,13 +104,18 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
             f"{ht}x{wt}, so ({n}, 4, {hw})"
         )
     _check_consumers(graph, INPUT_IMAGES)
-    rename_values(proto, {INPUT_IMAGES: TRAINING_IMAGES})
-    kept = [v for v in graph.input if v.name != TRAINING_IMAGES]
+    entry = find_image_entry(proto, INPUT_IMAGES, ht, wt)
+    if entry is not None:
+        take_image_entry(proto, entry)
+    else:
+        rename_values(proto, {INPUT_IMAGES: TRAINING_IMAGES})
+    kept = [v for v in graph.input if v.name not in (INPUT_IMAGES, TRAINING_IMAGES)]
     new_input = helper.make_tensor_value_info(INPUT_IMAGES, TensorProto.UINT8, None)
     _set_shape(new_input, batch, (n, ph, pw, 3))
     del graph.input[:]
     graph.input.extend([new_input, *kept])
     p = NODE_PREFIX
+    fill = front.tables[VIRTUAL_FILL] + np.float32(0.5)
     consts = {
         f"{p}flat_shape": np.array([0, -1, 3], np.int64),
         f"{p}camera_planes": np.array([0, 3 * n, ph * pw], np.int64),
@@ -115,17 +124,36 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
         f"{p}first": np.array([0], np.int64),
         f"{p}second": np.array([1], np.int64),
         f"{p}taps_shape": np.array([0, n, 4, hw], np.int64),
-        f"{p}channel_shape": np.array([0, 1, n, hw], np.int64),
-        f"{p}planar_shape": np.array([0, 3, n, ht, wt], np.int64),
         f"{p}sum_taps": np.ones((1, 4), np.float32),
-        f"{p}rounding": front.tables[VIRTUAL_FILL] + np.float32(0.5),
     }
+    if entry is not None:  # (B, N, 3, H*W) planes, the mean subtracted, as the network's first convolution reads them
+        consts |= {
+            f"{p}rounding": fill.reshape(n, 1, hw),
+            f"{p}mean": entry.mean.reshape(3, 1),
+            f"{p}planar_shape": np.array([-1, 3, ht, wt], np.int64),
+        }
+    else:  # (B, N, Ht, Wt, 3) images for the network's own cast
+        consts |= {
+            f"{p}rounding": fill,
+            f"{p}channel_shape": np.array([0, 1, n, hw], np.int64),
+            f"{p}planar_shape": np.array([0, 3, n, ht, wt], np.int64),
+        }
     graph.initializer.extend(numpy_helper.from_array(np.ascontiguousarray(a), name) for name, a in consts.items())
     graph.initializer.extend(
         numpy_helper.from_array(np.ascontiguousarray(a), name)
         for name, a in front.tables.items()
         if name != VIRTUAL_FILL  # added with the rounding offset, as ``rounding``
     )
+    nodes = _taps(n)
+    nodes += _planar_tail(entry.output) if entry is not None else _channels_last_tail()
+    body = list(graph.node)
+    del graph.node[:]
+    graph.node.extend([*nodes, *body])
+
+
+def _taps(n: int) -> list[onnx.NodeProto]:
+    """The robot's images to each channel's tap sums, ``{p}summed{c}`` (B, N, 1, H*W)."""
+    p = NODE_PREFIX
     channel = [f"{p}channel{c}" for c in range(3)]
     nodes = [
         helper.make_node("Cast", [INPUT_IMAGES], [f"{p}float"], name=f"{p}to_float", to=TensorProto.FLOAT),
@@ -150,20 +178,37 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
             helper.make_node("Reshape", [f"{p}taps{c}", f"{p}taps_shape"], [f"{p}taps4_{c}"], name=f"{p}group{c}"),
             helper.make_node("Mul", [f"{p}taps4_{c}", VIRTUAL_WEIGHT], [f"{p}weighed{c}"], name=f"{p}weigh{c}"),
             helper.make_node("MatMul", [f"{p}sum_taps", f"{p}weighed{c}"], [f"{p}summed{c}"], name=f"{p}sum{c}"),
-            helper.make_node(
-                "Reshape", [f"{p}summed{c}", f"{p}channel_shape"], [f"{p}sum{c}"], name=f"{p}as_channel{c}"
-            ),
         ]
-    nodes += [
+    return nodes
+
+
+def _planar_tail(output: str) -> list[onnx.NodeProto]:
+    """Tap sums -> the network's channels-first input ``output``: filled, rounded, the mean subtracted."""
+    p = NODE_PREFIX
+    return [
+        helper.make_node("Concat", [f"{p}summed{c}" for c in range(3)], [f"{p}sum"], name=f"{p}channels", axis=2),
+        helper.make_node("Add", [f"{p}sum", f"{p}rounding"], [f"{p}shifted"], name=f"{p}fill_and_round"),
+        helper.make_node("Floor", [f"{p}shifted"], [f"{p}rounded"], name=f"{p}floor"),
+        helper.make_node("Sub", [f"{p}rounded", f"{p}mean"], [f"{p}centred"], name=f"{p}centre"),
+        helper.make_node("Reshape", [f"{p}centred", f"{p}planar_shape"], [output], name=f"{p}views"),
+    ]
+
+
+def _channels_last_tail() -> list[onnx.NodeProto]:
+    """Tap sums -> the training cameras' images (B, N, Ht, Wt, 3), filled and rounded."""
+    p = NODE_PREFIX
+    nodes = [
+        helper.make_node("Reshape", [f"{p}summed{c}", f"{p}channel_shape"], [f"{p}sum{c}"], name=f"{p}as_channel{c}")
+        for c in range(3)
+    ]
+    return [
+        *nodes,
         helper.make_node("Concat", [f"{p}sum{c}" for c in range(3)], [f"{p}sum"], name=f"{p}channels", axis=1),
         helper.make_node("Add", [f"{p}sum", f"{p}rounding"], [f"{p}shifted"], name=f"{p}fill_and_round"),
         helper.make_node("Floor", [f"{p}shifted"], [f"{p}rounded"], name=f"{p}floor"),
         helper.make_node("Reshape", [f"{p}rounded", f"{p}planar_shape"], [f"{p}views"], name=f"{p}views"),
         helper.make_node("Transpose", [f"{p}views"], [TRAINING_IMAGES], name=f"{p}images", perm=[0, 2, 3, 4, 1]),
     ]
-    body = list(graph.node)
-    del graph.node[:]
-    graph.node.extend([*nodes, *body])
 
 
 def detach_front(proto: onnx.ModelProto) -> None:
@@ -179,8 +224,9 @@ def detach_front(proto: onnx.ModelProto) -> None:
         raise ArtifactError("the graph has no virtual-camera front end")
     graph = proto.graph
     images = _images_input(proto)
+    n = next(i for i in graph.initializer if i.name == VIRTUAL_WEIGHT).dims[0]
     image_shape = next(i for i in graph.initializer if i.name == f"{NODE_PREFIX}planar_shape")
-    n, ht, wt = (int(d) for d in numpy_helper.to_array(image_shape)[2:5])
+    ht, wt = (int(d) for d in numpy_helper.to_array(image_shape)[-2:])
     batch = onnx.TensorShapeProto.Dimension()
     batch.CopyFrom(images.type.tensor_type.shape.dim[0])
     kept_nodes = [node for node in graph.node if not node.name.startswith(NODE_PREFIX)]
@@ -190,4 +236,5 @@ def detach_front(proto: onnx.ModelProto) -> None:
     del graph.initializer[:]
     graph.initializer.extend(kept_inits)
     _set_shape(images, batch, (n, ht, wt, 3))
-    rename_values(proto, {TRAINING_IMAGES: INPUT_IMAGES})
+    if not restore_image_entry(proto):
+        rename_values(proto, {TRAINING_IMAGES: INPUT_IMAGES})

@@ -16,7 +16,7 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 import pytest
-from onnx import TensorProto, helper
+from onnx import TensorProto, helper, numpy_helper
 
 from fisheye_infer import Detector
 from fisheye_infer.cameras.camera_map import map_cameras, parse_camera_map
@@ -33,6 +33,8 @@ from fisheye_infer.cameras.camera_models import (
 from fisheye_infer.cameras.rig import Rig, RigCamera, default_rig
 from fisheye_infer.cli import main
 from fisheye_infer.errors import ArtifactError, FrameError, RigError
+from fisheye_infer.export.graph import get_metadata
+from fisheye_infer.export.image_entry import IMAGE_ENTRY_KEY
 from fisheye_infer.export.rebake import rebake
 from fisheye_infer.export.virtual_front import attach_front, detach_front, has_front
 from fisheye_infer.geometry.virtual import virtual_front
@@ -162,6 +164,71 @@ def test_front_end_detaches_to_the_original_graph() -> None:
     assert not has_front(proto) and proto.SerializeToString() == before
 
 
+MEAN = np.array([103.53, 116.28, 123.675], np.float32)
+
+
+def _entry_graph(n: int, height: int, width: int, tiled_mean: np.ndarray) -> onnx.ModelProto:
+    """A network that starts as ``normalise_frames`` exports it: cast, mean subtracted along rows of W*3,
+    channels-first."""
+    images = helper.make_tensor_value_info("images", TensorProto.UINT8, ["batch", n, height, width, 3])
+    out = helper.make_tensor_value_info("seen", TensorProto.FLOAT, None)
+    nodes = [
+        helper.make_node("Cast", ["images"], ["f"], name="cast", to=TensorProto.FLOAT),
+        helper.make_node("Reshape", ["f", "rows_shape"], ["rows"], name="rows"),
+        helper.make_node("Sub", ["rows", "tiled_mean"], ["centred"], name="sub"),
+        helper.make_node("Reshape", ["centred", "pixels_shape"], ["pixels"], name="pixels"),
+        helper.make_node("Transpose", ["pixels"], ["planes"], name="planes", perm=[0, 3, 1, 2]),
+        helper.make_node("Identity", ["planes"], ["seen"], name="network"),
+    ]
+    inits = [
+        numpy_helper.from_array(np.array([-1, height, width * 3], np.int64), "rows_shape"),
+        numpy_helper.from_array(tiled_mean, "tiled_mean"),
+        numpy_helper.from_array(np.array([-1, height, width, 3], np.int64), "pixels_shape"),
+    ]
+    graph = helper.make_graph(nodes, "entry", [images], [out], inits)
+    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+
+
+def test_the_front_end_takes_over_the_networks_image_entry() -> None:
+    """The front end writes the entry's channels-first, mean-subtracted planes itself: equal to the reference
+    normalised as the entry does, to the bit; detached, the graph is the original to the byte."""
+    robot = _robot("kannala_brandt")
+    order = map_cameras(TRAINING, robot)
+    front = virtual_front(TRAINING, robot, order)
+    proto = _entry_graph(len(TRAINING), 80, 80, np.tile(MEAN, 80))
+    before = proto.SerializeToString()
+    attach_front(proto, front)
+    assert {"cast", "rows", "sub", "pixels", "planes"}.isdisjoint(node.name for node in proto.graph.node)
+    assert not any(node.op_type == "Transpose" and len(node.attribute[0].ints) == 5 for node in proto.graph.node)
+    pw, ph = front.padded_size
+    rng = np.random.default_rng(3)
+    sizes = {name: (robot.camera(name).model.height, robot.camera(name).model.width, 3) for name in order}
+    raw = {name: rng.integers(0, 256, size, np.uint8) for name, size in sizes.items()}
+    batch = np.zeros((2, len(order), ph, pw, 3), np.uint8)
+    for i, name in enumerate(order):
+        h, w = raw[name].shape[:2]
+        batch[0, i, :h, :w], batch[1, i, :h, :w] = raw[name], 255 - raw[name]
+    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    (got,) = session.run(None, {"images": batch})
+    assert got.shape == (2 * len(order), 3, 80, 80)
+    for b, flip in enumerate([False, True]):
+        for i, (slot, name) in enumerate(zip(TRAINING.cameras, order)):
+            seen = _reference(slot, robot.camera(name), 255 - raw[name] if flip else raw[name])
+            expected = (seen.astype(np.float32) - MEAN).transpose(2, 0, 1)
+            np.testing.assert_array_equal(got[b * len(order) + i], expected, err_msg=f"{slot.name}, frame {b}")
+    detach_front(proto)
+    assert proto.SerializeToString() == before
+
+
+def test_a_network_that_starts_otherwise_gets_the_images_channels_last() -> None:
+    """A mean that is not one value per channel is not the exported entry: the network keeps its own."""
+    tiled = np.tile(MEAN, 80)
+    tiled[5] += 1.0
+    proto = _entry_graph(len(TRAINING), 80, 80, tiled)
+    attach_front(proto, virtual_front(TRAINING, _robot("eucm"), map_cameras(TRAINING, _robot("eucm"))))
+    assert {"cast", "rows", "sub", "pixels", "planes"} <= {node.name for node in proto.graph.node}
+
+
 def test_the_front_end_passes_the_tensorrt_check() -> None:
     """UINT8 only at the graph's edge: the front end casts the robot's images first and hands float32 on."""
     from fisheye_infer.export.tensorrt_check import check_tensorrt
@@ -240,6 +307,7 @@ def test_virtual_cameras_on_the_training_rig_answer_as_the_unchanged_file(small_
     meta = read_meta(small_export.onnx)
     out = rebake(small_export.onnx, meta.rig, tmp_path / "virtual.onnx", mode="virtual")
     assert out.virtual_cameras is not None and out.parity == meta.parity
+    assert IMAGE_ENTRY_KEY in get_metadata(onnx.load(str(tmp_path / "virtual.onnx")))  # the entry taken over
     assert all(r.coverage == 1.0 and r.rotation_deg == 0.0 for r in out.virtual_cameras.cameras)
     assert meta.tensorrt is not None and meta.tensorrt.compatible
     assert out.tensorrt is not None and out.tensorrt.compatible, out.tensorrt
@@ -307,7 +375,9 @@ def test_the_tables_mode_keeps_the_model_cameras(small_export, tmp_path: Path, c
         )
         == 0
     )
-    assert not has_front(onnx.load(str(tmp_path / "tv.onnx")))
+    detached = onnx.load(str(tmp_path / "tv.onnx"))
+    assert not has_front(detached) and IMAGE_ENTRY_KEY not in get_metadata(detached)
+    assert [n.name for n in detached.graph.node] == [n.name for n in onnx.load(str(tmp_path / "t.onnx")).graph.node]
     assert main([*args, "--out", str(tmp_path / "x.onnx"), "--tables", "--camera-map", "a=b"]) == 1
     assert "--tables keeps the model's cameras" in capsys.readouterr().err
 
