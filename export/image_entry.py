@@ -1,8 +1,8 @@
 """The network's image entry, as ``models.normalise.normalise_frames`` exports it, handed over to a front end.
 
-    entry = find_image_entry(proto, "images")   # None where the graph starts otherwise
-    take_image_entry(proto, entry)              # its nodes and constants out of the graph, kept in the metadata
-    restore_image_entry(proto)                  # back where they were, to the byte
+    entry = find_image_entry(proto, "images", 320, 320)   # None where the graph starts otherwise
+    take_image_entry(proto, entry)                        # its nodes and constants out, kept in the metadata
+    restore_image_entry(proto)                            # back where they were, to the byte
 
 An exported fisheye network starts ``Cast`` (uint8 -> float32) -> ``Reshape`` (B*N, H, W*3) -> ``Sub`` (the mean
 tiled along a row) -> ``Reshape`` (B*N, H, W, 3) -> ``Transpose`` (B*N, 3, H, W). A front end that computes the

@@ -224,7 +224,7 @@ def detach_front(proto: onnx.ModelProto) -> None:
         raise ArtifactError("the graph has no virtual-camera front end")
     graph = proto.graph
     images = _images_input(proto)
-    n = next(i for i in graph.initializer if i.name == VIRTUAL_WEIGHT).dims[0]
+    n = images.type.tensor_type.shape.dim[1].dim_value  # the robot's cameras stand in the model's, one for one
     image_shape = next(i for i in graph.initializer if i.name == f"{NODE_PREFIX}planar_shape")
     ht, wt = (int(d) for d in numpy_helper.to_array(image_shape)[-2:])
     batch = onnx.TensorShapeProto.Dimension()
