@@ -6,10 +6,11 @@
 The graph's ``images`` input (B, N, Ht, Wt, 3) uint8 is replaced by a new ``images`` input (B, N, Hp, Wp, 3)
 uint8, the robot's images padded to the largest camera (``fisheye_infer.geometry.virtual``): the images cast to
 float32 and made planar, one plane per channel and camera (B, 3*N, Hp*Wp); per channel, every tap of every output
-pixel read by a GatherElements over the N camera planes (the index table expanded over the batch; ONNX Runtime
-gathers the planes on its threads), the four taps weighed (Mul) and summed (a MatMul by a row of ones, several times
-faster in ONNX Runtime than a ReduceSum over the taps); then the fill added with cv2.remap's rounding offset and the
-sum rounded down (``floor(x + 0.5)``, as cv2.remap rounds; every product and sum is exact in float32).
+pixel read by a GatherElements over the N camera planes (ONNX Runtime gathers the planes on its threads; the index
+table is broadcast over the batch by adding zeros of shape (B, 1, 1), which runs on the session's threads where an
+Expand runs on one), the four taps weighed (Mul) and summed (a MatMul by a row of ones, several times faster in ONNX
+Runtime than a ReduceSum over the taps); then the fill added with cv2.remap's rounding offset and the sum rounded
+down (``floor(x + 0.5)``, as cv2.remap rounds; every product and sum is exact in float32).
 
 Where the network starts with the image entry that ``models.normalise.normalise_frames`` exports (cast, mean
 subtracted, channels-first; ``image_entry``), the front end takes it over: it subtracts the mean on its planes and
@@ -120,7 +121,7 @@ def attach_front(proto: onnx.ModelProto, front: VirtualFront) -> None:
         f"{p}flat_shape": np.array([0, -1, 3], np.int64),
         f"{p}camera_planes": np.array([0, 3 * n, ph * pw], np.int64),
         f"{p}split": np.array([n, n, n], np.int64),
-        f"{p}index_tail": np.array([n, 4 * hw], np.int64),
+        f"{p}batch_tail": np.array([1, 1], np.int64),
         f"{p}first": np.array([0], np.int64),
         f"{p}second": np.array([1], np.int64),
         f"{p}taps_shape": np.array([0, n, 4, hw], np.int64),
@@ -166,9 +167,16 @@ def _taps(n: int) -> list[onnx.NodeProto]:
             "Slice", [f"{p}input_shape", f"{p}first", f"{p}second", f"{p}first"], [f"{p}batch"], name=f"{p}batch"
         ),
         helper.make_node(
-            "Concat", [f"{p}batch", f"{p}index_tail"], [f"{p}index_shape"], name=f"{p}index_shape", axis=0
+            "Concat", [f"{p}batch", f"{p}batch_tail"], [f"{p}batch_shape"], name=f"{p}batch_shape", axis=0
         ),
-        helper.make_node("Expand", [VIRTUAL_INDEX, f"{p}index_shape"], [f"{p}index"], name=f"{p}expand_index"),
+        helper.make_node(
+            "ConstantOfShape",
+            [f"{p}batch_shape"],
+            [f"{p}batch_zeros"],
+            name=f"{p}batch_zeros",
+            value=helper.make_tensor("zero", TensorProto.INT32, [1], [0]),
+        ),
+        helper.make_node("Add", [VIRTUAL_INDEX, f"{p}batch_zeros"], [f"{p}index"], name=f"{p}index_per_frame"),
     ]
     for c in range(3):
         nodes += [
