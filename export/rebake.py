@@ -136,8 +136,11 @@ def rebake(
     return final
 
 
-def _model_id(meta: ArtifactMeta, rig: Rig) -> str:
-    return f"{meta.architecture}-{rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
+def _on_rig(meta: ArtifactMeta, rig: Rig, image_size: tuple[int, int], **update: object) -> ArtifactMeta:
+    """``meta`` for a file that takes ``rig``'s cameras at ``image_size``, with the other fields of ``update``."""
+    model_id = f"{meta.architecture}-{rig.hash[:8]}-{(meta.checkpoint_sha256 or 'unknown')[:8]}"
+    fields = {"rig": rig, "rig_hash": rig.hash, "cameras": tuple(rig.names), "image_size": image_size}
+    return meta.model_copy(update={**fields, "model_id": model_id, **update})
 
 
 def _virtual(
@@ -156,19 +159,8 @@ def _virtual(
     front = virtual_front(training, ordered, order, depth)
     attach_front(proto, front)
     extra = _mask_petr_keys(proto, props, meta, np.stack([view.unseen for view in front.views]))
-    new_meta = meta.model_copy(
-        update={
-            "rig": ordered,
-            "rig_hash": ordered.hash,
-            "cameras": tuple(order),
-            "image_size": front.padded_size,
-            "model_id": _model_id(meta, ordered),
-            "virtual_cameras": VirtualCameras(
-                training_rig=training, depth_m=depth, unseen_fill=UNSEEN_FILL, cameras=front.reports
-            ),
-        }
-    )
-    return new_meta, extra
+    cameras = VirtualCameras(training_rig=training, depth_m=depth, unseen_fill=UNSEEN_FILL, cameras=front.reports)
+    return _on_rig(meta, ordered, front.padded_size, virtual_cameras=cameras), extra
 
 
 def _mask_petr_keys(
@@ -218,18 +210,8 @@ def _tables(
     new_rig.require(training.names, size)
     if meta.geometry_source == "checkpoint" and new_rig.hash == training.hash:
         extra = _mask_petr_keys(proto, props, meta, None)
-        kept = meta.model_copy(
-            update={
-                "rig": training,
-                "rig_hash": training.hash,
-                "cameras": tuple(training.names),
-                "image_size": size,
-                "model_id": _model_id(meta, training),
-                "parity": None if had_front else meta.parity,  # a virtual file's keys were moved back
-                "virtual_cameras": None,
-            }
-        )
-        return kept, extra
+        # a virtual file's keys were moved back: its parity notes no longer hold
+        return _on_rig(meta, training, size, parity=None if had_front else meta.parity, virtual_cameras=None), extra
     weights = decode_arrays(props[REBAKE_WEIGHTS_KEY]) if REBAKE_WEIGHTS_KEY in props else None
     try:
         tables = tables_for(new_rig, meta.geometry, weights)
@@ -249,16 +231,5 @@ def _tables(
                 "checkpoint again"
             )
     replace_initializers(proto, tables)
-    new_meta = meta.model_copy(
-        update={
-            "rig": new_rig,
-            "rig_hash": new_rig.hash,
-            "cameras": tuple(new_rig.names),
-            "image_size": size,
-            "model_id": _model_id(meta, new_rig),
-            "geometry_source": "rig",
-            "parity": None,  # its notes quote table values, which the rig changes
-            "virtual_cameras": None,
-        }
-    )
-    return new_meta, {}
+    # parity: its notes quote table values, which the rig changes
+    return _on_rig(meta, new_rig, size, geometry_source="rig", parity=None, virtual_cameras=None), {}
