@@ -169,7 +169,7 @@ def gemm_peak(threads: int, n: int, repeat: int) -> dict[str, float]:
         sess = ort.InferenceSession(
             _matmul_model(kind, n), session_options(threads), providers=["CPUExecutionProvider"]
         )
-        fns[f"ONNX Runtime {kind}"] = lambda sess=sess, feeds=feeds: sess.run(None, feeds)
+        fns[f"ONNX Runtime {kind}"] = harness.session_call(sess, feeds)
     for fn in fns.values():  # first calls allocate
         fn()
     return {name: 2.0 * n**3 / t.median / 1e6 for name, t in harness.alternate(fns, repeat, warmup=0).items()}

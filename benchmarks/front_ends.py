@@ -16,7 +16,6 @@ The front end's share is its time over the whole file's.
 
 from __future__ import annotations
 
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -77,8 +76,8 @@ def main() -> int:
         feeds = {INPUT_IMAGES: images, INPUT_CAMERA_VALID: np.ones(images.shape[:2], bool)}
         for threads in args.threads:
             calls = {
-                "whole": partial(create_session(whole, threads=threads).run, None, feeds),
-                "front": partial(create_session(front, threads=threads).run, None, {INPUT_IMAGES: images}),
+                "whole": harness.session_call(create_session(whole, threads=threads), feeds),
+                "front": harness.session_call(create_session(front, threads=threads), {INPUT_IMAGES: images}),
             }
             times = harness.alternate(calls, rounds=rounds, repeat=repeat)
             rows.append(

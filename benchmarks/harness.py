@@ -122,6 +122,18 @@ def alternate(
     return {name: Stats(tuple(t for chunk in chunks for t in chunk)) for name, chunks in blocks.items()}
 
 
+def session_call(session: Any, feeds: Mapping[str, np.ndarray]) -> Callable[[], object]:
+    """One run of an ONNX Runtime session on ``feeds`` as ``Detector`` runs it: denormal floats flushed to zero on the
+    calling thread (``fisheye_infer.runtime.denormals``)."""
+    from fisheye_infer.runtime.denormals import flushed_denormals
+
+    def run() -> object:
+        with flushed_denormals():
+            return session.run(None, dict(feeds))
+
+    return run
+
+
 def measure(fn: Callable[[], object], repeat: int, warmup: int = 1, sync: Callable[[], object] = lambda: None) -> Stats:
     """Milliseconds per call of one function alone: ``warmup`` untimed calls, then ``repeat`` timed ones."""
     return alternate({"": fn}, 1, repeat, warmup, sync=sync)[""]

@@ -17,7 +17,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
-from functools import partial
 from pathlib import Path
 
 import harness
@@ -52,7 +51,7 @@ def against_openvino(stem: str, path: Path, feeds: dict[str, np.ndarray], rounds
     rows: list[dict[str, object]] = []
     for threads in (1, 2):
         calls = {
-            "ONNX Runtime": partial(create_session(path, threads=threads).run, None, feeds),
+            "ONNX Runtime": harness.session_call(create_session(path, threads=threads), feeds),
             "OpenVINO": openvino_call(path, threads, feeds),
         }
         ms = {k: t.median for k, t in harness.alternate(calls, rounds=rounds).items()}

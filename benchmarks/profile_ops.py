@@ -27,6 +27,7 @@ from model_files import MODEL_HELP, model_path
 
 from fisheye_infer.export.exporter import verification_frames
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, read_meta
+from fisheye_infer.runtime.denormals import flushed_denormals
 from fisheye_infer.runtime.session import session_options
 
 Row = dict[str, Any]
@@ -66,8 +67,9 @@ def profile_ort(
     with tempfile.TemporaryDirectory() as tmp:
         options.profile_file_prefix = str(Path(tmp) / "ort")
         session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        for _ in range(runs):
-            outputs = session.run(list(OUTPUTS), feeds)
+        with flushed_denormals():
+            for _ in range(runs):
+                outputs = session.run(list(OUTPUTS), feeds)
         events = json.loads(Path(session.end_profiling()).read_text())
     kernels = [e for e in events if e.get("cat") == "Node" and e["name"].endswith("_kernel_time")]
     last = kernels[-(len(kernels) // runs) :]

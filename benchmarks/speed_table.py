@@ -53,8 +53,8 @@ def main() -> int:
         ms: dict[int, dict[str, float]] = {}
         for threads in (1, 2):
             calls = {
-                "ORT fp32": partial(create_session(fp32, threads=threads).run, None, feeds),
-                "ORT int8": partial(create_session(int8, threads=threads).run, None, feeds),
+                "ORT fp32": harness.session_call(create_session(fp32, threads=threads), feeds),
+                "ORT int8": harness.session_call(create_session(int8, threads=threads), feeds),
                 "OpenVINO fp32": openvino_call(fp32, threads, feeds),
             }
             ms[threads] = {k: t.median for k, t in harness.alternate(calls, rounds=rounds, repeat=repeat).items()}

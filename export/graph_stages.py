@@ -33,6 +33,7 @@ from fisheye_infer.errors import ArtifactError
 from fisheye_infer.geometry.tables import POOL_PREFIX, PREFIX, WARP
 from fisheye_infer.geometry.virtual import VIRTUAL
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES
+from fisheye_infer.runtime.denormals import flushed_denormals
 from fisheye_infer.runtime.session import Provider, open_session
 
 __all__ = ["STAGES", "Stage", "name_nodes", "image_region", "split_stages", "time_stages"]
@@ -198,7 +199,8 @@ def time_stages(
         values = dict(feeds)
         for stage, session in zip(stages, sessions):
             t0 = time.perf_counter()
-            outs = session.run(list(stage.outputs), {k: values[k] for k in stage.inputs})
+            with flushed_denormals():
+                outs = session.run(list(stage.outputs), {k: values[k] for k in stage.inputs})
             dt = (time.perf_counter() - t0) * 1e3
             values.update(zip(stage.outputs, outs))
             if i >= warmup:

@@ -34,9 +34,10 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-import onnxruntime as ort
 
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, Int8Search, Int8Trial, ReducedParityReport
+from fisheye_infer.runtime.denormals import flushed_denormals
+from fisheye_infer.runtime.session import create_session
 from fisheye_infer.tools.cpu import cpu_info
 
 from .graph_stages import name_nodes
@@ -244,24 +245,19 @@ def _best(trials: Sequence[Int8Trial]) -> int:
 def _speedup(fp32_path: Path, int8_path: Path, frame: np.ndarray, threads: int) -> float:
     """fp32 time / int8 time for one frame: the median ratio over ``SPEED_ROUNDS`` alternated runs, after a
     warm-up run of each, at ``threads`` intra-op threads."""
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
-    options.log_severity_level = 3
     feeds = {INPUT_IMAGES: frame, INPUT_CAMERA_VALID: np.ones(frame.shape[:2], bool)}
-    sessions = [
-        ort.InferenceSession(str(p), options, providers=["CPUExecutionProvider"]) for p in (fp32_path, int8_path)
-    ]
-    for session in sessions:
-        session.run(None, feeds)
+    sessions = [create_session(p, threads=threads, providers=["CPUExecutionProvider"]) for p in (fp32_path, int8_path)]
     ratios = []
-    for _ in range(SPEED_ROUNDS):
-        seconds = []
+    with flushed_denormals():
         for session in sessions:
-            began = time.perf_counter()
             session.run(None, feeds)
-            seconds.append(time.perf_counter() - began)
-        ratios.append(seconds[0] / seconds[1])
+        for _ in range(SPEED_ROUNDS):
+            seconds = []
+            for session in sessions:
+                began = time.perf_counter()
+                session.run(None, feeds)
+                seconds.append(time.perf_counter() - began)
+            ratios.append(seconds[0] / seconds[1])
     return float(np.median(ratios))
 
 

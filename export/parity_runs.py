@@ -9,11 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-import onnxruntime as ort
 import torch
 from torch import nn
 
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, RANKING_OUTPUTS
+from fisheye_infer.runtime.denormals import flushed_denormals
+from fisheye_infer.runtime.session import create_session
 
 from .graph import save_model, with_outputs
 
@@ -42,13 +43,10 @@ def run_onnx(
 ) -> Outputs:
     """``outputs`` of the file on the batch, in ONNX Runtime's CPU provider. ``per_frame``: each frame
     run alone (batch 1, as a deployed detector runs; batch-1 memory) in the one session, concatenated."""
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
-    options.log_severity_level = 3
-    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    session = create_session(path, threads=threads, providers=["CPUExecutionProvider"])
     batches = [slice(i, i + 1) for i in range(len(images))] if per_frame else [slice(None)]
-    runs = [session.run(list(outputs), {INPUT_IMAGES: images[b], INPUT_CAMERA_VALID: valid[b]}) for b in batches]
+    with flushed_denormals():
+        runs = [session.run(list(outputs), {INPUT_IMAGES: images[b], INPUT_CAMERA_VALID: valid[b]}) for b in batches]
     return {name: np.concatenate([r[k] for r in runs]) for k, name in enumerate(outputs)}
 
 

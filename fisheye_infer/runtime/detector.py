@@ -29,6 +29,7 @@ import numpy as np
 
 from fisheye_infer.errors import ArtifactError, OptionError
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, METADATA_KEY, OUTPUTS, parse_meta
+from fisheye_infer.runtime.denormals import flushed_denormals
 from fisheye_infer.runtime.detector_interface import DetectorInfo, check_interface, check_output_shapes, describe
 from fisheye_infer.runtime.frame_detector import FrameDetector
 from fisheye_infer.runtime.nms import NmsConfig
@@ -154,5 +155,5 @@ class Detector(FrameDetector):
             self.warmup()
 
     def _run(self, images: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
-        with map_ort_errors(f"model {self.path.name}"):
+        with map_ort_errors(f"model {self.path.name}"), flushed_denormals():
             return self._session.run(list(OUTPUTS), {INPUT_IMAGES: images, INPUT_CAMERA_VALID: valid})

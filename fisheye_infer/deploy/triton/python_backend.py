@@ -25,6 +25,7 @@ import numpy as np
 
 from fisheye_infer.errors import FisheyeInferError, FrameError
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, METADATA_KEY, OUTPUTS, parse_meta
+from fisheye_infer.runtime.denormals import flushed_denormals
 from fisheye_infer.runtime.detector import check_interface
 from fisheye_infer.runtime.session import create_session, map_ort_errors
 
@@ -140,7 +141,7 @@ class TritonPythonModel:
         if accepted:
             feeds = {name: np.concatenate([a[name] for _, a, _ in accepted]) for name in self._shapes}
             try:
-                with map_ort_errors(self._context):
+                with map_ort_errors(self._context), flushed_denormals():
                     outputs = self._session.run(list(OUTPUTS), feeds)
             except FisheyeInferError as exc:
                 for i, _, _ in accepted:
