@@ -136,6 +136,12 @@ class TrackOut(DetectionOut):
     vx: float
     vy: float
     age: int = Field(description="frames since the track started")
+    position_covariance: list[list[float]] | None = Field(
+        default=None, description="2x2 covariance of the bird's-eye-view centre (m^2, ego frame)"
+    )
+    velocity_covariance: list[list[float]] | None = Field(
+        default=None, description="2x2 covariance of the velocity ((m/s)^2, ego frame)"
+    )
 
 
 class StreamResult(DetectResponse):

@@ -6,7 +6,9 @@
 Each track becomes a ``TrackedObject``: its id as a ``unique_identifier_msgs/UUID`` (uuid5 of the track id, so the
 same track keeps the same UUID in every message and every replay), its score as the existence probability, its class
 as Autoware's label, its gravity centre and yaw as the pose, its velocity over ground turned into the box's own axes
-as the twist (Autoware's convention: x along the box's heading), and its box as a ``BOUNDING_BOX`` shape.
+as the twist (Autoware's convention: x along the box's heading), and its box as a ``BOUNDING_BOX`` shape. The
+pose's and the twist's covariances hold the tracker's bird's-eye-view covariances of the centre and of the
+velocity (the twist's in the box's axes), the other entries 0; all 0 for a tracker that keeps none.
 """
 
 from __future__ import annotations
@@ -86,8 +88,9 @@ def tracked_objects(tracks: Tracks, stamp: int, frame_id: str, store: Any) -> An
         frame_id=frame_id,
     )
     q = yaw_to_quaternion(tracks.boxes[:, 6].astype(np.float64))  # (w, x, y, z)
+    pose_cov, twist_cov = _covariances(tracks)
     objects = []
-    for track_id, c, r, box, v, score, label in zip(
+    for track_id, c, r, box, v, score, label, pc, tc in zip(
         tracks.ids.tolist(),
         centres(tracks.boxes).tolist(),
         q.tolist(),
@@ -95,6 +98,8 @@ def tracked_objects(tracks: Tracks, stamp: int, frame_id: str, store: Any) -> An
         tracks.velocities.astype(np.float64),
         tracks.scores.tolist(),
         tracks.labels.tolist(),
+        pose_cov,
+        twist_cov,
     ):
         yaw = float(box[6])
         along = float(np.cos(yaw) * v[0] + np.sin(yaw) * v[1])  # R(-yaw) (vx, vy): the box's own axes
@@ -104,12 +109,12 @@ def tracked_objects(tracks: Tracks, stamp: int, frame_id: str, store: Any) -> An
                 pose=pose(
                     position=point(x=c[0], y=c[1], z=c[2]), orientation=quaternion(x=r[1], y=r[2], z=r[3], w=r[0])
                 ),
-                covariance=np.zeros(36, np.float64),
+                covariance=pc,
             ),
             orientation_availability=2,
             twist_with_covariance=t["geometry_msgs/msg/TwistWithCovariance"](
                 twist=twist(linear=vector(x=along, y=across, z=0.0), angular=vector(x=0.0, y=0.0, z=0.0)),
-                covariance=np.zeros(36, np.float64),
+                covariance=tc,
             ),
             acceleration_with_covariance=t["geometry_msgs/msg/AccelWithCovariance"](
                 accel=accel(linear=vector(x=0.0, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=0.0)),
@@ -135,3 +140,17 @@ def tracked_objects(tracks: Tracks, stamp: int, frame_id: str, store: Any) -> An
             )
         )
     return t[TRACKED_OBJECTS](header=header, objects=objects)
+
+
+def _covariances(tracks: Tracks) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 36) row-major 6x6 covariances of each pose (x, y in the boxes' frame) and twist (linear x, y in the box's
+    own axes, as the twist is given), the rest 0; all 0 where the tracker keeps none."""
+    k = len(tracks)
+    pose, twist = np.zeros((k, 6, 6)), np.zeros((k, 6, 6))
+    if tracks.position_covariances is not None and tracks.velocity_covariances is not None:
+        yaw = tracks.boxes[:, 6].astype(np.float64)
+        c, s = np.cos(yaw), np.sin(yaw)
+        to_box = np.stack([np.column_stack([c, s]), np.column_stack([-s, c])], axis=1)  # R(-yaw), (K, 2, 2)
+        pose[:, :2, :2] = tracks.position_covariances
+        twist[:, :2, :2] = to_box @ tracks.velocity_covariances.astype(np.float64) @ to_box.transpose(0, 2, 1)
+    return pose.reshape(k, 36), twist.reshape(k, 36)

@@ -3,6 +3,7 @@
     world = to_world(boxes, pose)              # (K, 7) ego boxes -> world boxes
     ego = from_world(world, pose)              # and back
     v_ego = velocities_to_ego(v_world, pose)
+    c_ego = covariances_to_ego(c_world, pose)  # (K, 2, 2) bird's-eye-view covariances
 
 A pose is a 4x4 ego-to-world matrix (the ego frame is the detections' frame: the lidar frame of
 the dataset). Yaw turns with the pose's heading, the bird's-eye view's rotation about z.
@@ -17,7 +18,7 @@ import numpy as np
 from fisheye_infer.errors import FrameError
 from fisheye_infer.runtime.detections import Detections
 
-__all__ = ["to_world", "from_world", "velocities_to_ego", "check_pose", "check_update"]
+__all__ = ["to_world", "from_world", "velocities_to_ego", "covariances_to_ego", "check_pose", "check_update"]
 
 
 def _heading(pose: np.ndarray) -> float:
@@ -43,6 +44,12 @@ def from_world(boxes: np.ndarray, pose: np.ndarray) -> np.ndarray:
 def velocities_to_ego(velocities: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """(K, 2) world-frame velocities over ground, expressed in the ego frame's axes."""
     return np.asarray(velocities, np.float64).reshape(-1, 2) @ pose[:2, :2]
+
+
+def covariances_to_ego(covariances: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """(K, 2, 2) world-frame bird's-eye-view covariances, expressed in the ego frame's axes."""
+    r = pose[:2, :2]
+    return r.T @ np.asarray(covariances, np.float64).reshape(-1, 2, 2) @ r
 
 
 def check_pose(pose: object) -> np.ndarray:

@@ -5,6 +5,7 @@
     x, p = cv.predict(x, p, dt=0.1)        # all n tracks at once
     x, p = cv.update(x, p, boxes)          # the matched boxes' centres (and yaws, for the turning model)
     cv.still(x, p, level=0.95)             # (n,) bool: velocity within the 95 % confidence region of zero
+    cv.covariances(x, p)                   # (n, 2, 2) of each centre and (n, 2, 2) of each velocity
 
 ``ConstantVelocity`` (pedestrians): state ``x, y, vx, vy``, linear, white-noise acceleration.
 ``ConstantTurnRate`` (vehicles, cyclists; CTRV): state ``x, y, heading, speed, turn rate``, an
@@ -112,6 +113,22 @@ class MotionModel:
         """
         raise NotImplementedError
 
+    def covariances(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The covariances of each state's centre and of its velocity over ground.
+
+        Args:
+            x (np.ndarray): States `(n, d)`.
+            p (np.ndarray): Covariances `(n, d, d)`.
+
+        Returns:
+            tuple[np.ndarray, np.ndarray]: `(n, 2, 2)` of the centre (m^2) and `(n, 2, 2)` of the velocity
+                ((m/s)^2), in the tracking frame's axes.
+        """
+        return p[:, :2, :2].copy(), self._velocity_covariance(x, p)
+
+    def _velocity_covariance(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
     def still(self, x: np.ndarray, p: np.ndarray, level: float) -> np.ndarray:
         """Which states' velocity cannot be told from zero: inside the ``level`` confidence region of their
         estimate (chi-square test on the velocity's Mahalanobis length).
@@ -203,6 +220,9 @@ class ConstantVelocity(MotionModel):
             np.ndarray: `(n, 2)` velocities over ground, m/s.
         """
         return x[:, 2:4].copy()
+
+    def _velocity_covariance(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return p[:, 2:4, 2:4].copy()
 
     def _velocity_test(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, int]:
         v = x[:, 2:4]
@@ -313,6 +333,12 @@ class ConstantTurnRate(MotionModel):
             np.ndarray: `(n, 2)` velocities over ground, m/s.
         """
         return x[:, 3:4] * np.column_stack([np.cos(x[:, 2]), np.sin(x[:, 2])])
+
+    def _velocity_covariance(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        # v = speed * (cos heading, sin heading), to first order in the heading and the speed
+        c, s, speed = np.cos(x[:, 2]), np.sin(x[:, 2]), x[:, 3]
+        j = np.stack([np.column_stack([-speed * s, c]), np.column_stack([speed * c, s])], axis=1)  # (n, 2, 2)
+        return j @ p[:, 2:4, 2:4] @ j.transpose(0, 2, 1)
 
     def _velocity_test(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, int]:
         return x[:, 3] ** 2 / p[:, 3, 3], 1

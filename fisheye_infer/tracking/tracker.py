@@ -26,7 +26,7 @@ association is class-aware, so solving it per class gives the same pairs as solv
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -34,7 +34,14 @@ from fisheye_infer.errors import FrameError
 from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.tracking.associate import assign, centre_cost
 from fisheye_infer.tracking.config import TrackerConfig
-from fisheye_infer.tracking.frames import check_pose, check_update, from_world, to_world, velocities_to_ego
+from fisheye_infer.tracking.frames import (
+    check_pose,
+    check_update,
+    covariances_to_ego,
+    from_world,
+    to_world,
+    velocities_to_ego,
+)
 from fisheye_infer.tracking.motion import MotionModel, wrap_angle
 from fisheye_infer.tracking.tracks import Tracks
 
@@ -287,14 +294,22 @@ class Tracker:
                 if bank.parked_level:
                     v[bank.model.still(bank.x[shown], bank.p[shown], bank.parked_level)] = 0.0
                 score = bank.score[shown] * (1 - self.config.young_weight ** bank.hits[shown])
-                parts.append((bank.ids[shown], box, v, score, np.full(int(shown.sum()), label), bank.age[shown]))
+                label_of = np.full(int(shown.sum()), label)
+                covariances = bank.model.covariances(bank.x[shown], bank.p[shown])
+                parts.append((bank.ids[shown], box, v, score, label_of, bank.age[shown], *covariances))
         if not parts:
-            return Tracks.empty(self._class_names, stamp)
-        ids, boxes, velocities, scores, labels, ages = (np.concatenate(c) for c in zip(*parts))
+            none = np.zeros((0, 2, 2), np.float32)
+            return replace(Tracks.empty(self._class_names, stamp), position_covariances=none, velocity_covariances=none)
+        ids, boxes, velocities, scores, labels, ages, position_cov, velocity_cov = (
+            np.concatenate(c) for c in zip(*parts)
+        )
         order = np.argsort(ids)
-        boxes, velocities = boxes[order], velocities[order]
+        boxes, velocities, position_cov, velocity_cov = (
+            a[order] for a in (boxes, velocities, position_cov, velocity_cov)
+        )
         if pose is not None:
             boxes, velocities = from_world(boxes, pose), velocities_to_ego(velocities, pose)
+            position_cov, velocity_cov = covariances_to_ego(position_cov, pose), covariances_to_ego(velocity_cov, pose)
         boxes[:, 6] = wrap_angle(boxes[:, 6])
         return Tracks(
             ids=ids[order].astype(np.int64),
@@ -305,6 +320,8 @@ class Tracker:
             ages=ages[order].astype(np.int64),
             class_names=self._class_names,
             stamp=stamp,
+            position_covariances=position_cov.astype(np.float32),
+            velocity_covariances=velocity_cov.astype(np.float32),
         )
 
 

@@ -42,6 +42,10 @@ class Tracks:
         ages (np.ndarray): `(K,)` int64 frames since each track was born (0 on its first frame).
         class_names (tuple[str, ...]): Class names, in label order.
         stamp (float): The frame's time, seconds.
+        position_covariances (np.ndarray | None): `(K, 2, 2)` float32 covariance of each bird's-eye-view centre,
+            m^2, in the boxes' frame; None where the tracker keeps none (``GreedyTracker``).
+        velocity_covariances (np.ndarray | None): `(K, 2, 2)` float32 covariance of each velocity, (m/s)^2, in the
+            boxes' frame (the filter's, also where the velocity is reported as 0); None where the tracker keeps none.
 
     Raises:
         ValueError: An array's shape disagrees with ``boxes``.
@@ -55,11 +59,17 @@ class Tracks:
     ages: np.ndarray  # (K,) int64, frames since the track was born (0 on its first frame)
     class_names: tuple[str, ...]
     stamp: float = 0.0
+    position_covariances: np.ndarray | None = None  # (K, 2, 2) float32, m^2
+    velocity_covariances: np.ndarray | None = None  # (K, 2, 2) float32, (m/s)^2
 
     def __post_init__(self) -> None:
         check_boxes(self.boxes)
         k = len(self.boxes)
-        for name, shape in (("ids", (k,)), ("velocities", (k, 2)), ("scores", (k,)), ("labels", (k,)), ("ages", (k,))):
+        shapes = {"ids": (k,), "velocities": (k, 2), "scores": (k,), "labels": (k,), "ages": (k,)}
+        for name in ("position_covariances", "velocity_covariances"):
+            if getattr(self, name) is not None:
+                shapes[name] = (k, 2, 2)
+        for name, shape in shapes.items():
             if np.shape(getattr(self, name)) != shape:
                 raise ValueError(f"{name}: expected shape {shape} to match boxes, got {np.shape(getattr(self, name))}")
 
@@ -87,9 +97,10 @@ class Tracks:
         """Select by integer array, slice or boolean mask; returns a new ``Tracks``."""
         if isinstance(index, (int, np.integer)):
             index = [index]
+        covariances = (c if c is None else c[index] for c in (self.position_covariances, self.velocity_covariances))
         return Tracks(
             self.ids[index], self.boxes[index], self.velocities[index], self.scores[index], self.labels[index],
-            self.ages[index], self.class_names, self.stamp,
+            self.ages[index], self.class_names, self.stamp, *covariances,
         )  # fmt: skip
 
     @property
@@ -137,9 +148,13 @@ class Tracks:
 
         Returns:
             list[dict[str, Any]]: ``track_id, x, y, z_bottom, l, w, h, yaw, vx, vy, score, label, class_name,
-                age`` per track.
+                age, position_covariance, velocity_covariance`` per track (each covariance 2x2 nested lists, or
+                None where the tracker keeps none).
         """
         keys = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
+        k = len(self)
+        position = [None] * k if self.position_covariances is None else self.position_covariances.tolist()
+        velocity = [None] * k if self.velocity_covariances is None else self.velocity_covariances.tolist()
         return [
             {
                 "track_id": int(i),
@@ -150,8 +165,10 @@ class Tracks:
                 "label": int(label),
                 "class_name": self.class_names[label],
                 "age": int(a),
+                "position_covariance": pc,
+                "velocity_covariance": vc,
             }
-            for i, box, v, s, label, a in zip(
-                self.ids, self.boxes, self.velocities, self.scores, self.labels, self.ages
+            for i, box, v, s, label, a, pc, vc in zip(
+                self.ids, self.boxes, self.velocities, self.scores, self.labels, self.ages, position, velocity
             )
         ]

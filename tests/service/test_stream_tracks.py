@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
+import numpy as np
 from service_live import LiveServer
 from websockets.sync.client import connect
 
@@ -33,6 +34,12 @@ def test_each_connection_tracks_on_its_own(server: LiveServer, images: dict[str,
     ages = [sorted(t["age"] for t in answer["tracks"]) for answer in (a[0], a[2], b[0])]
     assert max(ages[1]) == max(ages[0]) + 2  # the first connection's tracks grew two frames older
     assert ages[2] == ages[0]  # the second connection's tracks start afresh: a tracker shared would continue them
+    for track in a[2]["tracks"]:  # each track's velocity with its covariance, certain where seen three times
+        cov = np.array(track["velocity_covariance"])
+        assert cov.shape == (2, 2) and np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) >= 0)
+    oldest = max(a[2]["tracks"], key=lambda t: t["age"])
+    youngest_first = min(a[0]["tracks"], key=lambda t: t["age"])
+    assert np.trace(oldest["velocity_covariance"]) < np.trace(youngest_first["velocity_covariance"])
 
 
 def test_tracks_are_asked_for(server: LiveServer, images: dict[str, bytes]) -> None:
