@@ -152,9 +152,9 @@ class Tracks:
                 None where the tracker keeps none).
         """
         keys = ("x", "y", "z_bottom", "l", "w", "h", "yaw")
-        k = len(self)
-        position = [None] * k if self.position_covariances is None else self.position_covariances.tolist()
-        velocity = [None] * k if self.velocity_covariances is None else self.velocity_covariances.tolist()
+        count = len(self)
+        position = [None] * count if self.position_covariances is None else self.position_covariances.tolist()
+        velocity = [None] * count if self.velocity_covariances is None else self.velocity_covariances.tolist()
         return [
             {
                 "track_id": int(i),
