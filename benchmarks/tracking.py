@@ -19,7 +19,10 @@ CenterPoint's greedy baseline, the tracker on noisy ground truth, velocity error
    tracks within 2 m of a labelled object of their class, vehicles (Car, Van, Truck, Bus) and the rest apart, and
    vehicles' tracks reported 5 times or more;
 4. how each detector's vehicle centres miss their labels (radial and tangential spread, and how long a radial miss
-   lasts: its lag-1 autocorrelation from frame to frame), the noisy ground truth's beside them;
+   lasts: its lag-1 autocorrelation from frame to frame), the noisy ground truth's beside them, and what a perfect
+   tracker could know of the vehicles' velocities from those centres: a straight line fitted to one vehicle's
+   matched centres over the last second (what can be reported at the frame) and over a second either side (a
+   second late), against the labelled velocity;
 5. the time of one ``update`` with 100 detections (100 objects, 10 Hz, in this process's thread), median of 300
    frames;
 6. ``docs/assets/tracking-overlay.png`` (not with ``--quick``): frame 30 of validation sequence 7 (the ego driving
@@ -44,7 +47,7 @@ from fisheye_infer.cameras.rig import Rig
 from fisheye_infer.errors import OptionError
 from fisheye_infer.eval.dataset import Fisheye3DOD
 from fisheye_infer.eval.hota import HOTA_METRICS, evaluate_hota
-from fisheye_infer.eval.sequences import TrackingSequence, read_sequences
+from fisheye_infer.eval.sequences import TrackingFrame, TrackingSequence, read_sequences
 from fisheye_infer.eval.track_run import StreamTracker, run_on, track_sequences
 from fisheye_infer.eval.tracking import SequenceResults, evaluate_tracking
 from fisheye_infer.runtime.records import CLASSES
@@ -117,18 +120,21 @@ def velocity_errors(results: list[SequenceResults], settled: int = 5) -> dict[st
     return out
 
 
-def centre_errors(
-    name: str, detect: Callable[[int], Detections], sequences: list[TrackingSequence], threshold: float
-) -> dict[str, object]:
-    """How a detector's vehicle centres miss their labels, and how long a miss lasts: each labelled vehicle paired
-    with a box of its class at or above ``threshold`` within 3 m (minimum total distance, per frame), the error
-    split along the line of sight from the ego origin (radial) and across it (tangential); the lag-1
-    autocorrelation of an object's radial error between consecutive frames, and the spread of its change from one
-    frame to the next (the part of the error a filter can average out in a few frames)."""
+#: One labelled vehicle's detection at one frame: the frame's number in its sequence, the frame, the detected centre
+#: and the labelled one (x, y, ego frame) and the labelled velocity.
+Sighting = tuple[int, TrackingFrame, np.ndarray, np.ndarray, np.ndarray]
+
+
+def sightings(
+    detect: Callable[[int], Detections], sequences: list[TrackingSequence], threshold: float
+) -> dict[tuple[int, int], list[Sighting]]:
+    """Each labelled vehicle's detections, by (sequence, instance id): per frame, each labelled vehicle paired with a
+    box of its class at or above ``threshold`` within 3 m (minimum total distance), the association a perfect tracker
+    would make."""
     from scipy.optimize import linear_sum_assignment
 
     vehicles = [CLASSES.index(c) for c in VEHICLES]
-    per_object: dict[tuple[int, int], list[tuple[int, float, float]]] = {}
+    per_object: dict[tuple[int, int], list[Sighting]] = {}
     for s, seq in enumerate(sequences):
         for k, f in enumerate(seq.frames):
             d = detect(f.split_index)
@@ -140,12 +146,24 @@ def centre_errors(
             cost = np.where((f.gt_labels[:, None] == labels[None]) & (dist < 3.0), dist, 1e6)
             for i, j in zip(*linear_sum_assignment(cost)):
                 if cost[i, j] < 1e6 and f.gt_labels[i] in vehicles:
-                    sight = f.gt_boxes[i, :2] / np.hypot(*f.gt_boxes[i, :2])
-                    e = boxes[j, :2] - f.gt_boxes[i, :2]
-                    radial, across = float(e @ sight), float(e[1] * sight[0] - e[0] * sight[1])
-                    per_object.setdefault((s, int(f.gt_ids[i])), []).append((k, radial, across))
-    errors = np.array([e for v in per_object.values() for e in v])
-    consecutive = np.array([(a[1], b[1]) for v in per_object.values() for a, b in zip(v, v[1:]) if b[0] == a[0] + 1])
+                    seen = (k, f, boxes[j, :2], f.gt_boxes[i, :2], f.gt_velocities[i])
+                    per_object.setdefault((s, int(f.gt_ids[i])), []).append(seen)
+    return per_object
+
+
+def centre_errors(name: str, per_object: dict[tuple[int, int], list[Sighting]]) -> dict[str, object]:
+    """How a detector's vehicle centres miss their labels (``sightings``), and how long a miss lasts: the error split
+    along the line of sight from the ego origin (radial) and across it (tangential); the lag-1 autocorrelation of an
+    object's radial error between consecutive frames, and the spread of its change from one frame to the next (the
+    part of the error a filter can average out in a few frames)."""
+    split: dict[tuple[int, int], list[tuple[int, float, float]]] = {}
+    for key, seen in per_object.items():
+        for k, _, detected, labelled, _ in seen:
+            sight = labelled / np.hypot(*labelled)
+            e = detected - labelled
+            split.setdefault(key, []).append((k, float(e @ sight), float(e[1] * sight[0] - e[0] * sight[1])))
+    errors = np.array([e for v in split.values() for e in v])
+    consecutive = np.array([(a[1], b[1]) for v in split.values() for a, b in zip(v, v[1:]) if b[0] == a[0] + 1])
     return {
         "detections": name,
         "pairs": len(errors),
@@ -155,6 +173,35 @@ def centre_errors(
         "radial lag-1 autocorrelation": float(np.corrcoef(consecutive.T)[0, 1]),
         "radial change frame to frame, std m": float(np.std(consecutive[:, 1] - consecutive[:, 0])),
     }
+
+
+def fitted_velocity_errors(
+    name: str, per_object: dict[tuple[int, int], list[Sighting]], span: float = 1.0, least: int = 12
+) -> dict[str, object]:
+    """What a perfect tracker could know of vehicles' velocities from these centres: for each vehicle detected at least
+    ``least`` times, at each of its sightings, a straight line fitted (least squares, world frame) to its detected
+    centres over the last ``span`` seconds (causal: what a tracker can report at that frame) and over ``span``
+    seconds either side (centred: ``span`` seconds late), against the labelled velocity; median and mean |error|."""
+    errors: dict[str, list[float]] = {"causal": [], "centred": []}
+    for seen in per_object.values():
+        if len(seen) < least:
+            continue
+        stamps = np.array([f.stamp for _, f, *_ in seen])
+        world = np.array([f.ego_pose[:2, :2] @ detected + f.ego_pose[:2, 3] for _, f, detected, _, _ in seen])
+        truth = np.array([f.ego_pose[:2, :2] @ v for _, f, _, _, v in seen])
+        for m, t in enumerate(stamps):
+            for way, window in (("causal", (t - span, t)), ("centred", (t - span, t + span))):
+                inside = (stamps >= window[0] - 1e-6) & (stamps <= window[1] + 1e-6)
+                if inside.sum() < 3:
+                    continue
+                design = np.column_stack([np.ones(int(inside.sum())), stamps[inside] - t])
+                slope = np.linalg.lstsq(design, world[inside], rcond=None)[0][1]
+                errors[way].append(float(np.hypot(*(slope - truth[m]))))
+    row: dict[str, object] = {"detections": name}
+    for way, values in errors.items():
+        row[f"{way} median m/s"], row[f"{way} mean m/s"] = float(np.median(values)), float(np.mean(values))
+        row[f"{way} n"] = len(values)
+    return row
 
 
 def score(
@@ -229,7 +276,7 @@ def main() -> int:
 
     count, length = (2, 20) if args.quick else (args.sequences, args.length)
     models = MODELS[:1] if args.quick else MODELS
-    rows, timing, errors = [], [], []
+    rows, timing, errors, fitted = [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
@@ -249,7 +296,9 @@ def main() -> int:
             detections = {f.split_index: run(f.split_index) for s in sequences for f in s.frames}
             th = shipped.score_threshold
             config = TrackerConfig(score_threshold=th, low_score=th / 3)
-            errors.append(centre_errors(name, detections.__getitem__, sequences, th))
+            seen = sightings(detections.__getitem__, sequences, th)
+            errors.append(centre_errors(name, seen))
+            fitted.append(fitted_velocity_errors(name, seen))
             rows.append(score(f"{name} + Tracker", detections.__getitem__, sequences, Tracker(config)))
             rows.append(score(f"{name} + greedy", detections.__getitem__, sequences, GreedyTracker(th)))
             turning = Tracker(TrackerConfig(score_threshold=th, low_score=th / 3, classes=TURNING_CLASSES))
@@ -262,7 +311,9 @@ def main() -> int:
                 )
                 print(f"wrote {save_png(PICTURE, picture)}")
         truth = noisy_truth(sequences)
-        errors.append(centre_errors("noisy ground truth", truth.__getitem__, sequences, 0.3))
+        seen = sightings(truth.__getitem__, sequences, 0.3)
+        errors.append(centre_errors("noisy ground truth", seen))
+        fitted.append(fitted_velocity_errors("noisy ground truth", seen))
         rows.append(score("noisy ground truth + Tracker", truth.__getitem__, sequences, Tracker()))
         turning = Tracker(TrackerConfig(classes=TURNING_CLASSES))
         rows.append(score("noisy ground truth + Tracker (turning vehicles)", truth.__getitem__, sequences, turning))
@@ -276,6 +327,7 @@ def main() -> int:
             "Tracking (overall, nuScenes tracking metrics)": rows,
             "AMOTA per class, 0-48 m": per_class,
             "Vehicle centres against their labels (matched within 3 m)": errors,
+            "Vehicle velocities fitted to the matched centres (a perfect tracker's, 1 s of centres)": fitted,
             "Time of one update, 100 detections (single-threaded)": timing,
         },
     )
