@@ -154,10 +154,9 @@ def _matmul_model(kind: str, n: int) -> bytes:
 
 def gemm_peak(threads: int, n: int, repeat: int) -> dict[str, float]:
     """GFLOP/s of square matrix products: numpy, PyTorch, ONNX Runtime MatMul (fp32) and MatMulInteger (int8)."""
-    import onnxruntime as ort
     import torch
 
-    from fisheye_infer.runtime.session import session_options
+    from fisheye_infer.runtime.session import open_session, session_options
 
     rng = np.random.default_rng(0)
     a, b = rng.standard_normal((n, n), np.float32), rng.standard_normal((n, n), np.float32)
@@ -166,9 +165,7 @@ def gemm_peak(threads: int, n: int, repeat: int) -> dict[str, float]:
     fns: dict[str, Callable[[], object]] = {"numpy fp32": lambda: a @ b, "PyTorch fp32": lambda: ta @ tb}
     ints = {"a": rng.integers(0, 255, (n, n), dtype=np.uint8), "b": rng.integers(-127, 127, (n, n), dtype=np.int8)}
     for kind, feeds in (("fp32", {"a": a, "b": b}), ("int8", ints)):
-        sess = ort.InferenceSession(
-            _matmul_model(kind, n), session_options(threads), providers=["CPUExecutionProvider"]
-        )
+        sess = open_session(_matmul_model(kind, n), session_options(threads), ["CPUExecutionProvider"], "GEMM")
         fns[f"ONNX Runtime {kind}"] = harness.session_call(sess, feeds)
     for fn in fns.values():  # first calls allocate
         fn()

@@ -39,7 +39,8 @@ from fisheye_infer.runtime.artifact import (
     ReplayedChoice,
 )
 from fisheye_infer.runtime.box_geometry import box_diff
-from fisheye_infer.runtime.session import Provider, open_session, provider_name, resolve_providers
+from fisheye_infer.runtime.denormals import flushed_denormals
+from fisheye_infer.runtime.session import Provider, open_session, provider_name, resolve_providers, session_options
 
 from .graph import with_outputs
 
@@ -79,11 +80,7 @@ def replay_choice(model: onnx.ModelProto) -> onnx.ModelProto:
 def _session(
     model: onnx.ModelProto, threads: int, providers: Sequence[Provider] = ("CPUExecutionProvider",)
 ) -> ort.InferenceSession:
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
-    options.log_severity_level = 3
-    return open_session(model.SerializeToString(), options, providers, "fp16 parity")
+    return open_session(model.SerializeToString(), session_options(threads), providers, "fp16 parity")
 
 
 def evaluated_with(providers: Sequence[Provider]) -> str:
@@ -100,7 +97,8 @@ def _run(session: ort.InferenceSession, frames: np.ndarray, extra: np.ndarray | 
         feed = {INPUT_IMAGES: frames[i : i + 1], INPUT_CAMERA_VALID: valid[i : i + 1]}
         if extra is not None:
             feed[_INDICES] = extra[i : i + 1]
-        runs.append(session.run(names, feed))
+        with flushed_denormals():
+            runs.append(session.run(names, feed))
     return {name: np.concatenate([r[k] for r in runs]) for k, name in enumerate(names)}
 
 

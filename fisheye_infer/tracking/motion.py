@@ -335,9 +335,11 @@ class ConstantTurnRate(MotionModel):
         return x[:, 3:4] * np.column_stack([np.cos(x[:, 2]), np.sin(x[:, 2])])
 
     def _velocity_covariance(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
-        # v = speed * (cos heading, sin heading), to first order in the heading and the speed
-        c, s, speed = np.cos(x[:, 2]), np.sin(x[:, 2]), x[:, 3]
-        j = np.stack([np.column_stack([-speed * s, c]), np.column_stack([speed * c, s])], axis=1)  # (n, 2, 2)
+        # v = speed * (cos heading, sin heading), to first order in the heading and the speed, the heading's spread
+        # scaled by the root mean square speed (a standing track is unsure across its heading too)
+        c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
+        rms = np.sqrt(x[:, 3] ** 2 + p[:, 3, 3])
+        j = np.stack([np.column_stack([-rms * s, c]), np.column_stack([rms * c, s])], axis=1)  # (n, 2, 2)
         return j @ p[:, 2:4, 2:4] @ j.transpose(0, 2, 1)
 
     def _velocity_test(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, int]:
