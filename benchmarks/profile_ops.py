@@ -28,7 +28,7 @@ from model_files import MODEL_HELP, model_path
 from fisheye_infer.export.exporter import verification_frames
 from fisheye_infer.runtime.artifact import INPUT_CAMERA_VALID, INPUT_IMAGES, OUTPUTS, read_meta
 from fisheye_infer.runtime.denormals import flushed_denormals
-from fisheye_infer.runtime.session import session_options
+from fisheye_infer.runtime.session import open_session, session_options
 
 Row = dict[str, Any]
 
@@ -66,8 +66,8 @@ def profile_ort(
     options.enable_profiling = True
     with tempfile.TemporaryDirectory() as tmp:
         options.profile_file_prefix = str(Path(tmp) / "ort")
-        with flushed_denormals():  # also keeps this thread's floating-point environment through the build
-            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        session = open_session(str(path), options, ["CPUExecutionProvider"], f"model {path}")
+        with flushed_denormals():
             for _ in range(runs):
                 outputs = session.run(list(OUTPUTS), feeds)
         events = json.loads(Path(session.end_profiling()).read_text())

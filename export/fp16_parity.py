@@ -93,11 +93,11 @@ def _run(session: ort.InferenceSession, frames: np.ndarray, extra: np.ndarray | 
     names = [o.name for o in session.get_outputs()]
     valid = np.ones(frames.shape[:2], bool)
     runs = []
-    for i in range(len(frames)):
-        feed = {INPUT_IMAGES: frames[i : i + 1], INPUT_CAMERA_VALID: valid[i : i + 1]}
-        if extra is not None:
-            feed[_INDICES] = extra[i : i + 1]
-        with flushed_denormals():
+    with flushed_denormals():
+        for i in range(len(frames)):
+            feed = {INPUT_IMAGES: frames[i : i + 1], INPUT_CAMERA_VALID: valid[i : i + 1]}
+            if extra is not None:
+                feed[_INDICES] = extra[i : i + 1]
             runs.append(session.run(names, feed))
     return {name: np.concatenate([r[k] for r in runs]) for k, name in enumerate(names)}
 
