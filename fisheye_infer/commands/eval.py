@@ -2,14 +2,15 @@
 
     fisheye-infer eval --results pred.json --ground-truth gt.json --out report.json
     fisheye-infer eval model.onnx --data ROOT --split val [--limit N] [--cameras front,rear] --out report.json
-    fisheye-infer eval model.onnx --data seqs/ --tracking [--track-score 0.3] [--hota] --out report.json
+    fisheye-infer eval model.onnx --data seqs/ --tracking [--track-score 0.3] [--smooth 1] [--hota] --out report.json
 
 Writes the report JSON, a Markdown report beside it (same name, ``.md``) and prints the tables.
 The model form runs the ONNX runtime ``Detector`` on every frame of the split and evaluates its
 unthresholded output, as the official numbers are computed. With ``--tracking`` it runs the detector and
 a ``Tracker`` over each sequence of the split (``fisheye-infer synth --sequences``) and reports
 nuScenes' tracking metrics (AMOTA, AMOTP, MOTA, MOTP, IDS, FRAG, recall) at 0-30 and 0-48 m, and with
-``--hota`` TrackEval's HOTA, DetA, AssA and LocA.
+``--hota`` TrackEval's HOTA, DetA, AssA and LocA. ``--smooth`` re-fits the saved tracks' velocities from the
+frames either side (``smooth_velocities``).
 """
 
 from __future__ import annotations
@@ -66,6 +67,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--track-low",
         type=float,
         help="score from which detections keep tracks alive (default: a third of --track-score)",
+    )
+    track.add_argument(
+        "--smooth",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="fit each track's velocities after the fact to its detections SECONDS either side, for the saved "
+        "results (offline: smooth_velocities); default 0: the tracker's own, as reported online",
     )
     track.add_argument(
         "--hota",
@@ -129,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail("a MODEL needs --data ROOT (a Fisheye3DOD-layout folder)")
     if args.tracking:
         return _run_tracking(args, config)
+    if args.smooth:
+        return _fail("--smooth fits tracks' velocities; it goes with --tracking")
     from fisheye_infer.eval.dataset import Fisheye3DOD, camera_name
     from fisheye_infer.runtime.detector import Detector
 
@@ -165,6 +176,8 @@ def _run_tracking(args: argparse.Namespace, config: EvalConfig) -> int:
 
     if args.limit is not None:
         return _fail("--limit cuts sequences short; choose whole sequences with --scenes")
+    if not 0 <= args.smooth < float("inf"):
+        return _fail(f"--smooth: expected seconds >= 0, got {args.smooth}")
     if args.hota:
         hota_metric()  # before the detector runs: refuses where TrackEval is not installed
     low = args.track_low if args.track_low is not None else args.track_score / 3
@@ -178,7 +191,7 @@ def _run_tracking(args: argparse.Namespace, config: EvalConfig) -> int:
     dataset = Fisheye3DOD(args.data, args.split, cameras=cameras, scenes=args.scenes, class_names=config.class_names)
     sequences = read_sequences(args.data, args.split, config.class_names, scenes=args.scenes)
     bar = Progress(sum(len(s.frames) for s in sequences))
-    results = track_sequences(run_on(detector, dataset), sequences, tracker, progress=bar.update)
+    results = track_sequences(run_on(detector, dataset), sequences, tracker, progress=bar.update, smooth=args.smooth)
     if args.save_results:
         path = Path(args.save_results)
         meta = {"model": str(args.model), "data": str(args.data), "split": args.split, "cameras": cameras}

@@ -22,6 +22,7 @@ from fisheye_infer.eval.tracking import SequenceResults
 from fisheye_infer.runtime.detections import Detections
 from fisheye_infer.runtime.detector import Detector
 from fisheye_infer.runtime.records import boxes_to_records
+from fisheye_infer.tracking.smoothing import smooth_velocities
 from fisheye_infer.tracking.tracks import Tracks
 
 __all__ = ["StreamTracker", "ground_truth_records", "run_on", "track_sequences"]
@@ -54,6 +55,7 @@ def track_sequences(
     sequences: Sequence[TrackingSequence],
     tracker: StreamTracker,
     progress: Callable[[int], None] | None = None,
+    smooth: float = 0.0,
 ) -> list[SequenceResults]:
     """Detections and tracks of every frame of ``sequences``, with the ground truth, for ``evaluate_tracking``.
 
@@ -63,6 +65,8 @@ def track_sequences(
         sequences (Sequence[TrackingSequence]): The split's sequences (``read_sequences``).
         tracker (StreamTracker): Reset at each sequence.
         progress (Callable[[int], None] | None): Called with the count of frames done.
+        smooth (float): > 0: each sequence's velocities fitted after the fact, to each track's centres this many
+            seconds either side (``smooth_velocities``); 0: the tracker's own.
 
     Returns:
         list[SequenceResults]: One per sequence.
@@ -70,15 +74,17 @@ def track_sequences(
     out, done = [], 0
     for seq in sequences:
         tracker.reset()
-        gt, pred = [], []
+        gt, history = [], []
         for frame in seq.frames:
             dets = detect(frame.split_index)
-            tracks = tracker.update(dets, frame.stamp, ego_pose=frame.ego_pose)
-            pred.append(tracks.to_nuscenes())
+            history.append(tracker.update(dets, frame.stamp, ego_pose=frame.ego_pose))
             gt.append(ground_truth_records(frame, dets.class_names))
             done += 1
             if progress is not None:
                 progress(done)
         poses = np.stack([f.ego_pose for f in seq.frames])
+        if smooth > 0:
+            history = smooth_velocities(history, list(poses), smooth)
+        pred = [tracks.to_nuscenes() for tracks in history]
         out.append(SequenceResults(seq.name, [f.stamp for f in seq.frames], poses, gt, pred))
     return out

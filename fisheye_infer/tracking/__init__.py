@@ -6,11 +6,14 @@
     detector, tracker = Detector("model.onnx"), Tracker()
     for images, stamp, pose in stream:
         tracks = tracker.update(detector.detect(images), stamp, ego_pose=pose)
+
+``smooth_velocities`` re-fits a finished sequence's velocities from the frames either side (results files).
 """
 
 from fisheye_infer.tracking.config import DEFAULT_CLASSES, TURNING_CLASSES, ClassConfig, TrackerConfig
 from fisheye_infer.tracking.greedy import GreedyTracker
 from fisheye_infer.tracking.motion import ConstantTurnRate, ConstantVelocity, MotionModel
+from fisheye_infer.tracking.smoothing import smooth_velocities
 from fisheye_infer.tracking.tracker import Tracker
 from fisheye_infer.tracking.tracks import Tracks
 
@@ -25,4 +28,5 @@ __all__ = [
     "Tracker",
     "TrackerConfig",
     "Tracks",
+    "smooth_velocities",
 ]

@@ -59,7 +59,7 @@ class _Bank:
     ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     x: np.ndarray = field(init=False)
     p: np.ndarray = field(init=False)
-    box: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))  # smoothed boxes; x, y come from the filter
+    box: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))  # x, y: the last detection's; z, sizes: smoothed
     score: np.ndarray = field(default_factory=lambda: np.zeros(0))
     hits: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     age: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -296,19 +296,25 @@ class Tracker:
                 score = bank.score[shown] * (1 - self.config.young_weight ** bank.hits[shown])
                 label_of = np.full(int(shown.sum()), label)
                 covariances = bank.model.covariances(bank.x[shown], bank.p[shown])
-                parts.append((bank.ids[shown], box, v, score, label_of, bank.age[shown], *covariances))
+                parts.append((bank.ids[shown], box, bank.box[shown], v, score, label_of, bank.age[shown], *covariances))
         if not parts:
             none = np.zeros((0, 2, 2), np.float32)
-            return replace(Tracks.empty(self._class_names, stamp), position_covariances=none, velocity_covariances=none)
-        ids, boxes, velocities, scores, labels, ages, position_cov, velocity_cov = (
+            return replace(
+                Tracks.empty(self._class_names, stamp),
+                position_covariances=none,
+                velocity_covariances=none,
+                detected_centres=np.zeros((0, 2), np.float32),
+            )
+        ids, boxes, detected, velocities, scores, labels, ages, position_cov, velocity_cov = (
             np.concatenate(c) for c in zip(*parts)
         )
         order = np.argsort(ids)
-        boxes, velocities, position_cov, velocity_cov = (
-            a[order] for a in (boxes, velocities, position_cov, velocity_cov)
+        boxes, detected, velocities, position_cov, velocity_cov = (
+            a[order] for a in (boxes, detected, velocities, position_cov, velocity_cov)
         )
         if pose is not None:
-            boxes, velocities = from_world(boxes, pose), velocities_to_ego(velocities, pose)
+            boxes, detected = from_world(boxes, pose), from_world(detected, pose)
+            velocities = velocities_to_ego(velocities, pose)
             position_cov, velocity_cov = covariances_to_ego(position_cov, pose), covariances_to_ego(velocity_cov, pose)
         boxes[:, 6] = wrap_angle(boxes[:, 6])
         return Tracks(
@@ -322,6 +328,7 @@ class Tracker:
             stamp=stamp,
             position_covariances=position_cov.astype(np.float32),
             velocity_covariances=velocity_cov.astype(np.float32),
+            detected_centres=detected[:, :2].astype(np.float32),
         )
 
 

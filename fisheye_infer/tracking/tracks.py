@@ -46,6 +46,9 @@ class Tracks:
             m^2, in the boxes' frame; None where the tracker keeps none (``GreedyTracker``).
         velocity_covariances (np.ndarray | None): `(K, 2, 2)` float32 covariance of each velocity, (m/s)^2, in the
             boxes' frame (the filter's, also where the velocity is reported as 0); None where the tracker keeps none.
+        detected_centres (np.ndarray | None): `(K, 2)` float32 bird's-eye-view centre of the detection each track
+            took at this frame, in the boxes' frame (a ``Tracker``'s boxes hold the filter's centres); None where
+            the boxes' centres are the detections' (``GreedyTracker``).
 
     Raises:
         ValueError: An array's shape disagrees with ``boxes``.
@@ -61,6 +64,7 @@ class Tracks:
     stamp: float = 0.0
     position_covariances: np.ndarray | None = None  # (K, 2, 2) float32, m^2
     velocity_covariances: np.ndarray | None = None  # (K, 2, 2) float32, (m/s)^2
+    detected_centres: np.ndarray | None = None  # (K, 2) float32, m
 
     def __post_init__(self) -> None:
         check_boxes(self.boxes)
@@ -69,6 +73,8 @@ class Tracks:
         for name in ("position_covariances", "velocity_covariances"):
             if getattr(self, name) is not None:
                 shapes[name] = (k, 2, 2)
+        if self.detected_centres is not None:
+            shapes["detected_centres"] = (k, 2)
         for name, shape in shapes.items():
             if np.shape(getattr(self, name)) != shape:
                 raise ValueError(f"{name}: expected shape {shape} to match boxes, got {np.shape(getattr(self, name))}")
@@ -97,10 +103,10 @@ class Tracks:
         """Select by integer array, slice or boolean mask; returns a new ``Tracks``."""
         if isinstance(index, (int, np.integer)):
             index = [index]
-        covariances = (c if c is None else c[index] for c in (self.position_covariances, self.velocity_covariances))
+        optional = (self.position_covariances, self.velocity_covariances, self.detected_centres)
         return Tracks(
             self.ids[index], self.boxes[index], self.velocities[index], self.scores[index], self.labels[index],
-            self.ages[index], self.class_names, self.stamp, *covariances,
+            self.ages[index], self.class_names, self.stamp, *(a if a is None else a[index] for a in optional),
         )  # fmt: skip
 
     @property

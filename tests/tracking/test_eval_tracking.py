@@ -50,3 +50,38 @@ def test_eval_tracking_adds_hota_when_asked(small_export, tmp_path: Path) -> Non
     report = json.loads(out.read_text())
     assert set(report["0-48m"]["hota"]["overall"]) == {"hota", "deta", "assa", "loca"}
     assert "HOTA " in out.with_suffix(".md").read_text()
+
+
+def test_eval_tracking_smooths_the_saved_velocities(small_export, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``--smooth`` changes the saved velocities and nothing the metrics read."""
+    data = tmp_path / "seqs"
+    write_sequences(SyntheticSequences(resized_rig(default_rig(), 0.2), "val", 0, length=8), data, range(1))
+    args = ["eval", str(small_export.onnx), "--data", str(data), "--tracking", "--track-score", "0.05"]
+    saved = {}
+    for smooth in ("0", "0.3"):
+        out = tmp_path / f"report-{smooth}.json"
+        assert (
+            main([*args, "--smooth", smooth, "--out", str(out), "--save-results", str(tmp_path / f"{smooth}.json")])
+            == 0
+        )
+        saved[smooth] = (out.read_text(), json.loads((tmp_path / f"{smooth}.json").read_text())["results"])
+    assert saved["0"][0] == saved["0.3"][0]
+    online = [r for rs in saved["0"][1].values() for r in rs]
+    smoothed = [r for rs in saved["0.3"][1].values() for r in rs]
+    assert [r["translation"] for r in online] == [r["translation"] for r in smoothed]
+    assert [r["velocity"] for r in online] != [r["velocity"] for r in smoothed]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--tracking", "--smooth", "-1"], "--smooth: expected seconds >= 0"),
+        (["--smooth", "1"], "goes with --tracking"),
+    ],
+)
+def test_eval_refuses_a_bad_smooth(  # type: ignore[no-untyped-def]
+    small_export, tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str
+) -> None:
+    args = ["eval", str(small_export.onnx), "--data", str(tmp_path), *extra, "--out", str(tmp_path / "r.json")]
+    assert main(args) == 2
+    assert message in capsys.readouterr().err

@@ -1,0 +1,102 @@
+"""Velocities fitted after the fact: each track's velocity at each frame re-estimated from its detections a span of
+time either side, for results files, labelling and evaluation (what can wait for the frames that follow).
+
+    history = [tracker.update(dets, stamp, ego_pose=pose) for dets, stamp, pose in sequence]
+    smoothed = smooth_velocities(history, poses, span=1.0)
+
+A tracker reports at each frame what the frames before it tell; the velocity of a detector's noisy centres is
+known far better a second later. ``smooth_velocities`` fits a straight line (least squares, world frame) to the
+centres a track took within ``span`` seconds of each of its frames, before and after, and reports its slope with
+the fit's covariance. A frame with fewer than three of its track's centres in reach keeps the tracker's velocity.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from fisheye_infer.tracking.frames import check_pose, covariances_to_ego, to_world, velocities_to_ego
+from fisheye_infer.tracking.tracks import Tracks
+
+__all__ = ["smooth_velocities"]
+
+#: Centres a line is fitted to, at least: two give a slope, a third its spread.
+LEAST_CENTRES = 3
+
+
+def smooth_velocities(
+    history: Sequence[Tracks], poses: Sequence[np.ndarray] | None = None, span: float = 1.0
+) -> list[Tracks]:
+    """Each track's velocity at each frame, fitted to its centres within ``span`` seconds either side.
+
+    Args:
+        history (Sequence[Tracks]): One tracker's reports over a sequence, in time order.
+        poses (Sequence[np.ndarray] | None): The 4x4 ego-to-world pose of each report's frame, as the tracker was
+            given them; None: the ego stood still (tracks in one fixed frame).
+        span (float): Seconds either side of a frame whose centres enter its fit; > 0.
+
+    Returns:
+        list[Tracks]: ``history`` with velocities (and velocity covariances, where the tracker keeps them)
+            re-fitted where a track had at least three centres within ``span`` of the frame (its detections'
+            centres where the tracker reports them, else its boxes'); all else unchanged.
+
+    Raises:
+        ValueError: ``span`` is not positive, the stamps do not increase, or ``poses`` does not match ``history``.
+        FrameError: A pose is not a rigid 4x4 transform.
+    """
+    if not span > 0:
+        raise ValueError(f"span: expected seconds > 0, got {span}")
+    if not history:
+        return []
+    stamps = np.array([t.stamp for t in history], np.float64)
+    if np.any(np.diff(stamps) <= 0):
+        raise ValueError("history: the reports' stamps must increase")
+    if poses is not None and len(poses) != len(history):
+        raise ValueError(f"poses: expected one per report ({len(history)}), got {len(poses)}")
+    frames = [np.eye(4)] * len(history) if poses is None else [check_pose(p) for p in poses]
+    ids = np.concatenate([t.ids for t in history])
+    frame_of = np.repeat(np.arange(len(history)), [len(t) for t in history])
+    row_of = np.concatenate([np.arange(len(t)) for t in history])
+    flat = np.concatenate([_world_centres(t, pose) for t, pose in zip(history, frames)])
+    velocities = [np.array(t.velocities, np.float64) for t in history]
+    covariances = [np.zeros((len(t), 2, 2)) for t in history]
+    fitted = [np.zeros(len(t), bool) for t in history]
+    for track in np.unique(ids):
+        mine = np.flatnonzero(ids == track)
+        t, xy = stamps[frame_of[mine]], flat[mine]
+        for k, row, at in zip(frame_of[mine], row_of[mine], t):
+            near = np.abs(t - at) <= span + 1e-6  # stamps a span apart, within rounding
+            if near.sum() < LEAST_CENTRES:
+                continue
+            slope, covariance = _line(t[near] - at, xy[near])
+            velocities[k][row], covariances[k][row], fitted[k][row] = slope, covariance, True
+    out = []
+    for report, pose, v, c, done in zip(history, frames, velocities, covariances, fitted):
+        v_ego = np.where(done[:, None], velocities_to_ego(v, pose), report.velocities).astype(np.float32)
+        if report.velocity_covariances is None:
+            out.append(replace(report, velocities=v_ego))
+            continue
+        c_ego = np.where(done[:, None, None], covariances_to_ego(c, pose), report.velocity_covariances)
+        out.append(replace(report, velocities=v_ego, velocity_covariances=c_ego.astype(np.float32)))
+    return out
+
+
+def _world_centres(tracks: Tracks, pose: np.ndarray) -> np.ndarray:
+    """(K, 2) world centres of the detections the tracks took (their boxes' where the tracker gives none)."""
+    boxes = np.array(tracks.boxes, np.float64)
+    if tracks.detected_centres is not None:
+        boxes[:, :2] = tracks.detected_centres
+    return to_world(boxes, pose)[:, :2]
+
+
+def _line(dt: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Slope (2,) of the least-squares line through ``xy`` (N, 2) at times ``dt`` (N,), and its (2, 2) covariance
+    from the residuals (both axes pooled, N - 2 degrees of freedom each)."""
+    centred = dt - dt.mean()
+    spread = float(centred @ centred)
+    slope = centred @ (xy - xy.mean(axis=0)) / spread
+    residuals = xy - xy.mean(axis=0) - np.outer(centred, slope)
+    variance = float((residuals**2).sum()) / (2 * (len(dt) - 2))
+    return slope, np.eye(2) * variance / spread
