@@ -29,6 +29,7 @@ GROUPS: dict[str, tuple[str, str]] = {
     "int8_saturation": ("What do int8 and fp16 cost and gain?", "int8: saturated int16 pairs"),
     "openvino_isa": ("What do int8 and fp16 cost and gain?", "int8 with the instruction set capped"),
     "profile_ops": ("Where does the time go?", "Time by operator"),
+    "attention_forms": ("Where does the time go?", "FisheyePETR's attention in other forms"),
     "front_ends": ("Where does the time go?", "The pinhole front end: resize and crop"),
     "spinning": ("How does it scale with threads and processes?", "Worker threads spinning or not"),
     "load_service": ("Serving and scale-out", "The service under load"),

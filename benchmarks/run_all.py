@@ -61,6 +61,7 @@ STEPS = (
     Step("train_step", modules=("torch",)),
     Step("spinning", args=lambda m: [m], quick=lambda m: [m, "--quick"]),
     Step("profile_ops", args=lambda m: [m], quick=lambda m: [m, "--runs", "2"], modules=("onnx",)),
+    Step("attention_forms", modules=("onnx",)),
     Step("int8_saturation", args=lambda m: [m], quick=lambda m: [m], modules=("torch", "onnx")),
     Step(
         "openvino_isa",

@@ -7,7 +7,8 @@ time either side, for results files, labelling and evaluation (what can wait for
 A tracker reports at each frame what the frames before it tell; the velocity of a detector's noisy centres is
 known far better a second later. ``smooth_velocities`` fits a straight line (least squares, world frame) to the
 centres a track took within ``span`` seconds of each of its frames, before and after, and reports its slope with
-the fit's covariance. A frame with fewer than three of its track's centres in reach keeps the tracker's velocity.
+the fit's covariance (where a tracker reported a standing vehicle's velocity as exactly 0 too). A frame with
+fewer than three of its track's centres in reach keeps the tracker's velocity.
 """
 
 from __future__ import annotations
