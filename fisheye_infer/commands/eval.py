@@ -118,6 +118,8 @@ def run(args: argparse.Namespace) -> int:
     from fisheye_infer.eval.evaluate import detect_dataset, evaluate_results, load_results, save_results
 
     config = _config(args)
+    if args.smooth and not args.tracking:
+        return _fail("--smooth fits tracks' velocities; it goes with --tracking")
     if Path(args.out).suffix.lower() == ".md":
         return _fail(f"--out names the report JSON; the Markdown report is written beside it (got {args.out})")
     if args.model is None:
@@ -138,8 +140,6 @@ def run(args: argparse.Namespace) -> int:
         return _fail("a MODEL needs --data ROOT (a Fisheye3DOD-layout folder)")
     if args.tracking:
         return _run_tracking(args, config)
-    if args.smooth:
-        return _fail("--smooth fits tracks' velocities; it goes with --tracking")
     from fisheye_infer.eval.dataset import Fisheye3DOD, camera_name
     from fisheye_infer.runtime.detector import Detector
 

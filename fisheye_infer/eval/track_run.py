@@ -11,6 +11,7 @@ metric reads (``tracking_id`` = the instance id).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
@@ -70,7 +71,12 @@ def track_sequences(
 
     Returns:
         list[SequenceResults]: One per sequence.
+
+    Raises:
+        ValueError: ``smooth`` is not a number of seconds >= 0.
     """
+    if not 0 <= smooth < math.inf:
+        raise ValueError(f"smooth: expected seconds >= 0, got {smooth}")
     out, done = [], 0
     for seq in sequences:
         tracker.reset()

@@ -7,12 +7,14 @@ time either side, for results files, labelling and evaluation (what can wait for
 A tracker reports at each frame what the frames before it tell; the velocity of a detector's noisy centres is
 known far better a second later. ``smooth_velocities`` fits a straight line (least squares, world frame) to the
 centres a track took within ``span`` seconds of each of its frames, before and after, and reports its slope with
-the fit's covariance (where a tracker reported a standing vehicle's velocity as exactly 0 too). A frame with
+the fit's covariance (also where a tracker reported a standing vehicle's velocity as exactly 0). A frame with
 fewer than three of its track's centres in reach keeps the tracker's velocity.
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -41,19 +43,22 @@ def smooth_velocities(
     Returns:
         list[Tracks]: ``history`` with velocities (and velocity covariances, where the tracker keeps them)
             re-fitted where a track had at least three centres within ``span`` of the frame (its detections'
-            centres where the tracker reports them, else its boxes'); all else unchanged.
+            centres where the tracker reports them, else its boxes'); all else unchanged. A fitted velocity is
+            the line's slope, a standing vehicle's too (not the exact 0 a ``Tracker`` reports for it); its
+            covariance is the slope's from the residuals, as if the centres' errors were independent from frame
+            to frame (a detector's that persist make it too small).
 
     Raises:
-        ValueError: ``span`` is not positive, the stamps do not increase, or ``poses`` does not match ``history``.
+        ValueError: ``span`` is not a positive number of seconds, a report is not a ``Tracks`` or repeats an id,
+            the stamps are not finite or do not increase, or ``poses`` does not match ``history``.
         FrameError: A pose is not a rigid 4x4 transform.
     """
-    if not span > 0:
-        raise ValueError(f"span: expected seconds > 0, got {span}")
+    if isinstance(span, bool) or not isinstance(span, numbers.Real) or not 0 < span < math.inf:
+        raise ValueError(f"span: expected seconds > 0, got {span!r}")
+    _check_history(history)
     if not history:
         return []
     stamps = np.array([t.stamp for t in history], np.float64)
-    if np.any(np.diff(stamps) <= 0):
-        raise ValueError("history: the reports' stamps must increase")
     if poses is not None and len(poses) != len(history):
         raise ValueError(f"poses: expected one per report ({len(history)}), got {len(poses)}")
     frames = [np.eye(4)] * len(history) if poses is None else [check_pose(p) for p in poses]
@@ -64,8 +69,8 @@ def smooth_velocities(
     velocities = [np.array(t.velocities, np.float64) for t in history]
     covariances = [np.zeros((len(t), 2, 2)) for t in history]
     fitted = [np.zeros(len(t), bool) for t in history]
-    for track in np.unique(ids):
-        mine = np.flatnonzero(ids == track)
+    order = np.argsort(ids, kind="stable")  # each track's reports together, in time order
+    for mine in np.split(order, np.flatnonzero(np.diff(ids[order])) + 1):
         t, xy = stamps[frame_of[mine]], flat[mine]
         for k, row, at in zip(frame_of[mine], row_of[mine], t):
             near = np.abs(t - at) <= span + 1e-6  # stamps a span apart, within rounding
@@ -84,6 +89,19 @@ def smooth_velocities(
     return out
 
 
+def _check_history(history: Sequence[Tracks]) -> None:
+    """A ``ValueError`` naming the first report that is not a ``Tracks``, repeats an id, or breaks the time order."""
+    last = -math.inf
+    for k, report in enumerate(history):
+        if not isinstance(report, Tracks):
+            raise ValueError(f"history[{k}]: expected a fisheye_infer Tracks, got {type(report).__name__}")
+        if not math.isfinite(report.stamp) or report.stamp <= last:
+            raise ValueError(f"history[{k}]: stamp {report.stamp} s; the reports' stamps must be finite and increase")
+        if len(np.unique(report.ids)) != len(report.ids):
+            raise ValueError(f"history[{k}]: a track id appears twice in one report")
+        last = report.stamp
+
+
 def _world_centres(tracks: Tracks, pose: np.ndarray) -> np.ndarray:
     """(K, 2) world centres of the detections the tracks took (their boxes' where the tracker gives none)."""
     boxes = np.array(tracks.boxes, np.float64)
@@ -93,11 +111,10 @@ def _world_centres(tracks: Tracks, pose: np.ndarray) -> np.ndarray:
 
 
 def _line(dt: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Slope (2,) of the least-squares line through ``xy`` (N, 2) at times ``dt`` (N,), and its (2, 2) covariance
-    from the residuals (both axes pooled, N - 2 degrees of freedom each)."""
+    """Slope (2,) of the least-squares line through ``xy`` (N, 2) at times ``dt`` (N,), and its (2, 2) covariance:
+    the residuals' (N - 2 degrees of freedom) over the times' spread."""
     centred = dt - dt.mean()
     spread = float(centred @ centred)
     slope = centred @ (xy - xy.mean(axis=0)) / spread
     residuals = xy - xy.mean(axis=0) - np.outer(centred, slope)
-    variance = float((residuals**2).sum()) / (2 * (len(dt) - 2))
-    return slope, np.eye(2) * variance / spread
+    return slope, residuals.T @ residuals / (len(dt) - 2) / spread

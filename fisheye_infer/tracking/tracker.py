@@ -59,7 +59,8 @@ class _Bank:
     ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     x: np.ndarray = field(init=False)
     p: np.ndarray = field(init=False)
-    box: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))  # x, y: the last detection's; z, sizes: smoothed
+    # x, y: the last detection's; z and sizes smoothed; yaw: the filter's heading where it has one (_correct)
+    box: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))
     score: np.ndarray = field(default_factory=lambda: np.zeros(0))
     hits: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     age: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))

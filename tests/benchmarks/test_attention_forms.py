@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import onnx
 import onnxruntime as ort
 import pytest
 
@@ -13,6 +14,9 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import attention_forms  # noqa: E402
+
+if onnx.defs.onnx_opset_version() < attention_forms.ATTENTION_OPSET:
+    pytest.skip(f"onnx {onnx.__version__} has no opset {attention_forms.ATTENTION_OPSET}", allow_module_level=True)
 
 
 def _softmax(x: np.ndarray) -> np.ndarray:

@@ -85,3 +85,19 @@ def test_eval_refuses_a_bad_smooth(  # type: ignore[no-untyped-def]
     args = ["eval", str(small_export.onnx), "--data", str(tmp_path), *extra, "--out", str(tmp_path / "r.json")]
     assert main(args) == 2
     assert message in capsys.readouterr().err
+
+
+def test_eval_refuses_smooth_on_saved_results(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = [
+        "eval",
+        "--results",
+        "p.json",
+        "--ground-truth",
+        "g.json",
+        "--smooth",
+        "1",
+        "--out",
+        str(tmp_path / "r.json"),
+    ]
+    assert main(args) == 2
+    assert "--smooth fits tracks' velocities; it goes with --tracking" in capsys.readouterr().err

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -67,6 +68,8 @@ def test_a_straight_path_gives_its_exact_velocity_in_each_frames_axes() -> None:
 
 
 def test_each_velocity_is_the_least_squares_slope_of_its_detections_either_side() -> None:
+    """Against numpy's polyfit of the same centres: the slope, and its covariance from the residuals (both axes'
+    spreads and their correlation, N - 2 degrees of freedom), turned into the frame's axes."""
     history, poses = drive(Tracker(), noise=0.3)
     smoothed = smooth_velocities(history, poses, span=1.0)
     k = 15
@@ -80,9 +83,26 @@ def test_each_velocity_is_the_least_squares_slope_of_its_detections_either_side(
             centres.append(ego[:3, :3] @ local + ego[:3, 3])
             stamps.append(report.stamp)
     assert len(stamps) == 21
-    slope = np.polyfit(np.array(stamps), np.array(centres)[:, :2], 1)[0]
-    np.testing.assert_allclose(smoothed[k].velocities[0], slope @ poses[k][:2, :2], atol=1e-4)
+    t, xy = np.array(stamps), np.array(centres)[:, :2]
+    fit = np.polyfit(t, xy, 1)
+    residuals = xy - (t[:, None] * fit[0] + fit[1])
+    covariance = residuals.T @ residuals / (len(t) - 2) / ((t - t.mean()) ** 2).sum()
+    rotation = poses[k][:2, :2]
+    np.testing.assert_allclose(smoothed[k].velocities[0], fit[0] @ rotation, atol=1e-4)
+    np.testing.assert_allclose(smoothed[k].velocity_covariances[0], rotation.T @ covariance @ rotation, rtol=1e-4)
     assert not np.allclose(smoothed[k].velocities[0], history[k].velocities[0], atol=0.05)
+    assert abs(covariance[0, 1]) > 1e-3  # the two axes' residuals correlate here: a pooled spread would not do
+
+
+def test_a_window_closes_on_stamps_a_span_apart_within_rounding() -> None:
+    """Stamps 0.1 s apart as floats sum them (0.1 + 0.2 = 0.30000000000000004): a span of 0.1 s still reaches both
+    neighbours of a frame."""
+    tracker, history = Tracker(), []
+    for stamp in (0.0, 0.1, 0.1 + 0.2, 0.1 + 0.2 + 0.1):
+        history.append(tracker.update(cars(np.array([[10 + 5.0 * stamp, 2.0]]), np.eye(4)), stamp))
+    smoothed = smooth_velocities(history, span=0.2)
+    np.testing.assert_allclose(smoothed[2].velocities, [[5.0, 0.0]], atol=1e-4)
+    assert not np.array_equal(smoothed[2].velocities, history[2].velocities)
 
 
 def test_smoothing_is_closer_to_the_truth_than_the_filter() -> None:
@@ -142,12 +162,21 @@ def test_without_poses_tracks_are_in_one_fixed_frame() -> None:
     ("call", "message"),
     [
         (lambda h, p: smooth_velocities(h, p, span=0.0), "span: expected seconds > 0"),
-        (lambda h, p: smooth_velocities(h[::-1], p[::-1]), "stamps must increase"),
+        (lambda h, p: smooth_velocities(h, p, span=float("nan")), "span: expected seconds > 0"),
+        (lambda h, p: smooth_velocities(h, p, span="1"), "span: expected seconds > 0"),  # type: ignore[arg-type]
+        (lambda h, p: smooth_velocities(h[::-1], p[::-1]), r"history\[1\]: stamp .* must be finite and increase"),
+        (lambda h, p: smooth_velocities([*h[:2], replace(h[2], stamp=math.nan)], p[:3]), "must be finite"),
+        (
+            lambda h, p: smooth_velocities([*h[:2], {"stamp": 1.0}], p[:3]),
+            r"history\[2\]: expected a .*Tracks, got dict",
+        ),
+        (lambda h, p: smooth_velocities([h[0], h[1][[0, 0]]], p[:2]), r"history\[1\]: a track id appears twice"),
         (lambda h, p: smooth_velocities(h, p[:-1]), "poses: expected one per report"),
     ],
 )
 def test_refusals(call, message: str) -> None:  # type: ignore[no-untyped-def]
     history, poses = drive(Tracker(), noise=0.0, frames=5)
+    assert len(history[1]) == 2
     with pytest.raises(ValueError, match=message):
         call(history, poses)
 
