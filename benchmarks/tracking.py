@@ -57,6 +57,7 @@ from fisheye_infer.scenes.sequences import SyntheticSequences, write_sequences
 from fisheye_infer.tools.track_viz import TrackPaths, draw_tracks
 from fisheye_infer.tools.viz import save_png
 from fisheye_infer.tracking import TURNING_CLASSES
+from fisheye_infer.tracking.smoothing import fit_line
 
 VEHICLES = ("Car", "Van", "Truck", "Bus")
 MODELS = ("fisheye-bevdet-compact", "fisheye-petr-compact")
@@ -198,8 +199,7 @@ def fitted_velocity_errors(
                 inside = (stamps >= window[0] - 1e-6) & (stamps <= window[1] + 1e-6)
                 if inside.sum() < 3:
                     continue
-                design = np.column_stack([np.ones(int(inside.sum())), stamps[inside] - t])
-                slope = np.linalg.lstsq(design, world[inside], rcond=None)[0][1]
+                slope, _ = fit_line(stamps[inside] - t, world[inside])
                 errors[way].append(float(np.hypot(*(slope - truth[m]))))
     row: dict[str, object] = {"detections": name}
     for way, values in errors.items():

@@ -47,9 +47,9 @@ class _Environment(ctypes.Structure):
 def _load_libm() -> ctypes.CDLL | None:
     if sys.platform != "linux" or platform.machine() not in ("x86_64", "AMD64"):
         return None
-    name = ctypes.util.find_library("m")  # glibc's libm; musl keeps the fenv functions in libc, already loaded
+    found = ctypes.util.find_library("m")  # glibc's libm; musl keeps the fenv functions in libc, already loaded
     try:
-        libm = ctypes.CDLL(name) if name else ctypes.CDLL(None)
+        libm = ctypes.CDLL(found) if found else ctypes.CDLL(None)
     except OSError:
         return None
     if not (hasattr(libm, "fegetenv") and hasattr(libm, "fesetenv")):

@@ -23,7 +23,7 @@ import numpy as np
 from fisheye_infer.tracking.frames import check_pose, covariances_to_ego, to_world, velocities_to_ego
 from fisheye_infer.tracking.tracks import Tracks
 
-__all__ = ["smooth_velocities"]
+__all__ = ["fit_line", "smooth_velocities"]
 
 #: Centres a line is fitted to, at least: two give a slope, a third its spread.
 LEAST_CENTRES = 3
@@ -76,7 +76,7 @@ def smooth_velocities(
             near = np.abs(t - at) <= span + 1e-6  # stamps a span apart, within rounding
             if near.sum() < LEAST_CENTRES:
                 continue
-            slope, covariance = _line(t[near] - at, xy[near])
+            slope, covariance = fit_line(t[near] - at, xy[near])
             velocities[k][row], covariances[k][row], fitted[k][row] = slope, covariance, True
     out = []
     for report, pose, v, c, done in zip(history, frames, velocities, covariances, fitted):
@@ -110,9 +110,17 @@ def _world_centres(tracks: Tracks, pose: np.ndarray) -> np.ndarray:
     return to_world(boxes, pose)[:, :2]
 
 
-def _line(dt: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Slope (2,) of the least-squares line through ``xy`` (N, 2) at times ``dt`` (N,), and its (2, 2) covariance:
-    the residuals' (N - 2 degrees of freedom) over the times' spread."""
+def fit_line(dt: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The velocity of a least-squares line through centres, and its covariance.
+
+    Args:
+        dt (np.ndarray): `(N,)` times of the centres, seconds (N >= 3, not all equal).
+        xy (np.ndarray): `(N, 2)` centres, metres.
+
+    Returns:
+        tuple[np.ndarray, np.ndarray]: The slope `(2,)`, m/s, and its `(2, 2)` covariance: the residuals'
+            (N - 2 degrees of freedom) over the times' spread, (m/s)^2.
+    """
     centred = dt - dt.mean()
     spread = float(centred @ centred)
     slope = centred @ (xy - xy.mean(axis=0)) / spread
