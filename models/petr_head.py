@@ -12,7 +12,8 @@ Data path (B batch, N cameras, C = embed_dims, H x W = feature_size, Q = num_que
 
 Everything in ``key_pos`` and ``query_pos`` depends only on calibration and weights. It is
 computed by ``position_embedding()``/``query_positions()`` and cached in non-persistent
-buffers whenever the geometry is set or a state dict is loaded, so a trace sees constants.
+buffers whenever the geometry is set or a state dict is loaded, so a trace sees constants; so
+is the decoder's first self-attention (``PETRTransformer.cache_first_self_attention``).
 Passing ``cam2lidar`` per frame takes the dynamic (numpy, untraceable) path instead.
 """
 
@@ -157,11 +158,13 @@ class FisheyePETRHead(nn.Module):
 
     @torch.no_grad()
     def refresh_embeddings(self) -> None:
-        """Recompute ``key_pos`` and ``query_pos`` from the current weights and geometry."""
+        """Recompute ``key_pos``, ``query_pos`` and the decoder's first self-attention (which reads only weights and
+        ``query_pos``) from the current weights and geometry."""
         pe = self.position_embedding()  # 1 x N x C x H x W
         self.key_pos.copy_(pe.permute(0, 1, 3, 4, 2).reshape(1, -1, self.cfg.embed_dims))
         self.key_mask_flat.copy_(self.key_mask().reshape(1, -1))
         self.query_pos.copy_(self.query_positions())
+        self.transformer.cache_first_self_attention(self.query_pos)
 
     def key_mask(self) -> torch.Tensor:
         """(1, N, H, W) bool: True where the camera's sampled lens validity is not exactly 1.0."""
@@ -260,6 +263,7 @@ class FisheyePETRHead(nn.Module):
         key_bias = key_padding_bias(mask.reshape(mask.shape[0], n * fh * fw))  # B|1 x K
         x = self.input_proj(x.reshape(b * n, c_in, fh, fw))
         memory = x.reshape(b, n, c, fh, fw).permute(0, 1, 3, 4, 2).reshape(b, n * fh * fw, c)
+        cached = positions is None and cam2lidar is None and not self.training
         if positions is not None:
             key_pos, query_pos = positions
         elif cam2lidar is None:
@@ -267,7 +271,7 @@ class FisheyePETRHead(nn.Module):
         else:
             key_pos = self.position_embedding(cam2lidar).permute(0, 1, 3, 4, 2).reshape(-1, n * fh * fw, c)
             query_pos = self.query_positions()
-        return self.transformer(memory, query_pos, key_pos, key_bias, return_intermediate)
+        return self.transformer(memory, query_pos, key_pos, key_bias, return_intermediate, cached)
 
     def predict(self, outs_dec: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Decoder output (..., Q, C) -> class logits (..., Q, K), box preds (..., Q, 8).

@@ -19,7 +19,7 @@ arithmetic.
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, cast
 
 import torch
 import torch.nn.functional as F
@@ -174,12 +174,22 @@ class PETRDecoderLayer(nn.Module):
         key_bias: torch.Tensor | None,
     ) -> torch.Tensor:
         # target B x Q x C; memory B x K x C; query_pos 1|B x Q x C; key_pos 1|B x K x C
-        # self-attention: q = k = t + query_pos, v = t
-        t = self.attentions[0](target, target, target, query_pos, query_pos)
-        t = self.norms[0](t)
-        # cross-attention: q = t + query_pos, k = memory + key_pos, v = memory
-        t = self.attentions[1](t, memory, memory, query_pos, key_pos, key_bias)
-        t = self.norms[1](t)
+        return self.attend_memory(self.attend_self(target, query_pos), memory, query_pos, key_pos, key_bias)
+
+    def attend_self(self, target: torch.Tensor, query_pos: torch.Tensor) -> torch.Tensor:
+        """Self-attention (q = k = target + query_pos, v = target), then the first norm."""
+        return self.norms[0](self.attentions[0](target, target, target, query_pos, query_pos))
+
+    def attend_memory(
+        self,
+        t: torch.Tensor,
+        memory: torch.Tensor,
+        query_pos: torch.Tensor,
+        key_pos: torch.Tensor,
+        key_bias: torch.Tensor | None,
+    ) -> torch.Tensor:
+        """Cross-attention (q = t + query_pos, k = memory + key_pos, v = memory), norm, FFN, norm."""
+        t = self.norms[1](self.attentions[1](t, memory, memory, query_pos, key_pos, key_bias))
         return self.norms[2](self.ffns[0](t))
 
 
@@ -203,12 +213,20 @@ class PETRTransformerDecoder(nn.Module):
         key_pos: torch.Tensor,
         key_bias: torch.Tensor | None,
         return_intermediate: bool = False,
+        self_attended: bool = False,
     ) -> torch.Tensor:
-        """-> B x Q x C (last layer, post-normed) or L x B x Q x C with ``return_intermediate``."""
+        """-> B x Q x C (last layer, post-normed) or L x B x Q x C with ``return_intermediate``.
+
+        ``self_attended``: ``target`` is the first layer's self-attention output (``attend_self``), and the first
+        layer starts at its cross-attention.
+        """
         outs = []
         t = target
-        for layer in self.layers:
-            t = layer(t, memory, query_pos, key_pos, key_bias)
+        for i, layer in enumerate(cast("list[PETRDecoderLayer]", self.layers)):
+            if i == 0 and self_attended:
+                t = layer.attend_memory(t, memory, query_pos, key_pos, key_bias)
+            else:
+                t = layer(t, memory, query_pos, key_pos, key_bias)
             if return_intermediate:
                 outs.append(self.post_norm(t))
         if return_intermediate:
@@ -217,11 +235,34 @@ class PETRTransformerDecoder(nn.Module):
 
 
 class PETRTransformer(nn.Module):
-    """Flattens the camera features into keys (order n, h, w) and runs the decoder from zero targets."""
+    """Flattens the camera features into keys (order n, h, w) and runs the decoder from zero targets.
+
+    The first layer's self-attention of the zero targets reads only weights and the query positions: one (1, Q, C)
+    tensor for every frame. ``cache_first_self_attention`` keeps it in a non-persistent buffer, which an inference
+    with the cached positions reads (``forward(cached=True)``), so an exported graph holds it as a constant and no
+    runtime computes it per frame (on the compact FisheyePETR, 9 of the decoder's 108 softmaxes over 900 x 900 or
+    900 x 1600 logits). Each frame's numbers are those of the decoder run from B x Q x C zeros.
+    """
+
+    # A buffer (``register_buffer``), declared because ``nn.Module.__getattr__`` types it ``Tensor | Module``.
+    first_self_attention: torch.Tensor
 
     def __init__(self, num_layers: int = 6, embed_dims: int = 256, num_heads: int = 8, ffn_dims: int = 2048) -> None:
         super().__init__()
         self.decoder = PETRTransformerDecoder(num_layers, embed_dims, num_heads, ffn_dims)
+        self.register_buffer("first_self_attention", torch.zeros(0), persistent=False)
+
+    def self_attention_of_zero_targets(self, query_pos: torch.Tensor) -> torch.Tensor:
+        """(1, Q, C): the first layer's self-attention of zero targets at ``query_pos`` (Q, C), normed."""
+        zeros = query_pos.new_zeros((1, *query_pos.shape))
+        first = cast(PETRDecoderLayer, self.decoder.layers[0])
+        return first.attend_self(zeros, query_pos.unsqueeze(0))
+
+    @torch.no_grad()
+    def cache_first_self_attention(self, query_pos: torch.Tensor) -> None:
+        """Keep ``self_attention_of_zero_targets(query_pos)`` for ``forward(cached=True)``; call it again whenever the
+        weights or the query positions change."""
+        self.first_self_attention = self.self_attention_of_zero_targets(query_pos)
 
     def forward(
         self,
@@ -230,9 +271,15 @@ class PETRTransformer(nn.Module):
         key_pos: torch.Tensor,
         key_bias: torch.Tensor | None,
         return_intermediate: bool = False,
+        cached: bool = False,
     ) -> torch.Tensor:
-        """memory B x K x C, query_pos Q x C, key_pos 1|B x K x C, key_bias B|1 x K (additive)."""
-        bsz = memory.shape[0]
-        query_pos = query_pos.unsqueeze(0)  # 1 x Q x C
-        target = torch.zeros(bsz, query_pos.shape[1], query_pos.shape[2], dtype=memory.dtype, device=memory.device)
-        return self.decoder(target, memory, query_pos, key_pos, key_bias, return_intermediate)
+        """memory B x K x C, query_pos Q x C, key_pos 1|B x K x C, key_bias B|1 x K (additive).
+
+        ``cached``: the first self-attention is the buffer ``cache_first_self_attention`` filled for these
+        ``query_pos``. Outside training the (1, Q, C) targets broadcast over the batch in the first cross-attention's
+        products and residual; in training they are expanded to the batch for PyTorch's fused attention.
+        """
+        first = self.first_self_attention if cached else self.self_attention_of_zero_targets(query_pos)
+        if self.training:
+            first = first.expand(memory.shape[0], -1, -1)
+        return self.decoder(first, memory, query_pos.unsqueeze(0), key_pos, key_bias, return_intermediate, True)

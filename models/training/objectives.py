@@ -174,7 +174,8 @@ class PETRObjective:
         return {**head.tables(), **_tensors(lenses.tables, device)}, head.trainable_positions(~lenses.inside_lens)
 
     def settle(self) -> None:
-        """The key and query embeddings the inference path caches, from the trained weights."""
+        """The key and query embeddings and the first self-attention the inference path caches, from the trained
+        weights."""
         self.model.pts_bbox_head.refresh_embeddings()
 
 
