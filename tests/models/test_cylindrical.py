@@ -11,6 +11,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import onnx
 import pytest
 import torch
 import torch.nn.functional as F
@@ -200,6 +201,34 @@ def test_model_rectifies_before_normalising(small_models, rig: Rig, fisheye_fram
     black = (raw == 0).all(axis=-1)
     assert black.any()
     np.testing.assert_allclose(x[black], np.broadcast_to(-mean / std, x[black].shape), rtol=1e-6)
+
+
+def test_rectification_is_per_sample_and_gathers_channel_planes(small_exports, rig: Rig) -> None:  # noqa: ANN001
+    """``rectify`` on a batch of two frames is each frame's alone; the exported graph gathers its taps from one plane
+    per channel (GatherElements) and never multiplies the weights in a per-pixel MatMul."""
+    from fisheye_infer.geometry.tables import RECTIFY, camera_taps, taps_index, taps_weight
+    from fisheye_infer.models.cylindrical import rectify
+
+    rng = np.random.default_rng(5)
+    grids = np.stack([rng.uniform(-1.1, 1.1, (6, 8, 2)) for _ in range(2)])
+    taps = camera_taps(grids, 10, 12, prefix=RECTIFY)
+    index, weight = torch.from_numpy(taps.index), torch.from_numpy(taps.weight)
+    frames = torch.from_numpy(rng.integers(0, 256, (2, 2, 10, 12, 3), dtype=np.uint8))
+    both = rectify(frames, index, weight, (6, 8))
+    assert both.shape == (2, 2, 3, 6, 8)
+    for b in range(2):
+        torch.testing.assert_close(both[b : b + 1], rectify(frames[b : b + 1], index, weight, (6, 8)), rtol=0, atol=0)
+    graph = onnx.load(small_exports(BEVDET).onnx).graph
+    readers = [node.op_type for node in graph.node if taps_weight(RECTIFY) in node.input]
+    assert readers and "MatMul" not in readers
+    values, gathers = {taps_index(RECTIFY)}, []  # the index table's way to the gathers that use it
+    for node in graph.node:
+        if node.op_type == "GatherElements" and node.input[1] in values:
+            gathers.append(node.input[0])
+        elif values.intersection(node.input):
+            assert node.op_type != "Gather", "the taps gathered as rows of three values"
+            values.update(node.output)
+    assert len(set(gathers)) == 3  # one channel plane each
 
 
 # -- the released geometry: degrees used as radians --------------------------------------------
