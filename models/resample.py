@@ -7,7 +7,9 @@ that camera's channels of every sample, so each tap gathers one contiguous row a
 own lens's taps; the weighted sum of the four rows is a (1 x 4) @ (4 x K) product per output pixel. The
 result is GridSample's (bilinear, zero padding, ``align_corners=True``) per camera up to float rounding,
 and ONNX Runtime runs these gathers, transposes and MatMul in less time than its GridSample kernel on the
-models' warps.
+models' feature warps. The rectification of raw images reads the same tables by channel planes instead
+([`rectify`][fisheye_infer.models.cylindrical.rectify]): with three values a row, this layout's MatMul is one tiny
+product per output pixel.
 """
 
 from __future__ import annotations
